@@ -1,0 +1,75 @@
+"""JSON Schemas for every YAML file a user writes, and one way to check them.
+
+Editors can use the `.schema.json` files directly (for example with the YAML
+language server's `# yaml-language-server: $schema=` comment).
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+from functools import cache
+from importlib import resources
+from typing import Any
+
+import jsonschema
+from jsonschema.exceptions import ValidationError, best_match
+
+from framework.errors import Finding
+from framework.yamlio import Document
+
+
+@cache
+def schema(name: str) -> dict[str, Any]:
+    """The JSON Schema `framework/schema/<name>.schema.json` as data."""
+    text = resources.files(__package__).joinpath(f"{name}.schema.json").read_text("utf-8")
+    return json.loads(text)
+
+
+@cache
+def _validator(name: str) -> jsonschema.protocols.Validator:
+    spec = schema(name)
+    cls = jsonschema.validators.validator_for(spec)
+    cls.check_schema(spec)
+    return cls(spec)
+
+
+def _explain(error: ValidationError) -> tuple[str, str]:
+    """A one-line message and a hint for one schema violation."""
+    if error.context:
+        error = best_match(error.context)
+    if error.validator == "additionalProperties":
+        allowed = sorted(error.schema.get("properties", {}))
+        extra = sorted(set(error.instance) - set(allowed))
+        close = difflib.get_close_matches(extra[0], allowed, n=1) if extra else []
+        hint = f"did you mean {close[0]!r}?" if close else f"allowed keys: {', '.join(allowed)}"
+        return f"unknown key {', '.join(map(repr, extra))}", hint
+    if error.validator == "required":
+        return error.message.replace("is a required property", "is required"), ""
+    if error.validator in ("minProperties", "maxProperties") and isinstance(error.instance, dict):
+        allowed = sorted(error.schema.get("properties", {}))
+        return ("needs exactly one key" if error.validator == "maxProperties" else "is empty",
+                f"one of: {', '.join(allowed)}" if allowed else "")
+    if error.validator == "pattern":
+        return f"{error.instance!r} is not a valid name here", "use letters, digits and '_'"
+    if error.validator == "type" and isinstance(error.instance, bool):
+        return (f"got the boolean {error.instance}, expected {error.validator_value}",
+                "quote it if you meant text")
+    if error.validator == "enum":
+        return (f"{error.instance!r} is not one of {error.validator_value}", "")
+    return error.message, ""
+
+
+def check(document: Document, name: str) -> list[Finding]:
+    """Every violation of schema `name` in the document, located (empty if valid)."""
+    findings = []
+    for error in _validator(name).iter_errors(document.data):
+        leaf = best_match(error.context) if error.context else error
+        path = list(leaf.absolute_path)
+        if leaf.validator == "additionalProperties" and isinstance(leaf.instance, dict):
+            allowed = leaf.schema.get("properties", {})
+            path += sorted(k for k in leaf.instance if k not in allowed)[:1]
+        message, hint = _explain(error)
+        findings.append(Finding("error", "schema", message, document.location(path), hint))
+    findings.sort(key=lambda f: (f.location.line, f.location.column))
+    return findings
