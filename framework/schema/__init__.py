@@ -34,10 +34,19 @@ def _validator(name: str) -> jsonschema.protocols.Validator:
     return cls(spec)
 
 
+def _leaf(error: ValidationError) -> ValidationError:
+    """The most telling sub-error of a oneOf/anyOf failure: not a bare type mismatch."""
+    while error.context:
+        candidates = [e for e in error.context if e.validator != "type"] or list(error.context)
+        error = max(candidates, key=lambda e: (len(e.absolute_path), e.validator != "oneOf"))
+        if error.validator not in ("oneOf", "anyOf"):
+            break
+    return error if not error.context else best_match(error.context)
+
+
 def _explain(error: ValidationError) -> tuple[str, str]:
     """A one-line message and a hint for one schema violation."""
-    if error.context:
-        error = best_match(error.context)
+    error = _leaf(error)
     if error.validator == "additionalProperties":
         allowed = sorted(error.schema.get("properties", {}))
         extra = sorted(set(error.instance) - set(allowed))
@@ -64,7 +73,7 @@ def check(document: Document, name: str) -> list[Finding]:
     """Every violation of schema `name` in the document, located (empty if valid)."""
     findings = []
     for error in _validator(name).iter_errors(document.data):
-        leaf = best_match(error.context) if error.context else error
+        leaf = _leaf(error)
         path = list(leaf.absolute_path)
         if leaf.validator == "additionalProperties" and isinstance(leaf.instance, dict):
             allowed = leaf.schema.get("properties", {})

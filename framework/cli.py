@@ -1,0 +1,312 @@
+"""The `fw` command: validate, draw and try statecharts (deploy comes with topologies).
+
+Errors are printed as one line each (`file:line:col: path: message`) and
+the exit code says what happened: 0 fine, 1 the input has errors, 2 bad
+command line, 3 an internal error (a bug in fw: please report it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import traceback
+from collections.abc import Sequence
+from typing import Any
+
+from framework.clock import SimulatedClock
+from framework.errors import Finding, FindingsError, FwError
+from framework.statechart.events import Event, Listener, Output
+from framework.statechart.model import CONFIG_DONE, CONFIG_FAILED, State, Transition
+
+EPILOG_VALIDATE = """\
+examples:
+  fw validate statecharts/seeg.yaml
+  fw validate statecharts/*.yaml --topology topologies/seeg.yaml
+  fw validate statecharts/seeg.yaml --json | jq .
+
+Every finding is printed as file:line:col: yaml.path: severity[code]: message (hint: ...).
+Exit code 1 if any file has an error (or a warning, with --strict).
+"""
+
+EPILOG_GRAPH = """\
+examples:
+  fw graph statecharts/seeg.yaml -o seeg.svg
+  fw graph statecharts/seeg.yaml -o seeg.mmd --active System_OK.Moving_Fast
+
+The suffix picks the format: .svg/.png (needs Graphviz `dot`), .dot, .puml (PlantUML),
+.mmd (Mermaid).
+"""
+
+EPILOG_RUN = """\
+Steps the chart on a simulated clock and prints every event, transition, entry, exit and
+output. Each token of --events is one of:
+  NAME                 an event without payload       e_START
+  NAME{json}           an event with a JSON payload   'e_TOK{"tracker": "certus"}'
+  +DURATION            let simulated time pass         +2s  +500ms
+Configuration requests are acknowledged at once with --auto-ack (tags listed in --fail
+get config.failed instead), so a chart that sets up the system can be tried alone.
+
+examples:
+  fw run statecharts/seeg.yaml --auto-ack --events e_START,e_TOK,e_CRITICAL_AREA,e_TARGET
+  fw run statecharts/seeg.yaml --auto-ack --fail setup_trackers
+  fw run statecharts/seeg.yaml --auto-ack -i          (type events, '?' lists them)
+"""
+
+
+def _print_findings(findings: list[Finding], as_json: bool, strict: bool) -> int:
+    failing = {"error", "warning"} if strict else {"error"}
+    if as_json:
+        print(json.dumps([f.as_dict() for f in findings], indent=2))
+    else:
+        for finding in findings:
+            print(finding.one_line())
+    return 1 if any(f.severity in failing for f in findings) else 0
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    """Check chart files statically; print every finding."""
+    from framework.statechart.validator import validate_file
+
+    findings: list[Finding] = []
+    for path in args.files:
+        findings.extend(validate_file(path, args.topology))
+    code = _print_findings(findings, args.json, args.strict)
+    if not args.json:
+        errors = sum(f.severity == "error" for f in findings)
+        warnings = len(findings) - errors
+        verdict = "FAILED" if code else "ok"
+        sys.stdout.flush()
+        print(f"{verdict}: {len(args.files)} file(s), {errors} error(s), {warnings} warning(s)",
+              file=sys.stderr)
+    return code
+
+
+def _load(path: str) -> Any:
+    from framework.statechart.loader import load_statechart
+
+    return load_statechart(path)
+
+
+def cmd_graph(args: argparse.Namespace) -> int:
+    """Draw a chart to a file."""
+    from framework.statechart.export import render
+
+    chart = _load(args.file)
+    active = [p for a in args.active for p in a.split(",") if p]
+    resolved = []
+    for name in active:
+        try:
+            state = chart.state(name)
+        except KeyError:
+            raise FwError(f"--active: unknown state {name!r}") from None
+        resolved.extend(s.path for s in [state, *state.ancestors()] if s.path)
+    out = render(chart, args.output, resolved)
+    print(f"wrote {out}", file=sys.stderr)
+    return 0
+
+
+class _Printer(Listener):
+    """Prints the trace of `fw run` with the simulated time."""
+
+    def __init__(self, clock: SimulatedClock, as_json: bool):
+        self.clock = clock
+        self.as_json = as_json
+
+    def emit(self, kind: str, text: str, **data: Any) -> None:
+        if self.as_json:
+            print(json.dumps({"t": round(self.clock.now(), 6), "kind": kind, **data}))
+        else:
+            print(f"[{self.clock.now():9.3f}] {kind:<10} {text}")
+
+    def on_event(self, event: Event) -> None:
+        payload = f" {json.dumps(event.payload)}" if event.payload else ""
+        self.emit("event", f"{event.name}{payload} ({event.kind})", name=event.name,
+                  payload=event.payload, source=event.kind)
+
+    def on_unhandled(self, event: Event, reason: str) -> None:
+        self.emit("unhandled", f"{event.name}: {reason}", name=event.name, reason=reason)
+
+    def on_transition(self, transition: Transition, event: Event | None) -> None:
+        target = transition.target.path if transition.target is not None else "(internal)"
+        self.emit("transition", f"{transition.source.path} -> {target}",
+                  source=transition.source.path, target=target)
+
+    def on_entry(self, state: State) -> None:
+        self.emit("enter", state.path, state=state.path)
+
+    def on_exit(self, state: State) -> None:
+        self.emit("exit", state.path, state=state.path)
+
+    def on_output(self, output: Output) -> None:
+        what = output.tag or output.event or output.port or output.operation or output.message
+        self.emit("output", f"{output.kind} {what}", output=output.kind, what=what)
+
+    def on_error(self, message: str, event: Event | None) -> None:
+        self.emit("error", message, message=message)
+
+
+def _parse_token(token: str) -> tuple[str, Any]:
+    from framework.statechart.loader import parse_duration
+
+    token = token.strip()
+    if token.startswith("+"):
+        try:
+            return "advance", parse_duration(token[1:])
+        except ValueError as exc:
+            raise FwError(f"--events: {exc}") from None
+    if "{" in token:
+        name, _, rest = token.partition("{")
+        try:
+            payload = json.loads("{" + rest)
+        except json.JSONDecodeError as exc:
+            raise FwError(f"--events: bad JSON payload in {token!r}: {exc.msg}") from None
+        return "event", (name.strip(), payload)
+    return "event", (token, None)
+
+
+def _split_tokens(text: str) -> list[str]:
+    """Split on commas that are not inside a JSON payload."""
+    tokens, depth, current = [], 0, ""
+    for char in text:
+        if char == "," and depth == 0:
+            tokens.append(current)
+            current = ""
+            continue
+        depth += char == "{"
+        depth -= char == "}"
+        current += char
+    tokens.append(current)
+    return [t for t in (t.strip() for t in tokens) if t]
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    """Step a chart on a simulated clock and print its trace."""
+    from framework.statechart.interpreter import Interpreter
+
+    chart = _load(args.file)
+    clock = SimulatedClock()
+    printer = _Printer(clock, args.json)
+    failing = {t for f in args.fail for t in f.split(",") if t}
+    interpreter: Interpreter
+
+    def answer(output: Output) -> None:
+        if output.kind == "configure" and args.auto_ack:
+            if output.tag in failing:
+                interpreter.queue(CONFIG_FAILED, {"tag": output.tag, "reason": "injected by --fail"})
+            else:
+                interpreter.queue(CONFIG_DONE, {"tag": output.tag})
+
+    interpreter = Interpreter(chart, clock, [printer], on_output=answer)
+    interpreter.start()
+
+    def apply(token: str) -> None:
+        kind, value = _parse_token(token)
+        if kind == "advance":
+            interpreter.advance(value)
+        else:
+            interpreter.queue(*value)
+            interpreter.run()
+
+    for token in _split_tokens(args.events or ""):
+        apply(token)
+    if args.interactive:
+        _interactive(interpreter, apply)
+    if not args.json:
+        print(f"active: {', '.join(interpreter.leaves) or '(none)'}"
+              + ("  [finished]" if interpreter.finished else ""))
+    return 0
+
+
+def _interactive(interpreter: Any, apply: Any) -> None:
+    print("type events (NAME, NAME{json}, +2s), '?' for what the chart takes now, 'q' to quit",
+          file=sys.stderr)
+    for line in sys.stdin:
+        line = line.strip()
+        if line in ("q", "quit", "exit"):
+            break
+        if line == "?":
+            taken = sorted({e for path in interpreter.configuration
+                            for t in interpreter.chart.states[path].transitions for e in t.events})
+            print("active:", ", ".join(interpreter.leaves), "| events:", ", ".join(taken))
+            continue
+        try:
+            for token in _split_tokens(line):
+                apply(token)
+        except FwError as exc:
+            print(f"fw: {exc}", file=sys.stderr)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `fw` (also used to render --help in the docs)."""
+    parser = argparse.ArgumentParser(
+        prog="fw",
+        description="fw supervises a semi-autonomous surgical robot: procedures are YAML "
+                    "statecharts, deployments are YAML topologies.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="Run 'fw COMMAND --help' for examples. Docs: docs/statecharts.md",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    raw = argparse.RawDescriptionHelpFormatter
+
+    p = sub.add_parser("validate", help="check statecharts statically (exit 1 on errors)",
+                       epilog=EPILOG_VALIDATE, formatter_class=raw)
+    p.add_argument("files", nargs="+", metavar="FILE", help="statechart YAML file(s)")
+    p.add_argument("--topology", metavar="T",
+                   help="topology YAML whose `configurations:` must define every requested tag")
+    p.add_argument("--json", action="store_true", help="print findings as a JSON list")
+    p.add_argument("--strict", action="store_true", help="fail on warnings too")
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("graph", help="draw a statechart (svg, png, dot, puml, mmd)",
+                       epilog=EPILOG_GRAPH, formatter_class=raw)
+    p.add_argument("file", metavar="FILE")
+    p.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="output file; its suffix picks the format")
+    p.add_argument("--active", action="append", default=[], metavar="STATE[,STATE]",
+                   help="highlight these states (and their parents)")
+    p.set_defaults(func=cmd_graph)
+
+    p = sub.add_parser("run", help="step a statechart on a simulated clock and print the trace",
+                       epilog=EPILOG_RUN, formatter_class=raw)
+    p.add_argument("file", metavar="FILE")
+    p.add_argument("--events", "-e", default="", metavar="LIST",
+                   help="comma-separated events and time steps (see below)")
+    p.add_argument("--interactive", "-i", action="store_true", help="then read events from stdin")
+    p.add_argument("--auto-ack", action="store_true",
+                   help="acknowledge every configuration request at once")
+    p.add_argument("--fail", action="append", default=[], metavar="TAG[,TAG]",
+                   help="with --auto-ack: answer these tags with config.failed")
+    p.add_argument("--json", action="store_true", help="one JSON object per trace line")
+    p.set_defaults(func=cmd_run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the `fw` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except FindingsError as exc:
+        for finding in exc.findings:
+            print(finding.one_line(), file=sys.stderr)
+        return 1
+    except FwError as exc:
+        print(f"fw: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+    except BrokenPipeError:
+        return 0
+    except Exception as exc:  # a bug in fw: one line unless asked for the traceback
+        if os.environ.get("FW_DEBUG"):
+            traceback.print_exc()
+        print(f"fw: internal error: {type(exc).__name__}: {exc} "
+              "(set FW_DEBUG=1 for a traceback and please report it)", file=sys.stderr)
+        return 3
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
