@@ -110,7 +110,7 @@ class _Builder:
     def build(self, node: yaml.Node, path: PathKey) -> Any:
         mark = node.start_mark
         self.marks.setdefault(path, (mark.line + 1, mark.column + 1))
-        if node.tag not in _STANDARD_TAGS and not node.tag.startswith("tag:yaml.org,2002:"):
+        if node.tag not in _STANDARD_TAGS:
             raise self.error(node, path, f"custom YAML tag {node.tag!r} is not allowed")
         if isinstance(node, yaml.ScalarNode):
             return self.scalar(node, path)

@@ -1,0 +1,80 @@
+"""Shared fixtures: write YAML to a temporary file and load it as a chart."""
+
+from __future__ import annotations
+
+import textwrap
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from framework.clock import SimulatedClock
+from framework.statechart.events import Trace
+from framework.statechart.interpreter import Interpreter
+from framework.statechart.loader import load_statechart
+from framework.statechart.model import Statechart
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def write(tmp_path: Path) -> Callable[..., Path]:
+    """Write dedented YAML text to a file under tmp_path and return its path."""
+
+    def _write(text: str, name: str = "chart.yaml") -> Path:
+        path = tmp_path / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(textwrap.dedent(text), encoding="utf-8")
+        return path
+
+    return _write
+
+
+@pytest.fixture
+def chart(write: Callable[..., Path]) -> Callable[..., Statechart]:
+    """Load a chart from YAML text (validated unless validate=False)."""
+
+    def _chart(text: str, validate: bool = True) -> Statechart:
+        return load_statechart(write(text), validate=validate)
+
+    return _chart
+
+
+class Run:
+    """An interpreter on a simulated clock with a trace, for readable tests."""
+
+    def __init__(self, chart: Statechart, auto_ack: bool = False):
+        self.clock = SimulatedClock()
+        self.trace = Trace()
+        self.outputs: list = []
+        self.auto_ack = auto_ack
+        self.interpreter = Interpreter(chart, self.clock, [self.trace], on_output=self._output)
+        self.interpreter.start()
+
+    def _output(self, output) -> None:  # noqa: ANN001
+        self.outputs.append(output)
+        if self.auto_ack and output.kind == "configure":
+            self.interpreter.queue("config.done", {"tag": output.tag})
+
+    def send(self, *events: str | tuple[str, dict]) -> Run:
+        for event in events:
+            name, payload = (event, None) if isinstance(event, str) else event
+            self.interpreter.dispatch(name, payload)
+        return self
+
+    @property
+    def leaves(self) -> list[str]:
+        return self.interpreter.leaves
+
+    def kinds(self, kind: str) -> list[tuple]:
+        return [r for r in self.trace.records if r[0] == kind]
+
+
+@pytest.fixture
+def run(chart: Callable[..., Statechart]) -> Callable[..., Run]:
+    """Start a chart written as YAML text on a simulated clock."""
+
+    def _run(text: str, auto_ack: bool = False, validate: bool = True) -> Run:
+        return Run(chart(text, validate=validate), auto_ack)
+
+    return _run

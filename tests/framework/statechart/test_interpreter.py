@@ -1,0 +1,461 @@
+"""Spec: the interpreter's run-to-completion semantics (docs/statecharts.md, "Semantics")."""
+
+import pytest
+
+from framework.statechart.interpreter import Interpreter, StatechartRuntimeError
+
+NESTED = """
+statechart: nested
+events: {e: null, f: null}
+initial: P
+states:
+  - name: P
+    initial: C
+    entry: [{log: enter P}]
+    exit: [{log: exit P}]
+    states:
+      - name: C
+        initial: L
+        entry: [{log: enter C}]
+        exit: [{log: exit C}]
+        states:
+          - name: L
+            entry: [{log: enter L}]
+            exit: [{log: exit L}]
+            transitions:
+              - {event: e, target: Q, effect: [{log: inner effect}]}
+              - {event: f, target: Q, effect: [{log: inner f}]}
+    transitions:
+      - {event: e, target: Q, effect: [{log: outer effect}]}
+  - name: Q
+    entry: [{log: enter Q}]
+    transitions: [{event: f, target: P}]
+"""
+
+
+def logs(run):
+    return [o.message for o in run.outputs if o.kind == "log"]
+
+
+def test_outer_first_priority_the_transition_closest_to_the_root_wins(run):
+    r = run(NESTED, validate=False)
+    r.send("e")
+    assert "outer effect" in logs(r) and "inner effect" not in logs(r)
+
+
+def test_exit_innermost_first_then_effect_then_entry_outermost_first(run):
+    r = run(NESTED, validate=False)
+    r.outputs.clear()
+    r.send("e")
+    assert logs(r) == ["exit L", "exit C", "exit P", "outer effect", "enter Q"]
+    r.outputs.clear()
+    r.send("f")
+    assert logs(r) == ["enter P", "enter C", "enter L"]
+
+
+def test_inner_transition_fires_when_no_outer_one_is_enabled(run):
+    r = run(NESTED, validate=False)
+    r.send("f")
+    assert "inner f" in logs(r) and r.leaves == ["Q"]
+
+
+def test_priority_then_document_order_inside_one_state(run):
+    r = run("""
+        statechart: p
+        events: {e: null}
+        initial: A
+        states:
+          - name: A
+            transitions:
+              - {event: e, target: B}
+              - {event: e, target: C, priority: 5}
+          - {name: B, transitions: [{event: e, target: A}]}
+          - {name: C, transitions: [{event: e, target: A}]}
+        """, validate=False)
+    r.send("e")
+    assert r.leaves == ["C"]
+
+
+def test_every_event_gets_its_own_step_and_unhandled_ones_are_reported(run):
+    r = run("""
+        statechart: q
+        events: {a: null, b: null}
+        initial: S
+        states:
+          - {name: S, transitions: [{event: a, target: T}]}
+          - {name: T, transitions: [{event: a, target: S}]}
+        """)
+    for name in ["a", "b", "a", "a", "b"]:
+        r.interpreter.queue(name)
+    assert r.interpreter.run() == 5
+    assert [x[1] for x in r.kinds("event")] == ["a", "b", "a", "a", "b"]
+    assert [x[1] for x in r.kinds("unhandled")] == ["b", "b"]
+    assert r.leaves == ["T"]
+
+
+def test_internal_events_are_processed_before_external_ones(run):
+    r = run("""
+        statechart: i
+        events: {go: null, ping: null, other: null}
+        initial: A
+        states:
+          - name: A
+            transitions: [{event: go, target: B, effect: [{raise: ping}]}]
+          - name: B
+            transitions:
+              - {event: ping, target: C}
+              - {event: other, target: A}
+          - name: C
+            transitions: [{event: other, target: A}]
+        """)
+    r.interpreter.queue("go")
+    r.interpreter.queue("other")
+    r.interpreter.run()
+    names = [x[1] for x in r.kinds("event")]
+    assert names == ["go", "ping", "other"] and r.leaves == ["A"]
+
+
+PARALLEL = """
+statechart: par
+events: {e: null, leave: null}
+initial: P
+states:
+  - name: P
+    type: parallel
+    states:
+      - name: R1
+        initial: A1
+        states:
+          - {name: A1, transitions: [{event: e, target: B1}]}
+          - {name: B1, transitions: [{event: leave, target: Out}]}
+      - name: R2
+        initial: A2
+        states:
+          - {name: A2, transitions: [{event: e, target: B2}]}
+          - {name: B2, transitions: [{event: leave, target: A2}]}
+  - name: Out
+    transitions: [{event: e, target: P}]
+"""
+
+
+def test_parallel_regions_all_active_and_each_handles_the_event(run):
+    r = run(PARALLEL, validate=False)
+    assert r.leaves == ["P.R1.A1", "P.R2.A2"]
+    r.send("e")
+    assert r.leaves == ["P.R1.B1", "P.R2.B2"]
+    transitions = [x[1] for x in r.kinds("transition")]
+    assert transitions == ["P.R1.A1", "P.R2.A2"], "region document order"
+
+
+def test_a_region_leaving_the_parallel_state_preempts_later_regions(run):
+    r = run(PARALLEL, validate=False)
+    r.send("e", "leave")
+    assert r.leaves == ["Out"]
+    assert ("transition", "P.R2.B2", "P.R2.A2", "leave") not in r.trace.records
+
+
+def test_entering_a_parallel_state_through_one_region_enters_the_others(run):
+    r = run("""
+        statechart: pe
+        events: {go: null}
+        initial: X
+        states:
+          - {name: X, transitions: [{event: go, target: B2}]}
+          - name: P
+            type: parallel
+            states:
+              - {name: R1, initial: A1, states: [{name: A1}]}
+              - {name: R2, initial: A2, states: [{name: A2}, {name: B2}]}
+        """, validate=False)
+    r.send("go")
+    assert r.leaves == ["P.R1.A1", "P.R2.B2"]
+
+
+HISTORY = """
+statechart: h
+events: {next: null, out: null, back: null, deep: null}
+initial: M
+states:
+  - name: M
+    initial: A
+    states:
+      - {name: H, type: shallow_history}
+      - {name: D, type: deep_history}
+      - {name: A, transitions: [{event: next, target: B}]}
+      - name: B
+        initial: B1
+        states:
+          - {name: B1, transitions: [{event: next, target: B2}]}
+          - {name: B2}
+    transitions: [{event: out, target: Away}]
+  - name: Away
+    transitions:
+      - {event: back, target: M.H}
+      - {event: deep, target: M.D}
+"""
+
+
+def test_shallow_history_resumes_the_last_child_with_its_default_entry(run):
+    r = run(HISTORY, validate=False)
+    r.send("next", "next", "out", "back")
+    assert r.leaves == ["M.B.B1"]
+
+
+def test_deep_history_resumes_the_whole_configuration(run):
+    r = run(HISTORY, validate=False)
+    r.send("next", "next", "out", "deep")
+    assert r.leaves == ["M.B.B2"]
+
+
+def test_history_without_memory_uses_the_default_entry(run):
+    r = run(HISTORY.replace("initial: M", "initial: Away"), validate=False)
+    r.send("deep")
+    assert r.leaves == ["M.A"]
+
+
+JUNCTION = """
+statechart: j
+events: {go: {payload: {n: integer}}}
+initial: A
+states:
+  - name: A
+    transitions: [{event: go, target: J, effect: [{log: t1}]}]
+  - name: J
+    type: junction
+    transitions:
+      - {guard: event.n > 10, target: Big, effect: [{log: big}]}
+      - {guard: event.n > 0, target: Small, effect: [{log: small}]}
+  - {name: Big}
+  - {name: Small}
+"""
+
+
+def test_junction_branches_are_chosen_before_anything_runs(run):
+    r = run(JUNCTION, validate=False)
+    r.send(("go", {"n": 20}))
+    assert r.leaves == ["Big"] and logs(r) == ["t1", "big"]
+
+
+def test_a_blocked_junction_means_the_transition_is_not_enabled(run):
+    r = run(JUNCTION, validate=False)
+    r.send(("go", {"n": -1}))
+    assert r.leaves == ["A"] and logs(r) == []
+    assert r.kinds("unhandled")
+
+
+TIMED = """
+statechart: t
+events: {reset: null}
+initial: A
+states:
+  - name: A
+    transitions: [{after: 2s, target: B}, {event: reset, target: A}]
+  - name: B
+    transitions: [{after: 500ms, target: A}]
+"""
+
+
+def test_time_events_fire_at_their_deadline_on_the_simulated_clock(run):
+    r = run(TIMED)
+    r.interpreter.advance(1.999)
+    assert r.leaves == ["A"]
+    r.interpreter.advance(0.001)
+    assert r.leaves == ["B"]
+    r.interpreter.advance(0.5)
+    assert r.leaves == ["A"] and r.clock.now() == pytest.approx(2.5)
+
+
+def test_time_events_restart_when_the_state_is_reentered(run):
+    r = run(TIMED)
+    r.interpreter.advance(1.5)
+    r.send("reset")
+    r.interpreter.advance(1.5)
+    assert r.leaves == ["A"], "the 2 s count restarted at t=1.5"
+    r.interpreter.advance(0.5)
+    assert r.leaves == ["B"]
+
+
+def test_advancing_far_fires_chained_time_events_in_order(run):
+    r = run(TIMED)
+    r.interpreter.advance(9.9)
+    # A->B at 2, B->A at 2.5, A->B at 4.5, B->A at 5, A->B at 7, B->A at 7.5, A->B at 9.5
+    assert r.leaves == ["B"]
+    assert len(r.kinds("transition")) == 7
+    r.interpreter.advance(0.1)  # a deadline equal to the target time fires
+    assert r.leaves == ["A"]
+
+
+def test_configure_requests_the_tag_and_completes_only_on_its_ack(run):
+    r = run(CONFIG_OK)
+    assert [o.tag for o in r.outputs if o.kind == "configure"] == ["setup"]
+    assert r.leaves == ["Top.A"] and r.interpreter.variables["done"] == 0
+    r.send(("config.done", {"tag": "other"}))
+    assert r.leaves == ["Top.A"]
+    r.send(("config.done", {"tag": "setup"}))
+    assert r.leaves == ["Top.B"] and r.interpreter.variables["done"] == 1
+
+
+def test_a_configuration_timeout_raises_config_failed(run):
+    r = run(CONFIG_OK)
+    r.interpreter.advance(3.0)
+    assert r.leaves == ["Failed"]
+    failed = [x for x in r.kinds("event") if x[1] == "config.failed"]
+    assert failed and failed[0][2]["tag"] == "setup" and "3 s" in failed[0][2]["reason"]
+
+
+def test_a_late_ack_after_leaving_is_reported_not_lost(run):
+    r = run(CONFIG_OK)
+    r.interpreter.advance(3.0)
+    r.send(("config.done", {"tag": "setup"}))
+    assert r.kinds("unhandled")[-1][1] == "config.done"
+
+
+CONFIG_OK = """
+statechart: c
+events: {go: null}
+variables: {done: 0}
+initial: Top
+states:
+  - name: Top
+    initial: A
+    states:
+      - name: A
+        configure: {tag: setup, timeout: 3s}
+        do: [{set: {done: "= done + 1"}}]
+        transitions: [{target: B}]
+      - {name: B, transitions: [{event: go, target: A}]}
+    transitions: [{event: config.failed, target: Failed}]
+  - name: Failed
+    transitions: [{event: go, target: Top}]
+"""
+
+
+def test_completion_of_a_composite_when_its_final_child_is_reached(run):
+    r = run("""
+        statechart: f
+        events: {go: null}
+        initial: C
+        states:
+          - name: C
+            initial: X
+            states:
+              - {name: X, transitions: [{event: go, target: End}]}
+              - {name: End, type: final}
+            transitions: [{target: After}]
+          - {name: After, type: final}
+        """)
+    assert not r.interpreter.finished
+    r.send("go")
+    assert r.leaves == ["After"] and r.interpreter.finished
+    r.send("go")
+    assert r.kinds("unhandled")[-1] == ("unhandled", "go", "the chart has finished")
+
+
+def test_internal_transitions_do_not_exit_or_enter(run):
+    r = run("""
+        statechart: it
+        events: {tick: null}
+        variables: {n: 0}
+        initial: A
+        states:
+          - name: A
+            exit: [{log: exit}]
+            transitions:
+              - {event: tick, effect: [{set: {n: "= n + 1"}}]}
+        """, validate=False)
+    r.send("tick", "tick")
+    assert r.interpreter.variables["n"] == 2 and logs(r) == []
+
+
+def test_local_transition_to_a_descendant_keeps_the_composite_self_transition_does_not(run):
+    r = run("""
+        statechart: lo
+        events: {down: null, self: null}
+        initial: C
+        states:
+          - name: C
+            initial: X
+            exit: [{log: exit C}]
+            states: [{name: X}, {name: Y}]
+            transitions:
+              - {event: down, target: Y}
+              - {event: self, target: C}
+        """, validate=False)
+    r.send("down")
+    assert r.leaves == ["C.Y"] and "exit C" not in logs(r)
+    r.send("self")
+    assert r.leaves == ["C.X"] and "exit C" in logs(r)
+
+
+def test_a_failing_guard_is_reported_and_treated_as_false(run):
+    r = run("""
+        statechart: g
+        events: {e: {payload: {x: number}}}
+        initial: A
+        states:
+          - {name: A, transitions: [{event: e, guard: event.x > 1, target: B}]}
+          - {name: B}
+        """, validate=False)
+    r.send("e")
+    assert r.leaves == ["A"] and r.kinds("error") and r.kinds("unhandled")
+
+
+def test_actions_reach_the_host_as_outputs(run):
+    r = run("""
+        statechart: o
+        events: {e: {payload: {v: number}}, out: null}
+        variables: {k: 2}
+        initial: A
+        states:
+          - name: A
+            transitions:
+              - event: e
+                effect:
+                  - send: {event: out, payload: {v: "= event.v * k"}}
+                  - write: {port: speed, value: "= event.v"}
+                  - call: {operation: robot.brake, args: {hard: true}}
+                  - configure: extra
+        """, validate=False)
+    r.send(("e", {"v": 1.5}))
+    kinds = {o.kind: o for o in r.outputs}
+    assert kinds["send"].payload == {"v": 3.0}
+    assert kinds["write"].port == "speed" and kinds["write"].value == 1.5
+    assert kinds["call"].operation == "robot.brake" and kinds["call"].args == {"hard": True}
+    assert kinds["configure"].tag == "extra"
+    r.send(("config.done", {"tag": "extra"}))
+    assert not r.kinds("unhandled"), "the ack of an action-level configure is consumed"
+
+
+def test_snapshot_restore_continues_identically(chart):
+    from framework.clock import SimulatedClock
+    from framework.statechart.events import Trace
+
+    c = chart(HISTORY, validate=False)
+    a = Interpreter(c, SimulatedClock())
+    a.start()
+    for e in ["next", "out"]:
+        a.dispatch(e)
+    snap = a.snapshot()
+    b = Interpreter(c, SimulatedClock())
+    b.restore(snap)
+    ta, tb = Trace(), Trace()
+    a.listeners.append(ta)
+    b.listeners.append(tb)
+    for e in ["deep", "out", "back", "next"]:
+        a.dispatch(e)
+        b.dispatch(e)
+    assert ta.records == tb.records and a.configuration == b.configuration
+
+
+def test_misuse_is_a_clear_error(chart):
+    c = chart(TIMED)
+    i = Interpreter(c)
+    with pytest.raises(StatechartRuntimeError, match="start"):
+        i.step()
+    i.start()
+    with pytest.raises(StatechartRuntimeError, match="already started"):
+        i.start()
+    with pytest.raises(StatechartRuntimeError, match="SimulatedClock"):
+        i.advance(1)
+    with pytest.raises(StatechartRuntimeError, match="fresh"):
+        i.restore(i.snapshot())
