@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from framework import schema
-from framework.errors import Finding, FindingsError, Location
+from framework.errors import Finding, FindingsError, FwError, Location
 from framework.statechart.expressions import ExpressionError, compile_expression
 from framework.statechart.model import (
     Action,
@@ -27,7 +27,7 @@ from framework.statechart.model import (
     Value,
     VariableSpec,
 )
-from framework.yamlio import Document, PathKey, load_yaml
+from framework.yamlio import Document, PathKey, load_yaml, load_yaml_text
 
 _DURATION = re.compile(r"^\s*([0-9]+(?:\.[0-9]*)?)\s*(ms|s|min|h)?\s*$")
 _UNIT = {"ms": 1e-3, "s": 1.0, "min": 60.0, "h": 3600.0, None: 1.0}
@@ -62,18 +62,16 @@ class _Builder:
         self.findings.append(Finding("error", code, message, location, hint))
 
     # -- documents -------------------------------------------------------------------
-    def read(self, path: Path, include_chain: tuple[str, ...], at: Location | None) -> Document | None:
+    def read(self, path: Path, include_chain: tuple[str, ...], at: Location | None,
+             text: str | None = None) -> Document | None:
         resolved = str(path.resolve())
         if resolved in include_chain:
             cycle = " -> ".join([*include_chain, resolved])
             self.error("include-cycle", f"include cycle: {cycle}", at or Location(str(path)))
             return None
         try:
-            doc = load_yaml(path)
-        except FindingsError as exc:  # pragma: no cover - load_yaml raises YamlError
-            self.findings.extend(exc.findings)
-            return None
-        except Exception as exc:  # YamlError and friends
+            doc = load_yaml(path) if text is None else load_yaml_text(text, str(path))
+        except FwError as exc:  # YamlError and friends
             location = getattr(exc, "location", Location(str(path)))
             if at is not None and getattr(location, "line", 0) == 0:
                 location = at
@@ -306,6 +304,11 @@ class _Builder:
 
     def resolve_all(self, chart: Statechart, safe_loc: Location | None) -> None:
         for what, owner, ref, loc in self.pending_refs:
+            if what == "initial":  # a direct child by that name comes first
+                child = next((c for c in owner.children if c.name == ref), None)
+                if child is not None:
+                    owner.initial = child
+                    continue
             scope = owner.source.scope if isinstance(owner, Transition) else owner.scope
             setattr(owner, what, self.resolve(ref, scope, loc))
         if chart.safe_state_ref is not None:
@@ -330,11 +333,13 @@ def _is_type(value: Any, vtype: str) -> bool:
     return isinstance(value, _TYPES[vtype])
 
 
-def build_statechart(path: str | Path) -> tuple[Statechart | None, list[Finding]]:
-    """Load a chart file; return the model (None if it cannot be built) and all findings."""
+def build_statechart(path: str | Path, text: str | None = None
+                     ) -> tuple[Statechart | None, list[Finding]]:
+    """Load a chart file (or `text` named `path`); return the model (None if it cannot be
+    built) and all findings."""
     builder = _Builder()
     file = Path(path)
-    doc = builder.read(file, (), None)
+    doc = builder.read(file, (), None, text)
     if doc is None:
         return None, builder.findings
     data = doc.data
@@ -362,9 +367,10 @@ def build_statechart(path: str | Path) -> tuple[Statechart | None, list[Finding]
     return chart, builder.findings
 
 
-def load_statechart(path: str | Path, validate: bool = True) -> Statechart:
+def load_statechart(path: str | Path, validate: bool = True, text: str | None = None
+                    ) -> Statechart:
     """Load (and by default validate) a chart; raise `FindingsError` listing every error."""
-    chart, findings = build_statechart(path)
+    chart, findings = build_statechart(path, text)
     errors = [f for f in findings if f.severity == "error"]
     if chart is None or errors:
         raise FindingsError(findings)

@@ -1,0 +1,107 @@
+"""Spec: the `fw` command teaches, answers in one line per problem, and sets exit codes."""
+
+import json
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+from framework.cli import main
+
+from tests.conftest import REPO
+
+SEEG = str(REPO / "statecharts" / "seeg.yaml")
+
+
+def test_validate_ok(capsys):
+    assert main(["validate", SEEG]) == 0
+    assert "ok: 1 file(s), 0 error(s)" in capsys.readouterr().err
+
+
+def test_validate_reports_every_error_and_exits_1(write, capsys):
+    path = write("statechart: s\ninitial: Idel\nstates:\n  - {name: Idle, transitions: "
+                 "[{event: e, target: Movng}]}\n")
+    assert main(["validate", str(path)]) == 1
+    out = capsys.readouterr().out.strip().splitlines()
+    assert any(line.startswith(f"{path}:2:") and "Idel" in line for line in out)
+    assert any("Movng" in line and "did you mean" not in line or "Movng" in line for line in out)
+
+
+def test_validate_json_is_machine_readable(write, capsys):
+    path = write("statechart: s\ninitial: A\nstates:\n  - {name: A, transitions: "
+                 "[{event: e, target: A}]}\n")
+    assert main(["validate", str(path), "--json"]) == 1
+    findings = json.loads(capsys.readouterr().out)
+    assert findings[0]["code"] == "undeclared-event" and findings[0]["line"] == 4
+
+
+def test_strict_fails_on_warnings(write, capsys):
+    path = write("statechart: s\nevents: {e: null, unused: null}\ninitial: A\nstates:\n"
+                 "  - {name: A, transitions: [{event: e, target: A}]}\n")
+    assert main(["validate", str(path)]) == 0
+    assert main(["validate", "--strict", str(path)]) == 1
+
+
+def test_validate_against_a_topology(write, capsys):
+    topo = write("configurations:\n  setup_components: {}\n", "topo.yaml")
+    assert main(["validate", SEEG, "--topology", str(topo)]) == 1
+    assert "unknown-tag" in capsys.readouterr().out
+
+
+def test_yaml_syntax_errors_are_one_line(write, capsys):
+    path = write("statechart: s\nstates: [\n")
+    assert main(["validate", str(path)]) == 1
+    out = capsys.readouterr().out.strip().splitlines()
+    assert len(out) == 1 and out[0].startswith(f"{path}:") and "YAML syntax" in out[0]
+
+
+def test_graph_writes_the_requested_format(tmp_path, capsys):
+    out = tmp_path / "seeg.mmd"
+    assert main(["graph", SEEG, "-o", str(out), "--active", "Stopped"]) == 0
+    assert "class s_System_OK_Task_Stopped active" in out.read_text()
+    assert main(["graph", SEEG, "-o", str(out), "--active", "Nope"]) == 1
+    assert "unknown state 'Nope'" in capsys.readouterr().err
+
+
+def test_run_prints_the_trace_and_the_final_state(capsys):
+    code = main(["run", SEEG, "--auto-ack", "-e",
+                 'e_START,e_TOK{"tracker": "vicra"},e_CRITICAL_AREA,+2s'])
+    out = capsys.readouterr().out
+    assert code == 0 and "configure tracker_2_up" in out
+    assert out.strip().splitlines()[-1] == (
+        "active: System_OK.Area.Critical, System_OK.Task.Moving.Moving_Slow")
+
+
+def test_run_fail_injects_configuration_failures(capsys):
+    assert main(["run", SEEG, "--auto-ack", "--fail", "setup_people", "--json"]) == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert any(x.get("state") == "Setup_Aborted" for x in lines)
+
+
+def test_run_rejects_bad_tokens(capsys):
+    assert main(["run", SEEG, "-e", "e_TOK{bad json"]) == 1
+    assert "bad JSON payload" in capsys.readouterr().err
+
+
+def test_missing_files_are_reported_not_raised(capsys, tmp_path):
+    assert main(["run", str(tmp_path / "none.yaml")]) == 1
+    assert "file not found" in capsys.readouterr().err
+
+
+def test_help_teaches_with_examples(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "--help"])
+    assert exc.value.code == 0
+    assert "examples:" in capsys.readouterr().out
+
+
+@pytest.mark.skipif(shutil.which("fw") is None, reason="needs `pip install -e .`")
+def test_the_installed_console_script_runs_as_a_real_process(tmp_path):
+    done = subprocess.run(["fw", "run", SEEG, "--auto-ack", "-i"], input="e_START\n?\nq\n",
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert "events:" in done.stdout and "Tracker_Selection" in done.stdout
+    bad = subprocess.run([sys.executable, "-m", "framework.cli", "validate",
+                          str(tmp_path / "x.yaml")], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 1 and "Traceback" not in bad.stderr + bad.stdout

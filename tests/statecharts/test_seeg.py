@@ -1,0 +1,143 @@
+"""Spec: the SEEG procedure chart replays the scenario of thesis 3.5.1 (Fig. 3.18/3.20)."""
+
+import pytest
+
+from framework.statechart.loader import load_statechart
+
+from tests.conftest import REPO, Run
+
+SETUP = ["setup_components", "setup_tracking", "setup_people", "setup_robot"]
+
+
+@pytest.fixture
+def seeg():
+    return load_statechart(REPO / "statecharts" / "seeg.yaml")
+
+
+def configured(run):
+    return [o.tag for o in run.outputs if o.kind == "configure"]
+
+
+def task(run):
+    return [leaf for leaf in run.leaves if ".Task." in leaf][0].split(".")[-1]
+
+
+def ok(tag):
+    return ("config.done", {"tag": tag})
+
+
+def test_setup_is_linear_and_waits_for_each_ack(seeg):
+    r = Run(seeg)
+    for i, tag in enumerate(SETUP):
+        assert configured(r) == SETUP[: i + 1], "the next tag is asked only after the ack"
+        r.send(ok(tag))
+    assert task(r) == "Wait_Start"
+
+
+@pytest.mark.parametrize("failing", SETUP)
+def test_any_setup_failure_aborts_and_the_robot_never_moves(seeg, failing):
+    r = Run(seeg)
+    for tag in SETUP[: SETUP.index(failing)]:
+        r.send(ok(tag))
+    r.send(("config.failed", {"tag": failing, "reason": "component crashed"}))
+    assert r.leaves == ["Setup_Aborted"] and r.interpreter.finished
+    sent = [o for o in r.outputs if o.kind == "send"]
+    assert sent[0].event == "e_SETUP_FAILED" and sent[0].payload["tag"] == failing
+    r.send("e_START", ("e_TOK", {"tracker": "certus"}))
+    assert not any(o.kind == "configure" and o.tag.startswith(("move", "tracker"))
+                   for o in r.outputs), "no motion configuration after an abort"
+
+
+def test_a_setup_step_that_never_answers_times_out_and_aborts(seeg):
+    r = Run(seeg)
+    r.send(ok("setup_components"))
+    r.interpreter.advance(5.0)
+    assert r.leaves == ["Setup_Aborted"]
+
+
+def started(seeg, tracker="certus"):
+    r = Run(seeg, auto_ack=True)
+    r.send("e_START", ("e_TOK", {"tracker": tracker}))
+    return r
+
+
+def test_start_selects_the_best_tracker_then_moves_fast_in_the_safe_area(seeg):
+    r = started(seeg)
+    assert "tracker_1_up" in configured(r) and task(r) == "Moving_Fast"
+    calls = [o.operation for o in r.outputs if o.kind == "call"]
+    assert calls == ["sensor_manager.report_best_tracker", "interpolator.go_to"]
+    assert r.interpreter.variables["tracker"] == "certus"
+
+
+def test_the_second_tracker_gets_its_own_configuration(seeg):
+    r = started(seeg, "vicra")
+    assert "tracker_2_up" in configured(r) and "tracker_1_up" not in configured(r)
+
+
+def test_critical_area_slows_and_safe_area_speeds_up(seeg):
+    r = started(seeg)
+    r.send("e_CRITICAL_AREA")
+    assert task(r) == "Moving_Slow" and configured(r)[-1] == "move_slow"
+    r.send("e_SAFE_AREA")
+    assert task(r) == "Moving_Fast" and configured(r)[-1] == "move_fast"
+
+
+def test_a_tracker_fault_reselects_and_resumes_at_the_right_speed(seeg):
+    r = started(seeg)
+    r.send("e_CRITICAL_AREA",
+           ("e_TFAULT", {"tracker": "certus", "fault": "MISSING"}))
+    assert task(r) == "Tracker_Selection"
+    r.send(("e_TOK", {"tracker": "vicra"}))
+    assert task(r) == "Moving_Slow", "the area was remembered while reselecting"
+    assert configured(r)[-2:] == ["tracker_2_up", "move_slow"]
+
+
+def test_no_tracker_stops_with_brakes_and_release_restarts(seeg):
+    r = started(seeg)
+    r.send(("e_TFAULT", {"tracker": "certus", "fault": "MISSING"}), "e_NOTRACKER")
+    assert task(r) == "Stopped" and configured(r)[-1] == "robot_stop"
+    r.send("e_START")
+    assert task(r) == "Stopped", "only RELEASE leaves the stop"
+    r.send("e_RELEASE")
+    assert configured(r)[-1] == "release_brakes" and task(r) == "Tracker_Selection"
+    r.send(("e_TOK", {"tracker": "certus"}))
+    assert task(r) == "Moving_Fast"
+
+
+def test_a_silent_sensor_manager_counts_as_no_tracker(seeg):
+    r = Run(seeg, auto_ack=True)
+    r.send("e_START")
+    r.interpreter.advance(1.0)
+    assert task(r) == "Stopped"
+
+
+def test_a_possible_collision_stops_from_any_task_state(seeg):
+    for prefix in ([], ["e_START"], ["e_START", ("e_TOK", {"tracker": "certus"})]):
+        r = Run(seeg, auto_ack=True)
+        r.send(*prefix, ("e_STOP", {"reason": "collision"}))
+        assert task(r) == "Stopped", prefix
+
+
+def test_target_reached_waits_then_goes_home_on_request(seeg):
+    r = started(seeg)
+    r.send("e_TARGET")
+    assert task(r) == "Target_Reached" and configured(r)[-1] == "hold_position"
+    r.send(("e_GOTO", {"where": "home"}), ("e_TOK", {"tracker": "certus"}))
+    assert task(r) == "Moving_Fast" and r.interpreter.variables["goal"] == "home"
+
+
+def test_a_failed_motion_configuration_stops_the_robot(seeg):
+    r = Run(seeg, auto_ack=True)
+    r.auto_ack = False
+    r.send("e_START", ("e_TOK", {"tracker": "certus"}))
+    r.send(("config.failed", {"tag": "tracker_1_up", "reason": "port busy"}))
+    assert task(r) == "Stopped"
+
+
+def test_a_failed_stop_goes_to_fault_and_alerts(seeg):
+    r = Run(seeg, auto_ack=True)
+    r.auto_ack = False
+    r.send(("e_STOP", {"reason": "collision"}),
+           ("config.failed", {"tag": "robot_stop", "reason": "no answer"}))
+    assert task(r) == "Fault"
+    assert any(o.kind == "send" and o.event == "e_STOP" for o in r.outputs)
