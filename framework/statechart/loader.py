@@ -57,6 +57,7 @@ class _Builder:
         self.files: list[str] = []
         self.order = 0
         self.pending_refs: list[tuple[str, State | Transition, str, Location]] = []
+        self.by_name: dict[str, list[State]] | None = None
 
     def error(self, code: str, message: str, location: Location, hint: str = "") -> None:
         self.findings.append(Finding("error", code, message, location, hint))
@@ -284,7 +285,13 @@ class _Builder:
     def resolve(self, ref: str, scope: str, location: Location) -> State | None:
         if ref in self.states:
             return self.states[ref]
-        candidates = [s for p, s in self.states.items() if p == ref or p.endswith("." + ref)]
+        if self.by_name is None:
+            self.by_name = {}
+            for state in self.states.values():
+                self.by_name.setdefault(state.name, []).append(state)
+        last = ref.rsplit(".", 1)[-1]
+        candidates = [s for s in self.by_name.get(last, ()) if s.path.endswith("." + ref)
+                      or s.path == ref]
         if scope:
             scoped = [s for s in candidates if s.path.startswith(scope + ".")]
             if len(scoped) == 1:

@@ -1,0 +1,247 @@
+#!/usr/bin/env python3
+"""Benchmark the statechart engine (a benchmark, not a test: it asserts nothing).
+
+Measures, in one run and on equivalent charts:
+  * events/s and p50/p99 microseconds per event for a transition whose source
+    and target leaves sit at depth 1, 3, 5 and 8 (exit d states, enter d states),
+    for fw and for sismic with its outer-first selection (rFSM semantics);
+  * load + validate time of a 200-state chart (fw) beside sismic's YAML import.
+
+Prints a table and writes it as markdown and JSON (default: out/bench/).
+Targets from the issue: >= 10x sismic throughput at depth 5, p99 <= 30 us per event
+at depth 5, 200-state load+validate <= 30 ms.
+
+    python tools/bench_statechart.py [--events 20000] [--quick] [--out out/bench]
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import platform
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from framework.clock import SimulatedClock  # noqa: E402
+from framework.statechart.interpreter import Interpreter  # noqa: E402
+from framework.statechart.loader import load_statechart  # noqa: E402
+
+DEPTHS = (1, 3, 5, 8)
+
+
+def branch(prefix: str, depth: int, leaf_transition: dict[str, Any]) -> dict[str, Any]:
+    """A chain of nested states prefix1 > prefix2 > ... > prefix<depth> (the leaf)."""
+    leaf: dict[str, Any] = {"name": f"{prefix}{depth}", "transitions": [leaf_transition]}
+    node = leaf
+    for level in range(depth - 1, 0, -1):
+        node = {"name": f"{prefix}{level}", "initial": node["name"], "states": [node]}
+    return node
+
+
+def fw_chart(depth: int) -> str:
+    a = branch("A", depth, {"event": "go", "target": f"B{depth}"})
+    b = branch("B", depth, {"event": "back", "target": f"A{depth}"})
+    return yaml.safe_dump({"statechart": f"depth{depth}", "events": {"go": None, "back": None},
+                           "initial": "A1", "states": [a, b]}, sort_keys=False)
+
+
+def sismic_chart(depth: int) -> str:
+    def convert(node: dict[str, Any]) -> dict[str, Any]:
+        out: dict[str, Any] = {"name": node["name"]}
+        if "states" in node:
+            out["initial"] = node["initial"]
+            out["states"] = [convert(c) for c in node["states"]]
+        if "transitions" in node:
+            out["transitions"] = node["transitions"]
+        return out
+
+    a = branch("A", depth, {"event": "go", "target": f"B{depth}"})
+    b = branch("B", depth, {"event": "back", "target": f"A{depth}"})
+    return yaml.safe_dump({"statechart": {"name": f"depth{depth}", "root state": {
+        "name": "root", "initial": "A1", "states": [convert(a), convert(b)]}}}, sort_keys=False)
+
+
+def measure(dispatch: Any, events: int) -> dict[str, float]:
+    """Per-event latencies of alternating go/back events."""
+    names = ("go", "back")
+    for i in range(min(2000, events)):  # warm-up
+        dispatch(names[i & 1])
+    samples = [0] * events
+    clock = time.perf_counter_ns
+    gc.collect()
+    gc.disable()
+    try:
+        start = clock()
+        for i in range(events):
+            t0 = clock()
+            dispatch(names[i & 1])
+            samples[i] = clock() - t0
+        total = clock() - start
+    finally:
+        gc.enable()
+    samples.sort()
+    return {
+        "events_per_s": events / (total / 1e9),
+        "p50_us": samples[len(samples) // 2] / 1e3,
+        "p99_us": samples[int(len(samples) * 0.99)] / 1e3,
+    }
+
+
+def bench_fw(depth: int, events: int, workdir: Path) -> dict[str, float]:
+    path = workdir / f"fw_depth{depth}.yaml"
+    path.write_text(fw_chart(depth))
+    interpreter = Interpreter(load_statechart(path), SimulatedClock())
+    interpreter.start()
+    return measure(interpreter.dispatch, events)
+
+
+def bench_sismic(depth: int, events: int) -> dict[str, float] | None:
+    try:
+        from sismic.interpreter import Interpreter as SismicInterpreter
+        from sismic.io import import_from_yaml
+    except ImportError:
+        return None
+
+    class OuterFirst(SismicInterpreter):
+        """sismic with rFSM's outer-first selection, for equal semantics."""
+
+        def _select_transitions(self, event, states, *, eventless_first=True, inner_first=True):
+            return super()._select_transitions(event, states, eventless_first=eventless_first,
+                                               inner_first=False)
+
+    interpreter = OuterFirst(import_from_yaml(text=sismic_chart(depth)))
+    interpreter.execute_once()
+
+    def dispatch(name: str) -> None:
+        interpreter.queue(name)
+        interpreter.execute_once()
+
+    return measure(dispatch, events)
+
+
+def big_chart(n_states: int) -> dict[str, Any]:
+    """About n_states states: groups of 9 leaves, transitions inside and across groups."""
+    groups, per = max(1, n_states // 10), 9
+    events = {f"e{i}": None for i in range(per)}
+    states = []
+    for g in range(groups):
+        leaves = []
+        for i in range(per):
+            nxt = f"G{g}_S{(i + 1) % per}"
+            leaves.append({"name": f"G{g}_S{i}", "transitions": [
+                {"event": f"e{i}", "target": nxt},
+                {"event": f"e{(i + 1) % per}", "guard": f"n > {i}", "target": f"G{(g + 1) % groups}"},
+            ]})
+        states.append({"name": f"G{g}", "initial": f"G{g}_S0", "states": leaves})
+    return {"statechart": "big", "events": events, "variables": {"n": 0}, "initial": "G0",
+            "states": states}
+
+
+def bench_load(workdir: Path, repeats: int) -> dict[str, float]:
+    spec = big_chart(200)
+    path = workdir / "big.yaml"
+    path.write_text(yaml.safe_dump(spec, sort_keys=False))
+    chart = load_statechart(path)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        load_statechart(path)  # parse + schema + build + validate
+        times.append(time.perf_counter() - t0)
+    result = {"states": len(chart.states) - 1, "fw_ms": statistics.median(times) * 1e3}
+    try:
+        from sismic.io import import_from_yaml
+
+        def convert(s: dict[str, Any]) -> dict[str, Any]:
+            out = {k: v for k, v in s.items() if k in ("name", "initial")}
+            if "states" in s:
+                out["states"] = [convert(c) for c in s["states"]]
+            if "transitions" in s:
+                out["transitions"] = [
+                    {k: (v.replace("n >", "n >") if k == "guard" else v)
+                     for k, v in t.items()} for t in s["transitions"]]
+            return out
+
+        text = yaml.safe_dump({"statechart": {"name": "big", "root state": {
+            "name": "root", "initial": "G0", "states": [convert(s) for s in spec["states"]]}}})
+        stimes = []
+        for _ in range(max(3, repeats // 4)):
+            t0 = time.perf_counter()
+            import_from_yaml(text=text)
+            stimes.append(time.perf_counter() - t0)
+        result["sismic_ms"] = statistics.median(stimes) * 1e3
+    except ImportError:
+        pass
+    return result
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--events", type=int, default=20000, help="events per measurement")
+    parser.add_argument("--quick", action="store_true", help="fewer events (a smoke run)")
+    parser.add_argument("--out", default="out/bench", help="folder for the .md and .json")
+    args = parser.parse_args()
+    events = 2000 if args.quick else args.events
+    rows: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        workdir = Path(tmp)
+        for depth in DEPTHS:
+            print(f"depth {depth}: fw ...", end="", flush=True, file=sys.stderr)
+            fw = bench_fw(depth, events, workdir)
+            print(" sismic ...", end="", flush=True, file=sys.stderr)
+            sm = bench_sismic(depth, max(events // 10, 500))
+            print(" done", file=sys.stderr)
+            rows.append({"depth": depth, "fw": fw, "sismic": sm,
+                         "ratio": fw["events_per_s"] / sm["events_per_s"] if sm else None})
+        load = bench_load(workdir, 5 if args.quick else 20)
+
+    d5 = next(r for r in rows if r["depth"] == 5)
+    targets = {
+        "throughput >= 10x sismic at depth 5": d5["ratio"] is not None and d5["ratio"] >= 10,
+        "p99 <= 30 us at depth 5": d5["fw"]["p99_us"] <= 30,
+        "200-state load+validate <= 30 ms": load["fw_ms"] <= 30,
+    }
+    lines = [
+        f"# Statechart benchmark ({time.strftime('%Y-%m-%d %H:%M')}, "
+        f"Python {platform.python_version()}, {platform.machine()})",
+        "",
+        f"Events per measurement: fw {events}, sismic {max(events // 10, 500)} "
+        "(alternating go/back; leaf at depth d to leaf at depth d in the other branch).",
+        "",
+        "| depth | fw events/s | fw p50 µs | fw p99 µs | sismic events/s | sismic p50 µs "
+        "| sismic p99 µs | fw / sismic |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        fw, sm = r["fw"], r["sismic"]
+        sm_cells = (f"{sm['events_per_s']:,.0f} | {sm['p50_us']:.1f} | {sm['p99_us']:.1f} | "
+                    f"{r['ratio']:.1f}×") if sm else "n/a | n/a | n/a | n/a"
+        lines.append(f"| {r['depth']} | {fw['events_per_s']:,.0f} | {fw['p50_us']:.1f} | "
+                     f"{fw['p99_us']:.1f} | {sm_cells} |")
+    lines += ["", f"200-state chart ({load['states']} nodes): fw load+schema+build+validate "
+              f"median {load['fw_ms']:.1f} ms"
+              + (f"; sismic import (no validation) {load['sismic_ms']:.1f} ms"
+                 if "sismic_ms" in load else ""), "", "Targets:"]
+    lines += [f"- [{'x' if ok else ' '}] {name}" for name, ok in targets.items()]
+    report = "\n".join(lines) + "\n"
+    print(report)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "statechart.md").write_text(report, encoding="utf-8")
+    (out / "statechart.json").write_text(json.dumps(
+        {"events": events, "rows": rows, "load": load, "targets": targets}, indent=2))
+    print(f"wrote {out / 'statechart.md'} and {out / 'statechart.json'}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
