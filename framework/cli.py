@@ -78,8 +78,10 @@ def cmd_validate(args: argparse.Namespace) -> int:
         warnings = len(findings) - errors
         verdict = "FAILED" if code else "ok"
         sys.stdout.flush()
-        print(f"{verdict}: {len(args.files)} file(s), {errors} error(s), {warnings} warning(s)",
-              file=sys.stderr)
+        print(
+            f"{verdict}: {len(args.files)} file(s), {errors} error(s), {warnings} warning(s)",
+            file=sys.stderr,
+        )
     return code
 
 
@@ -122,16 +124,25 @@ class _Printer(Listener):
 
     def on_event(self, event: Event) -> None:
         payload = f" {json.dumps(event.payload)}" if event.payload else ""
-        self.emit("event", f"{event.name}{payload} ({event.kind})", name=event.name,
-                  payload=event.payload, source=event.kind)
+        self.emit(
+            "event",
+            f"{event.name}{payload} ({event.kind})",
+            name=event.name,
+            payload=event.payload,
+            source=event.kind,
+        )
 
     def on_unhandled(self, event: Event, reason: str) -> None:
         self.emit("unhandled", f"{event.name}: {reason}", name=event.name, reason=reason)
 
     def on_transition(self, transition: Transition, event: Event | None) -> None:
         target = transition.target.path if transition.target is not None else "(internal)"
-        self.emit("transition", f"{transition.source.path} -> {target}",
-                  source=transition.source.path, target=target)
+        self.emit(
+            "transition",
+            f"{transition.source.path} -> {target}",
+            source=transition.source.path,
+            target=target,
+        )
 
     def on_entry(self, state: State) -> None:
         self.emit("enter", state.path, state=state.path)
@@ -194,7 +205,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     def answer(output: Output) -> None:
         if output.kind == "configure" and args.auto_ack:
             if output.tag in failing:
-                interpreter.queue(CONFIG_FAILED, {"tag": output.tag, "reason": "injected by --fail"})
+                interpreter.queue(
+                    CONFIG_FAILED, {"tag": output.tag, "reason": "injected by --fail"}
+                )
             else:
                 interpreter.queue(CONFIG_DONE, {"tag": output.tag})
 
@@ -214,21 +227,31 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.interactive:
         _interactive(interpreter, apply)
     if not args.json:
-        print(f"active: {', '.join(interpreter.leaves) or '(none)'}"
-              + ("  [finished]" if interpreter.finished else ""))
+        print(
+            f"active: {', '.join(interpreter.leaves) or '(none)'}"
+            + ("  [finished]" if interpreter.finished else "")
+        )
     return 0
 
 
 def _interactive(interpreter: Any, apply: Any) -> None:
-    print("type events (NAME, NAME{json}, +2s), '?' for what the chart takes now, 'q' to quit",
-          file=sys.stderr)
+    print(
+        "type events (NAME, NAME{json}, +2s), '?' for what the chart takes now, 'q' to quit",
+        file=sys.stderr,
+    )
     for line in sys.stdin:
         line = line.strip()
         if line in ("q", "quit", "exit"):
             break
         if line == "?":
-            taken = sorted({e for path in interpreter.configuration
-                            for t in interpreter.chart.states[path].transitions for e in t.events})
+            taken = sorted(
+                {
+                    e
+                    for path in interpreter.configuration
+                    for t in interpreter.chart.states[path].transitions
+                    for e in t.events
+                }
+            )
             print("active:", ", ".join(interpreter.leaves), "| events:", ", ".join(taken))
             continue
         try:
@@ -243,41 +266,77 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="fw",
         description="fw supervises a semi-autonomous surgical robot: procedures are YAML "
-                    "statecharts, deployments are YAML topologies.",
+        "statecharts, deployments are YAML topologies.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="Run 'fw COMMAND --help' for examples. Docs: docs/statecharts.md",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     raw = argparse.RawDescriptionHelpFormatter
 
-    p = sub.add_parser("validate", help="check statecharts statically (exit 1 on errors)",
-                       epilog=EPILOG_VALIDATE, formatter_class=raw)
+    p = sub.add_parser(
+        "validate",
+        help="check statecharts statically (exit 1 on errors)",
+        epilog=EPILOG_VALIDATE,
+        formatter_class=raw,
+    )
     p.add_argument("files", nargs="+", metavar="FILE", help="statechart YAML file(s)")
-    p.add_argument("--topology", metavar="T",
-                   help="topology YAML whose `configurations:` must define every requested tag")
+    p.add_argument(
+        "--topology",
+        metavar="T",
+        help="topology YAML whose `configurations:` must define every requested tag",
+    )
     p.add_argument("--json", action="store_true", help="print findings as a JSON list")
     p.add_argument("--strict", action="store_true", help="fail on warnings too")
     p.set_defaults(func=cmd_validate)
 
-    p = sub.add_parser("graph", help="draw a statechart (svg, png, dot, puml, mmd)",
-                       epilog=EPILOG_GRAPH, formatter_class=raw)
+    p = sub.add_parser(
+        "graph",
+        help="draw a statechart (svg, png, dot, puml, mmd)",
+        epilog=EPILOG_GRAPH,
+        formatter_class=raw,
+    )
     p.add_argument("file", metavar="FILE")
-    p.add_argument("-o", "--output", required=True, metavar="OUT",
-                   help="output file; its suffix picks the format")
-    p.add_argument("--active", action="append", default=[], metavar="STATE[,STATE]",
-                   help="highlight these states (and their parents)")
+    p.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        metavar="OUT",
+        help="output file; its suffix picks the format",
+    )
+    p.add_argument(
+        "--active",
+        action="append",
+        default=[],
+        metavar="STATE[,STATE]",
+        help="highlight these states (and their parents)",
+    )
     p.set_defaults(func=cmd_graph)
 
-    p = sub.add_parser("run", help="step a statechart on a simulated clock and print the trace",
-                       epilog=EPILOG_RUN, formatter_class=raw)
+    p = sub.add_parser(
+        "run",
+        help="step a statechart on a simulated clock and print the trace",
+        epilog=EPILOG_RUN,
+        formatter_class=raw,
+    )
     p.add_argument("file", metavar="FILE")
-    p.add_argument("--events", "-e", default="", metavar="LIST",
-                   help="comma-separated events and time steps (see below)")
+    p.add_argument(
+        "--events",
+        "-e",
+        default="",
+        metavar="LIST",
+        help="comma-separated events and time steps (see below)",
+    )
     p.add_argument("--interactive", "-i", action="store_true", help="then read events from stdin")
-    p.add_argument("--auto-ack", action="store_true",
-                   help="acknowledge every configuration request at once")
-    p.add_argument("--fail", action="append", default=[], metavar="TAG[,TAG]",
-                   help="with --auto-ack: answer these tags with config.failed")
+    p.add_argument(
+        "--auto-ack", action="store_true", help="acknowledge every configuration request at once"
+    )
+    p.add_argument(
+        "--fail",
+        action="append",
+        default=[],
+        metavar="TAG[,TAG]",
+        help="with --auto-ack: answer these tags with config.failed",
+    )
     p.add_argument("--json", action="store_true", help="one JSON object per trace line")
     p.set_defaults(func=cmd_run)
     return parser
@@ -303,8 +362,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:  # a bug in fw: one line unless asked for the traceback
         if os.environ.get("FW_DEBUG"):
             traceback.print_exc()
-        print(f"fw: internal error: {type(exc).__name__}: {exc} "
-              "(set FW_DEBUG=1 for a traceback and please report it)", file=sys.stderr)
+        print(
+            f"fw: internal error: {type(exc).__name__}: {exc} "
+            "(set FW_DEBUG=1 for a traceback and please report it)",
+            file=sys.stderr,
+        )
         return 3
 
 

@@ -68,9 +68,16 @@ class Finding:
     def as_dict(self) -> dict[str, object]:
         """The finding as JSON-ready data (for `--json`)."""
         loc = self.location
-        return {"severity": self.severity, "code": self.code, "message": self.message,
-                "file": loc.file, "line": loc.line, "column": loc.column, "path": loc.path,
-                "hint": self.hint}
+        return {
+            "severity": self.severity,
+            "code": self.code,
+            "message": self.message,
+            "file": loc.file,
+            "line": loc.line,
+            "column": loc.column,
+            "path": loc.path,
+            "hint": self.hint,
+        }
 
 
 class FindingsError(FwError):

@@ -144,7 +144,9 @@ class _Builder:
             if key in result:
                 first = self.marks.get(child, (0, 0))[0]
                 raise self.error(
-                    key_node, child, f"duplicate key {key!r} (first written at line {first})",
+                    key_node,
+                    child,
+                    f"duplicate key {key!r} (first written at line {first})",
                     "remove or rename one of them",
                 )
             self.marks[child] = (key_node.start_mark.line + 1, key_node.start_mark.column + 1)

@@ -51,7 +51,7 @@ class Run:
         self.interpreter = Interpreter(chart, self.clock, [self.trace], on_output=self._output)
         self.interpreter.start()
 
-    def _output(self, output) -> None:  # noqa: ANN001
+    def _output(self, output) -> None:
         self.outputs.append(output)
         if self.auto_ack and output.kind == "configure":
             self.interpreter.queue("config.done", {"tag": output.tag})

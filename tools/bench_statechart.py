@@ -31,9 +31,9 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from framework.clock import SimulatedClock  # noqa: E402
-from framework.statechart.interpreter import Interpreter  # noqa: E402
-from framework.statechart.loader import load_statechart  # noqa: E402
+from framework.clock import SimulatedClock
+from framework.statechart.interpreter import Interpreter
+from framework.statechart.loader import load_statechart
 
 DEPTHS = (1, 3, 5, 8)
 
@@ -50,8 +50,15 @@ def branch(prefix: str, depth: int, leaf_transition: dict[str, Any]) -> dict[str
 def fw_chart(depth: int) -> str:
     a = branch("A", depth, {"event": "go", "target": f"B{depth}"})
     b = branch("B", depth, {"event": "back", "target": f"A{depth}"})
-    return yaml.safe_dump({"statechart": f"depth{depth}", "events": {"go": None, "back": None},
-                           "initial": "A1", "states": [a, b]}, sort_keys=False)
+    return yaml.safe_dump(
+        {
+            "statechart": f"depth{depth}",
+            "events": {"go": None, "back": None},
+            "initial": "A1",
+            "states": [a, b],
+        },
+        sort_keys=False,
+    )
 
 
 def sismic_chart(depth: int) -> str:
@@ -66,8 +73,15 @@ def sismic_chart(depth: int) -> str:
 
     a = branch("A", depth, {"event": "go", "target": f"B{depth}"})
     b = branch("B", depth, {"event": "back", "target": f"A{depth}"})
-    return yaml.safe_dump({"statechart": {"name": f"depth{depth}", "root state": {
-        "name": "root", "initial": "A1", "states": [convert(a), convert(b)]}}}, sort_keys=False)
+    return yaml.safe_dump(
+        {
+            "statechart": {
+                "name": f"depth{depth}",
+                "root state": {"name": "root", "initial": "A1", "states": [convert(a), convert(b)]},
+            }
+        },
+        sort_keys=False,
+    )
 
 
 def measure(dispatch: Any, events: int) -> dict[str, float]:
@@ -115,8 +129,9 @@ def bench_sismic(depth: int, events: int) -> dict[str, float] | None:
         """sismic with rFSM's outer-first selection, for equal semantics."""
 
         def _select_transitions(self, event, states, *, eventless_first=True, inner_first=True):
-            return super()._select_transitions(event, states, eventless_first=eventless_first,
-                                               inner_first=False)
+            return super()._select_transitions(
+                event, states, eventless_first=eventless_first, inner_first=False
+            )
 
     interpreter = OuterFirst(import_from_yaml(text=sismic_chart(depth)))
     interpreter.execute_once()
@@ -137,13 +152,27 @@ def big_chart(n_states: int) -> dict[str, Any]:
         leaves = []
         for i in range(per):
             nxt = f"G{g}_S{(i + 1) % per}"
-            leaves.append({"name": f"G{g}_S{i}", "transitions": [
-                {"event": f"e{i}", "target": nxt},
-                {"event": f"e{(i + 1) % per}", "guard": f"n > {i}", "target": f"G{(g + 1) % groups}"},
-            ]})
+            leaves.append(
+                {
+                    "name": f"G{g}_S{i}",
+                    "transitions": [
+                        {"event": f"e{i}", "target": nxt},
+                        {
+                            "event": f"e{(i + 1) % per}",
+                            "guard": f"n > {i}",
+                            "target": f"G{(g + 1) % groups}",
+                        },
+                    ],
+                }
+            )
         states.append({"name": f"G{g}", "initial": f"G{g}_S0", "states": leaves})
-    return {"statechart": "big", "events": events, "variables": {"n": 0}, "initial": "G0",
-            "states": states}
+    return {
+        "statechart": "big",
+        "events": events,
+        "variables": {"n": 0},
+        "initial": "G0",
+        "states": states,
+    }
 
 
 def bench_load(workdir: Path, repeats: int) -> dict[str, float]:
@@ -166,12 +195,23 @@ def bench_load(workdir: Path, repeats: int) -> dict[str, float]:
                 out["states"] = [convert(c) for c in s["states"]]
             if "transitions" in s:
                 out["transitions"] = [
-                    {k: (v.replace("n >", "n >") if k == "guard" else v)
-                     for k, v in t.items()} for t in s["transitions"]]
+                    {k: (v.replace("n >", "n >") if k == "guard" else v) for k, v in t.items()}
+                    for t in s["transitions"]
+                ]
             return out
 
-        text = yaml.safe_dump({"statechart": {"name": "big", "root state": {
-            "name": "root", "initial": "G0", "states": [convert(s) for s in spec["states"]]}}})
+        text = yaml.safe_dump(
+            {
+                "statechart": {
+                    "name": "big",
+                    "root state": {
+                        "name": "root",
+                        "initial": "G0",
+                        "states": [convert(s) for s in spec["states"]],
+                    },
+                }
+            }
+        )
         stimes = []
         for _ in range(max(3, repeats // 4)):
             t0 = time.perf_counter()
@@ -184,8 +224,9 @@ def bench_load(workdir: Path, repeats: int) -> dict[str, float]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--events", type=int, default=20000, help="events per measurement")
     parser.add_argument("--quick", action="store_true", help="fewer events (a smoke run)")
     parser.add_argument("--out", default="out/bench", help="folder for the .md and .json")
@@ -200,8 +241,14 @@ def main() -> int:
             print(" sismic ...", end="", flush=True, file=sys.stderr)
             sm = bench_sismic(depth, max(events // 10, 500))
             print(" done", file=sys.stderr)
-            rows.append({"depth": depth, "fw": fw, "sismic": sm,
-                         "ratio": fw["events_per_s"] / sm["events_per_s"] if sm else None})
+            rows.append(
+                {
+                    "depth": depth,
+                    "fw": fw,
+                    "sismic": sm,
+                    "ratio": fw["events_per_s"] / sm["events_per_s"] if sm else None,
+                }
+            )
         load = bench_load(workdir, 5 if args.quick else 20)
 
     d5 = next(r for r in rows if r["depth"] == 5)
@@ -223,22 +270,39 @@ def main() -> int:
     ]
     for r in rows:
         fw, sm = r["fw"], r["sismic"]
-        sm_cells = (f"{sm['events_per_s']:,.0f} | {sm['p50_us']:.1f} | {sm['p99_us']:.1f} | "
-                    f"{r['ratio']:.1f}×") if sm else "n/a | n/a | n/a | n/a"
-        lines.append(f"| {r['depth']} | {fw['events_per_s']:,.0f} | {fw['p50_us']:.1f} | "
-                     f"{fw['p99_us']:.1f} | {sm_cells} |")
-    lines += ["", f"200-state chart ({load['states']} nodes): fw load+schema+build+validate "
-              f"median {load['fw_ms']:.1f} ms"
-              + (f"; sismic import (no validation) {load['sismic_ms']:.1f} ms"
-                 if "sismic_ms" in load else ""), "", "Targets:"]
+        sm_cells = (
+            (
+                f"{sm['events_per_s']:,.0f} | {sm['p50_us']:.1f} | {sm['p99_us']:.1f} | "
+                f"{r['ratio']:.1f}x"
+            )
+            if sm
+            else "n/a | n/a | n/a | n/a"
+        )
+        lines.append(
+            f"| {r['depth']} | {fw['events_per_s']:,.0f} | {fw['p50_us']:.1f} | "
+            f"{fw['p99_us']:.1f} | {sm_cells} |"
+        )
+    lines += [
+        "",
+        f"200-state chart ({load['states']} nodes): fw load+schema+build+validate "
+        f"median {load['fw_ms']:.1f} ms"
+        + (
+            f"; sismic import (no validation) {load['sismic_ms']:.1f} ms"
+            if "sismic_ms" in load
+            else ""
+        ),
+        "",
+        "Targets:",
+    ]
     lines += [f"- [{'x' if ok else ' '}] {name}" for name, ok in targets.items()]
     report = "\n".join(lines) + "\n"
     print(report)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "statechart.md").write_text(report, encoding="utf-8")
-    (out / "statechart.json").write_text(json.dumps(
-        {"events": events, "rows": rows, "load": load, "targets": targets}, indent=2))
+    (out / "statechart.json").write_text(
+        json.dumps({"events": events, "rows": rows, "load": load, "targets": targets}, indent=2)
+    )
     print(f"wrote {out / 'statechart.md'} and {out / 'statechart.json'}", file=sys.stderr)
     return 0
 

@@ -91,13 +91,17 @@ def _explain(error: ValidationError) -> tuple[str, str]:
         return error.message.replace("is a required property", "is required"), ""
     if error.validator in ("minProperties", "maxProperties") and isinstance(error.instance, dict):
         allowed = sorted(error.schema.get("properties", {}))
-        return ("needs exactly one key" if error.validator == "maxProperties" else "is empty",
-                f"one of: {', '.join(allowed)}" if allowed else "")
+        return (
+            "needs exactly one key" if error.validator == "maxProperties" else "is empty",
+            f"one of: {', '.join(allowed)}" if allowed else "",
+        )
     if error.validator == "pattern":
         return f"{error.instance!r} is not a valid name here", "use letters, digits and '_'"
     if error.validator == "type" and isinstance(error.instance, bool):
-        return (f"got the boolean {error.instance}, expected {error.validator_value}",
-                "quote it if you meant text")
+        return (
+            f"got the boolean {error.instance}, expected {error.validator_value}",
+            "quote it if you meant text",
+        )
     if error.validator == "enum":
         return (f"{error.instance!r} is not one of {error.validator_value}", "")
     return error.message, ""

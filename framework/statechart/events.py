@@ -13,8 +13,7 @@ class Event:
 
     __slots__ = ("kind", "name", "payload")
 
-    def __init__(self, name: str, payload: dict[str, Any] | None = None,
-                 kind: str = "external"):
+    def __init__(self, name: str, payload: dict[str, Any] | None = None, kind: str = "external"):
         self.name = name
         self.payload = payload
         self.kind = kind
@@ -23,8 +22,12 @@ class Event:
         return f"Event({self.name!r}, {self.payload!r}, {self.kind!r})"
 
     def __eq__(self, other: object) -> bool:
-        return (isinstance(other, Event) and self.name == other.name
-                and self.payload == other.payload and self.kind == other.kind)
+        return (
+            isinstance(other, Event)
+            and self.name == other.name
+            and self.payload == other.payload
+            and self.kind == other.kind
+        )
 
     __hash__ = None  # type: ignore[assignment]
 
@@ -89,8 +92,9 @@ class Trace(Listener):
 
     def on_transition(self, transition: Transition, event: Event | None) -> None:
         target = transition.target.path if transition.target is not None else None
-        self.records.append(("transition", transition.source.path, target,
-                             event.name if event else None))
+        self.records.append(
+            ("transition", transition.source.path, target, event.name if event else None)
+        )
 
     def on_entry(self, state: State) -> None:
         self.records.append(("entry", state.path))
@@ -99,8 +103,13 @@ class Trace(Listener):
         self.records.append(("exit", state.path))
 
     def on_output(self, output: Output) -> None:
-        self.records.append(("output", output.kind, output.tag or output.event or
-                             output.port or output.operation or output.message))
+        self.records.append(
+            (
+                "output",
+                output.kind,
+                output.tag or output.event or output.port or output.operation or output.message,
+            )
+        )
 
     def on_error(self, message: str, event: Event | None) -> None:
         self.records.append(("error", message))

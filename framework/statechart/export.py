@@ -40,7 +40,7 @@ def _details(state: State) -> list[str]:
     return lines
 
 
-def _action_text(action) -> str:  # noqa: ANN001 - model Action
+def _action_text(action) -> str:
     kind = action.kind
     if kind in ("raise", "send"):
         return f"{kind} {action.event}"
@@ -65,9 +65,12 @@ def _edge_label(t: Transition) -> str:
 def to_dot(chart: Statechart, active: Iterable[str] = ()) -> str:
     """Graphviz DOT text of the chart; states in `active` are highlighted."""
     on = set(active)
-    out = ["digraph statechart {", "  compound=true; rankdir=TB; fontname=Helvetica;",
-           '  node [fontname=Helvetica, fontsize=11]; edge [fontname=Helvetica, fontsize=9];',
-           f"  label={_quote(chart.name)}; labelloc=t;"]
+    out = [
+        "digraph statechart {",
+        "  compound=true; rankdir=TB; fontname=Helvetica;",
+        "  node [fontname=Helvetica, fontsize=11]; edge [fontname=Helvetica, fontsize=9];",
+        f"  label={_quote(chart.name)}; labelloc=t;",
+    ]
     anchors: dict[State, str] = {}
 
     def emit(state: State, indent: str) -> None:
@@ -79,9 +82,12 @@ def to_dot(chart: Statechart, active: Iterable[str] = ()) -> str:
             label = "\\n".join([title, *_details(state)])
             style = "rounded,filled" if highlighted else "rounded"
             fill = "#d8f5d0" if highlighted else "white"
-            out.append(f"{indent}  label={_quote(label)}; style={_quote(style)}; "
-                       f"fillcolor={_quote(fill)}; color={'darkgreen' if highlighted else 'gray40'};"
-                       f" penwidth={2 if highlighted else 1};")
+            out.append(
+                f"{indent}  label={_quote(label)}; style={_quote(style)}; "
+                f"fillcolor={_quote(fill)}; "
+                f"color={'darkgreen' if highlighted else 'gray40'}; "
+                f"penwidth={2 if highlighted else 1};"
+            )
             anchor = f"{ident}__anchor"
             anchors[state] = anchor
             out.append(f"{indent}  {anchor} [shape=point, style=invis, width=0.01];")
@@ -145,8 +151,12 @@ def to_plantuml(chart: Statechart, active: Iterable[str] = ()) -> str:
     def emit(state: State, indent: str) -> None:
         ident = _ident(state)
         color = " #9be58a" if state.path in on else ""
-        stereo = {Kind.JUNCTION: " <<choice>>", Kind.SHALLOW_HISTORY: " <<history>>",
-                  Kind.DEEP_HISTORY: " <<history*>>", Kind.FINAL: " <<end>>"}.get(state.kind, "")
+        stereo = {
+            Kind.JUNCTION: " <<choice>>",
+            Kind.SHALLOW_HISTORY: " <<history>>",
+            Kind.DEEP_HISTORY: " <<history*>>",
+            Kind.FINAL: " <<end>>",
+        }.get(state.kind, "")
         if state.is_composite:
             out.append(f'{indent}state "{state.name}" as {ident}{color} {{')
             if state.initial is not None:
@@ -216,8 +226,9 @@ def render(chart: Statechart, output: str | Path, active: Iterable[str] = ()) ->
     path = Path(output)
     suffix = path.suffix.lower()
     if suffix not in FORMATS:
-        raise ExportError(f"unknown output format {suffix or '(none)'!r}; use one of "
-                          f"{', '.join(FORMATS)}")
+        raise ExportError(
+            f"unknown output format {suffix or '(none)'!r}; use one of {', '.join(FORMATS)}"
+        )
     if suffix == ".puml":
         text = to_plantuml(chart, active)
     elif suffix == ".mmd":
@@ -228,11 +239,17 @@ def render(chart: Statechart, output: str | Path, active: Iterable[str] = ()) ->
     if suffix in (".svg", ".png"):
         dot = shutil.which("dot")
         if dot is None:
-            raise ExportError("Graphviz `dot` is not installed; install it (Debian: apt-get "
-                              "install graphviz) or write .dot/.puml/.mmd instead")
+            raise ExportError(
+                "Graphviz `dot` is not installed; install it (Debian: apt-get "
+                "install graphviz) or write .dot/.puml/.mmd instead"
+            )
         try:
-            result = subprocess.run([dot, f"-T{suffix[1:]}", "-o", str(path)],
-                                    input=text.encode(), capture_output=True, timeout=60)
+            result = subprocess.run(
+                [dot, f"-T{suffix[1:]}", "-o", str(path)],
+                input=text.encode(),
+                capture_output=True,
+                timeout=60,
+            )
         except subprocess.TimeoutExpired:
             raise ExportError("Graphviz `dot` took longer than 60 s") from None
         if result.returncode != 0:

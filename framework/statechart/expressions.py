@@ -47,23 +47,51 @@ class Env:
 
 Compiled = Callable[[Env], Any]
 
-_LITERAL_NAMES = {"true": True, "false": False, "null": None, "True": True, "False": False,
-                  "None": None}
+_LITERAL_NAMES = {
+    "true": True,
+    "false": False,
+    "null": None,
+    "True": True,
+    "False": False,
+    "None": None,
+}
 _FUNCTIONS: dict[str, Callable[..., Any]] = {
-    "abs": abs, "min": min, "max": max, "len": len, "round": round,
-    "int": int, "float": float, "str": str, "bool": bool,
+    "abs": abs,
+    "min": min,
+    "max": max,
+    "len": len,
+    "round": round,
+    "int": int,
+    "float": float,
+    "str": str,
+    "bool": bool,
 }
 _BINOPS = {
-    ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul,
-    ast.Div: operator.truediv, ast.FloorDiv: operator.floordiv, ast.Mod: operator.mod,
+    ast.Add: operator.add,
+    ast.Sub: operator.sub,
+    ast.Mult: operator.mul,
+    ast.Div: operator.truediv,
+    ast.FloorDiv: operator.floordiv,
+    ast.Mod: operator.mod,
 }
 _CMPOPS = {
-    ast.Eq: operator.eq, ast.NotEq: operator.ne, ast.Lt: operator.lt, ast.LtE: operator.le,
-    ast.Gt: operator.gt, ast.GtE: operator.ge,
-    ast.In: lambda a, b: a in b, ast.NotIn: lambda a, b: a not in b,
+    ast.Eq: operator.eq,
+    ast.NotEq: operator.ne,
+    ast.Lt: operator.lt,
+    ast.LtE: operator.le,
+    ast.Gt: operator.gt,
+    ast.GtE: operator.ge,
+    ast.In: lambda a, b: a in b,
+    ast.NotIn: lambda a, b: a not in b,
 }
-_CMP_SYMBOL = {ast.Eq: "==", ast.NotEq: "!=", ast.Lt: "<", ast.LtE: "<=", ast.Gt: ">",
-               ast.GtE: ">="}
+_CMP_SYMBOL = {
+    ast.Eq: "==",
+    ast.NotEq: "!=",
+    ast.Lt: "<",
+    ast.LtE: "<=",
+    ast.Gt: ">",
+    ast.GtE: ">=",
+}
 _FLIP = {"<": ">", "<=": ">=", ">": "<", ">=": "<=", "==": "==", "!=": "!="}
 
 Atom = tuple[str, str, Any]
@@ -108,7 +136,7 @@ class _Compiler:
         col = getattr(node, "col_offset", 0)
         return ExpressionError(f"{message} in expression {self.source!r} (at column {col + 1})")
 
-    def compile(self, node: ast.AST) -> Compiled:  # noqa: C901 - one branch per syntax form
+    def compile(self, node: ast.AST) -> Compiled:
         if isinstance(node, ast.Constant):
             if not isinstance(node.value, (int, float, str, bool, type(None))):
                 raise self.fail(node, "unsupported literal")
@@ -233,8 +261,11 @@ class _Compiler:
 def _operand_key(node: ast.AST) -> str | None:
     if isinstance(node, ast.Name) and node.id not in _LITERAL_NAMES and node.id != "event":
         return f"var:{node.id}"
-    if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
-            and node.value.id == "event"):
+    if (
+        isinstance(node, ast.Attribute)
+        and isinstance(node.value, ast.Name)
+        and node.value.id == "event"
+    ):
         return f"event:{node.attr}"
     return None
 
@@ -244,9 +275,12 @@ def _constant(node: ast.AST) -> tuple[bool, Any]:
         return True, node.value
     if isinstance(node, ast.Name) and node.id in _LITERAL_NAMES:
         return True, _LITERAL_NAMES[node.id]
-    if (isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub)
-            and isinstance(node.operand, ast.Constant)
-            and isinstance(node.operand.value, (int, float))):
+    if (
+        isinstance(node, ast.UnaryOp)
+        and isinstance(node.op, ast.USub)
+        and isinstance(node.operand, ast.Constant)
+        and isinstance(node.operand.value, (int, float))
+    ):
         return True, -node.operand.value
     return False, None
 
@@ -285,8 +319,7 @@ def _atoms(node: ast.AST) -> tuple[Atom, ...] | None:
     return None
 
 
-_NEGATE = {"==": "!=", "!=": "==", "<": ">=", "<=": ">", ">": "<=", ">=": "<",
-           "truthy": "truthy"}
+_NEGATE = {"==": "!=", "!=": "==", "<": ">=", "<=": ">", ">": "<=", ">=": "<", "truthy": "truthy"}
 
 
 def _contradict(a: Atom, b: Atom) -> bool:
@@ -316,8 +349,15 @@ def _contradict(a: Atom, b: Atom) -> bool:
 
 def _holds(value: Any, op: str, const: Any) -> bool:
     try:
-        return bool({"!=": operator.ne, "<": operator.lt, "<=": operator.le,
-                     ">": operator.gt, ">=": operator.ge}[op](value, const))
+        return bool(
+            {
+                "!=": operator.ne,
+                "<": operator.lt,
+                "<=": operator.le,
+                ">": operator.gt,
+                ">=": operator.ge,
+            }[op](value, const)
+        )
     except TypeError:
         return True  # cannot decide: assume it may hold
 
@@ -325,8 +365,10 @@ def _holds(value: Any, op: str, const: Any) -> bool:
 def _interval(op: str, c: float) -> tuple[tuple[float, bool], tuple[float, bool]]:
     inf = float("inf")
     return {
-        "<": ((-inf, False), (c, False)), "<=": ((-inf, False), (c, True)),
-        ">": ((c, False), (inf, False)), ">=": ((c, True), (inf, False)),
+        "<": ((-inf, False), (c, False)),
+        "<=": ((-inf, False), (c, True)),
+        ">": ((c, False), (inf, False)),
+        ">=": ((c, True), (inf, False)),
         "!=": ((-inf, False), (inf, False)),
     }[op]
 
@@ -350,5 +392,6 @@ def compile_expression(source: str) -> Expression:
         ) from None
     compiler = _Compiler(source)
     fn = compiler.compile(tree.body)
-    return Expression(source, fn, compiler.variables, compiler.event_fields, compiler.states,
-                      _atoms(tree.body))
+    return Expression(
+        source, fn, compiler.variables, compiler.event_fields, compiler.states, _atoms(tree.body)
+    )

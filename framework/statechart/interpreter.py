@@ -55,9 +55,23 @@ class StatechartRuntimeError(FwError):
 class _Node:
     """Run-time twin of a `State`: the interpreter's mutable, precomputed view."""
 
-    __slots__ = ("active", "active_child", "by_event", "children", "completion", "depth",
-                 "epoch", "has_history", "initial", "kind", "parent", "state",
-                 "subtree_completion", "subtree_events", "timed")
+    __slots__ = (
+        "active",
+        "active_child",
+        "by_event",
+        "children",
+        "completion",
+        "depth",
+        "epoch",
+        "has_history",
+        "initial",
+        "kind",
+        "parent",
+        "state",
+        "subtree_completion",
+        "subtree_events",
+        "timed",
+    )
 
     def __init__(self, state: State):
         self.state = state
@@ -80,8 +94,18 @@ class _Node:
 class _Arc:
     """Run-time twin of a `Transition` with its exit domain and entry path precomputed."""
 
-    __slots__ = ("chain", "domain", "effect", "guard", "is_else", "path", "resume",
-                 "source", "target", "transition")
+    __slots__ = (
+        "chain",
+        "domain",
+        "effect",
+        "guard",
+        "is_else",
+        "path",
+        "resume",
+        "source",
+        "target",
+        "transition",
+    )
 
     def __init__(self, transition: Transition, source: _Node, target: _Node | None):
         self.transition = transition
@@ -292,8 +316,11 @@ class Interpreter:
     @property
     def leaves(self) -> list[str]:
         """Paths of the active states that have no active child."""
-        return [n.state.path for n in self._active_preorder(self._root)
-                if n.kind not in (_COMPOUND, _PARALLEL)]
+        return [
+            n.state.path
+            for n in self._active_preorder(self._root)
+            if n.kind not in (_COMPOUND, _PARALLEL)
+        ]
 
     @property
     def pending_configurations(self) -> dict[str, str]:
@@ -333,13 +360,19 @@ class Interpreter:
         if arc is None:  # a configuration timeout
             pending = self._pending.pop(node, None)
             if pending is not None:
-                self._process(Event(CONFIG_FAILED, {
-                    "tag": pending[0], "state": node.state.path,
-                    "reason": f"no acknowledgement within {node.state.configure.timeout:g} s",
-                }, "internal"))
+                self._process(
+                    Event(
+                        CONFIG_FAILED,
+                        {
+                            "tag": pending[0],
+                            "state": node.state.path,
+                            "reason": f"no acknowledgement within {node.state.configure.timeout:g} s",
+                        },
+                        "internal",
+                    )
+                )
             return
-        event = Event("after", {"state": node.state.path, "delay": arc.transition.after},
-                      "timer")
+        event = Event("after", {"state": node.state.path, "delay": arc.transition.after}, "timer")
         for listener in self.listeners:
             listener.on_event(event)
         env = Env(self.variables, event, self.is_active)
@@ -367,16 +400,18 @@ class Interpreter:
             del self._pending[node]
             settled = True
             if event.name == CONFIG_DONE and node.state.do:
-                self._actions(node.state.do, Env(self.variables, event, self.is_active),
-                              node.state)
+                self._actions(node.state.do, Env(self.variables, event, self.is_active), node.state)
         return settled
 
     def _guard(self, arc: _Arc, env: Env) -> bool:
         try:
             return bool(arc.guard(env))  # type: ignore[misc]
         except Exception as exc:  # a guard never crashes the Coordinator
-            self._error(f"guard {arc.guard.source!r} of {arc.transition.location} failed: "
-                        f"{exc}; treated as false", env.event)
+            self._error(
+                f"guard {arc.guard.source!r} of {arc.transition.location} failed: "
+                f"{exc}; treated as false",
+                env.event,
+            )
             return False
 
     def _enabled(self, arc: _Arc, env: Env) -> tuple[_Arc, ...] | None:
@@ -460,8 +495,10 @@ class Interpreter:
             for chain in chosen:
                 if chain[0].source.active:
                     self._fire(chain, None, env)
-        self._error(f"more than {MAX_MICROSTEPS} completion transitions in one step "
-                    "(a livelock); stopped", None)
+        self._error(
+            f"more than {MAX_MICROSTEPS} completion transitions in one step (a livelock); stopped",
+            None,
+        )
 
     # -- firing ------------------------------------------------------------------
     def _fire(self, chain: tuple[_Arc, ...], event: Event | None, env: Env) -> None:
@@ -542,16 +579,17 @@ class Interpreter:
             self._actions(state.entry, env, state)
         for arc in node.timed:
             self._seq += 1
-            heapq.heappush(self._timers, (self.clock.now() + arc.transition.after, self._seq,
-                                          node, node.epoch, arc))
+            heapq.heappush(
+                self._timers,
+                (self.clock.now() + arc.transition.after, self._seq, node, node.epoch, arc),
+            )
         request = state.configure
         if request is not None:
             deadline = self.clock.now() + request.timeout
             self._pending[node] = (request.tag, deadline)
             self._seq += 1
             heapq.heappush(self._timers, (deadline, self._seq, node, node.epoch, None))
-            self._output(Output("configure", state.path, tag=request.tag,
-                                timeout=request.timeout))
+            self._output(Output("configure", state.path, tag=request.tag, timeout=request.timeout))
         elif state.do:
             self._actions(state.do, env, state)
         for listener in self.listeners:
@@ -559,8 +597,7 @@ class Interpreter:
         if node.kind is _FINAL and parent is self._root:
             self.finished = True
 
-    def _enter_path(self, path: tuple[_Node, ...], i: int, resume: _Node | None,
-                    env: Env) -> None:
+    def _enter_path(self, path: tuple[_Node, ...], i: int, resume: _Node | None, env: Env) -> None:
         node = path[i]
         self._enter(node, env)
         if i + 1 < len(path):
@@ -597,8 +634,11 @@ class Interpreter:
                 if chain is not None:
                     break
             if chain is None:  # the validator requires an else branch; stay consistent anyway
-                self._error(f"no branch of initial junction {target.state.path} is enabled; "
-                            "taking its last branch", env.event)
+                self._error(
+                    f"no branch of initial junction {target.state.path} is enabled; "
+                    "taking its last branch",
+                    env.event,
+                )
                 chain = (target.completion[-1],)
             for arc in chain:
                 if arc.effect:
@@ -648,8 +688,7 @@ class Interpreter:
             try:
                 self._action(action, env, state)
             except Exception as exc:  # an action never crashes the Coordinator
-                self._error(f"{action.kind} action at {action.location} failed: {exc}",
-                            env.event)
+                self._error(f"{action.kind} action at {action.location} failed: {exc}", env.event)
 
     def _action(self, action: Action, env: Env, state: State) -> None:
         kind = action.kind
@@ -657,21 +696,38 @@ class Interpreter:
             for name, value in action.assignments.items():
                 self.variables[name] = self._value(value, env)
         elif kind == "raise":
-            self._internal.append(Event(action.event, self._values(action.payload, env) or None,
-                                        "internal"))
+            self._internal.append(
+                Event(action.event, self._values(action.payload, env) or None, "internal")
+            )
         elif kind == "send":
-            self._output(Output("send", state.path, event=action.event,
-                                payload=self._values(action.payload, env)))
+            self._output(
+                Output(
+                    "send",
+                    state.path,
+                    event=action.event,
+                    payload=self._values(action.payload, env),
+                )
+            )
         elif kind == "configure":
             self._pending_tags[action.tag] = self._pending_tags.get(action.tag, 0) + 1
-            self._output(Output("configure", state.path, tag=action.tag,
-                                timeout=self.chart.configure_timeout))
+            self._output(
+                Output(
+                    "configure", state.path, tag=action.tag, timeout=self.chart.configure_timeout
+                )
+            )
         elif kind == "write":
-            self._output(Output("write", state.path, port=action.port,
-                                value=self._value(action.value, env)))  # type: ignore[arg-type]
+            self._output(
+                Output("write", state.path, port=action.port, value=self._value(action.value, env))
+            )  # type: ignore[arg-type]
         elif kind == "call":
-            self._output(Output("call", state.path, operation=action.operation,
-                                args=self._values(action.args, env)))
+            self._output(
+                Output(
+                    "call",
+                    state.path,
+                    operation=action.operation,
+                    args=self._values(action.args, env),
+                )
+            )
         else:
             self._output(Output("log", state.path, message=action.message))
 
@@ -701,12 +757,14 @@ class Interpreter:
             "variables": dict(self.variables),
             "shallow": {n.state.path: c.state.path for n, c in self._shallow.items()},
             "deep": {n.state.path: [c.state.path for c in cs] for n, cs in self._deep.items()},
-            "pending": {n.state.path: [tag, deadline - now]
-                        for n, (tag, deadline) in self._pending.items()},
+            "pending": {
+                n.state.path: [tag, deadline - now] for n, (tag, deadline) in self._pending.items()
+            },
             "pending_tags": dict(self._pending_tags),
-            "timers": [[deadline - now, node.state.path,
-                        arc.transition.order if arc is not None else None]
-                       for deadline, _, node, _, arc in live],
+            "timers": [
+                [deadline - now, node.state.path, arc.transition.order if arc is not None else None]
+                for deadline, _, node, _, arc in live
+            ],
             "internal": [[e.name, e.payload] for e in self._internal],
             "external": [[e.name, e.payload] for e in self._external],
         }
@@ -717,7 +775,8 @@ class Interpreter:
             raise StatechartRuntimeError("restore() needs a fresh, not started interpreter")
         if snapshot.get("chart") != self.chart.name:
             raise StatechartRuntimeError(
-                f"snapshot is of chart {snapshot.get('chart')!r}, not {self.chart.name!r}")
+                f"snapshot is of chart {snapshot.get('chart')!r}, not {self.chart.name!r}"
+            )
         try:
             self._restore(snapshot)
         except KeyError as exc:
@@ -738,12 +797,23 @@ class Interpreter:
         self._deep = {nodes[p]: [nodes[c] for c in cs] for p, cs in snap["deep"].items()}
         self._pending = {nodes[p]: (tag, now + rest) for p, (tag, rest) in snap["pending"].items()}
         self._pending_tags = dict(snap["pending_tags"])
-        arcs = {a.transition.order: a for n in nodes.values()
-                for a in (*n.timed, *n.completion, *(x for v in n.by_event.values() for x in v))}
+        arcs = {
+            a.transition.order: a
+            for n in nodes.values()
+            for a in (*n.timed, *n.completion, *(x for v in n.by_event.values() for x in v))
+        }
         for rest, path, order in snap["timers"]:
             node = nodes[path]
             self._seq += 1
-            heapq.heappush(self._timers, (now + rest, self._seq, node, node.epoch,
-                                          arcs[order] if order is not None else None))
+            heapq.heappush(
+                self._timers,
+                (
+                    now + rest,
+                    self._seq,
+                    node,
+                    node.epoch,
+                    arcs[order] if order is not None else None,
+                ),
+            )
         self._internal = deque(Event(n, p, "internal") for n, p in snap["internal"])
         self._external = deque(Event(n, p) for n, p in snap["external"])

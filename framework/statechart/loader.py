@@ -63,8 +63,13 @@ class _Builder:
         self.findings.append(Finding("error", code, message, location, hint))
 
     # -- documents -------------------------------------------------------------------
-    def read(self, path: Path, include_chain: tuple[str, ...], at: Location | None,
-             text: str | None = None) -> Document | None:
+    def read(
+        self,
+        path: Path,
+        include_chain: tuple[str, ...],
+        at: Location | None,
+        text: str | None = None,
+    ) -> Document | None:
         resolved = str(path.resolve())
         if resolved in include_chain:
             cycle = " -> ".join([*include_chain, resolved])
@@ -76,8 +81,9 @@ class _Builder:
             location = getattr(exc, "location", Location(str(path)))
             if at is not None and getattr(location, "line", 0) == 0:
                 location = at
-            self.error("yaml", getattr(exc, "message", str(exc)), location,
-                       getattr(exc, "hint", ""))
+            self.error(
+                "yaml", getattr(exc, "message", str(exc)), location, getattr(exc, "hint", "")
+            )
             return None
         problems = schema.check(doc, "statechart")
         if problems:
@@ -96,8 +102,12 @@ class _Builder:
                 event = EventSpec(name, spec or "", {}, loc)
             known = self.events.get(name)
             if known is not None and known.payload != event.payload:
-                self.error("event-conflict", f"event {name!r} declared twice with different "
-                           f"payloads (first at {known.location})", loc)
+                self.error(
+                    "event-conflict",
+                    f"event {name!r} declared twice with different "
+                    f"payloads (first at {known.location})",
+                    loc,
+                )
             self.events.setdefault(name, event)
         for name, spec in (doc.data.get("variables") or {}).items():
             loc = doc.location(("variables", name))
@@ -108,39 +118,70 @@ class _Builder:
                 initial, vtype, doc_text = spec, None, ""
             vtype = vtype or _infer_type(initial)
             if vtype in _TYPES and not _is_type(initial, vtype):
-                self.error("variable-type", f"initial value {initial!r} of {name!r} is not "
-                           f"of type {vtype}", loc)
+                self.error(
+                    "variable-type",
+                    f"initial value {initial!r} of {name!r} is not of type {vtype}",
+                    loc,
+                )
             variable = VariableSpec(name, vtype, initial, doc_text, loc)
             known = self.variables.get(name)
             if known is not None and (known.type, known.initial) != (vtype, initial):
-                self.error("variable-conflict", f"variable {name!r} declared twice differently "
-                           f"(first at {known.location})", loc)
+                self.error(
+                    "variable-conflict",
+                    f"variable {name!r} declared twice differently (first at {known.location})",
+                    loc,
+                )
             self.variables.setdefault(name, variable)
 
     # -- states ----------------------------------------------------------------------
-    def build_children(self, parent: State, doc: Document, specs: list[dict[str, Any]],
-                       base: PathKey, scope: str, chain: tuple[str, ...]) -> None:
+    def build_children(
+        self,
+        parent: State,
+        doc: Document,
+        specs: list[dict[str, Any]],
+        base: PathKey,
+        scope: str,
+        chain: tuple[str, ...],
+    ) -> None:
         seen: dict[str, Location] = {}
         for i, spec in enumerate(specs):
             here = (*base, i)
             loc = doc.location((*here, "name"))
             name = spec["name"]
             if name in seen:
-                self.error("duplicate-state", f"state {name!r} is defined twice in "
-                           f"{parent.path or 'the chart root'} (first at line {seen[name].line})",
-                           loc, "rename one of them")
+                self.error(
+                    "duplicate-state",
+                    f"state {name!r} is defined twice in "
+                    f"{parent.path or 'the chart root'} (first at line {seen[name].line})",
+                    loc,
+                    "rename one of them",
+                )
                 continue
             seen[name] = loc
             self.build_state(parent, doc, spec, here, scope, chain)
 
-    def build_state(self, parent: State, doc: Document, spec: dict[str, Any], here: PathKey,
-                    scope: str, chain: tuple[str, ...]) -> State:
+    def build_state(
+        self,
+        parent: State,
+        doc: Document,
+        spec: dict[str, Any],
+        here: PathKey,
+        scope: str,
+        chain: tuple[str, ...],
+    ) -> State:
         name = spec["name"]
         path = f"{parent.path}.{name}" if parent.path else name
         kind = Kind(spec["type"]) if "type" in spec else Kind.ATOMIC
-        state = State(name=name, path=path, kind=kind, location=doc.location(here),
-                      parent=parent, doc=spec.get("doc", ""), scope=scope,
-                      depth=parent.depth + 1)
+        state = State(
+            name=name,
+            path=path,
+            kind=kind,
+            location=doc.location(here),
+            parent=parent,
+            doc=spec.get("doc", ""),
+            scope=scope,
+            depth=parent.depth + 1,
+        )
         parent.children.append(state)
         self.states[path] = state
         children, child_base, child_doc = spec.get("states"), (*here, "states"), doc
@@ -152,24 +193,33 @@ class _Builder:
             if kind is Kind.ATOMIC:
                 state.kind = Kind.COMPOUND
             elif kind is not Kind.PARALLEL:
-                self.error("children", f"a {kind.value} state cannot have child states",
-                           doc.location((*here, "type")), "remove `states` or `type`")
+                self.error(
+                    "children",
+                    f"a {kind.value} state cannot have child states",
+                    doc.location((*here, "type")),
+                    "remove `states` or `type`",
+                )
             if child_doc is not None:
                 child_scope = path if child_doc is not doc else scope
-                child_chain = (*chain, str(Path(child_doc.file).resolve())) \
-                    if child_doc is not doc else chain
-                self.build_children(state, child_doc, children, child_base, child_scope,
-                                    child_chain)
+                child_chain = (
+                    (*chain, str(Path(child_doc.file).resolve())) if child_doc is not doc else chain
+                )
+                self.build_children(
+                    state, child_doc, children, child_base, child_scope, child_chain
+                )
         elif kind is Kind.PARALLEL:
-            self.error("parallel-empty", "a parallel state needs regions (child states)",
-                       state.location)
+            self.error(
+                "parallel-empty", "a parallel state needs regions (child states)", state.location
+            )
         if state.initial_ref is not None:
-            self.pending_refs.append(("initial", state, state.initial_ref,
-                                      doc.location((*here, "initial"))))
+            self.pending_refs.append(
+                ("initial", state, state.initial_ref, doc.location((*here, "initial")))
+            )
         if "default" in spec:
             state.default_ref = spec["default"]
-            self.pending_refs.append(("default", state, spec["default"],
-                                      doc.location((*here, "default"))))
+            self.pending_refs.append(
+                ("default", state, spec["default"], doc.location((*here, "default")))
+            )
         state.entry = self.actions(doc, spec.get("entry"), (*here, "entry"))
         state.exit = self.actions(doc, spec.get("exit"), (*here, "exit"))
         state.do = self.actions(doc, spec.get("do"), (*here, "do"))
@@ -179,8 +229,14 @@ class _Builder:
             self.transition(state, doc, tspec, (*here, "transitions", j))
         return state
 
-    def include(self, state: State, doc: Document, spec: dict[str, Any], here: PathKey,
-                chain: tuple[str, ...]) -> tuple[list[dict[str, Any]] | None, Document | None]:
+    def include(
+        self,
+        state: State,
+        doc: Document,
+        spec: dict[str, Any],
+        here: PathKey,
+        chain: tuple[str, ...],
+    ) -> tuple[list[dict[str, Any]] | None, Document | None]:
         at = doc.location((*here, "include"))
         if "states" in spec:
             self.error("include", "a state with `include` cannot also list `states`", at)
@@ -213,8 +269,12 @@ class _Builder:
         events = frozenset([raw_events] if isinstance(raw_events, str) else raw_events)
         after = self.duration(doc, spec["after"], (*here, "after")) if "after" in spec else None
         if events and after is not None:
-            self.error("trigger", "a transition has either `event` or `after`, not both", loc,
-                       "split it into two transitions")
+            self.error(
+                "trigger",
+                "a transition has either `event` or `after`, not both",
+                loc,
+                "split it into two transitions",
+            )
         guard, is_else = None, False
         if "guard" in spec:
             if spec["guard"].strip() == "else":
@@ -223,16 +283,23 @@ class _Builder:
                 guard = self.expression(doc, spec["guard"], (*here, "guard"))
         self.order += 1
         transition = Transition(
-            source=state, target_ref=spec.get("target"), events=events, after=after,
-            guard=guard, is_else=is_else,
+            source=state,
+            target_ref=spec.get("target"),
+            events=events,
+            after=after,
+            guard=guard,
+            is_else=is_else,
             effect=self.actions(doc, spec.get("effect"), (*here, "effect")),
-            priority=spec.get("priority", 0), order=self.order, location=loc,
+            priority=spec.get("priority", 0),
+            order=self.order,
+            location=loc,
             doc=spec.get("doc", ""),
         )
         state.transitions.append(transition)
         if transition.target_ref is not None:
-            self.pending_refs.append(("target", transition, transition.target_ref,
-                                      doc.location((*here, "target"))))
+            self.pending_refs.append(
+                ("target", transition, transition.target_ref, doc.location((*here, "target")))
+            )
 
     def expression(self, doc: Document, source: str, here: PathKey):
         try:
@@ -250,33 +317,51 @@ class _Builder:
     def values(self, doc: Document, raw: dict[str, Any] | None, here: PathKey) -> dict[str, Value]:
         return {k: self.value(doc, v, (*here, k)) for k, v in (raw or {}).items()}
 
-    def actions(self, doc: Document, specs: list[dict[str, Any]] | None,
-                here: PathKey) -> tuple[Action, ...]:
+    def actions(
+        self, doc: Document, specs: list[dict[str, Any]] | None, here: PathKey
+    ) -> tuple[Action, ...]:
         out = []
         for i, spec in enumerate(specs or []):
-            (kind, arg), = spec.items()
+            ((kind, arg),) = spec.items()
             at = (*here, i, kind)
             loc = doc.location(at)
             if kind in ("raise", "send"):
                 if isinstance(arg, str):
                     out.append(Action(kind, loc, event=arg))
                 else:
-                    out.append(Action(kind, loc, event=arg["event"],
-                                      payload=self.values(doc, arg.get("payload"),
-                                                          (*at, "payload"))))
+                    out.append(
+                        Action(
+                            kind,
+                            loc,
+                            event=arg["event"],
+                            payload=self.values(doc, arg.get("payload"), (*at, "payload")),
+                        )
+                    )
             elif kind == "configure":
                 out.append(Action(kind, loc, tag=arg))
             elif kind == "set":
                 out.append(Action(kind, loc, assignments=self.values(doc, arg, at)))
             elif kind == "write":
-                out.append(Action(kind, loc, port=arg["port"],
-                                  value=self.value(doc, arg["value"], (*at, "value"))))
+                out.append(
+                    Action(
+                        kind,
+                        loc,
+                        port=arg["port"],
+                        value=self.value(doc, arg["value"], (*at, "value")),
+                    )
+                )
             elif kind == "call":
                 if isinstance(arg, str):
                     out.append(Action(kind, loc, operation=arg))
                 else:
-                    out.append(Action(kind, loc, operation=arg["operation"],
-                                      args=self.values(doc, arg.get("args"), (*at, "args"))))
+                    out.append(
+                        Action(
+                            kind,
+                            loc,
+                            operation=arg["operation"],
+                            args=self.values(doc, arg.get("args"), (*at, "args")),
+                        )
+                    )
             else:
                 out.append(Action("log", loc, message=str(arg)))
         return tuple(out)
@@ -290,8 +375,9 @@ class _Builder:
             for state in self.states.values():
                 self.by_name.setdefault(state.name, []).append(state)
         last = ref.rsplit(".", 1)[-1]
-        candidates = [s for s in self.by_name.get(last, ()) if s.path.endswith("." + ref)
-                      or s.path == ref]
+        candidates = [
+            s for s in self.by_name.get(last, ()) if s.path.endswith("." + ref) or s.path == ref
+        ]
         if scope:
             scoped = [s for s in candidates if s.path.startswith(scope + ".")]
             if len(scoped) == 1:
@@ -300,13 +386,21 @@ class _Builder:
             return candidates[0]
         if candidates:
             names = ", ".join(sorted(s.path for s in candidates))
-            self.error("ambiguous", f"{ref!r} names several states: {names}", location,
-                       "write the dotted path of the one you mean")
+            self.error(
+                "ambiguous",
+                f"{ref!r} names several states: {names}",
+                location,
+                "write the dotted path of the one you mean",
+            )
             return None
         names = sorted({s.name for s in self.states.values()} | set(self.states))
         close = difflib.get_close_matches(ref, names, n=1)
-        self.error("unknown-state", f"unknown state {ref!r}", location,
-                   f"did you mean {close[0]!r}?" if close else "check the spelling")
+        self.error(
+            "unknown-state",
+            f"unknown state {ref!r}",
+            location,
+            f"did you mean {close[0]!r}?" if close else "check the spelling",
+        )
         return None
 
     def resolve_all(self, chart: Statechart, safe_loc: Location | None) -> None:
@@ -340,8 +434,9 @@ def _is_type(value: Any, vtype: str) -> bool:
     return isinstance(value, _TYPES[vtype])
 
 
-def build_statechart(path: str | Path, text: str | None = None
-                     ) -> tuple[Statechart | None, list[Finding]]:
+def build_statechart(
+    path: str | Path, text: str | None = None
+) -> tuple[Statechart | None, list[Finding]]:
     """Load a chart file (or `text` named `path`); return the model (None if it cannot be
     built) and all findings."""
     builder = _Builder()
@@ -350,21 +445,32 @@ def build_statechart(path: str | Path, text: str | None = None
     if doc is None:
         return None, builder.findings
     data = doc.data
-    root = State(name=data["statechart"], path="", kind=Kind.COMPOUND,
-                 location=doc.location(()), initial_ref=data.get("initial"))
+    root = State(
+        name=data["statechart"],
+        path="",
+        kind=Kind.COMPOUND,
+        location=doc.location(()),
+        initial_ref=data.get("initial"),
+    )
     builder.states[""] = root
-    builder.build_children(root, doc, data["states"], ("states",), "",
-                           (str(file.resolve()),))
+    builder.build_children(root, doc, data["states"], ("states",), "", (str(file.resolve()),))
     if root.initial_ref is not None:
-        builder.pending_refs.append(("initial", root, root.initial_ref,
-                                     doc.location(("initial",))))
-    chart = Statechart(name=data["statechart"], root=root, file=str(file),
-                       description=data.get("description", ""), events=builder.events,
-                       variables=builder.variables, safe_state_ref=data.get("safe_state"),
-                       files=builder.files, states=builder.states)
+        builder.pending_refs.append(("initial", root, root.initial_ref, doc.location(("initial",))))
+    chart = Statechart(
+        name=data["statechart"],
+        root=root,
+        file=str(file),
+        description=data.get("description", ""),
+        events=builder.events,
+        variables=builder.variables,
+        safe_state_ref=data.get("safe_state"),
+        files=builder.files,
+        states=builder.states,
+    )
     if "configure_timeout" in data:
-        chart.configure_timeout = builder.duration(doc, data["configure_timeout"],
-                                                   ("configure_timeout",))
+        chart.configure_timeout = builder.duration(
+            doc, data["configure_timeout"], ("configure_timeout",)
+        )
     builder.resolve_all(chart, doc.location(("safe_state",)) if "safe_state" in data else None)
     for index, state in enumerate(root.walk()):
         state.index = index
@@ -374,8 +480,7 @@ def build_statechart(path: str | Path, text: str | None = None
     return chart, builder.findings
 
 
-def load_statechart(path: str | Path, validate: bool = True, text: str | None = None
-                    ) -> Statechart:
+def load_statechart(path: str | Path, validate: bool = True, text: str | None = None) -> Statechart:
     """Load (and by default validate) a chart; raise `FindingsError` listing every error."""
     chart, findings = build_statechart(path, text)
     errors = [f for f in findings if f.severity == "error"]

@@ -224,5 +224,6 @@ class Statechart:
 
     def transitions(self) -> list[Transition]:
         """All transitions in document order."""
-        return sorted((t for s in self.states.values() for t in s.transitions),
-                      key=lambda t: t.order)
+        return sorted(
+            (t for s in self.states.values() for t in s.transitions), key=lambda t: t.order
+        )

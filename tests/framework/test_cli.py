@@ -8,7 +8,6 @@ import sys
 import pytest
 
 from framework.cli import main
-
 from tests.conftest import REPO
 
 SEEG = str(REPO / "statecharts" / "seeg.yaml")
@@ -20,25 +19,30 @@ def test_validate_ok(capsys):
 
 
 def test_validate_reports_every_error_and_exits_1(write, capsys):
-    path = write("statechart: s\ninitial: Idel\nstates:\n  - {name: Idle, transitions: "
-                 "[{event: e, target: Movng}]}\n")
+    path = write(
+        "statechart: s\ninitial: Idel\nstates:\n  - {name: Idle, transitions: "
+        "[{event: e, target: Movng}]}\n"
+    )
     assert main(["validate", str(path)]) == 1
     out = capsys.readouterr().out.strip().splitlines()
     assert any(line.startswith(f"{path}:2:") and "Idel" in line for line in out)
-    assert any("Movng" in line and "did you mean" not in line or "Movng" in line for line in out)
+    assert any(("Movng" in line and "did you mean" not in line) or "Movng" in line for line in out)
 
 
 def test_validate_json_is_machine_readable(write, capsys):
-    path = write("statechart: s\ninitial: A\nstates:\n  - {name: A, transitions: "
-                 "[{event: e, target: A}]}\n")
+    path = write(
+        "statechart: s\ninitial: A\nstates:\n  - {name: A, transitions: [{event: e, target: A}]}\n"
+    )
     assert main(["validate", str(path), "--json"]) == 1
     findings = json.loads(capsys.readouterr().out)
     assert findings[0]["code"] == "undeclared-event" and findings[0]["line"] == 4
 
 
 def test_strict_fails_on_warnings(write, capsys):
-    path = write("statechart: s\nevents: {e: null, unused: null}\ninitial: A\nstates:\n"
-                 "  - {name: A, transitions: [{event: e, target: A}]}\n")
+    path = write(
+        "statechart: s\nevents: {e: null, unused: null}\ninitial: A\nstates:\n"
+        "  - {name: A, transitions: [{event: e, target: A}]}\n"
+    )
     assert main(["validate", str(path)]) == 0
     assert main(["validate", "--strict", str(path)]) == 1
 
@@ -65,12 +69,14 @@ def test_graph_writes_the_requested_format(tmp_path, capsys):
 
 
 def test_run_prints_the_trace_and_the_final_state(capsys):
-    code = main(["run", SEEG, "--auto-ack", "-e",
-                 'e_START,e_TOK{"tracker": "vicra"},e_CRITICAL_AREA,+2s'])
+    code = main(
+        ["run", SEEG, "--auto-ack", "-e", 'e_START,e_TOK{"tracker": "vicra"},e_CRITICAL_AREA,+2s']
+    )
     out = capsys.readouterr().out
     assert code == 0 and "configure tracker_2_up" in out
     assert out.strip().splitlines()[-1] == (
-        "active: System_OK.Area.Critical, System_OK.Task.Moving.Moving_Slow")
+        "active: System_OK.Area.Critical, System_OK.Task.Moving.Moving_Slow"
+    )
 
 
 def test_run_fail_injects_configuration_failures(capsys):
@@ -98,10 +104,19 @@ def test_help_teaches_with_examples(capsys):
 
 @pytest.mark.skipif(shutil.which("fw") is None, reason="needs `pip install -e .`")
 def test_the_installed_console_script_runs_as_a_real_process(tmp_path):
-    done = subprocess.run(["fw", "run", SEEG, "--auto-ack", "-i"], input="e_START\n?\nq\n",
-                          capture_output=True, text=True, timeout=60)
+    done = subprocess.run(
+        ["fw", "run", SEEG, "--auto-ack", "-i"],
+        input="e_START\n?\nq\n",
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert done.returncode == 0, done.stderr
     assert "events:" in done.stdout and "Tracker_Selection" in done.stdout
-    bad = subprocess.run([sys.executable, "-m", "framework.cli", "validate",
-                          str(tmp_path / "x.yaml")], capture_output=True, text=True, timeout=60)
+    bad = subprocess.run(
+        [sys.executable, "-m", "framework.cli", "validate", str(tmp_path / "x.yaml")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert bad.returncode == 1 and "Traceback" not in bad.stderr + bad.stdout

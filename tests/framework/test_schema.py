@@ -7,13 +7,17 @@ from hypothesis import strategies as st
 
 from framework import schema
 from framework.yamlio import load_yaml
-
 from tests.conftest import REPO
 
 SEEG = load_yaml(REPO / "statecharts" / "seeg.yaml").data
-JUNK = st.one_of(st.none(), st.booleans(), st.integers(-3, 3), st.text(max_size=6),
-                 st.lists(st.integers(), max_size=2), st.dictionaries(st.text(max_size=4),
-                                                                      st.integers(), max_size=2))
+JUNK = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-3, 3),
+    st.text(max_size=6),
+    st.lists(st.integers(), max_size=2),
+    st.dictionaries(st.text(max_size=4), st.integers(), max_size=2),
+)
 
 
 def paths(node, prefix=()):

@@ -15,8 +15,15 @@ def test_yaml_11_traps_stay_strings():
 
 def test_yaml_12_core_scalars_are_resolved():
     doc = load_yaml_text("a: 010\nb: 0x1F\nc: 1.5e3\nd: true\ne: ~\nf: .inf\ng: '12'\n")
-    assert doc.data == {"a": 10, "b": 31, "c": 1500.0, "d": True, "e": None, "f": math.inf,
-                        "g": "12"}
+    assert doc.data == {
+        "a": 10,
+        "b": 31,
+        "c": 1500.0,
+        "d": True,
+        "e": None,
+        "f": math.inf,
+        "g": "12",
+    }
 
 
 def test_every_value_has_a_line_and_column():

@@ -3,7 +3,6 @@
 import pytest
 
 from framework.statechart.loader import load_statechart
-
 from tests.conftest import REPO, Run
 
 SETUP = ["setup_components", "setup_tracking", "setup_people", "setup_robot"]
@@ -19,7 +18,7 @@ def configured(run):
 
 
 def task(run):
-    return [leaf for leaf in run.leaves if ".Task." in leaf][0].split(".")[-1]
+    return next(leaf for leaf in run.leaves if ".Task." in leaf).split(".")[-1]
 
 
 def ok(tag):
@@ -44,8 +43,9 @@ def test_any_setup_failure_aborts_and_the_robot_never_moves(seeg, failing):
     sent = [o for o in r.outputs if o.kind == "send"]
     assert sent[0].event == "e_SETUP_FAILED" and sent[0].payload["tag"] == failing
     r.send("e_START", ("e_TOK", {"tracker": "certus"}))
-    assert not any(o.kind == "configure" and o.tag.startswith(("move", "tracker"))
-                   for o in r.outputs), "no motion configuration after an abort"
+    assert not any(
+        o.kind == "configure" and o.tag.startswith(("move", "tracker")) for o in r.outputs
+    ), "no motion configuration after an abort"
 
 
 def test_a_setup_step_that_never_answers_times_out_and_aborts(seeg):
@@ -84,8 +84,7 @@ def test_critical_area_slows_and_safe_area_speeds_up(seeg):
 
 def test_a_tracker_fault_reselects_and_resumes_at_the_right_speed(seeg):
     r = started(seeg)
-    r.send("e_CRITICAL_AREA",
-           ("e_TFAULT", {"tracker": "certus", "fault": "MISSING"}))
+    r.send("e_CRITICAL_AREA", ("e_TFAULT", {"tracker": "certus", "fault": "MISSING"}))
     assert task(r) == "Tracker_Selection"
     r.send(("e_TOK", {"tracker": "vicra"}))
     assert task(r) == "Moving_Slow", "the area was remembered while reselecting"
@@ -137,7 +136,9 @@ def test_a_failed_motion_configuration_stops_the_robot(seeg):
 def test_a_failed_stop_goes_to_fault_and_alerts(seeg):
     r = Run(seeg, auto_ack=True)
     r.auto_ack = False
-    r.send(("e_STOP", {"reason": "collision"}),
-           ("config.failed", {"tag": "robot_stop", "reason": "no answer"}))
+    r.send(
+        ("e_STOP", {"reason": "collision"}),
+        ("config.failed", {"tag": "robot_stop", "reason": "no answer"}),
+    )
     assert task(r) == "Fault"
     assert any(o.kind == "send" and o.event == "e_STOP" for o in r.outputs)

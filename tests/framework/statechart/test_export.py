@@ -6,7 +6,6 @@ import pytest
 
 from framework.statechart.export import ExportError, render, to_dot, to_mermaid, to_plantuml
 from framework.statechart.loader import load_statechart
-
 from tests.conftest import REPO
 
 

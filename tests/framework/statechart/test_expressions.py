@@ -37,11 +37,23 @@ def test_active_asks_about_states():
     assert compile_expression("active('A') or active('B')").states == {"A", "B"}
 
 
-@pytest.mark.parametrize("source", [
-    "__import__('os').system('ls')", "x.__class__", "lambda: 1", "[i for i in x]",
-    "open('f')", "a is None", "x := 1", "f'{x}'", "2 ** 10", "getattr(x, 'y')",
-    "active(name)", "",
-])
+@pytest.mark.parametrize(
+    "source",
+    [
+        "__import__('os').system('ls')",
+        "x.__class__",
+        "lambda: 1",
+        "[i for i in x]",
+        "open('f')",
+        "a is None",
+        "x := 1",
+        "f'{x}'",
+        "2 ** 10",
+        "getattr(x, 'y')",
+        "active(name)",
+        "",
+    ],
+)
 def test_anything_else_is_refused_at_load(source):
     with pytest.raises(ExpressionError):
         compile_expression(source)
@@ -59,18 +71,21 @@ def test_runtime_failures_are_evaluation_errors():
         evaluate("missing + 1")
 
 
-@pytest.mark.parametrize(("a", "b", "exclusive"), [
-    ("x > 2", "x <= 2", True),
-    ("x > 2", "x < 5", False),
-    ("x == 'a'", "x == 'b'", True),
-    ("x == 'a'", "x != 'a'", True),
-    ("flag", "not flag", True),
-    ("flag and y > 1", "not flag", True),
-    ("x >= 2", "x <= 2", False),
-    ("x > 2", "y <= 2", False),
-    ("x > 2 or z", "x <= 2", False),
-    ("event.tag != 'robot_stop'", "event.tag == 'robot_stop'", True),
-    ("3 < x", "x < 3", True),
-])
+@pytest.mark.parametrize(
+    ("a", "b", "exclusive"),
+    [
+        ("x > 2", "x <= 2", True),
+        ("x > 2", "x < 5", False),
+        ("x == 'a'", "x == 'b'", True),
+        ("x == 'a'", "x != 'a'", True),
+        ("flag", "not flag", True),
+        ("flag and y > 1", "not flag", True),
+        ("x >= 2", "x <= 2", False),
+        ("x > 2", "y <= 2", False),
+        ("x > 2 or z", "x <= 2", False),
+        ("event.tag != 'robot_stop'", "event.tag == 'robot_stop'", True),
+        ("3 < x", "x < 3", True),
+    ],
+)
 def test_exclusivity_proofs_are_sound(a, b, exclusive):
     assert provably_exclusive(compile_expression(a), compile_expression(b)) is exclusive

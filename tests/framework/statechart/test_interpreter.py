@@ -60,7 +60,8 @@ def test_inner_transition_fires_when_no_outer_one_is_enabled(run):
 
 
 def test_priority_then_document_order_inside_one_state(run):
-    r = run("""
+    r = run(
+        """
         statechart: p
         events: {e: null}
         initial: A
@@ -71,7 +72,9 @@ def test_priority_then_document_order_inside_one_state(run):
               - {event: e, target: C, priority: 5}
           - {name: B, transitions: [{event: e, target: A}]}
           - {name: C, transitions: [{event: e, target: A}]}
-        """, validate=False)
+        """,
+        validate=False,
+    )
     r.send("e")
     assert r.leaves == ["C"]
 
@@ -155,7 +158,8 @@ def test_a_region_leaving_the_parallel_state_preempts_later_regions(run):
 
 
 def test_entering_a_parallel_state_through_one_region_enters_the_others(run):
-    r = run("""
+    r = run(
+        """
         statechart: pe
         events: {go: null}
         initial: X
@@ -166,7 +170,9 @@ def test_entering_a_parallel_state_through_one_region_enters_the_others(run):
             states:
               - {name: R1, initial: A1, states: [{name: A1}]}
               - {name: R2, initial: A2, states: [{name: A2}, {name: B2}]}
-        """, validate=False)
+        """,
+        validate=False,
+    )
     r.send("go")
     assert r.leaves == ["P.R1.A1", "P.R2.B2"]
 
@@ -352,7 +358,8 @@ def test_completion_of_a_composite_when_its_final_child_is_reached(run):
 
 
 def test_internal_transitions_do_not_exit_or_enter(run):
-    r = run("""
+    r = run(
+        """
         statechart: it
         events: {tick: null}
         variables: {n: 0}
@@ -362,13 +369,16 @@ def test_internal_transitions_do_not_exit_or_enter(run):
             exit: [{log: exit}]
             transitions:
               - {event: tick, effect: [{set: {n: "= n + 1"}}]}
-        """, validate=False)
+        """,
+        validate=False,
+    )
     r.send("tick", "tick")
     assert r.interpreter.variables["n"] == 2 and logs(r) == []
 
 
 def test_local_transition_to_a_descendant_keeps_the_composite_self_transition_does_not(run):
-    r = run("""
+    r = run(
+        """
         statechart: lo
         events: {down: null, self: null}
         initial: C
@@ -380,7 +390,9 @@ def test_local_transition_to_a_descendant_keeps_the_composite_self_transition_do
             transitions:
               - {event: down, target: Y}
               - {event: self, target: C}
-        """, validate=False)
+        """,
+        validate=False,
+    )
     r.send("down")
     assert r.leaves == ["C.Y"] and "exit C" not in logs(r)
     r.send("self")
@@ -388,20 +400,24 @@ def test_local_transition_to_a_descendant_keeps_the_composite_self_transition_do
 
 
 def test_a_failing_guard_is_reported_and_treated_as_false(run):
-    r = run("""
+    r = run(
+        """
         statechart: g
         events: {e: {payload: {x: number}}}
         initial: A
         states:
           - {name: A, transitions: [{event: e, guard: event.x > 1, target: B}]}
           - {name: B}
-        """, validate=False)
+        """,
+        validate=False,
+    )
     r.send("e")
     assert r.leaves == ["A"] and r.kinds("error") and r.kinds("unhandled")
 
 
 def test_actions_reach_the_host_as_outputs(run):
-    r = run("""
+    r = run(
+        """
         statechart: o
         events: {e: {payload: {v: number}}, out: null}
         variables: {k: 2}
@@ -415,7 +431,9 @@ def test_actions_reach_the_host_as_outputs(run):
                   - write: {port: speed, value: "= event.v"}
                   - call: {operation: robot.brake, args: {hard: true}}
                   - configure: extra
-        """, validate=False)
+        """,
+        validate=False,
+    )
     r.send(("e", {"v": 1.5}))
     kinds = {o.kind: o for o in r.outputs}
     assert kinds["send"].payload == {"v": 3.0}

@@ -5,7 +5,6 @@ import pytest
 from framework.errors import FindingsError
 from framework.statechart.loader import build_statechart, load_statechart, parse_duration
 from framework.statechart.model import Kind
-
 from tests.conftest import REPO
 
 
@@ -14,9 +13,17 @@ def findings_of(write, text, name="chart.yaml"):
     return findings
 
 
-@pytest.mark.parametrize(("text", "seconds"), [
-    ("2s", 2.0), ("500ms", 0.5), ("1.5min", 90.0), (" 3 s ", 3.0), (4, 4.0), ("1h", 3600.0),
-])
+@pytest.mark.parametrize(
+    ("text", "seconds"),
+    [
+        ("2s", 2.0),
+        ("500ms", 0.5),
+        ("1.5min", 90.0),
+        (" 3 s ", 3.0),
+        (4, 4.0),
+        ("1h", 3600.0),
+    ],
+)
 def test_durations(text, seconds):
     assert parse_duration(text) == seconds
 
@@ -35,13 +42,16 @@ def test_the_shipped_seeg_chart_loads_with_its_include():
 
 
 def test_schema_errors_point_at_the_offending_key(write):
-    findings = findings_of(write, """
+    findings = findings_of(
+        write,
+        """
         statechart: s
         initial: A
         states:
           - name: A
             transitons: []
-        """)
+        """,
+    )
     assert len(findings) == 1
     f = findings[0]
     assert (f.location.line, f.location.path) == (6, "states[0].transitons")
@@ -49,43 +59,54 @@ def test_schema_errors_point_at_the_offending_key(write):
 
 
 def test_yaml_11_booleans_in_a_chart_are_explained(write):
-    findings = findings_of(write, """
+    findings = findings_of(
+        write,
+        """
         statechart: s
         initial: A
         states:
           - name: A
             transitions: [{event: e, target: A, priority: true}]
-        """)
+        """,
+    )
     assert findings and "boolean" in findings[0].message
 
 
 def test_every_unknown_reference_is_reported_with_a_suggestion(write):
-    findings = findings_of(write, """
+    findings = findings_of(
+        write,
+        """
         statechart: s
         initial: Idel
         states:
           - name: Idle
             transitions: [{event: e, target: Movng}]
           - name: Moving
-        """)
+        """,
+    )
     messages = {f.location.line: (f.message, f.hint) for f in findings}
     assert messages[3] == ("unknown state 'Idel'", "did you mean 'Idle'?")
     assert messages[6] == ("unknown state 'Movng'", "did you mean 'Moving'?")
 
 
 def test_ambiguous_short_names_must_be_qualified(write):
-    findings = findings_of(write, """
+    findings = findings_of(
+        write,
+        """
         statechart: s
         initial: A
         states:
           - {name: A, initial: X, states: [{name: X}], transitions: [{event: e, target: X}]}
           - {name: B, initial: X, states: [{name: X}]}
-        """)
+        """,
+    )
     assert any(f.code == "ambiguous" and "A.X, B.X" in f.message for f in findings)
 
 
 def test_bad_expressions_and_durations_are_located(write):
-    findings = findings_of(write, """
+    findings = findings_of(
+        write,
+        """
         statechart: s
         initial: A
         states:
@@ -93,65 +114,85 @@ def test_bad_expressions_and_durations_are_located(write):
             transitions:
               - {event: e, guard: "x ==", target: A}
               - {event: f, guard: "open('x')", target: A}
-        """)
-    assert [(f.code, f.location.line) for f in findings] == [("expression", 7),
-                                                               ("expression", 8)]
-    findings = findings_of(write, """
+        """,
+    )
+    assert [(f.code, f.location.line) for f in findings] == [("expression", 7), ("expression", 8)]
+    findings = findings_of(
+        write,
+        """
         statechart: s
         initial: A
         states:
           - {name: A, transitions: [{after: 2 parsecs, target: A}]}
-        """)
+        """,
+    )
     assert findings[0].code == "schema" and findings[0].location.path.endswith("after")
 
 
 def test_duplicate_sibling_names_are_refused(write):
-    findings = findings_of(write, """
+    findings = findings_of(
+        write,
+        """
         statechart: s
         initial: A
         states: [{name: A}, {name: A}]
-        """)
+        """,
+    )
     assert findings[0].code == "duplicate-state"
 
 
 def test_includes_are_scoped_and_located_in_their_own_file(write):
-    write("""
+    write(
+        """
         statechart: part
         events: {e: null}
         initial: X
         states:
           - {name: X, transitions: [{event: e, target: Y}]}
           - {name: Y, transitions: [{event: e, target: Nowhere}]}
-        """, "lib/part.yaml")
-    findings = findings_of(write, """
+        """,
+        "lib/part.yaml",
+    )
+    findings = findings_of(
+        write,
+        """
         statechart: s
         initial: A
         states:
           - {name: A, include: lib/part.yaml}
           - {name: B, include: lib/part.yaml}
-        """)
+        """,
+    )
     # X/Y exist twice, but references inside each copy resolve within it
     assert [f.code for f in findings] == ["unknown-state", "unknown-state"]
-    assert all(f.location.file.endswith("lib/part.yaml") and f.location.line == 7
-               for f in findings)
+    assert all(f.location.file.endswith("lib/part.yaml") and f.location.line == 7 for f in findings)
 
 
 def test_include_cycles_and_missing_files_are_errors(write):
-    write("""
+    write(
+        """
         statechart: a
         initial: S
         states: [{name: S, include: b.yaml}]
-        """, "a.yaml")
-    write("""
+        """,
+        "a.yaml",
+    )
+    write(
+        """
         statechart: b
         initial: T
         states: [{name: T, include: a.yaml}, {name: U, include: missing.yaml}]
-        """, "b.yaml")
-    root = write("""
+        """,
+        "b.yaml",
+    )
+    root = write(
+        """
         statechart: r
         initial: R
         states: [{name: R, include: a.yaml}]
-        """, "r.yaml")
+        """,
+        "r.yaml",
+    )
     _, findings = build_statechart(root)
     codes = sorted(f.code for f in findings)
     assert "include-cycle" in codes and "yaml" in codes

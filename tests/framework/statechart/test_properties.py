@@ -23,13 +23,15 @@ from framework.statechart.interpreter import Interpreter
 from framework.statechart.loader import build_statechart, load_statechart
 from framework.statechart.model import Kind, Statechart
 from framework.statechart.validator import validate_chart
-
 from tests.conftest import REPO
 
 EXTERNAL = ["a", "b", "c"]
 RAISED = ["r"]
-PROPS = settings(max_examples=60, deadline=None,
-                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+PROPS = settings(
+    max_examples=60,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
 
 
 @st.composite
@@ -50,16 +52,20 @@ def chart_specs(draw: Any, guards: bool = True) -> dict[str, Any]:
         else:
             if kind == "parallel":
                 spec["type"] = "parallel"
-                spec["states"] = [make(depth + 1, region=True)
-                                  for _ in range(draw(st.integers(2, 3)))]
+                spec["states"] = [
+                    make(depth + 1, region=True) for _ in range(draw(st.integers(2, 3)))
+                ]
             else:
                 kids = [make(depth + 1) for _ in range(draw(st.integers(1, 3)))]
                 if draw(st.booleans()):
                     kids.append({"name": f"F{next(counter)}", "type": "final"})
                 if draw(st.integers(0, 3)) == 0:
-                    kids.append({"name": f"H{next(counter)}",
-                                 "type": draw(st.sampled_from(["shallow_history",
-                                                               "deep_history"]))})
+                    kids.append(
+                        {
+                            "name": f"H{next(counter)}",
+                            "type": draw(st.sampled_from(["shallow_history", "deep_history"])),
+                        }
+                    )
                 spec["states"] = kids
                 spec["initial"] = kids[0]["name"]
         all_states.append(spec)
@@ -67,9 +73,12 @@ def chart_specs(draw: Any, guards: bool = True) -> dict[str, Any]:
 
     top = [make(1) for _ in range(draw(st.integers(1, 4)))]
     real = [s["name"] for s in all_states]
-    finals_and_history = [k["name"] for s in all_states for k in s.get("states", [])
-                          if k.get("type") in ("final", "shallow_history", "deep_history")]
-    targets = real + finals_and_history
+    finals_and_history = [
+        k["name"]
+        for s in all_states
+        for k in s.get("states", [])
+        if k.get("type") in ("final", "shallow_history", "deep_history")
+    ]
     for spec in all_states:
         transitions = []
         for _ in range(draw(st.integers(1, 3))):
@@ -80,8 +89,11 @@ def chart_specs(draw: Any, guards: bool = True) -> dict[str, Any]:
             else:
                 t["event"] = draw(st.sampled_from(EXTERNAL + RAISED))
             if trigger != "internal":
-                pool = finals_and_history if finals_and_history and draw(
-                    st.integers(0, 3)) == 0 else real
+                pool = (
+                    finals_and_history
+                    if finals_and_history and draw(st.integers(0, 3)) == 0
+                    else real
+                )
                 t["target"] = draw(st.sampled_from(pool))
             if guards and draw(st.booleans()):
                 t["guard"] = f"x > {draw(st.integers(0, 3))}"
@@ -95,24 +107,34 @@ def chart_specs(draw: Any, guards: bool = True) -> dict[str, Any]:
             if effect:
                 t["effect"] = effect
             transitions.append(t)
-        if spec.get("states") and not spec.get("type") and any(
-                k.get("type") == "final" for k in spec["states"]) and draw(st.booleans()):
+        if (
+            spec.get("states")
+            and not spec.get("type")
+            and any(k.get("type") == "final" for k in spec["states"])
+            and draw(st.booleans())
+        ):
             transitions.append({"target": draw(st.sampled_from(real))})  # completion
         if transitions:
             spec["transitions"] = transitions
         if draw(st.integers(0, 4)) == 0:
             spec["entry"] = [{"log": f"in {spec['name']}"}]
-    return {"statechart": "random", "variables": {"x": 0},
-            "events": {e: None for e in EXTERNAL + RAISED},
-            "initial": top[0]["name"], "states": top}
+    return {
+        "statechart": "random",
+        "variables": {"x": 0},
+        "events": {e: None for e in EXTERNAL + RAISED},
+        "initial": top[0]["name"],
+        "states": top,
+    }
 
 
 def load(spec: dict[str, Any]) -> Statechart:
     return load_statechart("random.yaml", validate=False, text=yaml.safe_dump(spec))
 
 
-steps = st.lists(st.one_of(st.sampled_from(EXTERNAL), st.sampled_from([0.5, 1.0, 1.5])),
-                 min_size=4, max_size=25)
+events_only = st.lists(st.sampled_from(EXTERNAL), min_size=4, max_size=20)
+steps = st.lists(
+    st.one_of(st.sampled_from(EXTERNAL), st.sampled_from([0.5, 1.0, 1.5])), min_size=4, max_size=25
+)
 
 
 class Checker(Listener):
@@ -195,13 +217,13 @@ def test_exits_innermost_first_then_entries_outermost_first(spec, seq):
                 entries.append(records[k][1])
             k += 1
         for n, path in enumerate(exits):
-            assert not any(later.startswith(path + ".") for later in exits[n + 1:]), exits
+            assert not any(later.startswith(path + ".") for later in exits[n + 1 :]), exits
         for n, path in enumerate(entries):
             assert not any(earlier.startswith(path + ".") for earlier in entries[:n]), entries
 
 
 @PROPS
-@given(spec=chart_specs(guards=False), seq=st.lists(st.sampled_from(EXTERNAL), min_size=4, max_size=20))
+@given(spec=chart_specs(guards=False), seq=events_only)
 def test_outer_first_priority(spec, seq):
     chart = load(spec)
     _, trace, checker, _ = drive(chart, seq)
@@ -218,7 +240,8 @@ def test_outer_first_priority(spec, seq):
         for anc in source.ancestors():
             if anc.path in before:
                 assert not any(event in t.events for t in anc.transitions), (
-                    f"{rec[1]} fired on {event} although active parent {anc.path} takes it")
+                    f"{rec[1]} fired on {event} although active parent {anc.path} takes it"
+                )
 
 
 @PROPS
@@ -231,7 +254,7 @@ def test_runs_are_deterministic(spec, seq):
 
 
 @PROPS
-@given(spec=chart_specs(), seq=st.lists(st.sampled_from(EXTERNAL), min_size=4, max_size=20))
+@given(spec=chart_specs(), seq=events_only)
 def test_every_event_is_processed_or_reported(spec, seq):
     chart = load(spec)
     interpreter, trace, _, _ = drive(chart, seq)
@@ -241,7 +264,7 @@ def test_every_event_is_processed_or_reported(spec, seq):
     events = [i for i, r in enumerate(trace.records) if r[0] == "event"]
     for n, start in enumerate(events):
         end = events[n + 1] if n + 1 < len(events) else len(trace.records)
-        outcome = {r[0] for r in trace.records[start + 1:end]}
+        outcome = {r[0] for r in trace.records[start + 1 : end]}
         assert outcome & {"transition", "unhandled"}, trace.records[start:end]
 
 
@@ -299,8 +322,11 @@ def test_mutated_yaml_fails_only_with_fw_errors(data):
             lines[i] = lines[i][2:]
         elif op == "garble":
             pos = data.draw(st.integers(0, max(0, len(lines[i]))))
-            junk = data.draw(st.sampled_from([":", "-", "[", "{", "'", "yes", "&a", "*a", "!!x",
-                                              "\t", "on:", "#", "%"]))
+            junk = data.draw(
+                st.sampled_from(
+                    [":", "-", "[", "{", "'", "yes", "&a", "*a", "!!x", "\t", "on:", "#", "%"]
+                )
+            )
             lines[i] = lines[i][:pos] + junk + lines[i][pos:]
         else:
             j = data.draw(st.integers(0, len(lines) - 1))

@@ -3,7 +3,6 @@
 import pytest
 
 from framework.statechart.validator import validate_file
-
 from tests.conftest import REPO
 
 HEADER = """
@@ -29,60 +28,111 @@ def test_the_shipped_charts_are_clean():
 
 
 def test_a_clean_chart_has_no_findings(write):
-    assert error_codes(write, """
+    assert (
+        error_codes(
+            write,
+            """
 initial: A
 states:
   - {name: A, transitions: [{event: e, target: B}]}
   - {name: B, transitions: [{event: f, target: A}, {event: g, guard: event.n > x, target: A}]}
-""") == set()
+""",
+        )
+        == set()
+    )
 
 
-@pytest.mark.parametrize(("body", "code"), [
-    ("initial: A\nstates:\n  - {name: A, states: [{name: X}]}\n", "no-initial"),
-    ("initial: A\nstates:\n  - {name: A, initial: B, states: [{name: X}]}\n  - {name: B}\n",
-     "initial-not-child"),
-    ("initial: A\nstates:\n  - {name: A, transitions: [{event: e, target: A}]}\n  - {name: B}\n",
-     "unreachable"),
-    ("initial: A\nstates:\n  - {name: A, transitions: [{event: e, target: B}]}\n  - {name: B}\n",
-     "dead-end"),
-    ("initial: A\nstates:\n  - {name: A, transitions: [{event: e, target: A}, "
-     "{event: e, guard: x > 1, target: A}]}\n", "shadowed"),
-    ("initial: A\nstates:\n  - {name: A, transitions: [{event: e, guard: x > 1, target: A}, "
-     "{event: e, guard: x > 2, target: A}]}\n", "nondeterministic"),
-    ("initial: A\nstates:\n  - {name: A, transitions: [{event: nope, target: A}]}\n",
-     "undeclared-event"),
-    ("initial: A\nstates:\n  - {name: A, transitions: [{event: e, guard: y > 1, target: A}]}\n",
-     "unknown-name"),
-    ("initial: A\nstates:\n  - {name: A, transitions: [{event: e, guard: event.n > 1, "
-     "target: A}]}\n", "unknown-field"),
-    ("initial: A\nstates:\n  - {name: A, transitions: [{event: e, guard: \"active('Q')\", "
-     "target: A}]}\n", "unknown-state"),
-    ("initial: A\nstates:\n  - {name: A, transitions: [{after: 0, target: A}]}\n", "after"),
-    ("initial: A\nstates:\n  - {name: A, transitions: [{target: B}]}\n"
-     "  - {name: B, transitions: [{target: A}]}\n", "livelock"),
-    ("initial: A\nstates:\n  - {name: A, transitions: [{event: e, target: J}]}\n"
-     "  - {name: J, type: junction, transitions: [{guard: x > 1, target: K}, "
-     "{guard: else, target: A}]}\n"
-     "  - {name: K, type: junction, transitions: [{guard: else, target: J}]}\n",
-     "connector-cycle"),
-    ("initial: A\nstates:\n  - {name: A, configure: t, transitions: [{event: e, target: A}]}\n",
-     "unhandled-failure"),
-    ("initial: A\nstates:\n  - {name: A, initial: X, states: [{name: X, transitions: "
-     "[{event: e, target: Y}]}, {name: Y, transitions: [{event: f, target: X}]}], "
-     "transitions: [{target: A}]}\n", "completion-never"),
-    ("initial: A\nstates:\n  - {name: A, transitions: [{event: e, guard: else, target: A}]}\n",
-     "else"),
-    ("initial: A\nstates:\n  - {name: A, transitions: [{event: e, target: F}]}\n"
-     "  - {name: F, type: final, transitions: [{event: f, target: A}]}\n", "final-out"),
-    ("initial: P\nstates:\n  - {name: P, type: parallel, states: [{name: R}], "
-     "transitions: [{event: e, target: P}]}\n", "region"),
-])
+@pytest.mark.parametrize(
+    ("body", "code"),
+    [
+        ("initial: A\nstates:\n  - {name: A, states: [{name: X}]}\n", "no-initial"),
+        (
+            "initial: A\nstates:\n  - {name: A, initial: B, states: [{name: X}]}\n  - {name: B}\n",
+            "initial-not-child",
+        ),
+        (
+            "initial: A\nstates:\n  - {name: A, transitions: [{event: e, target: A}]}\n  - {name: B}\n",
+            "unreachable",
+        ),
+        (
+            "initial: A\nstates:\n  - {name: A, transitions: [{event: e, target: B}]}\n  - {name: B}\n",
+            "dead-end",
+        ),
+        (
+            "initial: A\nstates:\n  - {name: A, transitions: [{event: e, target: A}, "
+            "{event: e, guard: x > 1, target: A}]}\n",
+            "shadowed",
+        ),
+        (
+            "initial: A\nstates:\n  - {name: A, transitions: [{event: e, guard: x > 1, target: A}, "
+            "{event: e, guard: x > 2, target: A}]}\n",
+            "nondeterministic",
+        ),
+        (
+            "initial: A\nstates:\n  - {name: A, transitions: [{event: nope, target: A}]}\n",
+            "undeclared-event",
+        ),
+        (
+            "initial: A\nstates:\n  - {name: A, transitions: [{event: e, guard: y > 1, target: A}]}\n",
+            "unknown-name",
+        ),
+        (
+            "initial: A\nstates:\n  - {name: A, transitions: [{event: e, guard: event.n > 1, "
+            "target: A}]}\n",
+            "unknown-field",
+        ),
+        (
+            "initial: A\nstates:\n  - {name: A, transitions: [{event: e, guard: \"active('Q')\", "
+            "target: A}]}\n",
+            "unknown-state",
+        ),
+        ("initial: A\nstates:\n  - {name: A, transitions: [{after: 0, target: A}]}\n", "after"),
+        (
+            "initial: A\nstates:\n  - {name: A, transitions: [{target: B}]}\n"
+            "  - {name: B, transitions: [{target: A}]}\n",
+            "livelock",
+        ),
+        (
+            "initial: A\nstates:\n  - {name: A, transitions: [{event: e, target: J}]}\n"
+            "  - {name: J, type: junction, transitions: [{guard: x > 1, target: K}, "
+            "{guard: else, target: A}]}\n"
+            "  - {name: K, type: junction, transitions: [{guard: else, target: J}]}\n",
+            "connector-cycle",
+        ),
+        (
+            "initial: A\nstates:\n  - {name: A, configure: t, transitions: [{event: e, target: A}]}\n",
+            "unhandled-failure",
+        ),
+        (
+            "initial: A\nstates:\n  - {name: A, initial: X, states: [{name: X, transitions: "
+            "[{event: e, target: Y}]}, {name: Y, transitions: [{event: f, target: X}]}], "
+            "transitions: [{target: A}]}\n",
+            "completion-never",
+        ),
+        (
+            "initial: A\nstates:\n  - {name: A, transitions: [{event: e, guard: else, target: A}]}\n",
+            "else",
+        ),
+        (
+            "initial: A\nstates:\n  - {name: A, transitions: [{event: e, target: F}]}\n"
+            "  - {name: F, type: final, transitions: [{event: f, target: A}]}\n",
+            "final-out",
+        ),
+        (
+            "initial: P\nstates:\n  - {name: P, type: parallel, states: [{name: R}], "
+            "transitions: [{event: e, target: P}]}\n",
+            "region",
+        ),
+    ],
+)
 def test_each_defect_is_proven(write, body, code):
     assert code in error_codes(write, body)
 
 
 def test_outer_first_shadowing_names_the_parent(write):
-    _, findings = codes(write, """
+    _, findings = codes(
+        write,
+        """
 initial: P
 states:
   - name: P
@@ -92,14 +142,17 @@ states:
       - {name: B, transitions: [{event: f, target: A}]}
     transitions: [{event: e, target: Q}]
   - {name: Q, transitions: [{event: f, target: P}]}
-""")
+""",
+    )
     shadowed = [f for f in findings if f.code == "shadowed"]
     assert len(shadowed) == 1 and shadowed[0].location.line == 11
     assert "parent 'P'" in shadowed[0].message and shadowed[0].hint
 
 
 def test_a_guarded_outer_transition_does_not_shadow(write):
-    assert "shadowed" not in error_codes(write, """
+    assert "shadowed" not in error_codes(
+        write,
+        """
 initial: P
 states:
   - name: P
@@ -109,11 +162,15 @@ states:
       - {name: B, transitions: [{event: f, target: A}]}
     transitions: [{event: e, guard: x > 3, target: Q}]
   - {name: Q, transitions: [{event: f, target: P}]}
-""")
+""",
+    )
 
 
 def test_exclusive_guards_and_explicit_priority_are_deterministic(write):
-    assert error_codes(write, """
+    assert (
+        error_codes(
+            write,
+            """
 initial: A
 states:
   - name: A
@@ -123,12 +180,17 @@ states:
       - {event: f, target: B, priority: 1}
       - {event: f, guard: x > 5, target: A}
   - {name: B, transitions: [{event: e, target: A}, {event: g, target: A}]}
-""") == set()
+""",
+        )
+        == set()
+    )
 
 
 def test_safe_state_must_be_reachable_from_every_state(write):
     header = HEADER + "safe_state: Safe\n"
-    found = error_codes(write, """
+    found = error_codes(
+        write,
+        """
 initial: A
 states:
   - {name: A, transitions: [{event: e, target: B}, {event: f, target: Safe}]}
@@ -137,9 +199,13 @@ states:
   - {name: Trap, transitions: [{event: e, target: Trap2}]}
   - {name: Trap2, transitions: [{event: e, target: Trap}]}
   - {name: Safe, transitions: [{event: e, target: A}, {event: g, target: Trap}]}
-""", header=header)
+""",
+        header=header,
+    )
     assert "safe-unreachable" in found
-    _, findings = codes(write, """
+    _, findings = codes(
+        write,
+        """
 initial: A
 states:
   - {name: A, transitions: [{event: e, target: B}, {event: f, target: Safe}]}
@@ -148,17 +214,24 @@ states:
   - {name: Trap, transitions: [{event: e, target: Trap2}]}
   - {name: Trap2, transitions: [{event: e, target: Trap}]}
   - {name: Safe, transitions: [{event: e, target: A}, {event: g, target: Trap}]}
-""", header=header)
+""",
+        header=header,
+    )
     assert {f.message.split("from ")[1] for f in findings if f.code == "safe-unreachable"} == {
-        "'Trap'", "'Trap2'"}
+        "'Trap'",
+        "'Trap2'",
+    }
 
 
 def test_event_closure_warns_about_unused_and_unconsumed_events(write):
-    found, _ = codes(write, """
+    found, _ = codes(
+        write,
+        """
 initial: A
 states:
   - {name: A, transitions: [{event: e, target: A, effect: [{raise: f}]}]}
-""")
+""",
+    )
     assert ("unused-event", "warning") in found  # g is declared but never consumed
     assert ("unconsumed-raise", "warning") in found  # f is raised, nobody takes it
 
