@@ -27,7 +27,8 @@ def _ident(state: State) -> str:
 
 
 def _quote(text: str) -> str:
-    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    escaped = text.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
+    return '"' + escaped + '"'
 
 
 def _details(state: State) -> list[str]:
@@ -79,9 +80,9 @@ def to_dot(chart: Statechart, active: Iterable[str] = ()) -> str:
         if state.is_composite:
             out.append(f"{indent}subgraph cluster_{ident} {{")
             title = state.name + (" (parallel)" if state.kind is Kind.PARALLEL else "")
-            label = "\\n".join([title, *_details(state)])
-            style = "rounded,filled" if highlighted else "rounded"
-            fill = "#d8f5d0" if highlighted else "white"
+            label = "\n".join([title, *_details(state)])
+            style = "rounded"
+            fill = "white"
             out.append(
                 f"{indent}  label={_quote(label)}; style={_quote(style)}; "
                 f"fillcolor={_quote(fill)}; "
@@ -105,7 +106,7 @@ def to_dot(chart: Statechart, active: Iterable[str] = ()) -> str:
             mark = "H*" if state.kind is Kind.DEEP_HISTORY else "H"
             shape = f"shape=circle, width=0.3, label={_quote(mark)}"
         else:
-            label = "\\n".join([state.name, *_details(state)])
+            label = "\n".join([state.name, *_details(state)])
             shape = f"shape=box, style={_quote('rounded,filled')}, label={_quote(label)}"
             shape += ", fillcolor=" + ('"#9be58a", penwidth=2' if highlighted else '"#f4f4f4"')
         out.append(f"{indent}{ident} [{shape}];")
