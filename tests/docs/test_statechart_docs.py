@@ -4,7 +4,6 @@ import re
 
 from framework.statechart.loader import load_statechart
 from framework.statechart.validator import validate_file
-
 from tests.conftest import REPO, Run
 
 DOCS = REPO / "docs"
@@ -14,10 +13,29 @@ def test_the_tour_example_is_clean_and_uses_every_construct():
     path = DOCS / "examples" / "tour.yaml"
     assert validate_file(path) == []
     text = path.read_text() + (DOCS / "examples" / "lamp.yaml").read_text()
-    for construct in ["type: parallel", "type: junction", "type: final", "deep_history",
-                      "include:", "after:", "priority:", "guard: else", "configure:",
-                      "raise", "send:", "set:", "write:", "call:", "log:", "entry:", "exit:",
-                      "do:", "payload:", "safe_state:", "event: ["]:
+    for construct in [
+        "type: parallel",
+        "type: junction",
+        "type: final",
+        "deep_history",
+        "include:",
+        "after:",
+        "priority:",
+        "guard: else",
+        "configure:",
+        "raise",
+        "send:",
+        "set:",
+        "write:",
+        "call:",
+        "log:",
+        "entry:",
+        "exit:",
+        "do:",
+        "payload:",
+        "safe_state:",
+        "event: [",
+    ]:
         assert construct in text, construct
 
 
