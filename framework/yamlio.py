@@ -175,8 +175,8 @@ def load_yaml_text(text: str, file: str = "<string>") -> Document:
         line, column = (mark.line + 1, mark.column + 1) if mark else (0, 0)
         problem = exc.problem or exc.context or "invalid YAML"
         raise YamlError(f"YAML syntax: {problem}", Location(file, line, column)) from None
-    except yaml.YAMLError as exc:
-        raise YamlError(f"YAML syntax: {exc}", Location(file)) from None
+    except yaml.YAMLError as exc:  # e.g. ReaderError: control characters, bad encoding
+        raise YamlError(f"YAML syntax: {' '.join(str(exc).split())}", Location(file)) from None
     if node is None:
         return Document(None, file, {(): (1, 1)})
     builder = _Builder(file)

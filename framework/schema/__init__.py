@@ -66,6 +66,31 @@ def _validator(name: str) -> jsonschema.protocols.Validator:
     return cls(spec)
 
 
+_NAMES = {
+    "object": "a mapping (key: value)",
+    "array": "a list (- item)",
+    "string": "text",
+    "integer": "a whole number",
+    "number": "a number",
+    "boolean": "true or false",
+    "null": "nothing",
+}
+
+
+def _kind(value: Any) -> str:
+    if value is None:
+        return "nothing"
+    if isinstance(value, bool):
+        return f"the boolean {value}"
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, list):
+        return "a list"
+    if isinstance(value, str):
+        return f"the text {value!r}"
+    return f"the number {value!r}"
+
+
 def _leaf(error: ValidationError) -> ValidationError:
     """The most telling sub-error of a oneOf/anyOf failure: not a bare type mismatch."""
     from jsonschema.exceptions import best_match
@@ -86,6 +111,8 @@ def _explain(error: ValidationError) -> tuple[str, str]:
         extra = sorted(set(error.instance) - set(allowed))
         close = difflib.get_close_matches(extra[0], allowed, n=1) if extra else []
         hint = f"did you mean {close[0]!r}?" if close else f"allowed keys: {', '.join(allowed)}"
+        if extra == ["on"] and "event" in allowed:
+            hint = "write `event:`; YAML 1.1 tools read `on` as the boolean true"
         return f"unknown key {', '.join(map(repr, extra))}", hint
     if error.validator == "required":
         return error.message.replace("is a required property", "is required"), ""
@@ -97,11 +124,17 @@ def _explain(error: ValidationError) -> tuple[str, str]:
         )
     if error.validator == "pattern":
         return f"{error.instance!r} is not a valid name here", "use letters, digits and '_'"
-    if error.validator == "type" and isinstance(error.instance, bool):
-        return (
-            f"got the boolean {error.instance}, expected {error.validator_value}",
-            "quote it if you meant text",
+    if error.validator == "type":
+        if error.instance is None and not error.absolute_path:
+            return "the file is empty", "a statechart needs at least `statechart:` and `states:`"
+        expected = error.validator_value
+        wanted = (
+            " or ".join(_NAMES.get(e, e) for e in expected)
+            if isinstance(expected, list)
+            else _NAMES.get(expected, expected)
         )
+        hint = "quote it if you meant text" if isinstance(error.instance, bool) else ""
+        return f"expected {wanted}, got {_kind(error.instance)}", hint
     if error.validator == "enum":
         return (f"{error.instance!r} is not one of {error.validator_value}", "")
     return error.message, ""

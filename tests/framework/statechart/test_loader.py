@@ -208,3 +208,24 @@ def test_load_statechart_raises_with_all_findings(write):
     with pytest.raises(FindingsError) as err:
         load_statechart(path)
     assert len(err.value.findings) >= 2 and "and" in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("", "the file is empty"),
+        ("- a\n", "expected a mapping"),
+        ("statechart: x\nstates: {A: 1}\n", "expected a list"),
+        (
+            "statechart: x\ninitial: A\nstates:\n  - {name: A, transitions: [{on: go}]}\n",
+            "unknown key 'on'",
+        ),
+        ("\x00\x01", "control characters"),
+    ],
+)
+def test_odd_files_get_one_plain_line(write, text, expected):
+    findings = findings_of(write, text)
+    assert len(findings) == 1 and expected in findings[0].one_line()
+    assert "\n" not in findings[0].one_line()
+    if "'on'" in expected:
+        assert "write `event:`" in findings[0].hint
