@@ -9,7 +9,7 @@ from __future__ import annotations
 import re
 import shutil
 import subprocess
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from framework.errors import FwError
@@ -144,6 +144,17 @@ def to_dot(chart: Statechart, active: Iterable[str] = ()) -> str:
     return "\n".join(out) + "\n"
 
 
+def _nested_body(state: State, indent: str, out: list[str], emit: Callable[..., None]) -> None:
+    """Children of a composite in PlantUML/Mermaid syntax (same for both), closing brace."""
+    if state.initial is not None:
+        out.append(f"{indent}  [*] --> {_ident(state.initial)}")
+    for i, child in enumerate(state.children):
+        if state.kind is Kind.PARALLEL and i:
+            out.append(f"{indent}  --")
+        emit(child, indent + "  ")
+    out.append(f"{indent}}}")
+
+
 def to_plantuml(chart: Statechart, active: Iterable[str] = ()) -> str:
     """PlantUML state-diagram text of the chart."""
     on = set(active)
@@ -160,13 +171,7 @@ def to_plantuml(chart: Statechart, active: Iterable[str] = ()) -> str:
         }.get(state.kind, "")
         if state.is_composite:
             out.append(f'{indent}state "{state.name}" as {ident}{color} {{')
-            if state.initial is not None:
-                out.append(f"{indent}  [*] --> {_ident(state.initial)}")
-            for i, child in enumerate(state.children):
-                if state.kind is Kind.PARALLEL and i:
-                    out.append(f"{indent}  --")
-                emit(child, indent + "  ")
-            out.append(f"{indent}}}")
+            _nested_body(state, indent, out, emit)
         else:
             out.append(f'{indent}state "{state.name}" as {ident}{stereo}{color}')
         for line in _details(state):
@@ -197,13 +202,7 @@ def to_mermaid(chart: Statechart, active: Iterable[str] = ()) -> str:
             out.append(f'{indent}state "{state.name}" as {ident}')
         if state.is_composite:
             out.append(f"{indent}state {ident} {{")
-            if state.initial is not None:
-                out.append(f"{indent}  [*] --> {_ident(state.initial)}")
-            for i, child in enumerate(state.children):
-                if state.kind is Kind.PARALLEL and i:
-                    out.append(f"{indent}  --")
-                emit(child, indent + "  ")
-            out.append(f"{indent}}}")
+            _nested_body(state, indent, out, emit)
         if state.kind is Kind.FINAL:
             out.append(f"{indent}{ident} --> [*]")
 

@@ -186,40 +186,25 @@ states:
     )
 
 
+TRAPPED = """
+safe_state: Safe
+initial: A
+states:
+  - {name: A, transitions: [{event: e, target: B}, {event: f, target: Safe}]}
+  - {name: B, transitions: [{event: e, target: C}]}
+  - {name: C, transitions: [{event: e, target: B}, {event: g, target: A}]}
+  - {name: Trap, transitions: [{event: e, target: Trap2}]}
+  - {name: Trap2, transitions: [{event: e, target: Trap}]}
+  - {name: Safe, transitions: [{event: e, target: A}, {event: g, target: Trap}]}
+"""
+
+
 def test_safe_state_must_be_reachable_from_every_state(write):
-    header = HEADER + "safe_state: Safe\n"
-    found = error_codes(
-        write,
-        """
-initial: A
-states:
-  - {name: A, transitions: [{event: e, target: B}, {event: f, target: Safe}]}
-  - {name: B, transitions: [{event: e, target: C}]}
-  - {name: C, transitions: [{event: e, target: B}, {event: g, target: A}]}
-  - {name: Trap, transitions: [{event: e, target: Trap2}]}
-  - {name: Trap2, transitions: [{event: e, target: Trap}]}
-  - {name: Safe, transitions: [{event: e, target: A}, {event: g, target: Trap}]}
-""",
-        header=header,
-    )
-    assert "safe-unreachable" in found
-    _, findings = codes(
-        write,
-        """
-initial: A
-states:
-  - {name: A, transitions: [{event: e, target: B}, {event: f, target: Safe}]}
-  - {name: B, transitions: [{event: e, target: C}]}
-  - {name: C, transitions: [{event: e, target: B}, {event: g, target: A}]}
-  - {name: Trap, transitions: [{event: e, target: Trap2}]}
-  - {name: Trap2, transitions: [{event: e, target: Trap}]}
-  - {name: Safe, transitions: [{event: e, target: A}, {event: g, target: Trap}]}
-""",
-        header=header,
-    )
-    assert {f.message.split("from ")[1] for f in findings if f.code == "safe-unreachable"} == {
-        "'Trap'",
-        "'Trap2'",
+    _, findings = codes(write, TRAPPED)
+    unsafe = {f.message.split("from ")[1] for f in findings if f.code == "safe-unreachable"}
+    assert unsafe == {"'Trap'", "'Trap2'"}
+    assert not codes(write, TRAPPED.replace("target: Trap2}]}", "target: Safe}]}"))[0] & {
+        ("safe-unreachable", "error")
     }
 
 
