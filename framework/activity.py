@@ -1,0 +1,205 @@
+"""Activities decide when a component's `update()` runs; executors make it happen.
+
+* `periodic` at a rate (Hz), `event` when new data arrives on chosen input
+  ports, or `passive` (only operations and lifecycle calls).
+* `RealTimeExecutor` gives each active component its own thread on
+  monotonic time (like an RTT activity); missed periods are skipped and
+  counted, never bunched up.
+* `SteppedExecutor` runs the same components on a `SimulatedClock`: time
+  moves only in `advance()`, periodic updates happen exactly at their
+  deadlines in a fixed order, so behaviour tests repeat exactly.
+"""
+
+from __future__ import annotations
+
+import heapq
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from framework.clock import SimulatedClock
+from framework.component import Component
+from framework.errors import FwError
+
+
+class ActivityError(FwError):
+    """An activity specification is wrong (bad rate, unknown port)."""
+
+
+@dataclass(frozen=True)
+class Activity:
+    """When a component updates: periodic (rate in Hz), event-driven (ports) or passive."""
+
+    kind: str = "passive"
+    rate: float = 0.0
+    ports: tuple[str, ...] = ()
+
+    @classmethod
+    def periodic(cls, rate: float) -> Activity:
+        """Update `rate` times per second."""
+        if not rate > 0:
+            raise ActivityError(f"a periodic activity needs a positive rate, got {rate!r}")
+        return cls("periodic", float(rate))
+
+    @classmethod
+    def event(cls, *ports: str) -> Activity:
+        """Update when any of these input ports receives a sample."""
+        if not ports:
+            raise ActivityError("an event-driven activity needs at least one input port")
+        return cls("event", 0.0, tuple(ports))
+
+    @classmethod
+    def from_spec(cls, spec: Any) -> Activity:
+        """From YAML: `passive`, `{periodic: 100}` or `{event: [port, ...]}`."""
+        if spec in (None, "passive"):
+            return cls()
+        if isinstance(spec, dict) and len(spec) == 1:
+            ((kind, arg),) = spec.items()
+            if kind == "periodic":
+                return cls.periodic(arg)
+            if kind == "event":
+                return cls.event(*([arg] if isinstance(arg, str) else arg))
+        raise ActivityError(
+            f"activity must be 'passive', {{periodic: HZ}} or {{event: [PORTS]}}, not {spec!r}"
+        )
+
+    def check(self, component: Component) -> None:
+        """Refuse event ports the component does not have."""
+        for name in self.ports:
+            if name not in component.inputs:
+                known = ", ".join(sorted(component.inputs)) or "none"
+                raise ActivityError(
+                    f"{component.name}: event activity names unknown input "
+                    f"port {name!r} (inputs: {known})"
+                )
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data for introspection."""
+        return {"kind": self.kind, "rate": self.rate, "ports": list(self.ports)}
+
+
+class RealTimeExecutor:
+    """One thread per active component, on monotonic time."""
+
+    def __init__(self) -> None:
+        self._entries: list[tuple[Component, Activity]] = []
+        self._threads: list[threading.Thread] = []
+        self._stop = threading.Event()
+        self._wake: dict[str, threading.Event] = {}
+        self.overruns: dict[str, int] = {}
+
+    def add(self, component: Component, activity: Activity) -> None:
+        """Register a component (before or after `start`)."""
+        activity.check(component)
+        self._entries.append((component, activity))
+        if activity.kind == "event":
+            wake = self._wake[component.name] = threading.Event()
+            for name in activity.ports:
+                component.inputs[name].on_data = lambda _port, w=wake: w.set()
+        if self._threads:
+            self._spawn(component, activity)
+
+    def start(self) -> None:
+        """Start a thread for every periodic or event-driven component."""
+        for component, activity in self._entries:
+            self._spawn(component, activity)
+
+    def _spawn(self, component: Component, activity: Activity) -> None:
+        if activity.kind == "passive":
+            return
+        target = self._periodic if activity.kind == "periodic" else self._event
+        thread = threading.Thread(
+            target=target, args=(component, activity), name=f"fw-{component.name}", daemon=True
+        )
+        self._threads.append(thread)
+        thread.start()
+
+    def _periodic(self, component: Component, activity: Activity) -> None:
+        period = 1.0 / activity.rate
+        deadline = time.monotonic()
+        while not self._stop.is_set():
+            component.update()
+            deadline += period
+            delay = deadline - time.monotonic()
+            if delay < 0:  # overrun: skip missed periods instead of bunching them up
+                missed = int(-delay // period) + 1
+                self.overruns[component.name] = self.overruns.get(component.name, 0) + missed
+                deadline += missed * period
+                delay = deadline - time.monotonic()
+            self._stop.wait(max(delay, 0.0))
+
+    def _event(self, component: Component, activity: Activity) -> None:
+        wake = self._wake[component.name]
+        ports = [component.inputs[name] for name in activity.ports]
+        while not self._stop.is_set():
+            if not wake.wait(0.1):
+                continue
+            wake.clear()
+            while any(p.pending() for p in ports) and not self._stop.is_set():
+                before = sum(p.pending() for p in ports)
+                component.update()
+                if sum(p.pending() for p in ports) >= before:
+                    break  # the component did not read: wait for the next sample
+
+    def stop(self, timeout: float = 2.0) -> None:
+        """Stop every thread and wait for them."""
+        self._stop.set()
+        for wake in self._wake.values():
+            wake.set()
+        for thread in self._threads:
+            thread.join(timeout)
+        self._threads.clear()
+
+
+class SteppedExecutor:
+    """Runs components on a simulated clock: deterministic order, exact deadlines."""
+
+    def __init__(self, clock: SimulatedClock):
+        self.clock = clock
+        self._periodic: list[tuple[float, int, Component, float]] = []
+        self._event: list[tuple[Component, tuple[str, ...]]] = []
+        self._order = 0
+
+    def add(self, component: Component, activity: Activity) -> None:
+        """Register a component; periodic ones first update one period from now."""
+        activity.check(component)
+        if activity.kind == "periodic":
+            self._order += 1
+            period = 1.0 / activity.rate
+            heapq.heappush(
+                self._periodic, (self.clock.now() + period, self._order, component, period)
+            )
+        elif activity.kind == "event":
+            self._event.append((component, activity.ports))
+
+    def start(self) -> None:
+        """Nothing to start: time moves in `advance`."""
+
+    def stop(self, timeout: float = 0.0) -> None:
+        """Nothing to stop."""
+
+    def run_pending(self, limit: int = 1000) -> int:
+        """Update event-driven components that have unread data, until none has."""
+        updates = 0
+        for _ in range(limit):
+            ready = [c for c, ports in self._event if any(c.inputs[p].pending() for p in ports)]
+            if not ready:
+                break
+            for component in ready:
+                component.update()
+                updates += 1
+        return updates
+
+    def advance(self, seconds: float) -> int:
+        """Move the clock forward, running every periodic update at its deadline."""
+        end = self.clock.now() + seconds
+        updates = self.run_pending()
+        while self._periodic and self._periodic[0][0] <= end + 1e-12:
+            deadline, order, component, period = heapq.heappop(self._periodic)
+            self.clock.set(max(deadline, self.clock.now()))
+            component.update()
+            updates += 1 + self.run_pending()
+            heapq.heappush(self._periodic, (deadline + period, order, component, period))
+        self.clock.set(end)
+        return updates

@@ -1,0 +1,404 @@
+"""The component contract: OROCOS RTT's TaskContext in Python.
+
+A component declares its ports, properties and operations on its class and
+implements hooks; the runtime drives the lifecycle:
+
+    class Doubler(Component):
+        '''Doubles every number it reads.'''
+        gain = prop(float, 2.0, min=0.0, doc="factor")
+        inp = In(float, doc="numbers")
+        out = Out(float, doc="doubled numbers")
+
+        def update_hook(self) -> None:
+            status, value = self.inp.read()
+            if status is ReadStatus.NEW:
+                self.out.write(self.gain * value)
+
+        @operation
+        def reset(self) -> str:
+            return "ok"
+
+States and allowed transitions are RTT's (table in docs/components.md). A
+hook that returns False or raises leaves the component in the documented
+state with `last_error` saying why, and the change is reported to every
+state listener (the container publishes it on the bus): never swallowed.
+"""
+
+from __future__ import annotations
+
+import inspect
+import threading
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import Enum
+from typing import Any
+
+from framework.errors import FwError
+from framework.ports import ConnPolicy, InputPort, OutputPort
+from framework.properties import Property, PropertyError
+
+
+class LifecycleError(FwError):
+    """A lifecycle operation was called in a state that does not allow it."""
+
+
+class OperationError(FwError):
+    """An operation does not exist, got bad arguments, or failed."""
+
+
+class State(Enum):
+    """Component states (RTT TaskCore)."""
+
+    INIT = "Init"
+    PRE_OPERATIONAL = "PreOperational"
+    STOPPED = "Stopped"
+    RUNNING = "Running"
+    RUNTIME_ERROR = "RunTimeError"
+    EXCEPTION = "Exception"
+    FATAL_ERROR = "FatalError"
+
+
+ALLOWED: dict[str, tuple[State, ...]] = {
+    "configure": (State.PRE_OPERATIONAL, State.STOPPED),
+    "start": (State.STOPPED,),
+    "stop": (State.RUNNING, State.RUNTIME_ERROR),
+    "cleanup": (State.STOPPED,),
+    "recover": (State.RUNTIME_ERROR, State.EXCEPTION),
+    "error": (State.RUNNING,),
+}
+"""Which states each lifecycle operation may be called from."""
+
+
+@dataclass(frozen=True)
+class StateChange:
+    """What state listeners receive."""
+
+    component: str
+    old: State
+    new: State
+    reason: str
+    stamp: float
+
+
+class In:
+    """Declare an input port on a Component class."""
+
+    def __init__(
+        self, type: type, doc: str = "", policy: ConnPolicy | dict[str, Any] | None = None
+    ):
+        self.type, self.doc, self.policy = type, doc, ConnPolicy.from_spec(policy)
+
+
+class Out:
+    """Declare an output port on a Component class."""
+
+    def __init__(self, type: type, doc: str = ""):
+        self.type, self.doc = type, doc
+
+
+def operation(fn: Callable[..., Any] | None = None, *, doc: str = "") -> Any:
+    """Mark a method as an operation, callable locally and from other processes."""
+
+    def mark(method: Callable[..., Any]) -> Callable[..., Any]:
+        method.__fw_operation__ = doc or (inspect.getdoc(method) or "").split("\n")[0]
+        return method
+
+    return mark(fn) if fn is not None else mark
+
+
+class Component:
+    """Base of every fw component (see the module docstring)."""
+
+    needs_configuration = True
+    """If False, the component starts in Stopped (RTT: initial state Stopped)."""
+
+    def __init__(self, name: str):
+        if not name.isidentifier():
+            raise FwError(f"component name {name!r} must be an identifier (letters, digits, _)")
+        self.name = name
+        self._state = State.INIT
+        self.last_error = ""
+        self._listeners: list[Callable[[StateChange], None]] = []
+        self._lock = threading.RLock()
+        self.inputs: dict[str, InputPort[Any]] = {}
+        self.outputs: dict[str, OutputPort[Any]] = {}
+        self.declared_properties: dict[str, Property] = {}
+        self._values: dict[str, Any] = {}
+        self.operations: dict[str, Callable[..., Any]] = {}
+        for attr, decl in _declarations(type(self)):
+            if isinstance(decl, In):
+                port = InputPort(attr, decl.type, decl.doc, decl.policy)
+                port.owner = name
+                self.inputs[attr] = port
+                self.__dict__[attr] = port  # shadows the class-level declaration
+            elif isinstance(decl, Out):
+                port = OutputPort(attr, decl.type, decl.doc)
+                port.owner = name
+                self.outputs[attr] = port
+                self.__dict__[attr] = port
+            elif isinstance(decl, Property):
+                self.declared_properties[attr] = decl
+                self._values[attr] = decl.default
+            elif callable(decl) and hasattr(decl, "__fw_operation__"):
+                self.operations[attr] = getattr(self, attr)
+        self._initial = State.PRE_OPERATIONAL if self.needs_configuration else State.STOPPED
+        self._state = self._initial
+
+    # -- ports and properties --------------------------------------------------------
+    def port(self, name: str) -> InputPort[Any] | OutputPort[Any]:
+        """A port by name; `FwError` listing the ports otherwise."""
+        found = self.inputs.get(name) or self.outputs.get(name)
+        if found is None:
+            known = ", ".join(sorted([*self.inputs, *self.outputs])) or "none"
+            raise FwError(f"component {self.name!r} has no port {name!r} (ports: {known})")
+        return found
+
+    def get_property(self, name: str) -> Any:
+        """The value of a declared property."""
+        self._property(name)
+        return self._values[name]
+
+    def set_property(self, name: str, value: Any) -> Any:
+        """Validate and set a property; returns the stored value."""
+        declared = self._property(name)
+        stored = declared.validate(value, self.name)
+        self._values[name] = stored
+        return stored
+
+    def set_properties(self, values: dict[str, Any]) -> None:
+        """Set several properties; all are validated before any is changed."""
+        checked = {k: self._property(k).validate(v, self.name) for k, v in values.items()}
+        self._values.update(checked)
+
+    def _property(self, name: str) -> Property:
+        declared = self.declared_properties.get(name)
+        if declared is None:
+            known = ", ".join(sorted(self.declared_properties)) or "none"
+            raise PropertyError(
+                f"component {self.name!r} has no property {name!r} (properties: {known})"
+            )
+        return declared
+
+    # -- operations ----------------------------------------------------------------
+    def call(self, operation_name: str, /, **kwargs: Any) -> Any:
+        """Call an operation by name with keyword arguments (checked against its signature)."""
+        method = self.operations.get(operation_name)
+        if method is None:
+            known = ", ".join(sorted(self.operations)) or "none"
+            raise OperationError(
+                f"component {self.name!r} has no operation {operation_name!r} (operations: {known})"
+            )
+        try:
+            inspect.signature(method).bind(**kwargs)
+        except TypeError as exc:
+            raise OperationError(f"{self.name}.{operation_name}: {exc}") from None
+        with self._lock:
+            try:
+                return method(**kwargs)
+            except FwError:
+                raise
+            except Exception as exc:
+                raise OperationError(
+                    f"{self.name}.{operation_name} failed: {type(exc).__name__}: {exc}"
+                ) from exc
+
+    # -- lifecycle -----------------------------------------------------------------
+    @property
+    def state(self) -> State:
+        """The current lifecycle state."""
+        return self._state
+
+    def add_state_listener(self, listener: Callable[[StateChange], None]) -> None:
+        """Be told of every state change (the container publishes them)."""
+        self._listeners.append(listener)
+
+    def _set_state(self, new: State, reason: str = "") -> None:
+        old, self._state = self._state, new
+        if reason:
+            self.last_error = reason
+        if old is new and not reason:
+            return
+        change = StateChange(self.name, old, new, reason, time.time())
+        for listener in list(self._listeners):
+            try:
+                listener(change)
+            except Exception:  # a broken listener must not break the lifecycle
+                traceback.print_exc()
+
+    def _check(self, op: str) -> None:
+        if self._state not in ALLOWED[op]:
+            allowed = ", ".join(s.value for s in ALLOWED[op])
+            raise LifecycleError(
+                f"cannot {op} {self.name!r} in state {self._state.value} (allowed from: {allowed})"
+            )
+
+    def _run_hook(self, hook: str) -> tuple[bool, str]:
+        """(True, '') if the hook succeeded; (False, why) if it returned False; raises on error."""
+        result = getattr(self, hook)()
+        if result is False:
+            return False, f"{hook} returned False"
+        return True, ""
+
+    def _guarded(self, op: str, hook: str, success: State, failure: State) -> bool:
+        with self._lock:
+            self._check(op)
+            try:
+                ok, why = self._run_hook(hook)
+            except Exception as exc:
+                self.exception(f"{hook} raised {type(exc).__name__}: {exc}")
+                return False
+            if ok:
+                self.last_error = ""
+                self._set_state(success)
+            else:
+                self._set_state(failure, why)
+            return ok
+
+    def configure(self) -> bool:
+        """PreOperational/Stopped -> Stopped if configure_hook succeeds."""
+        return self._guarded("configure", "configure_hook", State.STOPPED, self._state)
+
+    def start(self) -> bool:
+        """Stopped -> Running if start_hook succeeds."""
+        return self._guarded("start", "start_hook", State.RUNNING, State.STOPPED)
+
+    def stop(self) -> bool:
+        """Running/RunTimeError -> Stopped (stop_hook)."""
+        return self._guarded("stop", "stop_hook", State.STOPPED, State.STOPPED)
+
+    def cleanup(self) -> bool:
+        """Stopped -> PreOperational (cleanup_hook)."""
+        return self._guarded("cleanup", "cleanup_hook", State.PRE_OPERATIONAL, State.STOPPED)
+
+    def recover(self) -> bool:
+        """RunTimeError -> Running; Exception -> the initial state."""
+        with self._lock:
+            self._check("recover")
+            self.last_error = ""
+            self._set_state(State.RUNNING if self._state is State.RUNTIME_ERROR else self._initial)
+            return True
+
+    def error(self, reason: str = "error() called") -> None:
+        """Called by the component itself: Running -> RunTimeError (error_hook runs instead
+        of update_hook until recover())."""
+        with self._lock:
+            self._check("error")
+            self._set_state(State.RUNTIME_ERROR, reason)
+
+    def exception(self, reason: str) -> None:
+        """Go to Exception: stop_hook if running, cleanup_hook, then exception_hook; any of
+        them failing means FatalError."""
+        with self._lock:
+            was = self._state
+            try:
+                if was in (State.RUNNING, State.RUNTIME_ERROR):
+                    self.stop_hook()
+                if (
+                    was in (State.STOPPED, State.RUNNING, State.RUNTIME_ERROR)
+                    and self._initial is State.PRE_OPERATIONAL
+                ):
+                    self.cleanup_hook()
+                self.exception_hook()
+            except Exception as exc:
+                self._set_state(
+                    State.FATAL_ERROR,
+                    f"{reason}; then {type(exc).__name__} while handling it: {exc}",
+                )
+                return
+            self._set_state(State.EXCEPTION, reason)
+
+    def fatal(self, reason: str) -> None:
+        """Unrecoverable: FatalError (the process should be restarted)."""
+        with self._lock:
+            self._set_state(State.FATAL_ERROR, reason)
+
+    def update(self) -> None:
+        """One activity cycle: update_hook when Running, error_hook in RunTimeError."""
+        with self._lock:
+            state = self._state
+            if state is not State.RUNNING and state is not State.RUNTIME_ERROR:
+                return
+            hook = "update_hook" if state is State.RUNNING else "error_hook"
+            try:
+                getattr(self, hook)()
+            except Exception as exc:
+                self.exception(f"{hook} raised {type(exc).__name__}: {exc}")
+
+    # -- hooks (override) -----------------------------------------------------------
+    def configure_hook(self) -> bool | None:
+        """Prepare: open devices, check properties. Return False to refuse."""
+        return True
+
+    def start_hook(self) -> bool | None:
+        """About to run. Return False to refuse."""
+        return True
+
+    def update_hook(self) -> None:
+        """One cycle of work (periodic, or when new data arrives)."""
+
+    def error_hook(self) -> None:
+        """Runs instead of update_hook while in RunTimeError."""
+
+    def stop_hook(self) -> None:
+        """Stopping: make outputs safe."""
+
+    def cleanup_hook(self) -> None:
+        """Release what configure_hook acquired."""
+
+    def exception_hook(self) -> None:
+        """Entering Exception: last chance to make things safe."""
+
+    # -- introspection ----------------------------------------------------------------
+    def describe(self) -> dict[str, Any]:
+        """Plain data: class, state, ports, properties, operations (for `fw ls`)."""
+        return {
+            "name": self.name,
+            "class": f"{type(self).__module__}:{type(self).__qualname__}",
+            "doc": (inspect.getdoc(type(self)) or "").split("\n")[0],
+            "state": self._state.value,
+            "last_error": self.last_error,
+            "inputs": [
+                {
+                    "name": p.name,
+                    "type": p.type_name,
+                    "doc": p.doc,
+                    "key": p.key,
+                    "policy": p.policy.to_dict(),
+                    "stats": p.stats.to_dict(),
+                }
+                for p in self.inputs.values()
+            ],
+            "outputs": [
+                {
+                    "name": p.name,
+                    "type": p.type_name,
+                    "doc": p.doc,
+                    "keys": p.keys,
+                    "stats": p.stats.to_dict(),
+                }
+                for p in self.outputs.values()
+            ],
+            "properties": [
+                d.describe(self._values[n]) for n, d in self.declared_properties.items()
+            ],
+            "operations": [
+                {
+                    "name": n,
+                    "doc": m.__fw_operation__,
+                    "args": list(inspect.signature(m).parameters),
+                }
+                for n, m in self.operations.items()
+            ],
+        }
+
+
+def _declarations(cls: type) -> list[tuple[str, Any]]:
+    """Declared ports, properties and operations of a class, base classes first."""
+    seen: dict[str, Any] = {}
+    for klass in reversed(cls.__mro__):
+        for attr, value in vars(klass).items():
+            if isinstance(value, (In, Out, Property)) or hasattr(value, "__fw_operation__"):
+                seen[attr] = value
+    return list(seen.items())

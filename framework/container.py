@@ -1,0 +1,340 @@
+"""A container: one process hosting components on the bus, controllable from anywhere.
+
+For every component it hosts, a container declares a liveliness token, a
+control queryable (lifecycle, connect/disconnect, properties, operations,
+introspection) and publishes every state change. It shuts down in order on
+SIGTERM/SIGINT: stop, cleanup, close the Zenoh session (an unclosed session
+can hang the process). Processes are started with `spawn_container`, a fresh
+interpreter (never fork: Zenoh sessions are not fork-safe).
+
+    python -m framework.container --spec '{"name": "c1", "bus": {...}, "components": [...]}'
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import importlib
+import json
+import logging
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+from framework import keys, messages
+from framework.activity import Activity, RealTimeExecutor, SteppedExecutor
+from framework.bus import Bus, BusConfig, BusError
+from framework.component import Component, LifecycleError, StateChange
+from framework.errors import FwError
+from framework.messages import EventMessage
+from framework.ports import ConnPolicy, InputPort, PortError
+
+log = logging.getLogger("fw.container")
+
+
+class ContainerError(FwError):
+    """A container request or specification is wrong."""
+
+
+class Container:
+    """Hosts components in this process and serves their remote interface."""
+
+    def __init__(
+        self, name: str, bus: Bus, executor: RealTimeExecutor | SteppedExecutor | None = None
+    ):
+        self.name = name
+        self.bus = bus
+        self.executor = executor or RealTimeExecutor()
+        self.components: dict[str, Component] = {}
+        self.activities: dict[str, Activity] = {}
+        self._declared: list[Any] = []
+        self._type_queryables: dict[str, Any] = {}
+        self._state_publishers: dict[str, Any] = {}
+        self._lock = threading.RLock()
+        self._closed = False
+        self._declared.append(bus.queryable(keys.container(name), self._on_container_query))
+
+    # -- hosting -------------------------------------------------------------------
+    def add(
+        self,
+        component: Component,
+        activity: Activity | None = None,
+        properties: dict[str, Any] | None = None,
+    ) -> Component:
+        """Host a component: attach its ports, publish outputs on their default keys,
+        declare its control queryable and liveliness token."""
+        name = component.name
+        if name in self.components:
+            raise ContainerError(f"container {self.name!r} already hosts {name!r}")
+        activity = activity or Activity()
+        activity.check(component)
+        if properties:
+            component.set_properties(properties)
+        for port in (*component.inputs.values(), *component.outputs.values()):
+            port.bus = self.bus
+        for port in component.outputs.values():
+            self._connect_output(component, port.name, keys.default_output(name, port.name))
+        publisher = self.bus.publisher(keys.state(name))
+        self._state_publishers[name] = publisher
+        component.add_state_listener(self._publish_state)
+        self.components[name] = component
+        self.activities[name] = activity
+        self.executor.add(component, activity)
+        self._declared.append(
+            self.bus.queryable(keys.control(name), lambda q, c=component: self._on_query(c, q))
+        )
+        self._declared.append(self.bus.token(keys.alive(name)))
+        self._publish_state(StateChange(name, component.state, component.state, "", time.time()))
+        return component
+
+    def start(self) -> None:
+        """Start the executor (components still need configure/start)."""
+        self.executor.start()
+
+    def _publish_state(self, change: StateChange) -> None:
+        publisher = self._state_publishers.get(change.component)
+        if publisher is None or self.bus.closed:
+            return
+        message = EventMessage(
+            change.stamp,
+            "state",
+            change.component,
+            {"old": change.old.value, "new": change.new.value, "reason": change.reason},
+        )
+        with contextlib.suppress(Exception):
+            publisher.put(messages.encode(message, EventMessage))
+
+    # -- connections ---------------------------------------------------------------
+    def _connect_output(self, component: Component, port_name: str, key: str) -> None:
+        port = component.outputs[port_name]
+        port.connect(key)
+        if key not in self._type_queryables:
+            kind = port.type_name
+            writer = port.full_name
+
+            def answer(query: Any, kind: str = kind, writer: str = writer) -> None:
+                query.reply(query.key_expr, json.dumps({"type": kind, "writer": writer}))
+
+            self._type_queryables[key] = self.bus.queryable(keys.port_type(key), answer)
+
+    def connect(
+        self, component: str, port: str, key: str, policy: dict[str, Any] | None = None
+    ) -> dict[str, Any]:
+        """Connect a port of a hosted component to a key (checking the key's type)."""
+        comp = self._component(component)
+        target = comp.port(port)
+        if isinstance(target, InputPort):
+            self._check_type(target, key)
+            target.connect(key, ConnPolicy.from_spec(policy) if policy else None)
+        else:
+            if policy:
+                raise PortError(
+                    f"{target.full_name} is an output port: a policy belongs to the input side"
+                )
+            self._connect_output(comp, port, key)
+        return {"port": target.full_name, "key": key}
+
+    def _check_type(self, port: InputPort[Any], key: str) -> None:
+        try:
+            replies = self.bus.query(keys.port_type(key), timeout=0.5)
+        except BusError:
+            return  # nobody writes the key yet: samples are type-checked on arrival
+        for raw in replies:
+            info = json.loads(raw)
+            if info["type"] != port.type_name:
+                raise PortError(
+                    f"cannot connect {port.full_name} ({port.type_name}) to key "
+                    f"{key!r}: it carries {info['type']} (written by "
+                    f"{info['writer']})"
+                )
+
+    def disconnect(self, component: str, port: str, key: str | None = None) -> dict[str, Any]:
+        """Disconnect a port (an output port from `key`, or from every key)."""
+        target = self._component(component).port(port)
+        if isinstance(target, InputPort):
+            target.disconnect()
+        else:
+            target.disconnect(key)
+        return {"port": target.full_name}
+
+    def _component(self, name: str) -> Component:
+        component = self.components.get(name)
+        if component is None:
+            known = ", ".join(sorted(self.components)) or "none"
+            raise ContainerError(
+                f"container {self.name!r} has no component {name!r} (hosted: {known})"
+            )
+        return component
+
+    # -- remote requests -------------------------------------------------------------
+    def handle(self, component: Component, request: dict[str, Any]) -> Any:
+        """Execute one control request (the body of the control queryable)."""
+        op = request.get("op")
+        name = component.name
+        if op in ("configure", "start", "stop", "cleanup", "recover"):
+            ok = getattr(component, op)()
+            return {"ok": ok, "state": component.state.value, "reason": component.last_error}
+        if op == "state":
+            return {"state": component.state.value, "reason": component.last_error}
+        if op == "describe":
+            info = component.describe()
+            info["activity"] = self.activities[name].to_dict()
+            info["container"] = self.name
+            return info
+        if op == "connect":
+            return self.connect(name, request["port"], request["key"], request.get("policy"))
+        if op == "disconnect":
+            return self.disconnect(name, request["port"], request.get("key"))
+        if op == "get":
+            return component.get_property(request["property"])
+        if op == "set":
+            return component.set_property(request["property"], request["value"])
+        if op == "set_many":
+            component.set_properties(request["values"])
+            return {k: component.get_property(k) for k in request["values"]}
+        if op == "call":
+            return component.call(request["operation"], **request.get("args", {}))
+        raise ContainerError(f"unknown request {op!r}")
+
+    def _on_query(self, component: Component, query: Any) -> None:
+        try:
+            payload = query.payload
+            request = json.loads(bytes(payload.to_bytes())) if payload is not None else {}
+            if not isinstance(request, dict):
+                raise ContainerError("a request must be a JSON object")
+            result = self.handle(component, request)
+            query.reply(query.key_expr, json.dumps({"result": result}))
+        except (FwError, KeyError, TypeError, ValueError) as exc:
+            message = f"missing field {exc}" if isinstance(exc, KeyError) else str(exc)
+            with contextlib.suppress(Exception):
+                query.reply_err(json.dumps({"error": message, "kind": type(exc).__name__}))
+        except Exception as exc:  # nothing crashes the container
+            log.exception("request to %s failed", component.name)
+            with contextlib.suppress(Exception):
+                query.reply_err(
+                    json.dumps({"error": f"internal error: {exc}", "kind": type(exc).__name__})
+                )
+
+    def _on_container_query(self, query: Any) -> None:
+        try:
+            body = bytes(query.payload.to_bytes()) if query.payload is not None else b"{}"
+            op = json.loads(body or b"{}").get("op", "list")
+            if op == "list":
+                result: Any = {n: c.state.value for n, c in self.components.items()}
+            elif op == "shutdown":
+                threading.Thread(target=self.shutdown, daemon=True).start()
+                result = "shutting down"
+            else:
+                raise ContainerError(f"unknown container request {op!r}")
+            query.reply(query.key_expr, json.dumps({"result": result}))
+        except Exception as exc:
+            with contextlib.suppress(Exception):
+                query.reply_err(json.dumps({"error": str(exc), "kind": type(exc).__name__}))
+
+    # -- shutdown --------------------------------------------------------------------
+    def shutdown(self) -> None:
+        """Stop and clean up every component, undeclare everything, close the bus."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        for component in reversed(list(self.components.values())):
+            with contextlib.suppress(LifecycleError):
+                component.stop()
+            with contextlib.suppress(LifecycleError):
+                component.cleanup()
+        self.executor.stop()
+        for component in self.components.values():
+            for port in (*component.inputs.values(), *component.outputs.values()):
+                with contextlib.suppress(Exception):
+                    port.disconnect()
+        for entity in [
+            *self._declared,
+            *self._type_queryables.values(),
+            *self._state_publishers.values(),
+        ]:
+            with contextlib.suppress(Exception):
+                entity.undeclare()
+        self.bus.close()
+
+
+# -- process entry point ---------------------------------------------------------------
+def load_class(path: str) -> type[Component]:
+    """`package.module:Class` -> the class; a clear error otherwise."""
+    module_name, _, class_name = path.partition(":")
+    if not class_name:
+        raise ContainerError(f"class path {path!r} must look like 'package.module:Class'")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ContainerError(f"cannot import {module_name!r}: {exc}") from None
+    cls = getattr(module, class_name, None)
+    if not (isinstance(cls, type) and issubclass(cls, Component)):
+        raise ContainerError(f"{path!r} is not a Component class")
+    return cls
+
+
+def build(spec: dict[str, Any], bus: Bus) -> Container:
+    """A container with the components of `spec` added (configured/started if asked)."""
+    container = Container(spec["name"], bus)
+    for item in spec.get("components", []):
+        cls = load_class(item["class"])
+        component = cls(item["name"])
+        container.add(component, Activity.from_spec(item.get("activity")), item.get("properties"))
+        for port, conn in (item.get("connections") or {}).items():
+            container.connect(component.name, port, conn["key"], conn.get("policy"))
+        if item.get("configure", False) and not component.configure():
+            raise ContainerError(f"{component.name}: configure failed: {component.last_error}")
+        if item.get("start", False) and not component.start():
+            raise ContainerError(f"{component.name}: start failed: {component.last_error}")
+    container.start()
+    return container
+
+
+def serve(spec: dict[str, Any], ready: Callable[[], None] | None = None) -> int:
+    """Run a container process until SIGTERM/SIGINT or a shutdown request."""
+    done = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: done.set())
+    bus = Bus(BusConfig.from_dict(spec["bus"]), hub=spec.get("hub", False))
+    try:
+        container = build(spec, bus)
+    except Exception:
+        bus.close()
+        raise
+    if ready is not None:
+        ready()
+    while not done.is_set() and not bus.closed:
+        done.wait(0.2)
+    container.shutdown()
+    return 0
+
+
+def spawn_container(spec: dict[str, Any], **popen: Any) -> subprocess.Popen[bytes]:
+    """Start a container in a new Python process (never a fork)."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "framework.container", "--spec", json.dumps(spec)], **popen
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m framework.container --spec JSON`: one container process."""
+    parser = argparse.ArgumentParser(
+        prog="python -m framework.container", description="Host fw components in this process."
+    )
+    parser.add_argument("--spec", required=True, help="container specification as JSON")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
+    try:
+        return serve(json.loads(args.spec))
+    except FwError as exc:
+        print(f"fw container: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

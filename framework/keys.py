@@ -1,0 +1,41 @@
+"""Names of the Zenoh keys fw uses (inside the deployment's namespace).
+
+One place, so the container, the remote client, the Configurator and the
+console agree without importing each other.
+"""
+
+from __future__ import annotations
+
+
+def alive(component: str) -> str:
+    """Liveliness token of a component (vanishes when its process dies)."""
+    return f"fw/alive/{component}"
+
+
+def control(component: str) -> str:
+    """Queryable answering lifecycle, connection, property and operation requests."""
+    return f"fw/ctl/{component}"
+
+
+def state(component: str) -> str:
+    """Where a component's state changes are published (latest value cached)."""
+    return f"fw/state/{component}"
+
+
+def port_type(key: str) -> str:
+    """Queryable telling which message type is written on `key` (checked on connect)."""
+    return f"fw/types/{key}"
+
+
+def container(name: str) -> str:
+    """Queryable of a container process (list components, shut down)."""
+    return f"fw/container/{name}"
+
+
+def default_output(component: str, port: str) -> str:
+    """The key an output port publishes on unless told otherwise."""
+    return f"{component}/{port}"
+
+
+ALL_ALIVE = "fw/alive/*"
+ALL_STATES = "fw/state/*"

@@ -1,0 +1,291 @@
+"""Typed input and output ports, connection policies and read status (as OROCOS RTT).
+
+An output port publishes each written sample on the Zenoh key(s) it is
+connected to; an input port subscribes to one key and keeps what arrives
+according to its policy: `data` (the latest sample) or `buffer` (a bounded
+FIFO with a declared overflow rule). `read()` returns `(NEW | OLD | NO_DATA,
+value)` like RTT.
+
+Rewiring never mixes connections: every (re)connection starts a new
+generation, and a sample that arrives for an older generation (Zenoh can
+still deliver the old key's samples after the switch) is dropped and
+counted. Every sample carries its publisher's id and sequence number, so a
+sample seen twice (cache replay racing a live sample) is dropped too.
+A newly connected port receives the publisher's cached latest sample at
+once instead of waiting for the next period.
+"""
+
+from __future__ import annotations
+
+import itertools
+import random
+import threading
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any, Generic, TypeVar
+
+from framework import messages
+from framework.errors import FwError
+
+T = TypeVar("T")
+
+
+class PortError(FwError):
+    """A port was used wrongly: bad policy, wrong type, not connected, no bus."""
+
+
+class ReadStatus(Enum):
+    """What `InputPort.read()` found."""
+
+    NEW = "new"
+    OLD = "old"
+    NO_DATA = "no_data"
+
+
+@dataclass(frozen=True)
+class ConnPolicy:
+    """How an input port keeps samples: latest value, or a bounded FIFO."""
+
+    type: str = "data"
+    size: int = 1
+    overflow: str = "drop_oldest"
+
+    def __post_init__(self) -> None:
+        if self.type not in ("data", "buffer"):
+            raise PortError(f"connection policy type must be 'data' or 'buffer', not {self.type!r}")
+        if not isinstance(self.size, int) or isinstance(self.size, bool) or self.size < 1:
+            raise PortError(
+                f"connection policy size must be a whole number >= 1, not {self.size!r}"
+            )
+        if self.overflow not in ("drop_oldest", "drop_newest"):
+            raise PortError(
+                f"overflow must be 'drop_oldest' or 'drop_newest', not {self.overflow!r}"
+            )
+
+    @classmethod
+    def from_spec(cls, spec: dict[str, Any] | ConnPolicy | None) -> ConnPolicy:
+        """A policy from YAML-like data (`{type: buffer, size: 8, overflow: drop_newest}`)."""
+        if spec is None:
+            return cls()
+        if isinstance(spec, ConnPolicy):
+            return spec
+        unknown = set(spec) - {"type", "size", "overflow"}
+        if unknown:
+            raise PortError(f"unknown connection policy key(s): {', '.join(sorted(unknown))}")
+        return cls(**spec)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data (for remote calls and introspection)."""
+        return {"type": self.type, "size": self.size, "overflow": self.overflow}
+
+
+@dataclass
+class PortStats:
+    """Counters of what happened to the samples of one port (nothing is dropped silently)."""
+
+    written: int = 0
+    received: int = 0
+    dropped_stale: int = 0
+    dropped_duplicate: int = 0
+    dropped_overflow: int = 0
+    dropped_invalid: int = 0
+    discarded_on_rewire: int = 0
+    last_error: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data for introspection."""
+        return dict(self.__dict__)
+
+
+@dataclass(eq=False, repr=False)
+class Port(Generic[T]):
+    """What input and output ports share: a name, a message type and documentation."""
+
+    name: str
+    type: type
+    doc: str = ""
+    owner: str = ""
+    stats: PortStats = field(default_factory=PortStats)
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.full_name}: {self.type_name}>"
+
+    @property
+    def type_name(self) -> str:
+        """The catalog name of the port's message type."""
+        return messages.type_name(self.type)
+
+    @property
+    def full_name(self) -> str:
+        """`component.port`."""
+        return f"{self.owner}.{self.name}" if self.owner else self.name
+
+
+_ids = random.SystemRandom()
+
+
+class OutputPort(Port[T]):
+    """Publishes written samples on the keys it is connected to (latest value cached)."""
+
+    def __init__(self, name: str, type: type, doc: str = ""):
+        super().__init__(name, type, doc)
+        messages.codec_for(type)  # fail at declaration if the type has no codec
+        self.publisher_id = _ids.getrandbits(63)
+        self._seq = itertools.count(1)
+        self._publishers: dict[str, Any] = {}
+        self._lock = threading.Lock()
+        self.last: T | None = None
+        self.bus: Any = None
+
+    @property
+    def keys(self) -> list[str]:
+        """Keys this port publishes on."""
+        return sorted(self._publishers)
+
+    def connect(self, key: str) -> None:
+        """Also publish on `key` (idempotent)."""
+        if self.bus is None:
+            raise PortError(f"output port {self.full_name} is not attached to a bus")
+        with self._lock:
+            if key not in self._publishers:
+                self._publishers[key] = self.bus.publisher(key)
+
+    def disconnect(self, key: str | None = None) -> None:
+        """Stop publishing on `key` (or on every key)."""
+        with self._lock:
+            keys = [key] if key is not None else list(self._publishers)
+            for k in keys:
+                publisher = self._publishers.pop(k, None)
+                if publisher is not None:
+                    publisher.undeclare()
+
+    def write(self, value: T) -> None:
+        """Publish one sample on every connected key; a wrong type raises `PortError`."""
+        try:
+            data = messages.encode(value, self.type, self.publisher_id, next(self._seq))
+        except messages.CodecError as exc:
+            self.stats.last_error = str(exc)
+            raise PortError(f"cannot write to {self.full_name} ({self.type_name}): {exc}") from None
+        self.last = value
+        self.stats.written += 1
+        for publisher in list(self._publishers.values()):
+            publisher.put(data)
+
+
+class InputPort(Port[T]):
+    """Receives samples from one key and keeps them according to its `ConnPolicy`."""
+
+    def __init__(self, name: str, type: type, doc: str = "", policy: ConnPolicy | None = None):
+        super().__init__(name, type, doc)
+        messages.codec_for(type)
+        self.policy = policy or ConnPolicy()
+        self.key: str | None = None
+        self.bus: Any = None
+        self.generation = 0
+        self.on_data: Callable[[InputPort[T]], None] | None = None
+        self._lock = threading.Lock()
+        self._queue: deque[T] = deque()
+        self._latest: T | None = None
+        self._fresh = False
+        self._ever = False
+        self._seen: dict[int, int] = {}
+        self._subscriber: Any = None
+
+    @property
+    def connected(self) -> bool:
+        """True if the port listens to a key."""
+        return self.key is not None
+
+    def connect(self, key: str, policy: ConnPolicy | dict[str, Any] | None = None) -> None:
+        """Listen to `key` (replacing any previous connection) with an optional new policy.
+
+        The port starts empty: samples of the previous connection still queued are
+        discarded (and counted), so data of two sources is never mixed.
+        """
+        if self.bus is None:
+            raise PortError(f"input port {self.full_name} is not attached to a bus")
+        new_policy = ConnPolicy.from_spec(policy) if policy is not None else self.policy
+        self.disconnect()
+        with self._lock:
+            self.policy = new_policy
+            self.generation += 1
+            generation = self.generation
+            self.key = key
+        self._subscriber = self.bus.subscribe(
+            key, lambda sample: self._deliver(generation, sample.payload.to_bytes())
+        )
+
+    def disconnect(self) -> None:
+        """Stop listening; later samples of the old key are dropped as stale."""
+        with self._lock:
+            self.generation += 1
+            self.stats.discarded_on_rewire += len(self._queue) + (1 if self._fresh else 0)
+            self._queue.clear()
+            self._latest = None
+            self._fresh = False
+            self._ever = False
+            self._seen.clear()
+            self.key = None
+            subscriber, self._subscriber = self._subscriber, None
+        if subscriber is not None:
+            subscriber.undeclare()
+
+    def _deliver(self, generation: int, data: bytes) -> None:
+        """Called on Zenoh's thread for every sample of the connected key."""
+        if generation != self.generation:
+            self.stats.dropped_stale += 1
+            return
+        try:
+            value, publisher, seq = messages.decode(data, self.type)
+        except messages.CodecError as exc:
+            self.stats.dropped_invalid += 1
+            self.stats.last_error = f"{self.full_name}: {exc}"
+            return
+        with self._lock:
+            if generation != self.generation:
+                self.stats.dropped_stale += 1
+                return
+            if seq <= self._seen.get(publisher, 0):
+                self.stats.dropped_duplicate += 1
+                return
+            self._seen[publisher] = seq
+            self.stats.received += 1
+            self._store(value)
+        callback = self.on_data
+        if callback is not None:
+            callback(self)
+
+    def _store(self, value: T) -> None:
+        if self.policy.type == "data":
+            self._latest = value
+            self._fresh = True
+        else:
+            queue = self._queue
+            if len(queue) >= self.policy.size:
+                self.stats.dropped_overflow += 1
+                if self.policy.overflow == "drop_newest":
+                    return
+                queue.popleft()
+            queue.append(value)
+        self._ever = True
+
+    def read(self) -> tuple[ReadStatus, T | None]:
+        """(NEW, value) for an unread sample, (OLD, last value), or (NO_DATA, None)."""
+        with self._lock:
+            if self.policy.type == "buffer":
+                if self._queue:
+                    self._latest = self._queue.popleft()
+                    return ReadStatus.NEW, self._latest
+            elif self._fresh:
+                self._fresh = False
+                return ReadStatus.NEW, self._latest
+            if self._ever and self._latest is not None:
+                return ReadStatus.OLD, self._latest
+            return ReadStatus.NO_DATA, None
+
+    def pending(self) -> int:
+        """Unread samples (0 or 1 for a data port)."""
+        with self._lock:
+            return len(self._queue) if self.policy.type == "buffer" else int(self._fresh)

@@ -1,0 +1,112 @@
+"""Control a component in any process of the deployment, as if it were local.
+
+    robot = RemoteComponent(bus, "robot")
+    robot.configure(); robot.start()
+    robot.connect("setpoints", "interpolator/setpoints", policy={"type": "data"})
+    robot.call("brake", timeout=0.5, hard=True)
+
+Every failure is a `RemoteError` whose message names the component and the
+cause: no answer (the process is gone or busy), a refused request (wrong
+state, unknown port, bad value), or an operation that raised.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from framework import keys
+from framework.bus import Bus, BusError
+from framework.errors import FwError
+
+
+class RemoteError(FwError):
+    """A remote request failed; `kind` is the remote error class name."""
+
+    def __init__(self, message: str, kind: str = ""):
+        super().__init__(message)
+        self.kind = kind
+
+
+class RemoteComponent:
+    """A handle on a component hosted by some container on the bus."""
+
+    def __init__(self, bus: Bus, name: str, timeout: float = 2.0):
+        self.bus, self.name, self.timeout = bus, name, timeout
+
+    def request(self, op: str, timeout: float | None = None, **fields: Any) -> Any:
+        """Send one control request and return its result."""
+        wait = self.timeout if timeout is None else timeout
+        try:
+            replies = self.bus.query(
+                keys.control(self.name), json.dumps({"op": op, **fields}).encode(), wait
+            )
+        except BusError as exc:
+            try:
+                info = json.loads(str(exc))
+            except json.JSONDecodeError:
+                if "timeout" in str(exc).lower():
+                    what = f"operation {fields.get('operation')!r}" if op == "call" else repr(op)
+                    raise RemoteError(
+                        f"{what} of component {self.name!r} timed out after "
+                        f"{wait:g} s (it may still complete)",
+                        "Timeout",
+                    ) from None
+                raise RemoteError(f"{self.name}: {exc}") from None
+            raise RemoteError(f"{self.name}: {info['error']}", info.get("kind", "")) from None
+        if not replies:
+            what = f"operation {fields['operation']!r}" if op == "call" else f"{op!r}"
+            raise RemoteError(
+                f"no answer from component {self.name!r} to {what} within "
+                f"{wait:g} s (is its process running?)",
+                "Timeout",
+            )
+        return json.loads(replies[0])["result"]
+
+    def configure(self) -> dict[str, Any]:
+        """Remote `configure()`; the result says whether the hook succeeded and why not."""
+        return self.request("configure")
+
+    def start(self) -> dict[str, Any]:
+        """Remote `start()`."""
+        return self.request("start")
+
+    def stop(self) -> dict[str, Any]:
+        """Remote `stop()`."""
+        return self.request("stop")
+
+    def cleanup(self) -> dict[str, Any]:
+        """Remote `cleanup()`."""
+        return self.request("cleanup")
+
+    def recover(self) -> dict[str, Any]:
+        """Remote `recover()`."""
+        return self.request("recover")
+
+    def state(self) -> str:
+        """The component's lifecycle state name."""
+        return self.request("state")["state"]
+
+    def describe(self) -> dict[str, Any]:
+        """Ports, properties, operations, state (see `Component.describe`)."""
+        return self.request("describe")
+
+    def connect(self, port: str, key: str, policy: dict[str, Any] | None = None) -> None:
+        """Connect one of its ports to a key (input ports: type-checked, optional policy)."""
+        self.request("connect", port=port, key=key, policy=policy)
+
+    def disconnect(self, port: str, key: str | None = None) -> None:
+        """Disconnect one of its ports."""
+        self.request("disconnect", port=port, key=key)
+
+    def get(self, prop: str) -> Any:
+        """A property value."""
+        return self.request("get", property=prop)
+
+    def set(self, prop: str, value: Any) -> Any:
+        """Set a property (validated remotely); returns the stored value."""
+        return self.request("set", property=prop, value=value)
+
+    def call(self, operation: str, timeout: float | None = None, **args: Any) -> Any:
+        """Call an operation with keyword arguments."""
+        return self.request("call", timeout=timeout, operation=operation, args=args)
