@@ -292,6 +292,9 @@ class Component:
         them failing means FatalError."""
         with self._lock:
             was = self._state
+            if was in (State.EXCEPTION, State.FATAL_ERROR):  # already there: nothing to undo
+                self.last_error = reason
+                return
             try:
                 if was in (State.RUNNING, State.RUNTIME_ERROR):
                     self.stop_hook()

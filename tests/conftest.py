@@ -78,3 +78,47 @@ def run(chart: Callable[..., Statechart]) -> Callable[..., Run]:
         return Run(chart(text, validate=validate), auto_ack)
 
     return _run
+
+
+@pytest.fixture
+def bus_config(request: pytest.FixtureRequest):
+    """A private deployment for one test: its own namespace and hub port."""
+    import re
+
+    from framework.bus import BusConfig, free_port
+
+    name = re.sub(r"[^A-Za-z0-9_]", "_", request.node.name)[:40]
+    return BusConfig(namespace=f"t_{name}_{free_port()}", hub_port=free_port())
+
+
+@pytest.fixture
+def hub(bus_config):
+    """The hub session of the test's deployment (closed after the test)."""
+    from framework.bus import Bus
+
+    bus = Bus(bus_config, hub=True)
+    yield bus
+    bus.close()
+
+
+@pytest.fixture
+def peer(bus_config, hub):
+    """A second session joining the hub, as another process would."""
+    from framework.bus import Bus
+
+    bus = Bus(bus_config)
+    yield bus
+    bus.close()
+
+
+def wait_until(predicate, timeout: float = 5.0, interval: float = 0.005) -> bool:
+    """Poll `predicate` until it holds or `timeout` passes (for asynchronous delivery;
+    this bounds a wait, it does not assert on speed)."""
+    import time as _time
+
+    end = _time.monotonic() + timeout
+    while _time.monotonic() < end:
+        if predicate():
+            return True
+        _time.sleep(interval)
+    return bool(predicate())

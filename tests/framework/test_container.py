@@ -1,0 +1,166 @@
+"""Spec: containers in real processes: remote control, rewiring under load, liveliness,
+orderly shutdown, and clear errors for every bad request."""
+
+import os
+import signal
+import subprocess
+
+import pytest
+
+from components.demo import Sink
+from framework import keys
+from framework.activity import Activity
+from framework.container import Container, spawn_container
+from framework.remote import RemoteComponent, RemoteError
+from tests.conftest import wait_until
+
+
+def spec(bus_config, name, components):
+    return {"name": name, "bus": bus_config.to_dict(), "components": components}
+
+
+@pytest.fixture
+def process(bus_config, hub):
+    """Start container processes; kill any left at the end."""
+    started = []
+
+    def start(name, components):
+        proc = spawn_container(
+            spec(bus_config, name, components), stderr=subprocess.PIPE, stdout=subprocess.DEVNULL
+        )
+        started.append(proc)
+        names = [c["name"] for c in components]
+        ok = wait_until(
+            lambda: all(keys.alive(n) in hub.alive(keys.ALL_ALIVE, 0.5) for n in names), timeout=20
+        )
+        assert ok, proc.stderr.read().decode() if proc.poll() is not None else "no liveliness"
+        return proc
+
+    yield start
+    for proc in started:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(10)
+
+
+def counter(name, step=1.0, rate=100, run=True):
+    return {
+        "name": name,
+        "class": "components.demo:Counter",
+        "activity": {"periodic": rate},
+        "properties": {"step": step},
+        "configure": run,
+        "start": run,
+    }
+
+
+@pytest.fixture
+def sink(hub):
+    container = Container("local", hub)
+    component = container.add(Sink("snk"), Activity.event("inp"))
+    container.start()
+    component.start()
+    yield container, component
+    container.shutdown()
+
+
+def test_remote_lifecycle_properties_and_operations(process, hub):
+    process("c1", [counter("cnt", run=False)])
+    remote = RemoteComponent(hub, "cnt")
+    assert remote.state() == "PreOperational"
+    assert remote.set("step", 3) == 3.0
+    assert remote.configure() == {"ok": True, "state": "Stopped", "reason": ""}
+    assert remote.call("reset", to=10) == 10.0
+    info = remote.describe()
+    assert info["container"] == "c1" and info["outputs"][0]["keys"] == ["cnt/out"]
+
+
+def test_bad_requests_get_clear_errors_and_the_container_survives(process, hub):
+    process("c1", [counter("cnt", run=False)])
+    remote = RemoteComponent(hub, "cnt")
+    cases = [
+        (lambda: remote.start(), "cannot start 'cnt' in state PreOperational"),
+        (lambda: remote.set("step", "fast"), "expects float, got str"),
+        (lambda: remote.set("speed", 1), "has no property 'speed'"),
+        (lambda: remote.connect("inn", "x"), "has no port 'inn'"),
+        (lambda: remote.call("jump"), "has no operation 'jump'"),
+        (lambda: remote.call("reset", too=1), "unexpected keyword argument 'too'"),
+        (lambda: remote.request("dance"), "unknown request 'dance'"),
+        (lambda: RemoteComponent(hub, "ghost", 0.3).state(), "no answer from component 'ghost'"),
+    ]
+    for call, message in cases:
+        with pytest.raises(RemoteError, match=message):
+            call()
+    assert remote.state() == "PreOperational"
+
+
+def test_type_mismatch_on_connect_is_refused_naming_both_types(process, hub, sink):
+    process("c1", [counter("cnt")])
+    container, _ = sink
+    with pytest.raises(
+        Exception, match=r"snk\.pose \(Pose\).*carries Scalar \(written by cnt\.out\)"
+    ):
+        container.connect("snk", "pose", "cnt/out")
+
+
+def test_an_operation_timeout_is_reported(hub, sink):
+    with pytest.raises(RemoteError, match="operation 'slow' of component 'snk' timed out after"):
+        RemoteComponent(hub, "snk").call("slow", timeout=0.2, seconds=2.0)
+
+
+def test_rewiring_at_100hz_loses_nothing_and_mixes_nothing(process, hub, sink):
+    # a counts up from 1, b counts down from -1, both at 100 Hz in another process
+    process("c1", [counter("a", 1.0), counter("b", -1.0)])
+    container, component = sink
+    container.connect("snk", "inp", "a/out", {"type": "buffer", "size": 1000})
+    assert wait_until(lambda: len(component.call("received")) >= 10)
+    container.connect("snk", "inp", "b/out", {"type": "buffer", "size": 1000})
+    switched = len(component.call("received"))
+    assert wait_until(lambda: len(component.call("received")) >= switched + 20)
+    after = component.call("received")[switched:]
+    assert all(v < 0 for v in after), "no sample of the old key after the switch"
+    assert after == sorted(set(after), reverse=True), "no duplicate, no reordering"
+    steps = [after[i] - after[i + 1] for i in range(len(after) - 1)]
+    assert set(steps) == {1.0}, "no sample lost on the new key"
+
+
+def test_a_new_connection_gets_the_latest_value_without_waiting_for_a_write(process, hub, sink):
+    proc = process("c1", [counter("once", 5.0, run=False)])
+    remote = RemoteComponent(hub, "once")
+    remote.configure()
+    remote.start()
+    assert wait_until(lambda: remote.describe()["outputs"][0]["stats"]["written"] >= 1)
+    remote.stop()  # the counter is silent from now on
+    container, component = sink
+    container.connect("snk", "inp", "once/out")
+    assert wait_until(lambda: len(component.call("received")) == 1)
+    assert proc.poll() is None
+
+
+def test_a_killed_process_is_seen_through_liveliness(process, hub):
+    proc = process("c1", [counter("victim", run=False)])
+    events = []
+    watcher = hub.watch(keys.ALL_ALIVE, lambda key, alive: events.append((key, alive)))
+    assert wait_until(lambda: ("fw/alive/victim", True) in events)
+    os.kill(proc.pid, signal.SIGKILL)
+    assert wait_until(lambda: ("fw/alive/victim", False) in events, timeout=10)
+    watcher.undeclare()
+
+
+def test_sigterm_shuts_down_in_order_and_exits_cleanly(process, hub):
+    proc = process("c1", [counter("polite")])
+    states = []
+    sub = hub.subscribe(keys.state("polite"), lambda s: states.append(bytes(s.payload.to_bytes())))
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(20) == 0
+    assert keys.alive("polite") not in hub.alive(keys.ALL_ALIVE, 0.5)
+    assert any(b"Stopped" in s for s in states) and any(b"PreOperational" in s for s in states)
+    sub.undeclare()
+
+
+def test_a_bad_spec_fails_the_process_with_a_clear_message(bus_config):
+    bad = spec(bus_config, "c1", [{"name": "x", "class": "components.demo:Nope"}])
+    proc = spawn_container(bad, stderr=subprocess.PIPE)
+    assert proc.wait(30) == 1
+    err = proc.stderr.read().decode()
+    assert "is not a Component class" in err and "Traceback" not in err

@@ -1,0 +1,154 @@
+"""Spec: ports over real Zenoh: policies, read status, rewiring without loss or mixing."""
+
+import pytest
+
+from framework import messages
+from framework.messages import Pose, Scalar
+from framework.ports import ConnPolicy, InputPort, OutputPort, PortError, ReadStatus
+from tests.conftest import wait_until
+
+
+def make_out(bus, name="out", kind=Scalar):
+    port = OutputPort(name, kind)
+    port.owner, port.bus = "src", bus
+    return port
+
+
+def make_in(bus, policy=None, kind=Scalar):
+    port = InputPort("inp", kind, policy=ConnPolicy.from_spec(policy))
+    port.owner, port.bus = "dst", bus
+    return port
+
+
+def raw_publisher(bus, key):
+    """A plain Zenoh publisher that waits until a subscriber is routed to it."""
+    publisher = bus.publisher(key, cache=False)
+    assert wait_until(lambda: publisher.matching_status.matching)
+    return publisher
+
+
+def routed(out, inp):
+    """Write a probe sample and wait until it arrives: the route is up (Zenoh declares
+    subscriptions asynchronously; a burst written before that reaches only a data port's
+    cached latest value)."""
+    before = inp.stats.received
+    out.write(Scalar(0.0, 0.0))
+    assert wait_until(lambda: inp.stats.received > before)
+    values(inp)
+
+
+def values(port):
+    out = []
+    while True:
+        status, sample = port.read()
+        if status is not ReadStatus.NEW:
+            return out
+        out.append(sample.value)
+
+
+def test_read_status_goes_no_data_then_new_then_old(hub, peer):
+    out, inp = make_out(hub), make_in(peer)
+    out.connect("k/a")
+    inp.connect("k/a")
+    assert inp.read() == (ReadStatus.NO_DATA, None)
+    out.write(Scalar(0.0, 1.0))
+    assert wait_until(lambda: inp.pending() == 1)
+    assert inp.read() == (ReadStatus.NEW, Scalar(0.0, 1.0))
+    assert inp.read() == (ReadStatus.OLD, Scalar(0.0, 1.0))
+
+
+def test_a_data_port_keeps_only_the_latest(hub, peer):
+    out, inp = make_out(hub), make_in(peer)
+    out.connect("k/a")
+    inp.connect("k/a")
+    routed(out, inp)
+    for i in range(1, 6):
+        out.write(Scalar(0.0, float(i)))
+    assert wait_until(lambda: inp.stats.received == 6)
+    assert values(inp) == [5.0]
+
+
+@pytest.mark.parametrize(
+    ("overflow", "kept"), [("drop_oldest", [3.0, 4.0, 5.0]), ("drop_newest", [1.0, 2.0, 3.0])]
+)
+def test_a_buffer_port_applies_its_overflow_rule_and_counts_drops(hub, peer, overflow, kept):
+    out, inp = make_out(hub), make_in(peer, {"type": "buffer", "size": 3, "overflow": overflow})
+    out.connect("k/a")
+    inp.connect("k/a")
+    routed(out, inp)
+    for i in range(1, 6):
+        out.write(Scalar(0.0, float(i)))
+    assert wait_until(lambda: inp.stats.received == 6)
+    assert values(inp) == kept and inp.stats.dropped_overflow == 2
+
+
+def test_a_newly_connected_port_gets_the_latest_value_without_a_new_write(hub, peer):
+    out = make_out(hub)
+    out.connect("k/a")
+    for i in range(1, 4):
+        out.write(Scalar(0.0, float(i)))
+    inp = make_in(peer)
+    inp.connect("k/a")  # nothing is written after this point
+    assert wait_until(lambda: inp.pending() == 1)
+    assert values(inp) == [3.0]
+
+
+def test_rewiring_never_mixes_sources_and_drops_nothing_silently(hub, peer):
+    a, b = make_out(hub, "a"), make_out(hub, "b")
+    a.connect("k/a")
+    b.connect("k/b")
+    inp = make_in(peer, {"type": "buffer", "size": 100})
+    inp.connect("k/a")
+    a.write(Scalar(0.0, 1.0))
+    assert wait_until(lambda: inp.pending() == 1)
+    b.write(Scalar(0.0, -1.0))
+    inp.connect("k/b")
+    for i in range(2, 20):
+        a.write(Scalar(0.0, float(i)))  # the old source keeps talking
+    assert wait_until(lambda: inp.pending() >= 1)
+    b.write(Scalar(0.0, -2.0))
+    assert wait_until(lambda: inp.stats.received >= 3)  # 1.0 before the switch, then -1, -2
+    got = values(inp)
+    assert got == [-1.0, -2.0], "only the new source, its cached latest first"
+    assert inp.stats.discarded_on_rewire == 1  # the unread sample of k/a, counted
+
+
+def test_samples_seen_twice_are_dropped(hub, peer):
+    out, inp = make_out(hub), make_in(peer, {"type": "buffer", "size": 10})
+    out.connect("k/a")
+    inp.connect("k/a")
+    raw = messages.encode(Scalar(0.0, 7.0), Scalar, publisher=42, seq=1)
+    publisher = raw_publisher(hub, "k/a")
+    publisher.put(raw)
+    publisher.put(raw)
+    assert wait_until(lambda: inp.stats.dropped_duplicate == 1)
+    assert values(inp) == [7.0]
+
+
+def test_samples_of_the_wrong_type_are_dropped_and_reported(hub, peer):
+    inp = make_in(peer)
+    inp.connect("k/pose")
+    raw_publisher(hub, "k/pose").put(messages.encode(Pose(), Pose))
+    assert wait_until(lambda: inp.stats.dropped_invalid == 1)
+    assert "expected Scalar" in inp.stats.last_error
+    assert inp.read()[0] is ReadStatus.NO_DATA
+
+
+def test_corrupt_bytes_are_dropped_and_reported(hub, peer):
+    inp = make_in(peer)
+    inp.connect("k/x")
+    raw_publisher(hub, "k/x").put(b"\x00garbage")
+    assert wait_until(lambda: inp.stats.dropped_invalid == 1)
+
+
+def test_misuse_is_a_clear_error(hub):
+    with pytest.raises(PortError, match="not attached to a bus"):
+        InputPort("p", Scalar).connect("k")
+    with pytest.raises(PortError, match="cannot write to src.out \\(Scalar\\)"):
+        make_out(hub).write(Pose())
+    with pytest.raises(PortError, match="size must be"):
+        ConnPolicy("buffer", 0)
+    with pytest.raises(PortError, match="'data' or 'buffer'"):
+        ConnPolicy.from_spec({"type": "fifo"})
+    with pytest.raises(PortError, match="unknown connection policy key"):
+        ConnPolicy.from_spec({"type": "data", "depth": 3})
