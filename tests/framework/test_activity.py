@@ -95,5 +95,5 @@ def test_activity_specs_are_checked():
         Activity.from_spec({"periodic": 0})
     with pytest.raises(ActivityError, match="must be 'passive'"):
         Activity.from_spec({"sometimes": 1})
-    with pytest.raises(ActivityError, match="unknown input port 'in'.*inp"):
+    with pytest.raises(ActivityError, match=r"unknown input port 'in'.*inp"):
         RealTimeExecutor().add(Doubler("d"), Activity.event("in"))

@@ -93,7 +93,7 @@ def test_properties_are_validated_with_clear_errors():
         d.gain = 5000
     with pytest.raises(PropertyError, match="expects float, got str"):
         d.set_property("gain", "2")
-    with pytest.raises(PropertyError, match="has no property 'gian'.*gain"):
+    with pytest.raises(PropertyError, match=r"has no property 'gian'.*gain"):
         d.set_property("gian", 2)
     with pytest.raises(PropertyError, match="finite"):
         d.gain = float("nan")
@@ -115,7 +115,7 @@ def test_operations_check_their_arguments_and_report_failures():
     assert s.call("slow", seconds=0) == "done"
     with pytest.raises(OperationError, match="unexpected keyword argument 'secs'"):
         s.call("slow", secs=1)
-    with pytest.raises(OperationError, match="has no operation 'sleep'.*slow"):
+    with pytest.raises(OperationError, match=r"has no operation 'sleep'.*slow"):
         s.call("sleep")
     with pytest.raises(OperationError, match="ValueError: asked to fail"):
         s.call("fail")

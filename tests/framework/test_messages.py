@@ -110,7 +110,7 @@ def test_writing_the_wrong_type_is_refused():
 def test_type_ids_differ_per_type_and_unknown_names_are_listed():
     ids = {messages.type_id(k) for k in CATALOG.values()}
     assert len(ids) == len(CATALOG)
-    with pytest.raises(CodecError, match="known: .*Pose"):
+    with pytest.raises(CodecError, match=r"known: .*Pose"):
         messages.resolve_type("Posture")
 
 

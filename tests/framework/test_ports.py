@@ -144,7 +144,7 @@ def test_corrupt_bytes_are_dropped_and_reported(hub, peer):
 def test_misuse_is_a_clear_error(hub):
     with pytest.raises(PortError, match="not attached to a bus"):
         InputPort("p", Scalar).connect("k")
-    with pytest.raises(PortError, match="cannot write to src.out \\(Scalar\\)"):
+    with pytest.raises(PortError, match=r"cannot write to src\.out \(Scalar\)"):
         make_out(hub).write(Pose())
     with pytest.raises(PortError, match="size must be"):
         ConnPolicy("buffer", 0)
