@@ -127,3 +127,18 @@ class Flaky(Component):
     def exception_hook(self) -> None:
         if self.fail_in == "exception":
             raise RuntimeError("exception hook failed on purpose")
+
+
+class Pinger(Component):
+    """Writes `Scalar(time.perf_counter(), n)` each update: the stamp is the monotonic
+    clock shared by every process on the machine, so receivers can measure latency."""
+
+    out = Out(Scalar, doc="stamped counter")
+
+    def configure_hook(self) -> bool:
+        self.n = 0
+        return True
+
+    def update_hook(self) -> None:
+        self.n += 1
+        self.out.write(Scalar(time.perf_counter(), float(self.n)))

@@ -133,33 +133,49 @@ class Bus:
             ) from None
         self._closed = False
         self._lock = threading.Lock()
+        self.local_readers: dict[str, dict[int, Any]] = {}
+        """Input ports of this session by key: same-session samples skip Zenoh."""
+        self.local_writers: dict[str, dict[int, Any]] = {}
+        """Output ports of this session by key (their last sample serves local connects)."""
 
     @property
     def closed(self) -> bool:
         """True once `close()` ran."""
         return self._closed
 
-    def publisher(self, key: str, cache: bool = True) -> Any:
-        """A publisher on `key`; with `cache`, late subscribers get the last sample at once."""
+    def publisher(self, key: str, cache: bool = True, remote_only: bool = False) -> Any:
+        """A publisher on `key`; with `cache`, late subscribers get the last sample at once;
+        `remote_only` skips this session's own subscribers (they are served directly)."""
+        where = zenoh.Locality.REMOTE if remote_only else None
         if cache:
             return zenoh.ext.declare_advanced_publisher(
                 self.session,
                 key,
                 cache=zenoh.ext.CacheConfig(max_samples=1),
                 publisher_detection=True,
+                allowed_destination=where,
             )
-        return self.session.declare_publisher(key)
+        return self.session.declare_publisher(key, allowed_destination=where)
 
-    def subscribe(self, key: str, callback: Callable[[Any], None], history: bool = True) -> Any:
-        """Subscribe to `key`; with `history`, the last cached sample arrives at once."""
+    def subscribe(
+        self,
+        key: str,
+        callback: Callable[[Any], None],
+        history: bool = True,
+        remote_only: bool = False,
+    ) -> Any:
+        """Subscribe to `key`; with `history`, the last cached sample arrives at once;
+        `remote_only` ignores this session's own publications."""
+        where = zenoh.Locality.REMOTE if remote_only else None
         if history:
             return zenoh.ext.declare_advanced_subscriber(
                 self.session,
                 key,
                 callback,
+                allowed_origin=where,
                 history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
             )
-        return self.session.declare_subscriber(key, callback)
+        return self.session.declare_subscriber(key, callback, allowed_origin=where)
 
     def queryable(self, key: str, handler: Callable[[Any], None]) -> Any:
         """Answer queries on `key` (remote operations, introspection)."""

@@ -152,6 +152,15 @@ class Container:
                     f"{info['writer']})"
                 )
 
+    def prepare(self, component: str, port: str, key: str) -> dict[str, Any]:
+        """Give an input port a standby subscription to `key` (instant later switch)."""
+        target = self._component(component).port(port)
+        if not isinstance(target, InputPort):
+            raise PortError(f"{target.full_name} is an output port: only inputs can prepare")
+        self._check_type(target, key)
+        target.prepare(key)
+        return {"port": target.full_name, "prepared": target.prepared}
+
     def disconnect(self, component: str, port: str, key: str | None = None) -> dict[str, Any]:
         """Disconnect a port (an output port from `key`, or from every key)."""
         target = self._component(component).port(port)
@@ -189,6 +198,8 @@ class Container:
             return self.connect(name, request["port"], request["key"], request.get("policy"))
         if op == "disconnect":
             return self.disconnect(name, request["port"], request.get("key"))
+        if op == "prepare":
+            return self.prepare(name, request["port"], request["key"])
         if op == "get":
             return component.get_property(request["property"])
         if op == "set":
@@ -249,7 +260,10 @@ class Container:
                 component.cleanup()
         self.executor.stop()
         for component in self.components.values():
-            for port in (*component.inputs.values(), *component.outputs.values()):
+            for port in component.inputs.values():
+                with contextlib.suppress(Exception):
+                    port.close()
+            for port in component.outputs.values():
                 with contextlib.suppress(Exception):
                     port.disconnect()
         for entity in [

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import math
+import operator
 import struct
 import zlib
 from collections.abc import Callable
@@ -196,6 +197,52 @@ class _Codec:
             else:
                 self.variable.append((name, wire))
         self.fixed = struct.Struct(fixed)
+        # top-level samples: envelope and fixed fields packed by one struct call
+        self.head = struct.Struct(_ENVELOPE.format + fixed[1:])
+        self.flat = all(size == 0 for size in self.fixed_sizes) and not self.variable
+        self.getter = operator.attrgetter(*self.fixed_names) if self.fixed_names else None
+        self.plan: list[tuple[str, int, int, str]] = []
+        position = 0
+        for name, wire in self.fields:
+            if (name, wire) in self.variable:
+                self.plan.append(("var", 0, 0, wire))
+            else:
+                size = self.fixed_sizes[self.fixed_names.index(name)]
+                self.plan.append(("fixed", position, size, ""))
+                position += size or 1
+
+    def pack(self, value: Any, publisher: int, seq: int) -> bytes:
+        """A whole sample: envelope, fixed fields, then variable fields."""
+        if self.builtin or not self.flat:
+            out = bytearray(_ENVELOPE.pack(_MAGIC, _VERSION, self.type_id, publisher, seq))
+            self.encode(value, out)
+            return bytes(out)
+        if type(value) is not self.kind:
+            raise CodecError(f"expected {type_name(self.kind)}, got {type(value).__name__}")
+        fixed = self.getter(value)  # type: ignore[misc]
+        if len(self.fixed_names) == 1:
+            fixed = (fixed,)
+        try:
+            return self.head.pack(_MAGIC, _VERSION, self.type_id, publisher, seq, *fixed)
+        except struct.error as exc:
+            raise CodecError(f"{type_name(self.kind)}: {exc}") from None
+
+    def unpack(self, view: memoryview) -> tuple[Any, int, int]:
+        """(value, publisher, seq) of a whole sample whose envelope was checked."""
+        if self.builtin or not self.flat:
+            _, _, _, publisher, seq = _ENVELOPE.unpack_from(view, 0)
+            value, end = self.decode(view, _ENVELOPE.size)
+            if end != len(view):
+                raise CodecError(
+                    f"{len(view) - end} trailing bytes after a {type_name(self.kind)} sample"
+                )
+            return value, publisher, seq
+        if len(view) != self.head.size:
+            raise CodecError(
+                f"a {type_name(self.kind)} sample has {self.head.size} bytes, got {len(view)}"
+            )
+        values = self.head.unpack_from(view, 0)
+        return self.kind(*values[5:]), values[3], values[4]
 
     def encode(self, value: Any, out: bytearray) -> None:
         if self.builtin:
@@ -235,18 +282,14 @@ class _Codec:
             return value, offset + self.fixed.size
         raw = self.fixed.unpack_from(data, offset)
         offset += self.fixed.size
-        values: dict[str, Any] = {}
-        i = 0
-        for name, size in zip(self.fixed_names, self.fixed_sizes, strict=True):
-            if size:
-                values[name] = tuple(raw[i : i + size])
-                i += size
+        args: list[Any] = []
+        for kind, start, size, wire in self.plan:
+            if kind == "fixed":
+                args.append(tuple(raw[start : start + size]) if size else raw[start])
             else:
-                values[name] = raw[i]
-                i += 1
-        for name, wire in self.variable:
-            values[name], offset = _DECODERS[wire.split(":")[0]](data, offset, wire)
-        return self.kind(**values), offset
+                value, offset = _DECODERS[wire.split(":")[0]](data, offset, wire)
+                args.append(value)
+        return self.kind(*args), offset
 
 
 _BUILTIN_KIND = {float: "f64", int: "i64", bool: "bool", str: "str"}
@@ -342,10 +385,7 @@ def type_id(kind: type) -> int:
 
 def encode(value: Any, kind: type, publisher: int = 0, seq: int = 0) -> bytes:
     """One sample: envelope (type id, publisher id, sequence number) plus the body."""
-    codec = codec_for(kind)
-    out = bytearray(_ENVELOPE.pack(_MAGIC, _VERSION, codec.type_id, publisher, seq))
-    codec.encode(value, out)
-    return bytes(out)
+    return codec_for(kind).pack(value, publisher, seq)
 
 
 def decode(data: bytes | bytearray | memoryview, kind: type) -> tuple[Any, int, int]:
@@ -353,7 +393,7 @@ def decode(data: bytes | bytearray | memoryview, kind: type) -> tuple[Any, int, 
     view = memoryview(data)
     if len(view) < _ENVELOPE.size:
         raise CodecError(f"sample of {len(view)} bytes is shorter than its envelope")
-    magic, version, tid, publisher, seq = _ENVELOPE.unpack_from(view, 0)
+    magic, version, tid, _, _ = _ENVELOPE.unpack_from(view, 0)
     if magic != _MAGIC or version != _VERSION:
         raise CodecError("not an fw sample (bad magic or version)")
     codec = codec_for(kind)
@@ -363,9 +403,6 @@ def decode(data: bytes | bytearray | memoryview, kind: type) -> tuple[Any, int, 
             f"{type_name(kind)} ({codec.type_id:#010x})"
         )
     try:
-        value, end = codec.decode(view, _ENVELOPE.size)
+        return codec.unpack(view)
     except (struct.error, UnicodeDecodeError) as exc:
         raise CodecError(f"corrupt {type_name(kind)} sample: {exc}") from None
-    if end != len(view):
-        raise CodecError(f"{len(view) - end} trailing bytes after a {type_name(kind)} sample")
-    return value, publisher, seq

@@ -137,6 +137,7 @@ class OutputPort(Port[T]):
         self._publishers: dict[str, Any] = {}
         self._lock = threading.Lock()
         self.last: T | None = None
+        self.last_data: bytes | None = None
         self.bus: Any = None
 
     @property
@@ -150,7 +151,8 @@ class OutputPort(Port[T]):
             raise PortError(f"output port {self.full_name} is not attached to a bus")
         with self._lock:
             if key not in self._publishers:
-                self._publishers[key] = self.bus.publisher(key)
+                self._publishers[key] = self.bus.publisher(key, remote_only=True)
+                self.bus.local_writers.setdefault(key, {})[id(self)] = self
 
     def disconnect(self, key: str | None = None) -> None:
         """Stop publishing on `key` (or on every key)."""
@@ -159,6 +161,7 @@ class OutputPort(Port[T]):
             for k in keys:
                 publisher = self._publishers.pop(k, None)
                 if publisher is not None:
+                    self.bus.local_writers.get(k, {}).pop(id(self), None)
                     publisher.undeclare()
 
     def write(self, value: T) -> None:
@@ -168,10 +171,15 @@ class OutputPort(Port[T]):
         except messages.CodecError as exc:
             self.stats.last_error = str(exc)
             raise PortError(f"cannot write to {self.full_name} ({self.type_name}): {exc}") from None
-        self.last = value
+        self.last, self.last_data = value, data
         self.stats.written += 1
-        for publisher in list(self._publishers.values()):
+        readers = self.bus.local_readers if self.bus is not None else {}
+        for key, publisher in list(self._publishers.items()):
             publisher.put(data)
+            local = readers.get(key)
+            if local:  # same session: the same delivery path, without the network
+                for reader in list(local.values()):
+                    reader.deliver_local(data)
 
 
 class InputPort(Port[T]):
@@ -192,45 +200,120 @@ class InputPort(Port[T]):
         self._ever = False
         self._seen: dict[int, int] = {}
         self._subscriber: Any = None
+        self._standby: dict[str, Any] = {}
+        self._standby_latest: dict[str, bytes] = {}
 
     @property
     def connected(self) -> bool:
         """True if the port listens to a key."""
         return self.key is not None
 
+    def prepare(self, key: str) -> None:
+        """Keep a standby subscription to `key` so a later `connect(key)` switches at once.
+
+        The standby keeps only the key's latest sample; nothing reaches the port until it
+        is connected. Use it for the alternatives a procedure may switch between (the
+        trackers of a tracker swap): switching then costs no network round trip.
+        """
+        if self.bus is None:
+            raise PortError(f"input port {self.full_name} is not attached to a bus")
+        if key in self._standby:
+            return
+
+        def on_sample(sample: Any, key: str = key) -> None:
+            data = sample.payload.to_bytes()
+            generation = self.generation  # read before the key: a switch in between
+            self._standby_latest[key] = data  # makes this generation stale
+            if self.key == key:
+                self._deliver(generation, data)
+
+        self._standby[key] = self.bus.subscribe(key, on_sample, remote_only=True)
+
+    def unprepare(self, key: str) -> None:
+        """Drop a standby subscription (unless it is the connected key)."""
+        subscriber = self._standby.pop(key, None)
+        self._standby_latest.pop(key, None)
+        if subscriber is not None:
+            subscriber.undeclare()
+
+    @property
+    def prepared(self) -> list[str]:
+        """Keys with a standby subscription."""
+        return sorted(self._standby)
+
+    def standby_ready(self, key: str) -> bool:
+        """True once the standby subscription to `key` holds a sample."""
+        return key in self._standby_latest
+
     def connect(self, key: str, policy: ConnPolicy | dict[str, Any] | None = None) -> None:
         """Listen to `key` (replacing any previous connection) with an optional new policy.
 
         The port starts empty: samples of the previous connection still queued are
-        discarded (and counted), so data of two sources is never mixed.
+        discarded (and counted), so data of two sources is never mixed. The key's latest
+        sample arrives at once: from a local writer, from a standby subscription (see
+        `prepare`), or from the publisher's cache over the network. A new subscription is
+        declared before the old one is undeclared, so the teardown overlaps that fetch.
         """
         if self.bus is None:
             raise PortError(f"input port {self.full_name} is not attached to a bus")
         new_policy = ConnPolicy.from_spec(policy) if policy is not None else self.policy
-        self.disconnect()
         with self._lock:
+            self._reset()
             self.policy = new_policy
-            self.generation += 1
             generation = self.generation
-            self.key = key
-        self._subscriber = self.bus.subscribe(
-            key, lambda sample: self._deliver(generation, sample.payload.to_bytes())
-        )
+            old_key, self.key = self.key, key
+            old, self._subscriber = self._subscriber, None
+        readers = self.bus.local_readers
+        if old_key is not None:
+            readers.get(old_key, {}).pop(id(self), None)
+        readers.setdefault(key, {})[id(self)] = self
+        if key in self._standby:
+            cached = self._standby_latest.get(key)
+            if cached is not None:
+                self._deliver(generation, cached)
+        else:
+            self._subscriber = self.bus.subscribe(
+                key,
+                lambda sample: self._deliver(generation, sample.payload.to_bytes()),
+                remote_only=True,
+            )
+        for writer in list(self.bus.local_writers.get(key, {}).values()):
+            if writer.last_data is not None:  # a local writer's latest value, at once
+                self._deliver(generation, writer.last_data)
+        if old is not None:
+            old.undeclare()
 
     def disconnect(self) -> None:
-        """Stop listening; later samples of the old key are dropped as stale."""
+        """Stop listening; later samples of the old key are dropped as stale. Standby
+        subscriptions stay (see `unprepare`)."""
         with self._lock:
-            self.generation += 1
-            self.stats.discarded_on_rewire += len(self._queue) + (1 if self._fresh else 0)
-            self._queue.clear()
-            self._latest = None
-            self._fresh = False
-            self._ever = False
-            self._seen.clear()
-            self.key = None
+            self._reset()
+            key, self.key = self.key, None
             subscriber, self._subscriber = self._subscriber, None
+        if key is not None and self.bus is not None:
+            self.bus.local_readers.get(key, {}).pop(id(self), None)
         if subscriber is not None:
             subscriber.undeclare()
+
+    def close(self) -> None:
+        """Disconnect and drop every standby subscription."""
+        self.disconnect()
+        for key in list(self._standby):
+            self.unprepare(key)
+
+    def _reset(self) -> None:
+        """New generation, empty queue (discarded samples are counted). Lock held."""
+        self.generation += 1
+        self.stats.discarded_on_rewire += len(self._queue) + (1 if self._fresh else 0)
+        self._queue.clear()
+        self._latest = None
+        self._fresh = False
+        self._ever = False
+        self._seen.clear()
+
+    def deliver_local(self, data: bytes) -> None:
+        """A sample written by an output port of the same session."""
+        self._deliver(self.generation, data)
 
     def _deliver(self, generation: int, data: bytes) -> None:
         """Called on Zenoh's thread for every sample of the connected key."""

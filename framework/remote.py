@@ -95,6 +95,10 @@ class RemoteComponent:
         """Connect one of its ports to a key (input ports: type-checked, optional policy)."""
         self.request("connect", port=port, key=key, policy=policy)
 
+    def prepare(self, port: str, key: str) -> None:
+        """Give one of its input ports a standby subscription to `key` (instant switch)."""
+        self.request("prepare", port=port, key=key)
+
     def disconnect(self, port: str, key: str | None = None) -> None:
         """Disconnect one of its ports."""
         self.request("disconnect", port=port, key=key)

@@ -46,7 +46,15 @@ def values(port):
         out.append(sample.value)
 
 
-def test_read_status_goes_no_data_then_new_then_old(hub, peer):
+@pytest.fixture(params=["same session", "two sessions"])
+def pair(request, hub, peer):
+    """Writer and reader buses: one session (delivery skips Zenoh) or two (over Zenoh).
+    Every behaviour below must be identical in both."""
+    return (hub, hub) if request.param == "same session" else (hub, peer)
+
+
+def test_read_status_goes_no_data_then_new_then_old(pair):
+    hub, peer = pair
     out, inp = make_out(hub), make_in(peer)
     out.connect("k/a")
     inp.connect("k/a")
@@ -57,7 +65,8 @@ def test_read_status_goes_no_data_then_new_then_old(hub, peer):
     assert inp.read() == (ReadStatus.OLD, Scalar(0.0, 1.0))
 
 
-def test_a_data_port_keeps_only_the_latest(hub, peer):
+def test_a_data_port_keeps_only_the_latest(pair):
+    hub, peer = pair
     out, inp = make_out(hub), make_in(peer)
     out.connect("k/a")
     inp.connect("k/a")
@@ -71,7 +80,8 @@ def test_a_data_port_keeps_only_the_latest(hub, peer):
 @pytest.mark.parametrize(
     ("overflow", "kept"), [("drop_oldest", [3.0, 4.0, 5.0]), ("drop_newest", [1.0, 2.0, 3.0])]
 )
-def test_a_buffer_port_applies_its_overflow_rule_and_counts_drops(hub, peer, overflow, kept):
+def test_a_buffer_port_applies_its_overflow_rule_and_counts_drops(pair, overflow, kept):
+    hub, peer = pair
     out, inp = make_out(hub), make_in(peer, {"type": "buffer", "size": 3, "overflow": overflow})
     out.connect("k/a")
     inp.connect("k/a")
@@ -82,7 +92,8 @@ def test_a_buffer_port_applies_its_overflow_rule_and_counts_drops(hub, peer, ove
     assert values(inp) == kept and inp.stats.dropped_overflow == 2
 
 
-def test_a_newly_connected_port_gets_the_latest_value_without_a_new_write(hub, peer):
+def test_a_newly_connected_port_gets_the_latest_value_without_a_new_write(pair):
+    hub, peer = pair
     out = make_out(hub)
     out.connect("k/a")
     for i in range(1, 4):
@@ -93,7 +104,8 @@ def test_a_newly_connected_port_gets_the_latest_value_without_a_new_write(hub, p
     assert values(inp) == [3.0]
 
 
-def test_rewiring_never_mixes_sources_and_drops_nothing_silently(hub, peer):
+def test_rewiring_never_mixes_sources_and_drops_nothing_silently(pair):
+    hub, peer = pair
     a, b = make_out(hub, "a"), make_out(hub, "b")
     a.connect("k/a")
     b.connect("k/b")
@@ -152,3 +164,43 @@ def test_misuse_is_a_clear_error(hub):
         ConnPolicy.from_spec({"type": "fifo"})
     with pytest.raises(PortError, match="unknown connection policy key"):
         ConnPolicy.from_spec({"type": "data", "depth": 3})
+
+
+def test_same_session_samples_are_delivered_once(hub):
+    out, inp = make_out(hub), make_in(hub, {"type": "buffer", "size": 10})
+    out.connect("k/a")
+    inp.connect("k/a")
+    for i in range(1, 4):
+        out.write(Scalar(0.0, float(i)))
+    assert values(inp) == [1.0, 2.0, 3.0], "delivered synchronously, in order"
+    assert inp.stats.dropped_duplicate == 0, "Zenoh does not deliver them a second time"
+    inp.disconnect()
+    out.write(Scalar(0.0, 4.0))
+    assert inp.read()[0] is ReadStatus.NO_DATA
+
+
+def test_a_prepared_key_switches_at_once_and_swaps_back_and_forth_cleanly(hub, peer):
+    a, b = make_out(hub, "a"), make_out(hub, "b")
+    a.connect("k/a")
+    b.connect("k/b")
+    a.write(Scalar(0.0, 1.0))
+    b.write(Scalar(0.0, -1.0))
+    inp = make_in(peer, {"type": "buffer", "size": 100})
+    inp.prepare("k/a")
+    inp.prepare("k/b")
+    assert wait_until(lambda: inp.standby_ready("k/a") and inp.standby_ready("k/b"))
+    assert inp.read()[0] is ReadStatus.NO_DATA, "standby data does not reach the port"
+    inp.connect("k/b")
+    assert values(inp) == [-1.0], "the latest value is there when connect() returns"
+    inp.connect("k/a")
+    assert values(inp) == [1.0]
+    b.write(Scalar(0.0, -2.0))
+    a.write(Scalar(0.0, 2.0))
+    assert wait_until(lambda: inp.pending() == 1)
+    assert values(inp) == [2.0], "only the connected key reaches the port"
+    inp.connect("k/b")
+    got = []
+    assert wait_until(lambda: got.extend(values(inp)) or -2.0 in got)
+    assert got in ([-2.0], [-1.0, -2.0]), "b's samples only, in order (cached, then live)"
+    inp.close()
+    assert inp.prepared == []

@@ -1,0 +1,346 @@
+#!/usr/bin/env python3
+"""Benchmark the component runtime over Zenoh (a benchmark, not a test).
+
+In one run, on a private loopback deployment:
+  * raw Zenoh put -> callback latency, in one process and between two processes
+    (the baseline every other latency is compared with);
+  * port hop latency (OutputPort.write -> InputPort delivery), in-process and
+    inter-process, as a multiple of the raw figure (target <= 2x);
+  * rewire time: connect() called -> first sample of the new key delivered, with
+    100 Hz publishers (target p99 <= 2 ms);
+  * remote operation round trip (RemoteComponent.call);
+  * liveliness: SIGKILL of a container -> token loss seen by another process.
+
+Prints median/p99 and writes out/bench/runtime.md and runtime.json.
+
+    python tools/bench_runtime.py [--quick] [--out out/bench]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import signal
+import statistics
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from framework import keys
+from framework.bus import Bus, BusConfig, free_port
+from framework.container import spawn_container
+from framework.messages import Scalar
+from framework.ports import InputPort, OutputPort
+from framework.remote import RemoteComponent
+
+RAW_PUBLISHER = """
+import json, sys, time, zenoh
+sys.path.insert(0, {root!r})
+from framework.bus import Bus, BusConfig
+bus = Bus(BusConfig.from_dict(json.loads({bus!r})))
+pub = bus.publisher("raw/ping", cache=False)
+time.sleep(1.0)
+for i in range({count}):
+    pub.put(repr(time.perf_counter()).encode())
+    time.sleep({period})
+time.sleep(0.5)
+bus.close()
+"""
+
+
+def stats(samples: list[float]) -> dict[str, float]:
+    """Median, p99 and count of samples given in seconds, reported in microseconds."""
+    ordered = sorted(samples)
+    if not ordered:
+        return {"n": 0, "p50_us": float("nan"), "p99_us": float("nan")}
+    return {
+        "n": len(ordered),
+        "p50_us": statistics.median(ordered) * 1e6,
+        "p99_us": ordered[min(len(ordered) - 1, int(len(ordered) * 0.99))] * 1e6,
+    }
+
+
+def wait(predicate: Any, timeout: float) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(0.002)
+    return bool(predicate())
+
+
+def raw_in_process(bus: Bus, count: int) -> list[float]:
+    got: list[float] = []
+    done = threading.Event()
+
+    def on_sample(sample: Any) -> None:
+        got.append(time.perf_counter() - float(bytes(sample.payload.to_bytes())))
+        done.set()
+
+    sub = bus.session.declare_subscriber("raw/local", on_sample)
+    pub = bus.session.declare_publisher("raw/local")
+    time.sleep(0.2)
+    for _ in range(count):
+        done.clear()
+        pub.put(repr(time.perf_counter()).encode())
+        done.wait(1.0)
+    sub.undeclare()
+    pub.undeclare()
+    return got
+
+
+def raw_inter_process(bus: Bus, config: BusConfig, count: int, period: float) -> list[float]:
+    got: list[float] = []
+    sub = bus.session.declare_subscriber(
+        "raw/ping", lambda s: got.append(time.perf_counter() - float(bytes(s.payload.to_bytes())))
+    )
+    code = RAW_PUBLISHER.format(
+        root=str(Path(__file__).resolve().parents[1]),
+        bus=json.dumps(config.to_dict()),
+        count=count,
+        period=period,
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+    sub.undeclare()
+    return got
+
+
+def port_in_process(bus: Bus, count: int) -> list[float]:
+    out = OutputPort("out", Scalar)
+    inp: InputPort[Scalar] = InputPort("inp", Scalar)
+    out.bus = inp.bus = bus
+    got: list[float] = []
+    done = threading.Event()
+
+    def on_data(port: InputPort[Scalar]) -> None:
+        _, sample = port.read()
+        got.append(time.perf_counter() - sample.stamp)
+        done.set()
+
+    inp.on_data = on_data
+    out.connect("port/local")
+    inp.connect("port/local")
+    time.sleep(0.2)
+    for i in range(count):
+        done.clear()
+        out.write(Scalar(time.perf_counter(), float(i)))
+        done.wait(1.0)
+    inp.disconnect()
+    out.disconnect()
+    return got[1:]  # the first is the cached sample replayed on connect
+
+
+def start_pingers(config: BusConfig, names: list[str], rate: float) -> subprocess.Popen[bytes]:
+    components = [
+        {
+            "name": n,
+            "class": "components.demo:Pinger",
+            "activity": {"periodic": rate},
+            "configure": True,
+            "start": True,
+        }
+        for n in names
+    ]
+    return spawn_container(
+        {"name": "bench_pingers", "bus": config.to_dict(), "components": components},
+        stdout=subprocess.DEVNULL,
+    )
+
+
+def port_inter_process(bus: Bus, seconds: float) -> list[float]:
+    inp: InputPort[Scalar] = InputPort("inp", Scalar)
+    inp.bus = bus
+    got: list[float] = []
+
+    def on_data(port: InputPort[Scalar]) -> None:
+        _, sample = port.read()
+        got.append(time.perf_counter() - sample.stamp)
+
+    inp.on_data = on_data
+    inp.connect("ping_a/out")
+    time.sleep(seconds)
+    inp.disconnect()
+    return got[5:]
+
+
+def rewire(bus: Bus, count: int) -> list[float]:
+    inp: InputPort[Scalar] = InputPort("inp", Scalar)
+    inp.bus = bus
+    first = threading.Event()
+    inp.on_data = lambda port: first.set()
+    times = []
+    for i in range(count):
+        key = "ping_a/out" if i % 2 else "ping_b/out"
+        first.clear()
+        t0 = time.perf_counter()
+        inp.connect(key)
+        if first.wait(1.0):
+            times.append(time.perf_counter() - t0)
+        time.sleep(0.02)
+    inp.disconnect()
+    return times
+
+
+def rewire_prepared(bus: Bus, count: int) -> list[float]:
+    inp: InputPort[Scalar] = InputPort("inp", Scalar)
+    inp.bus = bus
+    first = threading.Event()
+    inp.on_data = lambda port: first.set()
+    inp.prepare("ping_a/out")
+    inp.prepare("ping_b/out")
+    wait(lambda: inp.standby_ready("ping_a/out") and inp.standby_ready("ping_b/out"), 5)
+    times = []
+    for i in range(count):
+        key = "ping_a/out" if i % 2 else "ping_b/out"
+        first.clear()
+        t0 = time.perf_counter()
+        inp.connect(key)
+        if first.wait(1.0):
+            times.append(time.perf_counter() - t0)
+        time.sleep(0.02)
+    inp.close()
+    return times
+
+
+def remote_calls(bus: Bus, count: int) -> list[float]:
+    remote = RemoteComponent(bus, "ping_a")
+    remote.describe()
+    times = []
+    for _ in range(count):
+        t0 = time.perf_counter()
+        remote.request("state")
+        times.append(time.perf_counter() - t0)
+    return times
+
+
+def liveliness(bus: Bus, config: BusConfig, count: int) -> list[float]:
+    times = []
+    for i in range(count):
+        name = f"victim{i}"
+        lost = threading.Event()
+        seen = threading.Event()
+
+        def on_token(
+            key: str,
+            alive: bool,
+            name: str = name,
+            seen: threading.Event = seen,
+            lost: threading.Event = lost,
+        ) -> None:
+            if key.endswith("/" + name):
+                (seen if alive else lost).set()
+
+        watcher = bus.watch(keys.ALL_ALIVE, on_token)
+        proc = spawn_container(
+            {
+                "name": f"v{i}",
+                "bus": config.to_dict(),
+                "components": [{"name": name, "class": "components.demo:Counter"}],
+            },
+            stdout=subprocess.DEVNULL,
+        )
+        if not seen.wait(20):
+            proc.kill()
+            watcher.undeclare()
+            continue
+        t0 = time.perf_counter()
+        os.kill(proc.pid, signal.SIGKILL)
+        if lost.wait(10):
+            times.append(time.perf_counter() - t0)
+        proc.wait(10)
+        watcher.undeclare()
+    return times
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--quick", action="store_true", help="fewer samples (a smoke run)")
+    parser.add_argument("--out", default="out/bench", help="folder for the .md and .json")
+    args = parser.parse_args()
+    n = 300 if args.quick else 2000
+    config = BusConfig(namespace=f"bench_{os.getpid()}", hub_port=free_port())
+    bus = Bus(config, hub=True)
+    results: dict[str, dict[str, float]] = {}
+    try:
+        print("raw zenoh ...", file=sys.stderr)
+        results["raw_in_process"] = stats(raw_in_process(bus, n))
+        # same 100 Hz rate as the port test: at lower rates idle wake-ups dominate latency
+        results["raw_inter_process_100hz"] = stats(
+            raw_inter_process(bus, config, n // 4 if args.quick else n // 2, 0.01)
+        )
+        print("ports ...", file=sys.stderr)
+        results["port_in_process"] = stats(port_in_process(bus, n))
+        pingers = start_pingers(config, ["ping_a", "ping_b"], 100.0)
+        try:
+            wait(lambda: len(bus.alive(keys.ALL_ALIVE, 0.5)) >= 2, 30)
+            results["port_inter_process_100hz"] = stats(
+                port_inter_process(bus, 3.0 if args.quick else 15.0)
+            )
+            print("rewire ...", file=sys.stderr)
+            results["rewire_to_first_sample"] = stats(rewire(bus, 40 if args.quick else 200))
+            results["rewire_prepared_to_first_sample"] = stats(
+                rewire_prepared(bus, 40 if args.quick else 200)
+            )
+            print("remote calls ...", file=sys.stderr)
+            results["remote_request_round_trip"] = stats(remote_calls(bus, n // 2))
+        finally:
+            pingers.send_signal(signal.SIGTERM)
+            pingers.wait(20)
+        print("liveliness ...", file=sys.stderr)
+        results["liveliness_after_sigkill"] = stats(
+            liveliness(bus, config, 3 if args.quick else 10)
+        )
+    finally:
+        bus.close()
+
+    raw_local = results["raw_in_process"]["p50_us"]
+    raw_remote = results["raw_inter_process_100hz"]["p50_us"]
+    ratio_local = results["port_in_process"]["p50_us"] / raw_local
+    ratio_remote = results["port_inter_process_100hz"]["p50_us"] / raw_remote
+    targets = {
+        "in-process port hop <= 2x raw Zenoh (p50)": ratio_local <= 2.0,
+        "inter-process port hop <= 2x raw Zenoh (p50)": ratio_remote <= 2.0,
+        "rewire to first sample p99 <= 2 ms (cold)": results["rewire_to_first_sample"]["p99_us"]
+        <= 2000,
+        "rewire to first sample p99 <= 2 ms (prepared)": results["rewire_prepared_to_first_sample"][
+            "p99_us"
+        ]
+        <= 2000,
+    }
+    lines = [
+        f"# Runtime benchmark ({time.strftime('%Y-%m-%d %H:%M')}, Python "
+        f"{platform.python_version()}, {os.cpu_count()} cores)",
+        "",
+        "| measure | n | p50 µs | p99 µs | p50 / raw |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    base = {"port_in_process": raw_local, "port_inter_process_100hz": raw_remote}
+    for name, row in results.items():
+        ratio = f"{row['p50_us'] / base[name]:.2f}" if name in base else ""
+        lines.append(
+            f"| {name} | {row['n']} | {row['p50_us']:.1f} | {row['p99_us']:.1f} | {ratio} |"
+        )
+    lines += ["", "Targets:"] + [f"- [{'x' if ok else ' '}] {t}" for t, ok in targets.items()]
+    report = "\n".join(lines) + "\n"
+    print(report)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "runtime.md").write_text(report, encoding="utf-8")
+    (out / "runtime.json").write_text(
+        json.dumps({"results": results, "targets": targets}, indent=2)
+    )
+    print(f"wrote {out / 'runtime.md'}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
