@@ -172,6 +172,12 @@ class Component:
         checked = {k: self._property(k).validate(v, self.name) for k, v in values.items()}
         self._values.update(checked)
 
+    def load_properties(self, path: Any) -> None:
+        """Set properties from a YAML file (`name: value`); errors name file:line."""
+        from framework.properties import load_property_file
+
+        self._values.update(load_property_file(path, self.declared_properties, self.name))
+
     def _property(self, name: str) -> Property:
         declared = self.declared_properties.get(name)
         if declared is None:

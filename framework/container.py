@@ -241,7 +241,7 @@ class Container:
                 result = "shutting down"
             else:
                 raise ContainerError(f"unknown container request {op!r}")
-            query.reply(query.key_expr, json.dumps({"result": result}))
+            query.reply(keys.container(self.name), json.dumps({"result": result}))
         except Exception as exc:
             with contextlib.suppress(Exception):
                 query.reply_err(json.dumps({"error": str(exc), "kind": type(exc).__name__}))

@@ -108,3 +108,51 @@ def prop(
     )
     declared.validate(default, "(default)")
     return declared
+
+
+def load_property_file(path: Any, declared: dict[str, Property], owner: str = "") -> dict[str, Any]:
+    """Read `name: value` pairs from a YAML file and validate each against `declared`.
+
+    Every error names file:line:column and the property, like every other fw file;
+    nothing is applied unless the whole file is valid.
+    """
+    from framework.errors import Finding, FindingsError
+    from framework.yamlio import load_yaml
+
+    doc = load_yaml(path)
+    if doc.data is None:
+        return {}
+    if not isinstance(doc.data, dict):
+        raise FindingsError(
+            [
+                Finding(
+                    "error",
+                    "properties",
+                    "a property file is a mapping of name: value",
+                    doc.location(()),
+                )
+            ]
+        )
+    values, findings = {}, []
+    for name, value in doc.data.items():
+        where = doc.location((name,))
+        declaration = declared.get(name)
+        if declaration is None:
+            known = ", ".join(sorted(declared)) or "none"
+            findings.append(
+                Finding(
+                    "error",
+                    "unknown-property",
+                    f"{owner or 'the component'} has no property {name!r}",
+                    where,
+                    f"known: {known}",
+                )
+            )
+            continue
+        try:
+            values[name] = declaration.validate(value, owner)
+        except PropertyError as exc:
+            findings.append(Finding("error", "property-value", str(exc), where))
+    if findings:
+        raise FindingsError(findings)
+    return values

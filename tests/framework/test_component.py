@@ -209,3 +209,18 @@ def test_random_operation_sequences_follow_the_table(fail_in, how, ops):
         assert f.state is expected, (op, state, fail_in, how)
         assert f.state in set(State) - {S.INIT}
         state = f.state
+
+
+def test_properties_load_from_yaml_with_located_errors(write):
+    from framework.errors import FindingsError
+
+    d = Doubler("d")
+    d.load_properties(write("gain: 4\n", "ok.yaml"))
+    assert d.gain == 4.0
+    bad = write("gain: -1\ngian: 2\n", "bad.yaml")
+    with pytest.raises(FindingsError) as err:
+        d.load_properties(bad)
+    lines = [f.one_line() for f in err.value.findings]
+    assert lines[0].startswith(f"{bad}:1:1: gain: error[property-value]: property d.gain must")
+    assert lines[1].startswith(f"{bad}:2:1: gian: error[unknown-property]")
+    assert d.gain == 4.0, "nothing applied from a bad file"
