@@ -74,6 +74,14 @@ class Activity:
                     f"port {name!r} (inputs: {known})"
                 )
 
+    def to_spec(self) -> Any:
+        """The YAML form (inverse of `from_spec`)."""
+        if self.kind == "periodic":
+            return {"periodic": self.rate}
+        if self.kind == "event":
+            return {"event": list(self.ports)}
+        return "passive"
+
     def to_dict(self) -> dict[str, Any]:
         """Plain data for introspection."""
         return {"kind": self.kind, "rate": self.rate, "ports": list(self.ports)}

@@ -127,7 +127,7 @@ class Component:
         self.declared_properties: dict[str, Property] = {}
         self._values: dict[str, Any] = {}
         self.operations: dict[str, Callable[..., Any]] = {}
-        for attr, decl in _declarations(type(self)):
+        for attr, decl in declarations(type(self)):
             if isinstance(decl, In):
                 port = InputPort(attr, decl.type, decl.doc, decl.policy)
                 port.owner = name
@@ -403,7 +403,7 @@ class Component:
         }
 
 
-def _declarations(cls: type) -> list[tuple[str, Any]]:
+def declarations(cls: type) -> list[tuple[str, Any]]:
     """Declared ports, properties and operations of a class, base classes first."""
     seen: dict[str, Any] = {}
     for klass in reversed(cls.__mro__):

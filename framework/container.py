@@ -64,6 +64,7 @@ class Container:
         component: Component,
         activity: Activity | None = None,
         properties: dict[str, Any] | None = None,
+        outputs: dict[str, str] | None = None,
     ) -> Component:
         """Host a component: attach its ports, publish outputs on their default keys,
         declare its control queryable and liveliness token."""
@@ -77,7 +78,8 @@ class Container:
         for port in (*component.inputs.values(), *component.outputs.values()):
             port.bus = self.bus
         for port in component.outputs.values():
-            self._connect_output(component, port.name, keys.default_output(name, port.name))
+            key = (outputs or {}).get(port.name, keys.default_output(name, port.name))
+            self._connect_output(component, port.name, key)
         publisher = self.bus.publisher(keys.state(name))
         self._state_publishers[name] = publisher
         component.add_state_listener(self._publish_state)
@@ -189,6 +191,16 @@ class Container:
             return {"ok": ok, "state": component.state.value, "reason": component.last_error}
         if op == "state":
             return {"state": component.state.value, "reason": component.last_error}
+        if op == "bring":
+            return bring(component, request["target"])
+        if op == "exchange":
+            old = component.get_property(request["property"])
+            return {
+                "old": old,
+                "value": component.set_property(request["property"], request["value"]),
+            }
+        if op == "batch":
+            return self._batch(component, request["steps"])
         if op == "describe":
             info = component.describe()
             info["activity"] = self.activities[name].to_dict()
@@ -210,6 +222,21 @@ class Container:
         if op == "call":
             return component.call(request["operation"], **request.get("args", {}))
         raise ContainerError(f"unknown request {op!r}")
+
+    def _batch(self, component: Component, steps: list[dict[str, Any]]) -> dict[str, Any]:
+        """Run several requests on one component in one round trip; stop at the first
+        failure and say which one failed and why."""
+        results: list[Any] = []
+        for index, step in enumerate(steps):
+            try:
+                result = self.handle(component, step)
+            except (FwError, KeyError, TypeError, ValueError) as exc:
+                reason = f"missing field {exc}" if isinstance(exc, KeyError) else str(exc)
+                return {"results": results, "failed": index, "error": reason}
+            results.append(result)
+            if step.get("op") == "bring" and not result["ok"]:
+                return {"results": results, "failed": index, "error": result["reason"]}
+        return {"results": results, "failed": None, "error": ""}
 
     def _on_query(self, component: Component, query: Any) -> None:
         try:
@@ -276,6 +303,52 @@ class Container:
         self.bus.close()
 
 
+# lifecycle state -> operations that lead to each target state
+LIFECYCLE_PATHS: dict[tuple[str, str], list[str]] = {
+    ("PreOperational", "stopped"): ["configure"],
+    ("PreOperational", "running"): ["configure", "start"],
+    ("Stopped", "running"): ["start"],
+    ("Stopped", "preoperational"): ["cleanup"],
+    ("Running", "stopped"): ["stop"],
+    ("Running", "preoperational"): ["stop", "cleanup"],
+    ("RunTimeError", "running"): ["recover"],
+    ("RunTimeError", "stopped"): ["stop"],
+    ("RunTimeError", "preoperational"): ["stop", "cleanup"],
+    ("Exception", "preoperational"): ["recover"],
+    ("Exception", "stopped"): ["recover", "configure"],
+    ("Exception", "running"): ["recover", "configure", "start"],
+}
+TARGET_STATES = {"running": "Running", "stopped": "Stopped", "preoperational": "PreOperational"}
+
+
+def bring(component: Component, target: str) -> dict[str, Any]:
+    """Drive a component to `running`, `stopped` or `preoperational` by the shortest
+    path of lifecycle operations; ok False with the reason if a hook refuses."""
+    if target not in TARGET_STATES:
+        raise ContainerError(f"unknown target state {target!r} (known: {', '.join(TARGET_STATES)})")
+    start = component.state.value
+    if start == TARGET_STATES[target]:
+        return {"ok": True, "state": start, "reason": "", "from": start}
+    path = LIFECYCLE_PATHS.get((start, target))
+    if path is None:
+        return {
+            "ok": False,
+            "state": start,
+            "from": start,
+            "reason": f"{component.name!r} is {start}; it cannot be brought to "
+            f"{TARGET_STATES[target]}",
+        }
+    for op in path:
+        if not getattr(component, op)():
+            return {
+                "ok": False,
+                "state": component.state.value,
+                "from": start,
+                "reason": f"{op} failed: {component.last_error or 'its hook returned False'}",
+            }
+    return {"ok": True, "state": component.state.value, "reason": "", "from": start}
+
+
 # -- process entry point ---------------------------------------------------------------
 def load_class(path: str) -> type[Component]:
     """`package.module:Class` -> the class; a clear error otherwise."""
@@ -298,9 +371,17 @@ def build(spec: dict[str, Any], bus: Bus) -> Container:
     for item in spec.get("components", []):
         cls = load_class(item["class"])
         component = cls(item["name"])
-        container.add(component, Activity.from_spec(item.get("activity")), item.get("properties"))
+        container.add(
+            component,
+            Activity.from_spec(item.get("activity")),
+            item.get("properties"),
+            item.get("outputs"),
+        )
         for port, conn in (item.get("connections") or {}).items():
             container.connect(component.name, port, conn["key"], conn.get("policy"))
+        for port, candidates in (item.get("prepare") or {}).items():
+            for key in candidates:
+                container.prepare(component.name, port, key)
         if item.get("configure", False) and not component.configure():
             raise ContainerError(f"{component.name}: configure failed: {component.last_error}")
         if item.get("start", False) and not component.start():

@@ -99,10 +99,11 @@ class EventMessage:
 class ConfigRequest:
     """The Coordinator asks the Configurator to apply a named configuration."""
 
-    LAYOUT: ClassVar[str] = "stamp:f64 request_id:i64 tag:str"
+    LAYOUT: ClassVar[str] = "stamp:f64 request_id:i64 tag:str args:json"
     stamp: float = 0.0
     request_id: int = 0
     tag: str = ""
+    args: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,0 +1,258 @@
+"""The Configurator: applies named configurations of the topology, then acknowledges.
+
+It is the only part of fw that changes the running topology (thesis 3.5.3,
+after Klotzbücher's Coordinator-Configurator pattern). Requests arrive on its
+`requests` port (`ConfigRequest`, from the Coordinator) and are applied one
+at a time in arrival order: two configurations never interleave, later ones
+wait in the queue. Each answer is a `ConfigAck` on `acks`: ok, or the failing
+step and the reason.
+
+A configuration is an ordered list of steps: bring components to their `pre`
+states, the `do` actions (disconnect, connect, set, call, write), then the
+`post` states. Every step is a remote request with the configuration's
+timeout (or its own). On failure the Configurator stops, undoes the
+connection and property changes this application made (newest first,
+best effort) and reports the failure; lifecycle changes stay as they are,
+and the statechart's `config.failed` transition decides what is safe.
+Re-applying a configuration is harmless: connections already in place and
+components already in their target state are left alone (operations are
+called again, so they should be idempotent).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from framework import messages
+from framework.bus import Bus
+from framework.component import Component, In, Out, operation
+from framework.errors import FwError
+from framework.messages import ConfigAck, ConfigRequest
+from framework.ports import ReadStatus
+from framework.remote import RemoteComponent, RemoteError
+from framework.topology import Step, Topology
+
+CALL_TAG = "@call"
+WRITE_TAG = "@write"
+
+
+class StepFailed(FwError):
+    """One step of a configuration failed; carries the step's label."""
+
+    def __init__(self, step: str, reason: str):
+        super().__init__(f"{step}: {reason}")
+        self.step, self.reason = step, reason
+
+
+@dataclass
+class Outcome:
+    """The result of applying one configuration."""
+
+    tag: str
+    ok: bool
+    step: str = ""
+    reason: str = ""
+    seconds: float = 0.0
+    rolled_back: int = 0
+
+
+class Configurator(Component):
+    """Applies the topology's named configurations on request and acknowledges them."""
+
+    needs_configuration = False
+    requests = In(
+        ConfigRequest,
+        doc="configuration requests (from the Coordinator)",
+        policy={"type": "buffer", "size": 64, "overflow": "drop_newest"},
+    )
+    acks = Out(ConfigAck, doc="one answer per request, in request order")
+
+    def __init__(self, name: str, topology: Topology, bus: Bus):
+        super().__init__(name)
+        self.topology = topology
+        self.bus = bus
+        self.wiring: dict[tuple[str, str], tuple[str, Any]] = {
+            (s.component, s.target): (s.key, s.policy) for s in topology.connections
+        }
+        self._apply_lock = threading.Lock()
+        self.history: list[Outcome] = []
+
+    # -- the request port ----------------------------------------------------------
+    def update_hook(self) -> None:
+        while True:
+            status, request = self.requests.read()
+            if status is not ReadStatus.NEW:
+                return
+            outcome = self._serve(request)
+            self.acks.write(
+                ConfigAck(
+                    time.time(),
+                    request.request_id,
+                    outcome.ok,
+                    request.tag,
+                    outcome.step,
+                    outcome.reason,
+                )
+            )
+
+    def _serve(self, request: ConfigRequest) -> Outcome:
+        if request.tag == CALL_TAG:
+            return self._single(request, "call")
+        if request.tag == WRITE_TAG:
+            return self._single(request, "write")
+        return self.apply(request.tag)
+
+    def _single(self, request: ConfigRequest, kind: str) -> Outcome:
+        """A chart's `call`/`write` action, run as a one-step configuration."""
+        args = request.args
+        comp, _, target = str(args.get("target", "")).partition(".")
+        step = Step(
+            kind,
+            comp,
+            target,
+            args=dict(args.get("args") or {}),
+            value=args.get("value"),
+            timeout=float(args.get("timeout", 2.0)),
+        )
+        return self._run(f"{request.tag} {args.get('target')}", [step])
+
+    # -- applying ------------------------------------------------------------------
+    @operation
+    def apply_configuration(self, tag: str) -> dict[str, Any]:
+        """Apply configuration `tag` now (after any running one); the outcome as data."""
+        return dict(self.apply(tag).__dict__)
+
+    def apply(self, tag: str) -> Outcome:
+        """Apply configuration `tag` now (queued behind any running one)."""
+        configuration = self.topology.configurations.get(tag)
+        if configuration is None:
+            known = ", ".join(sorted(self.topology.configurations)) or "none"
+            outcome = Outcome(
+                tag, False, "lookup", f"unknown configuration {tag!r} (known: {known})"
+            )
+            self.history.append(outcome)
+            return outcome
+        return self._run(tag, configuration.steps)
+
+    def _run(self, tag: str, steps: list[Step]) -> Outcome:
+        with self._apply_lock:
+            start = time.perf_counter()
+            undo: list[Step] = []
+            try:
+                for batch in self._batches(steps):
+                    self._send(batch, undo)
+            except StepFailed as exc:
+                rolled = self._roll_back(undo)
+                outcome = Outcome(
+                    tag, False, exc.step, exc.reason, time.perf_counter() - start, rolled
+                )
+            else:
+                outcome = Outcome(tag, True, seconds=time.perf_counter() - start)
+            self.history.append(outcome)
+            return outcome
+
+    def _batches(self, steps: list[Step]) -> list[list[Step]]:
+        """Consecutive steps on one component travel together (one round trip each)."""
+        batches: list[list[Step]] = []
+        for step in steps:
+            if step.kind == "connect" and self.wiring.get((step.component, step.target)) == (
+                step.key,
+                step.policy,
+            ):
+                continue  # already so: re-applying is harmless
+            if (
+                step.kind == "write"
+                or not batches
+                or batches[-1][0].kind == "write"
+                or batches[-1][0].component != step.component
+            ):
+                batches.append([step])
+            else:
+                batches[-1].append(step)
+        return batches
+
+    @staticmethod
+    def _request(step: Step) -> dict[str, Any]:
+        if step.kind == "state":
+            return {"op": "bring", "target": step.target}
+        if step.kind == "connect":
+            return {"op": "connect", "port": step.target, "key": step.key, "policy": step.policy}
+        if step.kind == "disconnect":
+            return {"op": "disconnect", "port": step.target}
+        if step.kind == "set":
+            return {"op": "exchange", "property": step.target, "value": step.value}
+        return {"op": "call", "operation": step.target, "args": step.args}
+
+    def _send(self, batch: list[Step], undo: list[Step]) -> None:
+        first = batch[0]
+        if first.kind == "write":
+            self._write(first)
+            return
+        remote = RemoteComponent(self.bus, first.component, sum(s.timeout for s in batch))
+        try:
+            answer = remote.request("batch", steps=[self._request(s) for s in batch])
+        except RemoteError as exc:
+            raise StepFailed(first.describe(), str(exc)) from None
+        done = batch if answer["failed"] is None else batch[: answer["failed"]]
+        for step, result in zip(done, answer["results"], strict=False):
+            self._record(step, result, undo)
+        if answer["failed"] is not None:
+            raise StepFailed(
+                batch[answer["failed"]].describe(), f"{first.component}: {answer['error']}"
+            )
+
+    def _record(self, step: Step, result: Any, undo: list[Step]) -> None:
+        """Remember what an executed step changed, to undo it if a later step fails."""
+        where = (step.component, step.target)
+        if step.kind == "connect":
+            previous = self.wiring.get(where)
+            self.wiring[where] = (step.key, step.policy)
+            undo.append(self._restore(step, previous))
+        elif step.kind == "disconnect":
+            undo.append(self._restore(step, self.wiring.pop(where, None)))
+        elif step.kind == "set":
+            undo.append(
+                Step("set", step.component, step.target, value=result["old"], timeout=step.timeout)
+            )
+
+    def _restore(self, step: Step, previous: tuple[str, Any] | None) -> Step:
+        if previous is None:
+            return Step("disconnect", step.component, step.target, timeout=step.timeout)
+        return Step(
+            "connect",
+            step.component,
+            step.target,
+            key=previous[0],
+            policy=previous[1],
+            timeout=step.timeout,
+        )
+
+    def _roll_back(self, undo: list[Step]) -> int:
+        done = 0
+        for step in reversed(undo):
+            try:
+                self._send([step], [])
+                done += 1
+            except StepFailed:
+                continue  # best effort: the failure report already says what broke first
+        return done
+
+    def _write(self, step: Step) -> None:
+        spec = self.topology.components.get(step.component)
+        key = self.wiring.get((step.component, step.target), (None, None))[0]
+        if spec is None or spec.info is None or key is None:
+            raise StepFailed(step.describe(), "the port is not connected to a key")
+        kind = messages.resolve_type(spec.info.inputs[step.target])
+        try:
+            value = kind(**step.value) if isinstance(step.value, dict) else kind(step.value)
+            data = messages.encode(value, kind)
+        except (TypeError, messages.CodecError) as exc:
+            raise StepFailed(step.describe(), f"bad value for {kind.__name__}: {exc}") from None
+        publisher = self.bus.publisher(key, cache=False)
+        try:
+            publisher.put(data)
+        finally:
+            publisher.undeclare()

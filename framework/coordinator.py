@@ -1,0 +1,229 @@
+"""The Coordinator: runs the procedure's statechart, the only task-aware part of fw.
+
+It takes events from its `events` port (components, console and `fw send` all
+publish `EventMessage`s on `fw/events`), sends a `ConfigRequest` whenever the
+chart asks for a configuration, and turns every `ConfigAck` into the chart's
+`config.done` / `config.failed` event: a state that requested a configuration
+completes only on its ack, and a failure or timeout is an event the chart
+handles. The chart's `call` and `write` actions go to the Configurator too (it
+is the only part that touches components); its `send` actions are published
+on `sent`. Every step is published on `status`: the event, the transitions, and
+the active configuration afterwards.
+
+The chart runs on its own thread, on monotonic time; tests can drive the same
+chart deterministically with the interpreter and a `SimulatedClock`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import threading
+import time
+from typing import Any
+
+from framework.component import Component, In, Out, operation
+from framework.configurator import CALL_TAG, WRITE_TAG
+from framework.messages import ConfigAck, ConfigRequest, EventMessage
+from framework.ports import ReadStatus
+from framework.statechart.events import Event, Listener, Output
+from framework.statechart.interpreter import Interpreter
+from framework.statechart.model import CONFIG_DONE, CONFIG_FAILED, State, Statechart, Transition
+
+EVENTS_KEY = "fw/events"
+REQUESTS_KEY = "fw/config/request"
+ACKS_KEY = "fw/config/ack"
+STATUS_KEY = "fw/coordinator/status"
+SENT_KEY = "fw/coordinator/sent"
+
+
+class _Publisher(Listener):
+    """Turns interpreter callbacks into status messages."""
+
+    def __init__(self, coordinator: Coordinator):
+        self.coordinator = coordinator
+
+    def on_event(self, event: Event) -> None:
+        self.coordinator.publish(
+            "event", {"event": event.name, "payload": event.payload, "kind": event.kind}
+        )
+
+    def on_unhandled(self, event: Event, reason: str) -> None:
+        self.coordinator.publish("unhandled", {"event": event.name, "reason": reason})
+
+    def on_transition(self, transition: Transition, event: Event | None) -> None:
+        self.coordinator.publish(
+            "transition",
+            {
+                "source": transition.source.path,
+                "target": transition.target.path if transition.target is not None else None,
+                "event": event.name if event is not None else None,
+            },
+        )
+
+    def on_entry(self, state: State) -> None:
+        self.coordinator.publish("entry", {"state": state.path})
+
+    def on_exit(self, state: State) -> None:
+        self.coordinator.publish("exit", {"state": state.path})
+
+    def on_error(self, message: str, event: Event | None) -> None:
+        self.coordinator.publish("error", {"message": message})
+
+
+class Coordinator(Component):
+    """Hosts the procedure statechart and talks to the Configurator by tags and acks."""
+
+    needs_configuration = False
+    emits = ()
+    events = In(
+        EventMessage,
+        doc="events for the chart (fw/events)",
+        policy={"type": "buffer", "size": 1024, "overflow": "drop_newest"},
+    )
+    acks = In(
+        ConfigAck,
+        doc="answers of the Configurator",
+        policy={"type": "buffer", "size": 256, "overflow": "drop_newest"},
+    )
+    requests = Out(ConfigRequest, doc="configuration tags for the Configurator")
+    status = Out(EventMessage, doc="events, transitions and the active configuration")
+    sent = Out(EventMessage, doc="events the chart sends to the outside world")
+
+    def __init__(self, name: str, chart: Statechart, listeners: list[Listener] | None = None):
+        super().__init__(name)
+        self.chart = chart
+        self.extra_listeners = list(listeners or [])
+        self.interpreter: Interpreter | None = None
+        self._ids = itertools.count(1)
+        self._pending: dict[int, str] = {}
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._lock = threading.RLock()
+        self.last_events: list[str] = []
+
+    # -- lifecycle -----------------------------------------------------------------
+    def start_hook(self) -> bool:
+        self.events.on_data = self.acks.on_data = lambda _port: self._wake.set()
+        self.interpreter = Interpreter(
+            self.chart,
+            listeners=[_Publisher(self), *self.extra_listeners],
+            on_output=self._on_output,
+        )
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._loop, name=f"fw-{self.name}", daemon=True)
+        self._thread.start()
+        return True
+
+    def stop_hook(self) -> None:
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(2.0)
+        self._thread = None
+
+    # -- the loop --------------------------------------------------------------------
+    def _loop(self) -> None:
+        interpreter = self.interpreter
+        assert interpreter is not None
+        with self._lock:
+            interpreter.start()
+            self._publish_configuration()
+        while not self._stop.is_set():
+            deadline = interpreter.next_deadline()
+            timeout = 0.5 if deadline is None else max(0.0, min(0.5, deadline - time.monotonic()))
+            self._wake.wait(timeout)
+            self._wake.clear()
+            with self._lock:
+                self._drain()
+                if interpreter.run():
+                    self._publish_configuration()
+
+    def _drain(self) -> None:
+        interpreter = self.interpreter
+        assert interpreter is not None
+        while True:
+            status, ack = self.acks.read()
+            if status is not ReadStatus.NEW:
+                break
+            tag = self._pending.pop(ack.request_id, None)
+            if tag is None:
+                continue  # an answer to another coordinator, or already timed out
+            if tag.startswith("@"):
+                if not ack.ok:
+                    self.publish("error", {"message": f"{tag}: {ack.step}: {ack.reason}"})
+                continue
+            name = CONFIG_DONE if ack.ok else CONFIG_FAILED
+            payload = (
+                {"tag": ack.tag}
+                if ack.ok
+                else {"tag": ack.tag, "step": ack.step, "reason": ack.reason}
+            )
+            interpreter.queue(name, payload)
+        while True:
+            status, message = self.events.read()
+            if status is not ReadStatus.NEW:
+                break
+            self.last_events = [*self.last_events[-19:], message.name]
+            interpreter.queue(message.name, message.payload or None)
+
+    def _on_output(self, output: Output) -> None:
+        if output.kind == "configure":
+            self._request(output.tag, {})
+        elif output.kind == "call":
+            self._request(CALL_TAG, {"target": output.operation, "args": output.args})
+        elif output.kind == "write":
+            self._request(WRITE_TAG, {"target": output.port, "value": output.value})
+        elif output.kind == "send":
+            self.sent.write(EventMessage(time.time(), output.event, self.name, output.payload))
+        else:
+            self.publish("log", {"state": output.state, "message": output.message})
+
+    def _request(self, tag: str, args: dict[str, Any]) -> None:
+        request_id = next(self._ids)
+        self._pending[request_id] = tag
+        self.publish("request", {"tag": tag, "request_id": request_id, **args})
+        self.requests.write(ConfigRequest(time.time(), request_id, tag, args))
+
+    # -- status ----------------------------------------------------------------------
+    def publish(self, kind: str, payload: dict[str, Any]) -> None:
+        """Publish one status message (best effort: status never stops the chart)."""
+        with contextlib.suppress(Exception):
+            self.status.write(EventMessage(time.time(), kind, self.name, payload))
+
+    def _publish_configuration(self) -> None:
+        interpreter = self.interpreter
+        if interpreter is not None:
+            self.publish(
+                "configuration",
+                {
+                    "active": interpreter.leaves,
+                    "pending": interpreter.pending_configurations,
+                    "finished": interpreter.finished,
+                },
+            )
+
+    @operation
+    def inject(self, event: str, payload: dict[str, Any] | None = None) -> bool:
+        """Queue an event for the chart (what `fw send` does through the bus)."""
+        with self._lock:
+            if self.interpreter is None:
+                return False
+            self.interpreter.queue(event, payload)
+        self._wake.set()
+        return True
+
+    @operation
+    def active(self) -> dict[str, Any]:
+        """Active states, pending configurations and the last events."""
+        interpreter = self.interpreter
+        if interpreter is None:
+            return {"active": [], "pending": {}, "finished": False, "last_events": []}
+        with self._lock:
+            return {
+                "active": interpreter.leaves,
+                "pending": interpreter.pending_configurations,
+                "finished": interpreter.finished,
+                "last_events": list(self.last_events),
+            }

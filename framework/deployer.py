@@ -1,0 +1,228 @@
+"""Deploy a topology: check it, start its processes, wire it, hand control to the chart.
+
+`Deployment.start()` does, in order: load and check the topology (nothing
+starts if anything is wrong), open the deployment's hub session, spawn one
+container process per topology process (components, properties, output
+keys, initial connections, standby keys), wait for every component's
+liveliness token (a timeout names the missing ones and what their process
+printed), host the Configurator and the Coordinator in this process, bring
+components to their `initial` states, and start the chart. `stop()` shuts
+down in order: processes marked `shutdown: first` (the robot side) are
+stopped and waited for before the others, the control components last.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import subprocess
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from framework import keys
+from framework.activity import Activity
+from framework.bus import Bus
+from framework.configurator import Configurator
+from framework.container import Container, spawn_container
+from framework.coordinator import (
+    ACKS_KEY,
+    EVENTS_KEY,
+    REQUESTS_KEY,
+    SENT_KEY,
+    STATUS_KEY,
+    Coordinator,
+)
+from framework.errors import FwError
+from framework.statechart.events import Listener
+from framework.statechart.loader import load_statechart
+from framework.topology import Step, Topology, load_topology
+
+
+class DeployError(FwError):
+    """The deployment could not be brought up (what is missing and why)."""
+
+
+@dataclass
+class Process:
+    """One spawned container process."""
+
+    name: str
+    components: list[str]
+    shutdown: str
+    popen: subprocess.Popen[bytes] | None = None
+    stderr: Path | None = None
+
+    def tail(self, lines: int = 5) -> str:
+        """The last lines the process wrote to stderr (for error messages)."""
+        if self.stderr is None or not self.stderr.exists():
+            return ""
+        text = self.stderr.read_text(errors="replace").strip().splitlines()
+        return " | ".join(text[-lines:])
+
+
+def container_spec(topology: Topology, process: str) -> dict[str, Any]:
+    """What `python -m framework.container` needs to host one process of the topology."""
+    components = []
+    for spec in topology.components_in(process):
+        connections = {
+            s.target: {"key": s.key, "policy": s.policy}
+            for s in topology.connections
+            if s.component == spec.name
+        }
+        prepare = {
+            ref.split(".", 1)[1]: keys_
+            for ref, keys_ in topology.prepare.items()
+            if ref.split(".", 1)[0] == spec.name
+        }
+        components.append(
+            {
+                "name": spec.name,
+                "class": spec.class_path,
+                "activity": spec.activity.to_spec(),
+                "properties": spec.properties,
+                "outputs": spec.outputs,
+                "connections": connections,
+                "prepare": prepare,
+            }
+        )
+    return {"name": process, "bus": topology.bus.to_dict(), "components": components}
+
+
+@dataclass
+class Deployment:
+    """A running topology (see the module docstring)."""
+
+    topology: Topology
+    workdir: Path
+    listeners: list[Listener] = field(default_factory=list)
+    liveliness_timeout: float = 30.0
+    processes: list[Process] = field(default_factory=list)
+    hub: Bus | None = None
+    control: Container | None = None
+    configurator: Configurator | None = None
+    coordinator: Coordinator | None = None
+
+    @classmethod
+    def from_file(cls, path: str | Path, workdir: str | Path, **options: Any) -> Deployment:
+        """Load and check the topology file (raises `FindingsError` listing every error)."""
+        return cls(load_topology(path), Path(workdir), **options)
+
+    def start(self, run_chart: bool = True) -> None:
+        """Bring everything up; on any failure, tear down what started and raise."""
+        try:
+            self._start(run_chart)
+        except BaseException:
+            self.stop()
+            raise
+
+    def _start(self, run_chart: bool) -> None:
+        topo = self.topology
+        chart = load_statechart(topo.statechart) if topo.statechart is not None else None
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        self.hub = Bus(topo.bus, hub=True)
+        names = sorted({c.process for c in topo.components.values()})
+        for name in names:
+            settings = topo.processes.get(name, {})
+            log = self.workdir / f"{name}.stderr.log"
+            process = Process(
+                name,
+                [c.name for c in topo.components_in(name)],
+                settings.get("shutdown", "normal"),
+                stderr=log,
+            )
+            with log.open("wb") as err:
+                process.popen = spawn_container(
+                    container_spec(topo, name), stdout=subprocess.DEVNULL, stderr=err
+                )
+            self.processes.append(process)
+        self._wait_for_liveliness()
+        self.control = Container("control", self.hub)
+        self.configurator = self.control.add(
+            Configurator("configurator", topo, self.hub),
+            Activity.event("requests"),
+            outputs={"acks": ACKS_KEY},
+        )
+        self.control.connect(
+            "configurator",
+            "requests",
+            REQUESTS_KEY,
+            {"type": "buffer", "size": 64, "overflow": "drop_newest"},
+        )
+        if chart is not None:
+            self.coordinator = self.control.add(
+                Coordinator("coordinator", chart, self.listeners),
+                None,
+                outputs={"requests": REQUESTS_KEY, "status": STATUS_KEY, "sent": SENT_KEY},
+            )
+            self.control.connect("coordinator", "events", EVENTS_KEY)
+            self.control.connect("coordinator", "acks", ACKS_KEY)
+        self.control.start()
+        self.configurator.start()
+        for spec in topo.components.values():
+            if spec.initial not in ("preoperational", "ignore"):
+                outcome = self.configurator._run(
+                    f"initial state of {spec.name}",
+                    [Step("state", spec.name, spec.initial, timeout=5.0)],
+                )
+                if not outcome.ok:
+                    raise DeployError(f"{outcome.step}: {outcome.reason}")
+        if run_chart and self.coordinator is not None:
+            self.coordinator.start()
+
+    def _wait_for_liveliness(self) -> None:
+        assert self.hub is not None
+        expected = {keys.alive(c) for c in self.topology.components}
+        deadline = time.monotonic() + self.liveliness_timeout
+        alive: set[str] = set()
+        while time.monotonic() < deadline:
+            alive = set(self.hub.alive(keys.ALL_ALIVE, 0.5))
+            if expected <= alive:
+                return
+            dead = [p for p in self.processes if p.popen is not None and p.popen.poll() is not None]
+            if dead:
+                what = "; ".join(
+                    f"process {p.name!r} exited with code {p.popen.returncode}: "
+                    f"{p.tail() or 'no output'}"
+                    for p in dead
+                )  # type: ignore[union-attr]
+                raise DeployError(f"deployment failed: {what}")
+            time.sleep(0.05)
+        missing = sorted(k.rsplit("/", 1)[-1] for k in expected - alive)
+        by_process = {c: p.name for p in self.processes for c in p.components}
+        detail = ", ".join(f"{c} (process {by_process.get(c, '?')})" for c in missing)
+        raise DeployError(f"components not alive after {self.liveliness_timeout:g} s: {detail}")
+
+    def send(self, event: str, payload: dict[str, Any] | None = None) -> None:
+        """Give the chart an event (as `fw send` does)."""
+        if self.coordinator is None:
+            raise DeployError("this deployment runs no statechart")
+        self.coordinator.inject(event, payload)
+
+    def stop(self) -> None:
+        """Shut down in order: `shutdown: first` processes, then the others, then control."""
+        if self.coordinator is not None:
+            with contextlib.suppress(Exception):
+                if self.coordinator.state.value == "Running":
+                    self.coordinator.stop()
+        order = {"first": 0, "normal": 1, "last": 2}
+        for rank in sorted(set(order.values())):
+            batch = [p for p in self.processes if order.get(p.shutdown, 1) == rank]
+            for process in batch:
+                if process.popen is not None and process.popen.poll() is None:
+                    process.popen.send_signal(signal.SIGTERM)
+            for process in batch:
+                if process.popen is None:
+                    continue
+                try:
+                    process.popen.wait(10)
+                except subprocess.TimeoutExpired:
+                    process.popen.kill()
+                    process.popen.wait(5)
+        if self.control is not None:
+            self.control.shutdown()
+            self.control = None
+        if self.hub is not None:
+            self.hub.close()
+            self.hub = None

@@ -1,0 +1,561 @@
+"""Topologies: which components run where, how they are wired, and the named
+configurations the Configurator applies (see docs/topologies.md).
+
+Loading checks everything that can be checked before anything starts, and
+reports it like a statechart error (file:line:col, YAML path, hint): the
+schema; that every class imports and is a Component; every port, property
+and operation named anywhere exists, with compatible message types and valid
+values; the statechart, and that every tag it can request is defined here;
+and that every event the chart consumes has a producer.
+"""
+
+from __future__ import annotations
+
+import difflib
+import inspect
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from framework import keys, schema
+from framework.activity import Activity, ActivityError
+from framework.bus import BusConfig
+from framework.component import Component, In, Out, declarations
+from framework.errors import Finding, FindingsError, FwError, Location
+from framework.messages import type_name
+from framework.ports import ConnPolicy, PortError
+from framework.properties import Property, PropertyError, load_property_file
+from framework.statechart.loader import parse_duration
+from framework.yamlio import Document, load_yaml
+
+LIFECYCLE = ("running", "stopped", "preoperational", "ignore")
+DEFAULT_STEP_TIMEOUT = 2.0
+
+
+@dataclass
+class ClassInfo:
+    """What a component class declares, read without instantiating it."""
+
+    cls: type[Component]
+    inputs: dict[str, str]
+    outputs: dict[str, str]
+    properties: dict[str, Property]
+    operations: dict[str, inspect.Signature]
+    emits: tuple[str, ...]
+
+
+@dataclass
+class ComponentSpec:
+    """One component of the topology."""
+
+    name: str
+    class_path: str
+    process: str
+    activity: Activity
+    properties: dict[str, Any]
+    outputs: dict[str, str]
+    initial: str
+    location: Location
+    info: ClassInfo | None = None
+
+    def output_key(self, port: str) -> str:
+        """The key an output port publishes on."""
+        return self.outputs.get(port, keys.default_output(self.name, port))
+
+
+@dataclass
+class Step:
+    """One action of a configuration, in order."""
+
+    kind: str  # state, disconnect, connect, set, call, write
+    component: str
+    target: str = ""  # port, property, operation or lifecycle state
+    key: str = ""
+    policy: dict[str, Any] | None = None
+    value: Any = None
+    args: dict[str, Any] = field(default_factory=dict)
+    timeout: float = DEFAULT_STEP_TIMEOUT
+    location: Location = field(default_factory=Location)
+
+    def describe(self) -> str:
+        """Human label used in failure reports: `connect supervisor.lwr_pose -> certus/cto`."""
+        if self.kind == "state":
+            return f"bring {self.component} to {self.target}"
+        if self.kind == "connect":
+            return f"connect {self.component}.{self.target} -> {self.key}"
+        if self.kind == "disconnect":
+            return f"disconnect {self.component}.{self.target}"
+        if self.kind == "set":
+            return f"set {self.component}.{self.target} = {self.value!r}"
+        if self.kind == "call":
+            return f"call {self.component}.{self.target}"
+        return f"write {self.component}.{self.target}"
+
+
+@dataclass
+class Configuration:
+    """A named configuration: pre states, actions, post states, as one ordered list."""
+
+    name: str
+    steps: list[Step]
+    timeout: float
+    doc: str
+    location: Location
+
+
+@dataclass
+class Topology:
+    """A loaded, checked topology."""
+
+    name: str
+    file: str
+    bus: BusConfig
+    processes: dict[str, dict[str, Any]]
+    components: dict[str, ComponentSpec]
+    connections: list[Step]
+    prepare: dict[str, list[str]]
+    configurations: dict[str, Configuration]
+    statechart: Path | None
+    procedure: Path | None
+    external_events: list[str]
+    description: str = ""
+
+    def components_in(self, process: str) -> list[ComponentSpec]:
+        """Components hosted by one process, in topology order."""
+        return [c for c in self.components.values() if c.process == process]
+
+    def writers_of(self, key: str) -> list[tuple[str, str]]:
+        """(component.port, message type) of every output port publishing on `key`."""
+        out = []
+        for spec in self.components.values():
+            if spec.info is None:
+                continue
+            for port, kind in spec.info.outputs.items():
+                if spec.output_key(port) == key:
+                    out.append((f"{spec.name}.{port}", kind))
+        return out
+
+
+def class_info(cls: type[Component]) -> ClassInfo:
+    """Ports, properties and operations a Component class declares."""
+    inputs, outputs, props, ops = {}, {}, {}, {}
+    for attr, decl in declarations(cls):
+        if isinstance(decl, In):
+            inputs[attr] = type_name(decl.type)
+        elif isinstance(decl, Out):
+            outputs[attr] = type_name(decl.type)
+        elif isinstance(decl, Property):
+            props[attr] = decl
+        else:
+            signature = inspect.signature(decl)
+            params = list(signature.parameters.values())[1:]  # drop self
+            ops[attr] = signature.replace(parameters=params)
+    return ClassInfo(cls, inputs, outputs, props, ops, tuple(getattr(cls, "emits", ())))
+
+
+class _Loader:
+    def __init__(self, doc: Document):
+        self.doc = doc
+        self.base = Path(doc.file).parent
+        self.findings: list[Finding] = []
+
+    def error(self, code: str, message: str, path: tuple[Any, ...], hint: str = "") -> None:
+        self.findings.append(Finding("error", code, message, self.doc.location(path), hint))
+
+    def close(self, name: str, options: Any) -> str:
+        match = difflib.get_close_matches(name, list(options), n=1)
+        return f"did you mean {match[0]!r}?" if match else f"known: {', '.join(sorted(options))}"
+
+    def import_class(self, path: str, where: tuple[Any, ...]) -> ClassInfo | None:
+        from framework.container import ContainerError, load_class
+
+        try:
+            return class_info(load_class(path))
+        except ContainerError as exc:
+            self.error("class", str(exc), where, "check the module path and class name")
+        except Exception as exc:  # the user's module failed while importing
+            self.error("class", f"importing {path!r} failed: {type(exc).__name__}: {exc}", where)
+        return None
+
+    def components(self, data: dict[str, Any]) -> dict[str, ComponentSpec]:
+        processes = data.get("processes") or {}
+        out = {}
+        for name, spec in data["components"].items():
+            here = ("components", name)
+            process = spec.get("process", "main")
+            if processes and process not in processes and process != "main":
+                self.error(
+                    "process",
+                    f"component {name!r} names unknown process {process!r}",
+                    (*here, "process"),
+                    self.close(process, processes),
+                )
+            info = self.import_class(spec["class"], (*here, "class"))
+            try:
+                activity = Activity.from_spec(spec.get("activity"))
+                if info is not None:
+                    for port in activity.ports:
+                        if port not in info.inputs:
+                            raise ActivityError(
+                                f"event activity names unknown input port {port!r} of {name!r}"
+                            )
+            except ActivityError as exc:
+                self.error("activity", str(exc), (*here, "activity"))
+                activity = Activity()
+            values = dict(spec.get("properties") or {})
+            if info is not None:
+                if "property_file" in spec:
+                    try:
+                        values = {
+                            **load_property_file(
+                                self.base / spec["property_file"], info.properties, name
+                            ),
+                            **values,
+                        }
+                    except FindingsError as exc:
+                        self.findings.extend(exc.findings)
+                    except FwError as exc:
+                        self.error("property-file", str(exc), (*here, "property_file"))
+                for prop, value in list(values.items()):
+                    declared = info.properties.get(prop)
+                    if declared is None:
+                        self.error(
+                            "unknown-property",
+                            f"{name!r} has no property {prop!r}",
+                            (*here, "properties", prop),
+                            self.close(prop, info.properties),
+                        )
+                        continue
+                    try:
+                        values[prop] = declared.validate(value, name)
+                    except PropertyError as exc:
+                        self.error("property-value", str(exc), (*here, "properties", prop))
+                for port in spec.get("outputs") or {}:
+                    if port not in info.outputs:
+                        self.error(
+                            "unknown-port",
+                            f"{name!r} has no output port {port!r}",
+                            (*here, "outputs", port),
+                            self.close(port, info.outputs),
+                        )
+            out[name] = ComponentSpec(
+                name,
+                spec["class"],
+                process,
+                activity,
+                values,
+                dict(spec.get("outputs") or {}),
+                spec.get("initial", "preoperational"),
+                self.doc.location(here),
+                info,
+            )
+        return out
+
+    def port(
+        self, topo: Topology, ref: str, where: tuple[Any, ...], direction: str = ""
+    ) -> tuple[ComponentSpec | None, str, str]:
+        """(component, port, type name) of `comp.port`, with a finding if it is unknown."""
+        comp_name, port = ref.split(".", 1)
+        comp = topo.components.get(comp_name)
+        if comp is None:
+            self.error(
+                "unknown-component",
+                f"unknown component {comp_name!r}",
+                where,
+                self.close(comp_name, topo.components),
+            )
+            return None, port, ""
+        if comp.info is None:
+            return None, port, ""
+        table = {"in": comp.info.inputs, "out": comp.info.outputs}.get(direction)
+        ports = table if table is not None else {**comp.info.inputs, **comp.info.outputs}
+        if port not in ports:
+            what = {"in": "input port", "out": "output port"}.get(direction, "port")
+            self.error(
+                "unknown-port",
+                f"{comp_name!r} has no {what} {port!r}",
+                where,
+                self.close(port, ports),
+            )
+            return None, port, ""
+        return comp, port, ports[port]
+
+    def connection(
+        self, topo: Topology, spec: dict[str, Any], where: tuple[Any, ...], timeout: float
+    ) -> Step | None:
+        comp, port, kind = self.port(topo, spec["port"], (*where, "port"), "in")
+        if "from" in spec:
+            src, src_port, src_kind = self.port(topo, spec["from"], (*where, "from"), "out")
+            if src is None:
+                return None
+            key = src.output_key(src_port)
+            writers = [(spec["from"], src_kind)]
+        else:
+            key = spec["key"]
+            writers = topo.writers_of(key)
+        try:
+            ConnPolicy.from_spec(spec.get("policy"))
+        except PortError as exc:
+            self.error("policy", str(exc), (*where, "policy"))
+        if comp is None:
+            return None
+        for writer, writer_kind in writers:
+            if writer_kind != kind:
+                self.error(
+                    "type-mismatch",
+                    f"{spec['port']} ({kind}) cannot read key {key!r}: "
+                    f"{writer} writes {writer_kind} there",
+                    where,
+                    "connect it to a key of the same message type",
+                )
+        return Step(
+            "connect",
+            comp.name,
+            port,
+            key=key,
+            policy=spec.get("policy"),
+            timeout=timeout,
+            location=self.doc.location(where),
+        )
+
+    def states(
+        self, topo: Topology, spec: dict[str, Any] | None, where: tuple[Any, ...], timeout: float
+    ) -> list[Step]:
+        if not spec:
+            return []
+        default = spec.get("default", "ignore")
+        steps, named = [], []
+        for name, target in spec.items():
+            if name == "default":
+                continue
+            if name not in topo.components:
+                self.error(
+                    "unknown-component",
+                    f"unknown component {name!r}",
+                    (*where, name),
+                    self.close(name, topo.components),
+                )
+                continue
+            named.append(name)
+            if target != "ignore":
+                steps.append(
+                    Step(
+                        "state",
+                        name,
+                        target,
+                        timeout=timeout,
+                        location=self.doc.location((*where, name)),
+                    )
+                )
+        if default != "ignore":
+            for name in topo.components:
+                if name not in named:
+                    steps.append(
+                        Step(
+                            "state",
+                            name,
+                            default,
+                            timeout=timeout,
+                            location=self.doc.location((*where, "default")),
+                        )
+                    )
+        return steps
+
+    def step(
+        self, topo: Topology, spec: dict[str, Any], where: tuple[Any, ...], timeout: float
+    ) -> Step | None:
+        ((kind, arg),) = spec.items()
+        here = (*where, kind)
+        loc = self.doc.location(here)
+        if kind == "disconnect":
+            comp, port, _ = self.port(topo, arg, here)
+            return (
+                Step("disconnect", comp.name, port, timeout=timeout, location=loc) if comp else None
+            )
+        if kind == "connect":
+            return self.connection(topo, arg, here, timeout)
+        if kind == "set":
+            comp_name, prop = arg["property"].split(".", 1)
+            comp = topo.components.get(comp_name)
+            if comp is None:
+                self.error(
+                    "unknown-component",
+                    f"unknown component {comp_name!r}",
+                    here,
+                    self.close(comp_name, topo.components),
+                )
+                return None
+            if comp.info is None:
+                return None
+            declared = comp.info.properties.get(prop)
+            if declared is None:
+                self.error(
+                    "unknown-property",
+                    f"{comp_name!r} has no property {prop!r}",
+                    here,
+                    self.close(prop, comp.info.properties),
+                )
+                return None
+            try:
+                value = declared.validate(arg["value"], comp_name)
+            except PropertyError as exc:
+                self.error("property-value", str(exc), (*here, "value"))
+                return None
+            return Step("set", comp_name, prop, value=value, timeout=timeout, location=loc)
+        if kind == "call":
+            ref = arg if isinstance(arg, str) else arg["operation"]
+            args = {} if isinstance(arg, str) else dict(arg.get("args") or {})
+            step_timeout = timeout
+            if isinstance(arg, dict) and "timeout" in arg:
+                step_timeout = parse_duration(arg["timeout"])
+            comp_name, op = ref.split(".", 1)
+            comp = topo.components.get(comp_name)
+            if comp is None:
+                self.error(
+                    "unknown-component",
+                    f"unknown component {comp_name!r}",
+                    here,
+                    self.close(comp_name, topo.components),
+                )
+                return None
+            if comp.info is None:
+                return None
+            signature = comp.info.operations.get(op)
+            if signature is None:
+                self.error(
+                    "unknown-operation",
+                    f"{comp_name!r} has no operation {op!r}",
+                    here,
+                    self.close(op, comp.info.operations),
+                )
+                return None
+            try:
+                signature.bind(**args)
+            except TypeError as exc:
+                self.error("operation-args", f"{ref}: {exc}", here)
+                return None
+            return Step("call", comp_name, op, args=args, timeout=step_timeout, location=loc)
+        comp, port, _ = self.port(topo, arg["port"], (*here, "port"), "in")
+        return (
+            Step("write", comp.name, port, value=arg["value"], timeout=timeout, location=loc)
+            if comp
+            else None
+        )
+
+    def configurations(self, topo: Topology, data: dict[str, Any]) -> dict[str, Configuration]:
+        out = {}
+        for name, spec in (data.get("configurations") or {}).items():
+            here = ("configurations", name)
+            timeout = parse_duration(spec.get("timeout", DEFAULT_STEP_TIMEOUT))
+            steps = self.states(topo, spec.get("pre"), (*here, "pre"), timeout)
+            for i, item in enumerate(spec.get("do") or []):
+                step = self.step(topo, item, (*here, "do", i), timeout)
+                if step is not None:
+                    steps.append(step)
+            steps += self.states(topo, spec.get("post"), (*here, "post"), timeout)
+            out[name] = Configuration(
+                name, steps, timeout, spec.get("doc", ""), self.doc.location(here)
+            )
+        return out
+
+    def chart(self, topo: Topology, data: dict[str, Any]) -> None:
+        if topo.statechart is None:
+            return
+        from framework.statechart.loader import build_statechart
+        from framework.statechart.model import BUILTIN_EVENTS
+        from framework.statechart.validator import validate_chart
+
+        chart, found = build_statechart(topo.statechart)
+        self.findings.extend(found)
+        if chart is None or any(f.severity == "error" for f in found):
+            return
+        tags = {name: c.location for name, c in topo.configurations.items()}
+        self.findings.extend(f for f in validate_chart(chart, tags) if f.severity == "error")
+        produced = set(topo.external_events)
+        for spec in topo.components.values():
+            if spec.info is not None:
+                produced.update(spec.info.emits)
+        raised = {
+            a.event
+            for s in chart.states.values()
+            for a in (*s.entry, *s.exit, *s.do)
+            if a.kind == "raise"
+        }
+        raised |= {a.event for t in chart.transitions() for a in t.effect if a.kind == "raise"}
+        consumed = sorted({e for t in chart.transitions() for e in t.events})
+        for event in consumed:
+            if event in BUILTIN_EVENTS or event in raised or event in produced:
+                continue
+            self.error(
+                "no-producer",
+                f"the chart consumes {event!r} but no component of this topology emits it",
+                ("statechart",),
+                "add a component whose class lists it in `emits`, or list it under "
+                "`external_events` if the console or an operator sends it",
+            )
+
+
+def check_topology(path: str | Path) -> tuple[Topology | None, list[Finding]]:
+    """Load and check a topology; the model (None if it cannot be built) and findings."""
+    try:
+        doc = load_yaml(path)
+    except FwError as exc:
+        location = getattr(exc, "location", Location(str(path)))
+        return None, [Finding("error", "yaml", getattr(exc, "message", str(exc)), location)]
+    problems = schema.check(doc, "topology")
+    if problems:
+        return None, problems
+    data = doc.data
+    loader = _Loader(doc)
+    base = Path(doc.file).parent
+    bus_spec = data.get("bus") or {}
+    bus = BusConfig(
+        namespace=bus_spec.get("namespace", data["topology"]),
+        hub_port=bus_spec.get("hub_port", 7447),
+        lease_ms=bus_spec.get("lease_ms", 2000),
+        extra=bus_spec.get("extra", {}),
+    )
+    topo = Topology(
+        name=data["topology"],
+        file=str(path),
+        bus=bus,
+        processes={k: dict(v or {}) for k, v in (data.get("processes") or {}).items()},
+        components={},
+        connections=[],
+        prepare={},
+        configurations={},
+        statechart=base / data["statechart"] if "statechart" in data else None,
+        procedure=base / data["procedure"] if "procedure" in data else None,
+        external_events=list(data.get("external_events") or []),
+        description=data.get("description", ""),
+    )
+    topo.components = loader.components(data)
+    for i, spec in enumerate(data.get("connections") or []):
+        step = loader.connection(topo, spec, ("connections", i), DEFAULT_STEP_TIMEOUT)
+        if step is not None:
+            topo.connections.append(step)
+    for ref, candidates in (data.get("prepare") or {}).items():
+        comp, _port, _ = loader.port(topo, ref, ("prepare", ref), "in")
+        if comp is not None:
+            topo.prepare[ref] = list(candidates)
+    topo.configurations = loader.configurations(topo, data)
+    if topo.procedure is not None and not topo.procedure.exists():
+        loader.error(
+            "procedure", f"procedure folder {str(topo.procedure)!r} does not exist", ("procedure",)
+        )
+    if topo.statechart is not None and not topo.statechart.exists():
+        loader.error(
+            "statechart", f"statechart {str(topo.statechart)!r} does not exist", ("statechart",)
+        )
+    else:
+        loader.chart(topo, data)
+    findings = sorted(loader.findings, key=lambda f: (f.location.file, f.location.line))
+    return topo, findings
+
+
+def load_topology(path: str | Path) -> Topology:
+    """Load a topology; raise `FindingsError` with every error found."""
+    topo, findings = check_topology(path)
+    if topo is None or any(f.severity == "error" for f in findings):
+        raise FindingsError(findings)
+    return topo
