@@ -142,3 +142,18 @@ class Pinger(Component):
     def update_hook(self) -> None:
         self.n += 1
         self.out.write(Scalar(time.perf_counter(), float(self.n)))
+
+
+class Broken(Component):
+    """Cannot even be constructed (to test how a deployment reports a dead process)."""
+
+    def __init__(self, name: str):
+        raise RuntimeError("the device driver is missing")
+
+
+class Sleepy(Component):
+    """Takes a minute to construct (to test the deployer's liveliness timeout)."""
+
+    def __init__(self, name: str):
+        time.sleep(60)
+        super().__init__(name)

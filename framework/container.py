@@ -429,6 +429,9 @@ def main(argv: list[str] | None = None) -> int:
     except FwError as exc:
         print(f"fw container: {exc}", file=sys.stderr)
         return 1
+    except Exception as exc:  # a component's own code failed while starting
+        print(f"fw container: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -122,3 +122,17 @@ def wait_until(predicate, timeout: float = 5.0, interval: float = 0.005) -> bool
             return True
         _time.sleep(interval)
     return bool(predicate())
+
+
+@pytest.fixture
+def toy(bus_config):
+    """The toy topology (tests/data/toy) on this test's private bus."""
+    import dataclasses
+
+    from framework.topology import load_topology
+
+    topology = load_topology(REPO / "tests" / "data" / "toy" / "toy.yaml")
+    topology.bus = dataclasses.replace(
+        topology.bus, namespace=bus_config.namespace, hub_port=bus_config.hub_port
+    )
+    return topology

@@ -1,0 +1,103 @@
+"""Spec: a topology deploys on real processes; the chart drives configurations that
+really rewire data; failures are reported and handled; shutdown is orderly."""
+
+import dataclasses
+
+import pytest
+
+from framework.deployer import DeployError, Deployment
+from framework.remote import RemoteComponent
+from tests.conftest import wait_until
+
+
+@pytest.fixture
+def deployed(toy, tmp_path):
+    deployment = Deployment(toy, tmp_path)
+    deployment.start()
+    yield deployment
+    deployment.stop()
+
+
+def active(deployment):
+    return deployment.coordinator.active()
+
+
+def settled_in(deployment, state):
+    return wait_until(
+        lambda: state in active(deployment)["active"] and not active(deployment)["pending"],
+        timeout=10,
+    )
+
+
+def received(deployment):
+    return RemoteComponent(deployment.hub, "supervisor").call("received")
+
+
+def test_the_chart_sets_up_and_data_of_tracker_1_reaches_the_supervisor(deployed):
+    assert settled_in(deployed, "Use_T1")
+    assert wait_until(lambda: len(received(deployed)) >= 5)
+    assert all(v > 0 for v in received(deployed)), "tracker 1 counts up"
+
+
+def test_a_tracker_swap_rewires_live_and_only_new_data_arrives(deployed):
+    assert settled_in(deployed, "Use_T1")
+    deployed.send("e_SWAP")
+    assert settled_in(deployed, "Use_T2")
+    assert wait_until(lambda: len(received(deployed)) >= 5)
+    after = received(deployed)  # the supervisor restarted during the swap
+    assert all(v < 0 for v in after), "only tracker 2 after the swap"
+    assert after == sorted(set(after), reverse=True), "no duplicate, no reordering"
+    tags = [o.tag for o in deployed.configurator.history]
+    assert tags == ["setup", "tracker_1_up", "tracker_2_up"]
+
+
+def test_a_failing_operation_fails_the_configuration_and_the_chart_goes_where_it_says(deployed):
+    assert settled_in(deployed, "Use_T1")
+    deployed.send("e_SWAP")
+    assert settled_in(deployed, "Use_T2")
+    deployed.send("e_BREAK")
+    assert settled_in(deployed, "Failed")
+    outcome = deployed.configurator.history[-1]
+    assert (outcome.tag, outcome.ok, outcome.step) == ("broken", False, "call supervisor.fail")
+    assert "ValueError: asked to fail" in outcome.reason
+
+
+def test_reapplying_a_configuration_is_harmless(deployed):
+    assert settled_in(deployed, "Use_T1")
+    first = deployed.configurator.apply("tracker_1_up")
+    again = deployed.configurator.apply("tracker_1_up")
+    assert first.ok and again.ok
+    assert settled_in(deployed, "Use_T1")
+    assert wait_until(lambda: len(received(deployed)) >= 3)
+    assert all(v > 0 for v in received(deployed))
+
+
+def test_an_unknown_tag_is_answered_with_a_failure(deployed):
+    outcome = deployed.configurator.apply("tracker_9_up")
+    assert not outcome.ok and "unknown configuration 'tracker_9_up'" in outcome.reason
+
+
+def test_a_process_that_dies_gives_a_clear_deploy_error(toy, tmp_path):
+    toy.components["t2"] = dataclasses.replace(
+        toy.components["t2"], class_path="components.demo:Broken"
+    )
+    with pytest.raises(
+        DeployError,
+        match=r"process 'trackers' exited with code 1: "
+        r".*RuntimeError: the device driver is missing",
+    ):
+        Deployment(toy, tmp_path).start()
+
+
+def test_a_process_that_never_comes_up_is_named(toy, tmp_path):
+    toy.components["supervisor"] = dataclasses.replace(
+        toy.components["supervisor"], class_path="components.demo:Sleepy"
+    )
+    deployment = Deployment(toy, tmp_path, liveliness_timeout=2.0)
+    with pytest.raises(
+        DeployError,
+        match=r"not alive after 2 s: supervisor "
+        r"\(process control_side\)",
+    ):
+        deployment.start()
+    assert all(p.popen.poll() is not None for p in deployment.processes), "nothing left behind"

@@ -1,0 +1,96 @@
+"""Spec: a topology is checked completely before anything starts; errors are located."""
+
+import pytest
+
+from framework.errors import FindingsError
+from framework.topology import check_topology, load_topology
+from tests.conftest import REPO
+
+TOY = (REPO / "tests" / "data" / "toy" / "toy.yaml").read_text()
+
+
+def findings(write, text, name="topo.yaml"):
+    chart = (REPO / "tests" / "data" / "toy" / "toy_chart.yaml").read_text()
+    write(chart, "toy_chart.yaml")
+    _, found = check_topology(write(text, name))
+    return found
+
+
+def codes(write, text):
+    return {f.code for f in findings(write, text) if f.severity == "error"}
+
+
+def test_the_toy_topology_is_clean():
+    topology = load_topology(REPO / "tests" / "data" / "toy" / "toy.yaml")
+    assert list(topology.configurations) == ["setup", "tracker_1_up", "tracker_2_up", "broken"]
+    steps = [s.describe() for s in topology.configurations["tracker_1_up"].steps]
+    assert steps == [
+        "bring supervisor to stopped",
+        "disconnect supervisor.inp",
+        "connect supervisor.inp -> t1/out",
+        "bring supervisor to running",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "code"),
+    [
+        ("components.demo:Sink", "components.demo:Sinc", "class"),
+        ("components.demo:Sink", "components.nowhere:Sink", "class"),
+        ("{step: 1.0}", "{step: fast}", "property-value"),
+        ("{step: 1.0}", "{stride: 1.0}", "unknown-property"),
+        (
+            "disconnect: supervisor.inp\n      - connect: {port: supervisor.inp, from: t1.out",
+            "disconnect: supervisor.inpt\n      - connect: {port: supervisor.inp, from: t1.out",
+            "unknown-port",
+        ),
+        ("call: supervisor.fail", "call: supervisor.explode", "unknown-operation"),
+        (
+            "call: supervisor.fail",
+            "call: {operation: supervisor.slow, args: {minutes: 1}}",
+            "operation-args",
+        ),
+        (
+            "pre: {supervisor: stopped}\n    do:\n      - disconnect: supervisor.inp\n      - "
+            "connect: {port: supervisor.inp, key: t2/out",
+            "pre: {supervisr: stopped}\n    do:\n      - disconnect: supervisor.inp\n      - "
+            "connect: {port: supervisor.inp, key: t2/out",
+            "unknown-component",
+        ),
+        (
+            "connect: {port: supervisor.inp, key: t2/out",
+            "connect: {port: supervisor.pose, key: t2/out",
+            "type-mismatch",
+        ),
+        ("  broken:\n", "  brokn:\n", "unknown-tag"),
+        ("external_events: [e_SWAP, e_BREAK]", "external_events: [e_SWAP]", "no-producer"),
+        ("activity: {event: inp}", "activity: {event: input}", "activity"),
+        ("process: trackers", "process: tracker", "process"),
+    ],
+)
+def test_every_cross_check_is_located(write, old, new, code):
+    assert old in TOY, old
+    found = findings(write, TOY.replace(old, new, 1))
+    errors = [f for f in found if f.code == code]
+    assert errors, [f.one_line() for f in found]
+    assert errors[0].location.line > 0 and errors[0].message
+
+
+def test_schema_errors_are_located_with_hints(write):
+    found = findings(
+        write,
+        TOY.replace(
+            "    do:\n      - call: supervisor.fail", "    does:\n      - call: supervisor.fail"
+        ),
+    )
+    assert found[0].code == "schema" and "did you mean 'do'" in found[0].hint
+
+
+def test_load_raises_with_every_error(write):
+    bad = TOY.replace("{step: 1.0}", "{step: fast}").replace(
+        "call: supervisor.fail", "call: supervisor.explode"
+    )
+    write((REPO / "tests" / "data" / "toy" / "toy_chart.yaml").read_text(), "toy_chart.yaml")
+    with pytest.raises(FindingsError) as err:
+        load_topology(write(bad, "bad.yaml"))
+    assert {f.code for f in err.value.findings} >= {"property-value", "unknown-operation"}
