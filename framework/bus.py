@@ -23,6 +23,7 @@ import json
 import logging
 import socket
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -209,6 +210,20 @@ class Bus:
         """Keys of the liveliness tokens alive now that match `key_expr`."""
         replies = self.session.liveliness().get(key_expr, timeout=timeout)
         return sorted(str(r.ok.key_expr) for r in replies if r.ok is not None)
+
+    def peers(self) -> int:
+        """How many peers this session is connected to right now."""
+        return len(list(self.session.info.peers_zid()))
+
+    def wait_for_peers(self, count: int, timeout: float = 3.0) -> bool:
+        """Wait until connected to `count` peers (gossip connects a new session to the
+        deployment's processes one by one; queries before that reach only some)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.peers() >= count:
+                return True
+            time.sleep(0.01)
+        return self.peers() >= count
 
     def close(self) -> None:
         """Close the session (idempotent). An unclosed session can hang process exit."""

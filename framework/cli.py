@@ -68,10 +68,19 @@ def _print_findings(findings: list[Finding], as_json: bool, strict: bool) -> int
 def cmd_validate(args: argparse.Namespace) -> int:
     """Check chart files statically; print every finding."""
     from framework.statechart.validator import validate_file
+    from framework.topology import check_topology
+    from framework.yamlio import load_yaml
 
     findings: list[Finding] = []
     for path in args.files:
-        findings.extend(validate_file(path, args.topology))
+        try:
+            is_topology = isinstance((data := load_yaml(path).data), dict) and "topology" in data
+        except FwError:
+            is_topology = False
+        if is_topology:
+            findings.extend(check_topology(path)[1])
+        else:
+            findings.extend(validate_file(path, args.topology))
     code = _print_findings(findings, args.json, args.strict)
     if not args.json:
         errors = sum(f.severity == "error" for f in findings)
@@ -279,7 +288,13 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=EPILOG_VALIDATE,
         formatter_class=raw,
     )
-    p.add_argument("files", nargs="+", metavar="FILE", help="statechart YAML file(s)")
+    p.add_argument(
+        "files",
+        nargs="+",
+        metavar="FILE",
+        help="statechart or topology YAML file(s) (a topology is checked with its "
+        "statechart and every cross-reference)",
+    )
     p.add_argument(
         "--topology",
         metavar="T",
@@ -339,6 +354,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--json", action="store_true", help="one JSON object per trace line")
     p.set_defaults(func=cmd_run)
+
+    from framework.cli_deploy import add_commands
+
+    add_commands(sub)
     return parser
 
 

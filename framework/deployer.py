@@ -168,7 +168,12 @@ class Deployment:
                 )
                 if not outcome.ok:
                     raise DeployError(f"{outcome.step}: {outcome.reason}")
-        if run_chart and self.coordinator is not None:
+        if run_chart:
+            self.run_chart()
+
+    def run_chart(self) -> None:
+        """Start the Coordinator (the chart begins with its setup configurations)."""
+        if self.coordinator is not None and self.coordinator.state.value != "Running":
             self.coordinator.start()
 
     def _wait_for_liveliness(self) -> None:

@@ -330,10 +330,11 @@ class InputPort(Port[T]):
             if generation != self.generation:
                 self.stats.dropped_stale += 1
                 return
-            if seq <= self._seen.get(publisher, 0):
-                self.stats.dropped_duplicate += 1
-                return
-            self._seen[publisher] = seq
+            if seq:  # 0 = written outside a port, without a sequence: never a duplicate
+                if seq <= self._seen.get(publisher, 0):
+                    self.stats.dropped_duplicate += 1
+                    return
+                self._seen[publisher] = seq
             self.stats.received += 1
             self._store(value)
         callback = self.on_data

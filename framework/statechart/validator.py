@@ -24,7 +24,6 @@ from framework.statechart.model import (
     Statechart,
     Transition,
 )
-from framework.yamlio import load_yaml
 
 _BUILTIN_FIELDS = {CONFIG_DONE: {"tag", "state"}, CONFIG_FAILED: {"tag", "state", "reason", "step"}}
 _TIMER_FIELDS = {"state", "delay"}
@@ -699,25 +698,15 @@ def validate_chart(chart: Statechart, tags: dict[str, Location] | None = None) -
 
 
 def topology_tags(path: str | Path) -> tuple[dict[str, Location], list[Finding]]:
-    """Configuration names a topology defines (its `configurations:` mapping).
+    """Configuration names a topology defines, and the topology's own findings (its
+    schema and every cross-check, see `framework.topology`)."""
+    from framework.topology import check_topology
 
-    This is the hook the topology format (Coordinator/Configurator issue)
-    plugs into: it needs only the names and where they are written.
-    """
-    try:
-        doc = load_yaml(path)
-    except Exception as exc:
-        location = getattr(exc, "location", Location(str(path)))
-        return {}, [Finding("error", "topology", getattr(exc, "message", str(exc)), location)]
-    data = doc.data if isinstance(doc.data, dict) else {}
-    configurations = data.get("configurations")
-    if not isinstance(configurations, dict):
-        return {}, [
-            Finding(
-                "error", "topology", "topology has no `configurations:` mapping", doc.location(())
-            )
-        ]
-    return {tag: doc.location(("configurations", tag)) for tag in configurations}, []
+    topology, findings = check_topology(path)
+    if topology is None:
+        return {}, findings
+    tags = {name: c.location for name, c in topology.configurations.items()}
+    return tags, findings
 
 
 def validate_file(path: str | Path, topology: str | Path | None = None) -> list[Finding]:

@@ -48,7 +48,9 @@ def test_strict_fails_on_warnings(write, capsys):
 
 
 def test_validate_against_a_topology(write, capsys):
-    topo = write("configurations:\n  setup_components: {}\n", "topo.yaml")
+    topo = write(
+        "topology: t\ncomponents: {}\nconfigurations:\n  setup_components: {}\n", "topo.yaml"
+    )
     assert main(["validate", SEEG, "--topology", str(topo)]) == 1
     assert "unknown-tag" in capsys.readouterr().out
 

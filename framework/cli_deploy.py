@@ -1,0 +1,425 @@
+"""`fw deploy`, `fw send`, `fw status` and `fw ls`: run a topology and talk to it."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from framework.errors import FwError
+from framework.statechart.events import Event, Listener
+from framework.statechart.model import State, Transition
+
+EPILOG_DEPLOY = """\
+Checks the topology, its statechart and every cross-reference first (nothing starts if
+anything is wrong), starts the topology's processes, waits until every component is
+alive, then runs the statechart. Ctrl-C shuts down in order, the robot side first.
+
+examples:
+  fw deploy topologies/demo.yaml                    live status until Ctrl-C
+  fw deploy topologies/demo.yaml --headless --duration 10
+  fw deploy topologies/demo.yaml --record run.mcap  keep a flight recording
+"""
+
+EPILOG_SEND = """\
+examples:
+  fw send e_START --topology topologies/demo.yaml
+  fw send e_TOK --payload '{"tracker": "certus"}' --topology topologies/demo.yaml
+"""
+
+
+class _Printer(Listener):
+    """Headless status: one line per chart step."""
+
+    def __init__(self) -> None:
+        self.t0 = time.monotonic()
+
+    def line(self, text: str) -> None:
+        print(f"[{time.monotonic() - self.t0:8.3f}] {text}", flush=True)
+
+    def on_event(self, event: Event) -> None:
+        payload = f" {json.dumps(event.payload)}" if event.payload else ""
+        self.line(f"event      {event.name}{payload}")
+
+    def on_unhandled(self, event: Event, reason: str) -> None:
+        self.line(f"unhandled  {event.name}: {reason}")
+
+    def on_transition(self, transition: Transition, event: Event | None) -> None:
+        target = transition.target.path if transition.target is not None else "(internal)"
+        self.line(f"transition {transition.source.path} -> {target}")
+
+    def on_entry(self, state: State) -> None:
+        if state.configure is not None:
+            self.line(f"configure  {state.configure.tag} (for {state.path})")
+
+    def on_error(self, message: str, event: Event | None) -> None:
+        self.line(f"error      {message}")
+
+
+def _screen(deployment: Any, started: float) -> str:
+    """The one-screen live status."""
+    from framework.remote import RemoteComponent, RemoteError
+
+    lines = [
+        f"fw deploy {deployment.topology.name}   up {time.monotonic() - started:6.1f} s"
+        "   (Ctrl-C to stop)",
+        "",
+    ]
+    if deployment.coordinator is not None:
+        info = deployment.coordinator.active()
+        lines.append(
+            "chart      "
+            + ", ".join(info["active"])
+            + ("   [finished]" if info["finished"] else "")
+        )
+        pending = ", ".join(info["pending"].values()) or "-"
+        lines.append(f"waiting on {pending}")
+    history = deployment.configurator.history[-5:] if deployment.configurator else []
+    for outcome in history:
+        mark = "ok  " if outcome.ok else "FAIL"
+        extra = "" if outcome.ok else f"  {outcome.step}: {outcome.reason}"
+        lines.append(f"  {mark} {outcome.tag:<24} {outcome.seconds * 1e3:7.2f} ms{extra}")
+    lines += ["", f"{'component':<20} {'process':<16} state"]
+    for spec in deployment.topology.components.values():
+        try:
+            state = RemoteComponent(deployment.hub, spec.name, 0.3).state()
+        except RemoteError:
+            state = "NOT RESPONDING"
+        lines.append(f"{spec.name:<20} {spec.process:<16} {state}")
+    return "\n".join(lines)
+
+
+def cmd_deploy(args: argparse.Namespace) -> int:
+    """Run a topology (see EPILOG_DEPLOY)."""
+    from framework.deployer import Deployment
+    from framework.topology import load_topology
+
+    topology = load_topology(args.topology)
+    workdir = Path(args.workdir) if args.workdir else Path(tempfile.mkdtemp(prefix="fw-"))
+    interactive = sys.stdout.isatty() and not args.headless
+    listeners: list[Listener] = [] if interactive else [_Printer()]
+    recorder = None
+    deployment = Deployment(topology, workdir, listeners=listeners)
+    n = len({c.process for c in topology.components.values()})
+    print(
+        f"fw: {topology.name}: starting {n} process(es), {len(topology.components)} "
+        f"component(s); logs in {workdir}",
+        file=sys.stderr,
+    )
+    started = time.monotonic()
+    try:
+        deployment.start(run_chart=False)
+        if args.record:
+            from framework.recorder import FlightRecorder
+
+            recorder = FlightRecorder(
+                args.record,
+                deployment.hub,
+                metadata={
+                    "topology": str(Path(args.topology).resolve()),
+                    "statechart": str(topology.statechart.resolve()) if topology.statechart else "",
+                },
+            )
+        deployment.run_chart()
+        print(
+            f"fw: all components alive and wired in {time.monotonic() - started:.2f} s; "
+            "the chart runs",
+            file=sys.stderr,
+        )
+        end = started + args.duration if args.duration else None
+        while end is None or time.monotonic() < end:
+            if interactive:
+                sys.stdout.write("\x1b[H\x1b[2J" + _screen(deployment, started) + "\n")
+                sys.stdout.flush()
+            time.sleep(0.5 if end is None else min(0.5, max(0.0, end - time.monotonic())))
+    except KeyboardInterrupt:
+        print("\nfw: shutting down (robot side first)...", file=sys.stderr)
+    finally:
+        deployment.stop()
+        if recorder is not None:
+            recorder.close()
+            print(f"fw: flight recording in {args.record}", file=sys.stderr)
+        if not args.workdir and not args.keep_logs:
+            shutil.rmtree(workdir, ignore_errors=True)
+    print("fw: stopped", file=sys.stderr)
+    return 0
+
+
+def _join(topology_path: str) -> tuple[Any, Any]:
+    from framework.bus import Bus
+    from framework.topology import load_topology
+
+    topology = load_topology(topology_path)
+    bus = Bus(topology.bus)
+    processes = len({c.process for c in topology.components.values()}) + 1  # + the deployer
+    bus.wait_for_peers(processes, timeout=2.0)
+    return topology, bus
+
+
+def cmd_send(args: argparse.Namespace) -> int:
+    """Publish one event for the chart of a running deployment."""
+    from framework import messages
+    from framework.coordinator import EVENTS_KEY
+    from framework.messages import EventMessage
+    from framework.statechart.loader import load_statechart
+    from framework.statechart.model import BUILTIN_EVENTS
+
+    try:
+        payload = json.loads(args.payload) if args.payload else {}
+    except json.JSONDecodeError as exc:
+        raise FwError(f"--payload is not JSON: {exc.msg}") from None
+    if not isinstance(payload, dict):
+        raise FwError("--payload must be a JSON object")
+    topology, bus = _join(args.topology)
+    try:
+        if topology.statechart is not None:
+            chart = load_statechart(topology.statechart)
+            vocabulary = sorted(set(chart.events) | set(BUILTIN_EVENTS))
+            if args.event not in vocabulary:
+                raise FwError(
+                    f"unknown event {args.event!r}; the chart's events are: {', '.join(vocabulary)}"
+                )
+        publisher = bus.publisher(EVENTS_KEY, cache=False)
+        deadline = time.monotonic() + args.timeout
+        while not publisher.matching_status.matching and time.monotonic() < deadline:
+            time.sleep(0.01)
+        if not publisher.matching_status.matching:
+            raise FwError(
+                f"no Coordinator is listening on {topology.bus.namespace}/"
+                f"{EVENTS_KEY} (is the deployment running?)"
+            )
+        message = EventMessage(time.time(), args.event, "fw send", payload)
+        publisher.put(messages.encode(message, EventMessage))
+        time.sleep(0.05)  # let the sample leave before the session closes
+        publisher.undeclare()
+        print(f"sent {args.event}" + (f" {json.dumps(payload)}" if payload else ""))
+        return 0
+    finally:
+        bus.close()
+
+
+def cmd_status(args: argparse.Namespace) -> int:
+    """Component states, active chart states and last events of a running deployment."""
+    from framework.introspect import containers
+    from framework.remote import RemoteComponent, RemoteError
+
+    topology, bus = _join(args.topology)
+    try:
+        found = containers(bus)
+        if not found:
+            raise FwError(f"nothing is running in deployment {topology.bus.namespace!r}")
+        try:
+            chart = RemoteComponent(bus, "coordinator", 1.0).call("active")
+        except RemoteError:
+            chart = None
+        if args.json:
+            print(json.dumps({"containers": found, "chart": chart}, indent=2))
+            return 0
+        if chart is not None:
+            print(
+                "chart:   "
+                + ", ".join(chart["active"])
+                + ("  [finished]" if chart["finished"] else "")
+            )
+            print("pending: " + (", ".join(chart["pending"].values()) or "-"))
+            print("events:  " + (", ".join(chart["last_events"]) or "-"))
+        for container, names in found.items():
+            for name in names:
+                try:
+                    state = RemoteComponent(bus, name, 0.5).state()
+                except RemoteError:
+                    state = "NOT RESPONDING"
+                print(f"{name:<20} {container:<16} {state}")
+        return 0
+    finally:
+        bus.close()
+
+
+def cmd_ls(args: argparse.Namespace) -> int:
+    """Components, ports, keys and connections of a running deployment."""
+    from framework.introspect import snapshot
+
+    topology, bus = _join(args.topology)
+    try:
+        snap = snapshot(bus)
+        if not snap.containers:
+            raise FwError(f"nothing is running in deployment {topology.bus.namespace!r}")
+        if args.json:
+            print(
+                json.dumps(
+                    {
+                        "containers": snap.containers,
+                        "components": snap.components,
+                        "connections": [c.__dict__ for c in snap.connections],
+                    },
+                    indent=2,
+                    default=str,
+                )
+            )
+            return 0
+        for name, info in snap.components.items():
+            print(f"{name} ({info['class']}) {info['state']} in {info['container']}")
+            for port in info["inputs"]:
+                print(f"  in  {port['name']:<16} {port['type']:<12} <- {port['key'] or '-'}")
+            for port in info["outputs"]:
+                print(
+                    f"  out {port['name']:<16} {port['type']:<12} -> "
+                    f"{', '.join(port['keys']) or '-'}"
+                )
+        print("connections:")
+        for conn in snap.connections:
+            print(
+                f"  {conn.key:<32} {', '.join(conn.writers) or '(no writer)'} -> "
+                f"{', '.join(conn.readers) or '(no reader)'}"
+            )
+        return 0
+    finally:
+        bus.close()
+
+
+def _summary(topic: str, data: dict[str, Any]) -> str:
+    if topic == "/fw/chart":
+        payload = data.get("payload") or {}
+        kind = data.get("kind", "")
+        if kind == "event":
+            extra = f" {json.dumps(payload['payload'])}" if payload.get("payload") else ""
+            return f"event      {payload.get('event')}{extra} ({payload.get('kind')})"
+        if kind == "transition":
+            return f"transition {payload.get('source')} -> {payload.get('target')}"
+        if kind == "configuration":
+            return "active     " + ", ".join(payload.get("active", []))
+        if kind in ("entry", "exit"):
+            return f"{kind:<10} {payload.get('state')}"
+        return f"{kind:<10} {json.dumps(payload)}"
+    if topic == "/fw/components":
+        reason = f" ({data['reason']})" if data.get("reason") else ""
+        return f"component  {data.get('component')}: {data.get('old')} -> {data.get('new')}{reason}"
+    if topic == "/fw/config/request":
+        return f"request    #{data.get('request_id')} {data.get('tag')}"
+    if topic == "/fw/config/ack":
+        verdict = "ok" if data.get("ok") else f"FAILED at {data.get('step')}: {data.get('reason')}"
+        return f"ack        #{data.get('request_id')} {data.get('tag')} {verdict}"
+    return f"{topic} {json.dumps(data)}"
+
+
+def cmd_log(args: argparse.Namespace) -> int:
+    """Print the timeline of a flight recording."""
+    from framework.recorder import read_recording
+
+    t0 = None
+    for topic, stamp, data in read_recording(args.file):
+        if args.topic and not topic.startswith(args.topic):
+            continue
+        t0 = stamp if t0 is None else t0
+        if args.json:
+            print(json.dumps({"t": stamp, "topic": topic, "data": data}))
+        else:
+            print(f"[{stamp - t0:9.3f}] {_summary(topic, data)}")
+    return 0
+
+
+def recorded_events(path: str) -> list[tuple[float, str, dict[str, Any] | None]]:
+    """(time from the start, event, payload) of every external chart event recorded."""
+    from framework.recorder import read_recording
+
+    out: list[tuple[float, str, dict[str, Any] | None]] = []
+    t0 = None
+    for topic, stamp, data in read_recording(path):
+        t0 = stamp if t0 is None else t0
+        if topic == "/fw/chart" and data.get("kind") == "event":
+            payload = data.get("payload") or {}
+            if payload.get("kind") == "external":
+                out.append((stamp - t0, payload["event"], payload.get("payload")))
+    return out
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    """Feed a recording's chart events back into the chart on a simulated clock."""
+    from framework.cli import _Printer as TracePrinter
+    from framework.clock import SimulatedClock
+    from framework.recorder import recording_metadata
+    from framework.statechart.interpreter import Interpreter
+    from framework.statechart.loader import load_statechart
+
+    chart_path = args.chart or recording_metadata(args.file).get("statechart")
+    if not chart_path:
+        raise FwError("the recording does not name its statechart; pass --chart FILE")
+    chart = load_statechart(chart_path)
+    clock = SimulatedClock()
+    interpreter = Interpreter(chart, clock, [TracePrinter(clock, False)])
+    interpreter.start()
+    for at, name, payload in recorded_events(args.file):
+        interpreter.advance_to(max(at, clock.now()))
+        interpreter.queue(name, payload)
+        interpreter.run()
+    print(
+        f"active: {', '.join(interpreter.leaves)}"
+        + ("  [finished]" if interpreter.finished else "")
+    )
+    return 0
+
+
+def add_commands(sub: Any) -> None:
+    """Register the deployment commands on the `fw` parser."""
+    raw = argparse.RawDescriptionHelpFormatter
+    p = sub.add_parser(
+        "deploy",
+        help="check and run a topology (the main job)",
+        epilog=EPILOG_DEPLOY,
+        formatter_class=raw,
+    )
+    p.add_argument("topology", metavar="TOPOLOGY")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument(
+        "--headless",
+        action="store_true",
+        help="print one line per chart step instead of the live screen",
+    )
+    p.add_argument("--record", metavar="FILE", help="write a flight recording (MCAP)")
+    p.add_argument("--workdir", metavar="DIR", help="where process logs go (kept)")
+    p.add_argument("--keep-logs", action="store_true", help="keep the temporary log folder")
+    p.set_defaults(func=cmd_deploy)
+
+    p = sub.add_parser(
+        "send",
+        help="send an event to a running deployment's chart",
+        epilog=EPILOG_SEND,
+        formatter_class=raw,
+    )
+    p.add_argument("event", metavar="EVENT")
+    p.add_argument("--payload", metavar="JSON", help="event payload as a JSON object")
+    p.add_argument("--topology", required=True, metavar="T")
+    p.add_argument(
+        "--timeout",
+        type=float,
+        default=3.0,
+        metavar="S",
+        help="how long to look for the Coordinator",
+    )
+    p.set_defaults(func=cmd_send)
+
+    p = sub.add_parser("log", help="print the timeline of a flight recording")
+    p.add_argument("file", metavar="FILE")
+    p.add_argument("--topic", help="only topics starting with this (e.g. /fw/config)")
+    p.add_argument("--json", action="store_true", help="one JSON object per line")
+    p.set_defaults(func=cmd_log)
+
+    p = sub.add_parser("replay", help="feed a flight recording's events back into the chart")
+    p.add_argument("file", metavar="FILE")
+    p.add_argument("--chart", metavar="C", help="statechart (default: the recorded one)")
+    p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("status", help="states of a running deployment")
+    p.add_argument("--topology", required=True, metavar="T")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_status)
+
+    p = sub.add_parser("ls", help="components, ports, keys and connections of a deployment")
+    p.add_argument("--topology", required=True, metavar="T")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_ls)

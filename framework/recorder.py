@@ -1,0 +1,240 @@
+"""The flight recorder: every chart event, transition, configuration request, ack
+and component state change, timestamped, in an MCAP file.
+
+It only listens on the bus (like any other process could), so it records what
+really travelled. Messages are JSON with JSON Schemas, so Foxglove and any MCAP
+reader can open the file; chunks are small (64 KiB) so a crash loses at most
+the last chunk. Port samples can be recorded too, by key.
+
+    fw deploy topologies/demo.yaml --record run.mcap
+    fw log run.mcap                   # the timeline
+    fw replay run.mcap                # feed the recorded events to the chart again
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import asdict, is_dataclass
+from pathlib import Path
+from typing import Any
+
+from framework import keys, messages
+from framework.bus import Bus
+from framework.coordinator import ACKS_KEY, REQUESTS_KEY, STATUS_KEY
+from framework.errors import FwError
+from framework.messages import ConfigAck, ConfigRequest, EventMessage
+from framework.ports import ConnPolicy, InputPort, ReadStatus
+
+CHUNK_SIZE = 64 * 1024
+
+_SCHEMAS: dict[str, dict[str, Any]] = {
+    "fw.ChartStatus": {
+        "type": "object",
+        "title": "fw.ChartStatus",
+        "properties": {
+            "stamp": {"type": "number"},
+            "kind": {"type": "string"},
+            "payload": {"type": "object"},
+        },
+    },
+    "fw.ComponentState": {
+        "type": "object",
+        "title": "fw.ComponentState",
+        "properties": {
+            "stamp": {"type": "number"},
+            "component": {"type": "string"},
+            "old": {"type": "string"},
+            "new": {"type": "string"},
+            "reason": {"type": "string"},
+        },
+    },
+    "fw.ConfigRequest": {
+        "type": "object",
+        "title": "fw.ConfigRequest",
+        "properties": {
+            "stamp": {"type": "number"},
+            "request_id": {"type": "integer"},
+            "tag": {"type": "string"},
+            "args": {"type": "object"},
+        },
+    },
+    "fw.ConfigAck": {
+        "type": "object",
+        "title": "fw.ConfigAck",
+        "properties": {
+            "stamp": {"type": "number"},
+            "request_id": {"type": "integer"},
+            "ok": {"type": "boolean"},
+            "tag": {"type": "string"},
+            "step": {"type": "string"},
+            "reason": {"type": "string"},
+        },
+    },
+    "fw.Sample": {
+        "type": "object",
+        "title": "fw.Sample",
+        "description": "A port sample, as its message's fields.",
+    },
+}
+
+
+class RecorderError(FwError):
+    """A recording could not be written or read."""
+
+
+def _plain(value: Any) -> Any:
+    if is_dataclass(value):
+        return {k: _plain(v) for k, v in asdict(value).items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value
+
+
+class FlightRecorder:
+    """Records a deployment's coordination traffic (and chosen port samples) to MCAP."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        bus: Bus,
+        samples: dict[str, str] | None = None,
+        metadata: dict[str, str] | None = None,
+    ):
+        """`samples` maps extra keys to record to their message type name; `metadata`
+        (for example the statechart's path, used by `fw replay`) is stored in the file."""
+        from mcap.writer import CompressionType, Writer
+
+        self.path = Path(path)
+        try:
+            self._file = self.path.open("wb")
+        except OSError as exc:
+            raise RecorderError(f"cannot write {self.path}: {exc}") from None
+        self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.NONE)
+        self._writer.start(profile="", library="fw")
+        self._writer.add_metadata(name="fw", data={k: str(v) for k, v in (metadata or {}).items()})
+        self._lock = threading.Lock()
+        self._channels: dict[str, int] = {}
+        self._schema_ids = {
+            name: self._writer.register_schema(
+                name=name, encoding="jsonschema", data=json.dumps(spec).encode()
+            )
+            for name, spec in _SCHEMAS.items()
+        }
+        self._ports: list[InputPort[Any]] = []
+        self.count = 0
+        self._closed = False
+        self._listen(
+            bus,
+            STATUS_KEY,
+            EventMessage,
+            "/fw/chart",
+            "fw.ChartStatus",
+            lambda m: {"stamp": m.stamp, "kind": m.name, "payload": m.payload},
+        )
+        self._listen(
+            bus, REQUESTS_KEY, ConfigRequest, "/fw/config/request", "fw.ConfigRequest", _plain
+        )
+        self._listen(bus, ACKS_KEY, ConfigAck, "/fw/config/ack", "fw.ConfigAck", _plain)
+        self._state_sub = bus.subscribe(keys.ALL_STATES, self._on_state)
+        for key, type_name in (samples or {}).items():
+            kind = messages.resolve_type(type_name)
+            self._listen(bus, key, kind, f"/fw/samples/{key}", "fw.Sample", _plain)
+
+    def _channel(self, topic: str, schema: str) -> int:
+        channel = self._channels.get(topic)
+        if channel is None:
+            channel = self._channels[topic] = self._writer.register_channel(
+                topic=topic, message_encoding="json", schema_id=self._schema_ids[schema]
+            )
+        return channel
+
+    def write(
+        self, topic: str, schema: str, data: dict[str, Any], stamp: float | None = None
+    ) -> None:
+        """Append one message (thread-safe)."""
+        now = time.time_ns()
+        log_time = int((stamp or time.time()) * 1e9)
+        body = json.dumps(data, default=str).encode()
+        with self._lock:
+            if self._closed:
+                return
+            self._writer.add_message(
+                self._channel(topic, schema), log_time=max(log_time, 0), data=body, publish_time=now
+            )
+            self.count += 1
+
+    def _listen(
+        self, bus: Bus, key: str, kind: type, topic: str, schema: str, convert: Any
+    ) -> None:
+        port: InputPort[Any] = InputPort(topic, kind, policy=ConnPolicy("buffer", 4096))
+        port.bus = bus
+
+        def drain(p: InputPort[Any]) -> None:
+            while True:
+                status, value = p.read()
+                if status is not ReadStatus.NEW:
+                    return
+                self.write(topic, schema, convert(value), getattr(value, "stamp", None))
+
+        port.on_data = drain
+        port.connect(key)
+        self._ports.append(port)
+
+    def _on_state(self, sample: Any) -> None:
+        try:
+            message, _, _ = messages.decode(sample.payload.to_bytes(), EventMessage)
+        except messages.CodecError:
+            return
+        self.write(
+            "/fw/components",
+            "fw.ComponentState",
+            {"stamp": message.stamp, "component": message.source, **message.payload},
+            message.stamp,
+        )
+
+    def close(self) -> None:
+        """Stop listening and finish the file (summary and index)."""
+        for port in self._ports:
+            port.close()
+        self._state_sub.undeclare()
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            self._writer.finish()
+            self._file.close()
+
+
+def read_recording(path: str | Path) -> Iterator[tuple[str, float, dict[str, Any]]]:
+    """(topic, time in seconds, message) of every recorded message, in time order."""
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    try:
+        with Path(path).open("rb") as handle:
+            reader = make_reader(handle)
+            for _, channel, message in reader.iter_messages(log_time_order=True):
+                yield channel.topic, message.log_time / 1e9, json.loads(message.data)
+    except FileNotFoundError:
+        raise RecorderError(f"{path}: no such recording") from None
+    except (McapError, ValueError, json.JSONDecodeError) as exc:
+        raise RecorderError(f"{path}: not a readable fw recording ({exc})") from None
+
+
+def recording_metadata(path: str | Path) -> dict[str, str]:
+    """The `fw` metadata record of a recording (empty if there is none)."""
+    from mcap.reader import make_reader
+
+    try:
+        with Path(path).open("rb") as handle:
+            for record in make_reader(handle).iter_metadata():
+                if record.name == "fw":
+                    return dict(record.metadata)
+    except FileNotFoundError:
+        raise RecorderError(f"{path}: no such recording") from None
+    except Exception as exc:
+        raise RecorderError(f"{path}: not a readable fw recording ({exc})") from None
+    return {}

@@ -1,0 +1,143 @@
+"""Spec: `fw deploy` runs a topology as real processes; `fw send/status/ls` talk to it;
+the flight recording read back with `fw log` / `fw replay` matches what happened."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from framework.bus import Bus
+from framework.recorder import read_recording
+from framework.remote import RemoteComponent, RemoteError
+from tests.conftest import REPO, wait_until
+
+TOY = REPO / "tests" / "data" / "toy"
+
+
+def fw(*args, timeout=60):
+    return subprocess.run(
+        [sys.executable, "-m", "framework.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        cwd=REPO,
+    )
+
+
+@pytest.fixture
+def topology(tmp_path, bus_config):
+    text = (
+        (TOY / "toy.yaml")
+        .read_text()
+        .replace(
+            "topology: toy\n",
+            f"topology: toy\nbus: {{namespace: {bus_config.namespace}, "
+            f"hub_port: {bus_config.hub_port}}}\n",
+        )
+    )
+    (tmp_path / "toy_chart.yaml").write_text((TOY / "toy_chart.yaml").read_text())
+    path = tmp_path / "toy.yaml"
+    path.write_text(text)
+    return path
+
+
+def chart_state(bus):
+    try:
+        return RemoteComponent(bus, "coordinator", 0.5).call("active")
+    except RemoteError:
+        return {"active": [], "pending": {}}
+
+
+def settled(bus, state):
+    return wait_until(
+        lambda: state in chart_state(bus)["active"] and not chart_state(bus)["pending"], timeout=20
+    )
+
+
+def test_deploy_send_status_ls_log_replay(topology, bus_config, tmp_path):
+    record = tmp_path / "run.mcap"
+    deploy = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "framework.cli",
+            "deploy",
+            str(topology),
+            "--headless",
+            "--duration",
+            "12",
+            "--record",
+            str(record),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+    )
+    bus = Bus(bus_config)
+    try:
+        assert settled(bus, "Use_T1"), deploy.stderr.read() if deploy.poll() else "no chart"
+        sent = fw("send", "e_SWAP", "--topology", str(topology))
+        assert sent.returncode == 0 and sent.stdout.strip() == "sent e_SWAP"
+        assert settled(bus, "Use_T2")
+        refused = fw("send", "e_NOPE", "--topology", str(topology))
+        assert refused.returncode == 1
+        assert "unknown event 'e_NOPE'; the chart's events are:" in refused.stderr
+        assert "e_SWAP" in refused.stderr and "Traceback" not in refused.stderr
+        status = fw("status", "--topology", str(topology), "--json")
+        info = json.loads(status.stdout)
+        assert info["chart"]["active"] == ["Use_T2"]
+        assert info["containers"]["trackers"] == ["t1", "t2"]
+        listing = fw("ls", "--topology", str(topology))
+        assert "t2/out" in listing.stdout and "t2.out -> supervisor.inp" in listing.stdout
+    finally:
+        bus.close()
+    out, err = deploy.communicate(timeout=60)
+    assert deploy.returncode == 0, err
+    assert "transition Use_T1 -> Use_T2" in out and "fw: stopped" in err
+
+    records = list(read_recording(record))
+    topics = {topic for topic, _, _ in records}
+    assert {"/fw/chart", "/fw/config/request", "/fw/config/ack", "/fw/components"} <= topics
+    requests = [d["tag"] for t, _, d in records if t == "/fw/config/request"]
+    assert requests == ["setup", "tracker_1_up", "tracker_2_up"]
+    acks = [(d["tag"], d["ok"]) for t, _, d in records if t == "/fw/config/ack"]
+    assert acks == [(tag, True) for tag in requests]
+    stamps = [s for _, s, _ in records]
+    assert stamps == sorted(stamps)
+
+    log = fw("log", str(record))
+    assert log.returncode == 0 and "request    #3 tracker_2_up" in log.stdout
+    assert "component  supervisor: Running -> Stopped" in log.stdout
+    replay = fw("replay", str(record))
+    assert replay.returncode == 0, replay.stderr
+    assert replay.stdout.strip().splitlines()[-1] == "active: Use_T2"
+
+
+def test_topology_errors_are_one_line_each_and_nothing_starts(tmp_path):
+    (tmp_path / "toy_chart.yaml").write_text((TOY / "toy_chart.yaml").read_text())
+    bad = tmp_path / "bad.yaml"
+    bad.write_text((TOY / "toy.yaml").read_text().replace("{step: 1.0}", "{step: fast}"))
+    result = fw("deploy", str(bad), "--headless", "--duration", "1")
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert f"{bad}:" in result.stderr and "property t1.step expects float" in result.stderr
+    assert "starting" not in result.stderr
+
+
+def test_validate_checks_a_topology_with_its_chart(tmp_path):
+    assert fw("validate", str(TOY / "toy.yaml")).returncode == 0
+    (tmp_path / "toy_chart.yaml").write_text((TOY / "toy_chart.yaml").read_text())
+    bad = tmp_path / "bad.yaml"
+    bad.write_text((TOY / "toy.yaml").read_text().replace("  broken:\n", "  brokn:\n"))
+    result = fw("validate", str(bad))
+    assert result.returncode == 1 and "unknown-tag" in result.stdout
+
+
+def test_log_of_a_missing_or_corrupt_file_is_a_clear_error(tmp_path):
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not an mcap file at all")
+    for path in (tmp_path / "none.mcap", junk):
+        result = fw("log", str(path))
+        assert result.returncode == 1 and "Traceback" not in result.stderr
+        assert str(path) in result.stderr
