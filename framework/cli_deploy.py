@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from framework import keys
 from framework.errors import FwError
 from framework.statechart.events import Event, Listener
 from framework.statechart.model import State, Transition
@@ -158,6 +159,12 @@ def _join(topology_path: str) -> tuple[Any, Any]:
     bus = Bus(topology.bus)
     processes = len({c.process for c in topology.components.values()}) + 1  # + the deployer
     bus.wait_for_peers(processes, timeout=2.0)
+    # A container declares its queryables before its liveliness tokens and declarations
+    # travel in order: once every token is visible, every queryable can be asked.
+    expected = {keys.alive(name) for name in topology.components}
+    deadline = time.monotonic() + 2.0
+    while time.monotonic() < deadline and not expected <= set(bus.alive(keys.ALL_ALIVE, 0.5)):
+        time.sleep(0.02)
     return topology, bus
 
 
