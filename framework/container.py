@@ -53,6 +53,7 @@ class Container:
         self.activities: dict[str, Activity] = {}
         self._declared: list[Any] = []
         self._type_queryables: dict[str, Any] = {}
+        self._key_types: dict[str, str] = {}
         self._state_publishers: dict[str, Any] = {}
         self._lock = threading.RLock()
         self._closed = False
@@ -141,6 +142,11 @@ class Container:
         return {"port": target.full_name, "key": key}
 
     def _check_type(self, port: InputPort[Any], key: str) -> None:
+        """Refuse a key whose writers carry another type. The answer is cached per key
+        (a key's type does not change while its writers live), so switching between
+        keys already checked costs no network round trip."""
+        if self._key_types.get(key) == port.type_name:
+            return
         try:
             replies = self.bus.query(keys.port_type(key), timeout=0.5)
         except BusError:
@@ -153,6 +159,8 @@ class Container:
                     f"{key!r}: it carries {info['type']} (written by "
                     f"{info['writer']})"
                 )
+        if replies:
+            self._key_types[key] = port.type_name
 
     def prepare(self, component: str, port: str, key: str) -> dict[str, Any]:
         """Give an input port a standby subscription to `key` (instant later switch)."""
