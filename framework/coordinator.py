@@ -100,7 +100,7 @@ class Coordinator(Component):
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._lock = threading.RLock()
+        self._chart_lock = threading.RLock()  # not the lifecycle lock: stop() joins the loop
         self.last_events: list[str] = []
 
     # -- lifecycle -----------------------------------------------------------------
@@ -127,7 +127,7 @@ class Coordinator(Component):
     def _loop(self) -> None:
         interpreter = self.interpreter
         assert interpreter is not None
-        with self._lock:
+        with self._chart_lock:
             interpreter.start()
             self._publish_configuration()
         while not self._stop.is_set():
@@ -135,7 +135,7 @@ class Coordinator(Component):
             timeout = 0.5 if deadline is None else max(0.0, min(0.5, deadline - time.monotonic()))
             self._wake.wait(timeout)
             self._wake.clear()
-            with self._lock:
+            with self._chart_lock:
                 self._drain()
                 if interpreter.run():
                     self._publish_configuration()
@@ -207,7 +207,7 @@ class Coordinator(Component):
     @operation
     def inject(self, event: str, payload: dict[str, Any] | None = None) -> bool:
         """Queue an event for the chart (what `fw send` does through the bus)."""
-        with self._lock:
+        with self._chart_lock:
             if self.interpreter is None:
                 return False
             self.interpreter.queue(event, payload)
@@ -220,7 +220,7 @@ class Coordinator(Component):
         interpreter = self.interpreter
         if interpreter is None:
             return {"active": [], "pending": {}, "finished": False, "last_events": []}
-        with self._lock:
+        with self._chart_lock:
             return {
                 "active": interpreter.leaves,
                 "pending": interpreter.pending_configurations,

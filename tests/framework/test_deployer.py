@@ -101,3 +101,23 @@ def test_a_process_that_never_comes_up_is_named(toy, tmp_path):
     ):
         deployment.start()
     assert all(p.popen.poll() is not None for p in deployment.processes), "nothing left behind"
+
+
+def test_a_failing_step_rolls_back_the_connections_and_properties_it_changed(deployed, toy):
+    from framework.topology import Step
+
+    assert settled_in(deployed, "Use_T1")
+    configurator = deployed.configurator
+    before = dict(configurator.wiring)
+    outcome = configurator._run(
+        "partial",
+        [
+            Step("connect", "supervisor", "inp", key="t2/out", policy={"type": "data"}),
+            Step("call", "supervisor", "fail"),
+        ],
+    )
+    assert not outcome.ok and outcome.step == "call supervisor.fail"
+    assert outcome.rolled_back == 1
+    assert configurator.wiring == before
+    info = RemoteComponent(deployed.hub, "supervisor").describe()
+    assert info["inputs"][0]["key"] == "t1/out", "the supervisor reads tracker 1 again"
