@@ -8,7 +8,6 @@ from framework.deployer import Deployment
 from framework.remote import RemoteComponent
 from framework.statechart.validator import validate_file
 from framework.topology import check_topology, load_topology
-
 from tests.conftest import REPO, wait_until
 
 DEMO = REPO / "topologies" / "demo.yaml"
@@ -21,11 +20,13 @@ def test_the_demo_topology_and_chart_are_clean():
 
 def test_the_demo_runs_swaps_stops_and_resumes(bus_config, tmp_path):
     topology = load_topology(DEMO)
-    topology.bus = dataclasses.replace(topology.bus, namespace=bus_config.namespace,
-                                       hub_port=bus_config.hub_port)
+    topology.bus = dataclasses.replace(
+        topology.bus, namespace=bus_config.namespace, hub_port=bus_config.hub_port
+    )
     deployment = Deployment(topology, tmp_path)
     deployment.start()
     try:
+
         def leaf():
             return deployment.coordinator.active()["active"]
 
