@@ -105,8 +105,37 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     interactive = sys.stdout.isatty() and not args.headless
     listeners: list[Listener] = [] if interactive else [_Printer()]
     recorder = None
-    deployment = Deployment(topology, workdir, listeners=listeners)
-    n = len({c.process for c in topology.components.values()})
+    scenario = None
+    if args.scenario:
+        from framework.scenario import load_scenario
+        from framework.statechart.loader import load_statechart
+        from framework.statechart.model import BUILTIN_EVENTS
+
+        events = None
+        if topology.statechart is not None:
+            events = set(load_statechart(topology.statechart).events) | set(BUILTIN_EVENTS)
+        operations = {
+            f"{n}.{op}"
+            for n, c in topology.components.items()
+            if c.info
+            for op in c.info.operations
+        }
+        scenario = load_scenario(args.scenario, events, operations)
+    printer = next((x for x in listeners if isinstance(x, _Printer)), None)
+    deployment = Deployment(
+        topology,
+        workdir,
+        listeners=listeners,
+        host=args.host,
+        scenario=scenario,
+        report=printer.line if printer else None,
+    )
+    from framework.deployer import LOCAL, host_of
+
+    mine = args.host or LOCAL
+    n = len(
+        {c.process for c in topology.components.values() if host_of(topology, c.process) == mine}
+    )
     print(
         f"fw: {topology.name}: starting {n} process(es), {len(topology.components)} "
         f"component(s); logs in {workdir}",
@@ -388,6 +417,17 @@ def add_commands(sub: Any) -> None:
         help="print one line per chart step instead of the live screen",
     )
     p.add_argument("--record", metavar="FILE", help="write a flight recording (MCAP)")
+    p.add_argument(
+        "--host",
+        metavar="NAME",
+        help="start only the processes placed on host NAME (the Coordinator and "
+        "Configurator run where --host is not given)",
+    )
+    p.add_argument(
+        "--scenario",
+        metavar="FILE",
+        help="timed events and operation calls to play (see docs/topologies.md)",
+    )
     p.add_argument("--workdir", metavar="DIR", help="where process logs go (kept)")
     p.add_argument("--keep-logs", action="store_true", help="keep the temporary log folder")
     p.set_defaults(func=cmd_deploy)

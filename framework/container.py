@@ -401,14 +401,22 @@ def build(spec: dict[str, Any], bus: Bus) -> Container:
 def serve(spec: dict[str, Any], ready: Callable[[], None] | None = None) -> int:
     """Run a container process until SIGTERM/SIGINT or a shutdown request."""
     done = threading.Event()
+    starting = True
+
+    def on_signal(*_: object) -> None:
+        done.set()
+        if starting:  # still constructing components: give up at once
+            raise SystemExit(0)
+
     for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: done.set())
+        signal.signal(sig, on_signal)
     bus = Bus(BusConfig.from_dict(spec["bus"]), hub=spec.get("hub", False))
     try:
         container = build(spec, bus)
-    except Exception:
+    except BaseException:
         bus.close()
         raise
+    starting = False
     if ready is not None:
         ready()
     while not done.is_set() and not bus.closed:

@@ -62,6 +62,14 @@ class Process:
         return " | ".join(text[-lines:])
 
 
+LOCAL = "local"
+
+
+def host_of(topology: Topology, process: str) -> str:
+    """The host a process runs on (`local` unless the topology names one)."""
+    return topology.processes.get(process, {}).get("host", LOCAL)
+
+
 def container_spec(topology: Topology, process: str) -> dict[str, Any]:
     """What `python -m framework.container` needs to host one process of the topology."""
     components = []
@@ -98,6 +106,10 @@ class Deployment:
     workdir: Path
     listeners: list[Listener] = field(default_factory=list)
     liveliness_timeout: float = 30.0
+    host: str | None = None
+    """Start only this host's processes (`None`: the control host, see `host_of`)."""
+    scenario: Any = None
+    report: Any = None
     processes: list[Process] = field(default_factory=list)
     hub: Bus | None = None
     control: Container | None = None
@@ -121,8 +133,14 @@ class Deployment:
         topo = self.topology
         chart = load_statechart(topo.statechart) if topo.statechart is not None else None
         self.workdir.mkdir(parents=True, exist_ok=True)
-        self.hub = Bus(topo.bus, hub=True)
-        names = sorted({c.process for c in topo.components.values()})
+        control = self.host in (None, LOCAL)
+        self.hub = Bus(topo.bus, hub=control)
+        mine = LOCAL if self.host is None else self.host
+        names = sorted(
+            {c.process for c in topo.components.values() if host_of(topo, c.process) == mine}
+        )
+        if not names and not control:
+            raise DeployError(f"no process of topology {topo.name!r} runs on host {mine!r}")
         for name in names:
             settings = topo.processes.get(name, {})
             log = self.workdir / f"{name}.stderr.log"
@@ -137,7 +155,11 @@ class Deployment:
                     container_spec(topo, name), stdout=subprocess.DEVNULL, stderr=err
                 )
             self.processes.append(process)
-        self._wait_for_liveliness()
+        self._wait_for_liveliness(
+            None if control else [c for p in self.processes for c in p.components]
+        )
+        if not control:
+            return  # another host runs the Coordinator and the Configurator
         self.control = Container("control", self.hub)
         self.configurator = self.control.add(
             Configurator("configurator", topo, self.hub),
@@ -172,13 +194,26 @@ class Deployment:
             self.run_chart()
 
     def run_chart(self) -> None:
-        """Start the Coordinator (the chart begins with its setup configurations)."""
+        """Start the Coordinator (the chart begins with its setup configurations) and the
+        scenario, if any."""
         if self.coordinator is not None and self.coordinator.state.value != "Running":
             self.coordinator.start()
+            if self.scenario is not None:
+                from framework.remote import RemoteComponent
+                from framework.scenario import ScenarioRunner
 
-    def _wait_for_liveliness(self) -> None:
+                def call(ref: str, args: dict[str, Any]) -> Any:
+                    component, _, op = ref.partition(".")
+                    return RemoteComponent(self.hub, component).call(op, **args)  # type: ignore[arg-type]
+
+                self._runner = ScenarioRunner(
+                    self.scenario, self.send, call, self.report or (lambda text: None)
+                )
+                self._runner.start()
+
+    def _wait_for_liveliness(self, components: list[str] | None = None) -> None:
         assert self.hub is not None
-        expected = {keys.alive(c) for c in self.topology.components}
+        expected = {keys.alive(c) for c in (components or self.topology.components)}
         deadline = time.monotonic() + self.liveliness_timeout
         alive: set[str] = set()
         while time.monotonic() < deadline:
@@ -207,6 +242,9 @@ class Deployment:
 
     def stop(self) -> None:
         """Shut down in order: `shutdown: first` processes, then the others, then control."""
+        runner = getattr(self, "_runner", None)
+        if runner is not None:
+            runner.stop()
         if self.coordinator is not None:
             with contextlib.suppress(Exception):
                 if self.coordinator.state.value == "Running":

@@ -151,6 +151,7 @@ def test_sigterm_shuts_down_in_order_and_exits_cleanly(process, hub):
     proc = process("c1", [counter("polite")])
     states = []
     sub = hub.subscribe(keys.state("polite"), lambda s: states.append(bytes(s.payload.to_bytes())))
+    assert wait_until(lambda: any(b"Running" in s for s in states)), "subscription routed"
     proc.send_signal(signal.SIGTERM)
     assert proc.wait(20) == 0
     assert keys.alive("polite") not in hub.alive(keys.ALL_ALIVE, 0.5)

@@ -121,3 +121,74 @@ def test_a_failing_step_rolls_back_the_connections_and_properties_it_changed(dep
     assert configurator.wiring == before
     info = RemoteComponent(deployed.hub, "supervisor").describe()
     assert info["inputs"][0]["key"] == "t1/out", "the supervisor reads tracker 1 again"
+
+
+def test_a_scenario_plays_timed_events_and_calls(toy, tmp_path, write):
+    from framework.scenario import load_scenario
+
+    path = write(
+        """
+        scenario: swap
+        steps:
+          - {at: 0.5s, send: e_SWAP}
+          - {at: 0.2s, call: supervisor.received}
+        """,
+        "scenario.yaml",
+    )
+    scenario = load_scenario(path, {"e_SWAP", "e_BREAK"}, {"supervisor.received"})
+    assert [s.at for s in scenario.steps] == [0.2, 0.5], "played in time order"
+    reports = []
+    deployment = Deployment(toy, tmp_path, scenario=scenario, report=reports.append)
+    deployment.start()
+    try:
+        assert settled_in(deployment, "Use_T2"), "the scenario's e_SWAP arrived by itself"
+        assert any("send e_SWAP" in r for r in reports)
+        assert any("call supervisor.received" in r for r in reports)
+    finally:
+        deployment.stop()
+
+
+def test_a_bad_scenario_is_refused_with_located_errors(write):
+    from framework.errors import FindingsError
+    from framework.scenario import load_scenario
+
+    path = write(
+        "scenario: s\nsteps:\n  - {at: 1s, send: e_SWP}\n  - {at: 2s, call: x.y}\n", "bad.yaml"
+    )
+    with pytest.raises(FindingsError) as err:
+        load_scenario(path, {"e_SWAP"}, {"supervisor.received"})
+    lines = [f.one_line() for f in err.value.findings]
+    assert lines[0].startswith(f"{path}:3:5: steps[0]: error[unknown-event]")
+    assert "no operation 'x.y'" in lines[1]
+    bad = write("scenario: s\nsteps:\n  - {at: soon, send: e_SWAP}\n", "bad2.yaml")
+    with pytest.raises(FindingsError, match="schema"):
+        load_scenario(bad)
+
+
+def test_processes_placed_on_another_host_are_started_by_that_hosts_deploy(toy, tmp_path):
+    import threading
+
+    toy.processes["trackers"] = {"host": "trackhost"}
+    control = Deployment(toy, tmp_path / "control")
+    failure = []
+    thread = threading.Thread(target=lambda: _start(control, failure))
+    thread.start()
+    other = Deployment(toy, tmp_path / "other", host="trackhost")
+    assert wait_until(lambda: control.hub is not None, timeout=10)
+    other.start()
+    try:
+        assert [p.name for p in other.processes] == ["trackers"] and other.coordinator is None
+        thread.join(40)
+        assert not failure, failure
+        assert [p.name for p in control.processes] == ["control_side"]
+        assert settled_in(control, "Use_T1"), "the chart runs across both hosts' processes"
+    finally:
+        control.stop()
+        other.stop()
+
+
+def _start(deployment, failure):
+    try:
+        deployment.start()
+    except Exception as exc:  # reported by the test
+        failure.append(exc)
