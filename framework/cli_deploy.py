@@ -101,6 +101,13 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     from framework.topology import load_topology
 
     topology = load_topology(args.topology)
+    for item in args.record_samples:
+        key, _, kind = item.partition("=")
+        if not key or not kind:
+            raise FwError(f"--record-samples takes KEY=TYPE, not {item!r}")
+        from framework.messages import resolve_type
+
+        resolve_type(kind)
     workdir = Path(args.workdir) if args.workdir else Path(tempfile.mkdtemp(prefix="fw-"))
     interactive = sys.stdout.isatty() and not args.headless
     listeners: list[Listener] = [] if interactive else [_Printer()]
@@ -147,9 +154,11 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         if args.record:
             from framework.recorder import FlightRecorder
 
+            samples = dict(item.split("=", 1) for item in args.record_samples)
             recorder = FlightRecorder(
                 args.record,
                 deployment.hub,
+                samples,
                 metadata={
                     "topology": str(Path(args.topology).resolve()),
                     "statechart": str(topology.statechart.resolve()) if topology.statechart else "",
@@ -417,6 +426,13 @@ def add_commands(sub: Any) -> None:
         help="print one line per chart step instead of the live screen",
     )
     p.add_argument("--record", metavar="FILE", help="write a flight recording (MCAP)")
+    p.add_argument(
+        "--record-samples",
+        action="append",
+        default=[],
+        metavar="KEY=TYPE",
+        help="also record the samples of KEY (message type TYPE, e.g. certus/cto=Pose)",
+    )
     p.add_argument(
         "--host",
         metavar="NAME",

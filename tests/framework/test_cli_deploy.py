@@ -69,6 +69,8 @@ def test_deploy_send_status_ls_log_replay(topology, bus_config, tmp_path):
             "12",
             "--record",
             str(record),
+            "--record-samples",
+            "t1/out=Scalar",
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -100,6 +102,8 @@ def test_deploy_send_status_ls_log_replay(topology, bus_config, tmp_path):
     records = list(read_recording(record))
     topics = {topic for topic, _, _ in records}
     assert {"/fw/chart", "/fw/config/request", "/fw/config/ack", "/fw/components"} <= topics
+    samples = [d["value"] for t, _, d in records if t == "/fw/samples/t1/out"]
+    assert len(samples) > 10 and samples == sorted(samples), "port samples, in order"
     requests = [d["tag"] for t, _, d in records if t == "/fw/config/request"]
     assert requests == ["setup", "tracker_1_up", "tracker_2_up"]
     acks = [(d["tag"], d["ok"]) for t, _, d in records if t == "/fw/config/ack"]
