@@ -242,9 +242,10 @@ class Component:
 
     def _run_hook(self, hook: str) -> tuple[bool, str]:
         """(True, '') if the hook succeeded; (False, why) if it returned False; raises on error."""
+        self.last_error = ""
         result = getattr(self, hook)()
-        if result is False:
-            return False, f"{hook} returned False"
+        if result is False:  # keep the reason the hook gave, if it set one
+            return False, self.last_error or f"{hook} returned False"
         return True, ""
 
     def _guarded(self, op: str, hook: str, success: State, failure: State) -> bool:

@@ -1,0 +1,290 @@
+"""NDI Polaris/Vicra driver: the combined API over pyserial, publishing tool poses.
+
+configure: open the port, INIT, COMM (the device answers OKAY at the old rate,
+then both switch), and for each tool PHRQ, PVWR (tool definition in 64-byte
+chunks), PINIT, PENA. start: TSTART. Each update: BX (or TX), one Pose per
+tool on its output port (`cto`, `rto`; metres, quaternion w-x-y-z, RMS error,
+frame number, validity). MISSING and DISABLED tools are published as invalid
+poses. Garbage bytes and CRC errors are counted and skipped; after
+`reconnect_after` failed cycles in a row the driver reopens the port and
+initialises the device again (a cable loss and re-plug).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import termios
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import serial
+
+from components.tracking import ndi
+from components.tracking.vicra_sim import make_rom
+from framework.component import Component, Out, operation
+from framework.errors import FwError
+from framework.messages import Pose
+from framework.properties import prop
+from framework.yamlio import load_yaml
+
+TOOL_NAMES = ("cto", "rto")
+_LINK_ERRORS = (OSError, serial.SerialException, termios.error)
+BAUD_TO_CODE = {v: k for k, v in ndi.BAUD_CODES.items()}
+
+
+class DriverError(FwError):
+    """The device or its configuration cannot be used (the reason says why)."""
+
+
+@dataclass
+class ToolSpec:
+    """A tool to track: its name (output port), markers (mm) and definition bytes."""
+
+    name: str
+    markers: list[list[float]]
+    rom: bytes
+
+
+def load_tools(path: str | Path) -> list[ToolSpec]:
+    """Tools from YAML (`tools: {cto: {markers: [[x,y,z], ...], rom: file}}`), checked."""
+    doc = load_yaml(path)
+    data = doc.data if isinstance(doc.data, dict) else {}
+    tools = data.get("tools")
+    if not isinstance(tools, dict) or not tools:
+        raise DriverError(f"{doc.location(())}: a tools file needs a `tools:` mapping")
+    out = []
+    for name, spec in tools.items():
+        where = doc.location(("tools", name))
+        if name not in TOOL_NAMES:
+            raise DriverError(
+                f"{where}: unknown tool {name!r} (this driver publishes {', '.join(TOOL_NAMES)})"
+            )
+        markers = spec.get("markers") if isinstance(spec, dict) else None
+        if not (
+            isinstance(markers, list)
+            and len(markers) >= 3
+            and all(
+                isinstance(m, list) and len(m) == 3 and all(isinstance(v, (int, float)) for v in m)
+                for m in markers
+            )
+        ):
+            raise DriverError(f"{where}: `markers` must list at least 3 [x, y, z] points (mm)")
+        rom_path = spec.get("rom")
+        if rom_path:
+            try:
+                rom = (Path(doc.file).parent / rom_path).read_bytes()
+            except OSError as exc:
+                raise DriverError(
+                    f"{where}: cannot read tool definition {rom_path!r}: {exc.strerror}"
+                ) from None
+        else:
+            rom = make_rom(markers, name)
+        out.append(ToolSpec(name, markers, rom))
+    return out
+
+
+class NdiTracker(Component):
+    """The Polaris Vicra (or any NDI combined-API tracker) as a component."""
+
+    emits = ()
+    port = prop(str, "", doc="serial device (e.g. /dev/ttyUSB0)")
+    baud = prop(int, 115200, choices=sorted(BAUD_TO_CODE), doc="baud rate after COMM")
+    tools_file = prop(str, "", doc="tools YAML (markers, tool definition files)")
+    binary = prop(bool, True, doc="stream with BX (binary) instead of TX (text)")
+    timeout = prop(float, 0.25, unit="s", min=0.01, max=5.0, doc="reply timeout")
+    reconnect_after = prop(int, 3, min=1, max=100, doc="failed cycles before reconnecting")
+    frame = prop(str, "vicra", doc="frame name written in every pose")
+    cto = Out(Pose, doc="calibration tool optical (on the end-effector)")
+    rto = Out(Pose, doc="reference tool optical (on the table)")
+
+    def __init__(self, name: str):
+        super().__init__(name)
+        self.serial: Any = None
+        self.handles: dict[int, str] = {}
+        self.counters = {
+            "frames": 0,
+            "crc_errors": 0,
+            "timeouts": 0,
+            "device_errors": 0,
+            "reconnects": 0,
+            "failed_cycles": 0,
+        }
+        self.tools: list[ToolSpec] = []
+
+    # -- lifecycle -------------------------------------------------------------------
+    def configure_hook(self) -> bool:
+        try:
+            if not self.tools_file:
+                raise DriverError("property tools_file is empty: name the tools YAML")
+            self.tools = load_tools(self.tools_file)
+            self._connect()
+        except FwError as exc:  # a configuration problem: stay PreOperational, say why
+            self.last_error = str(exc)
+            return False
+        return True
+
+    def start_hook(self) -> bool:
+        self._command("TSTART")
+        return True
+
+    def stop_hook(self) -> None:
+        with contextlib.suppress(Exception):
+            self._command("TSTOP")
+
+    def cleanup_hook(self) -> None:
+        self._close()
+
+    def update_hook(self) -> None:
+        if self.serial is None:
+            self._try_reconnect()
+            return
+        try:
+            tools = self._poll()
+        except ndi.NdiError as exc:
+            key = "crc_errors" if "CRC" in str(exc) else "device_errors"
+            self.counters[key] += 1
+            self._failed(str(exc))
+            return
+        except TimeoutError as exc:
+            self.counters["timeouts"] += 1
+            self._failed(str(exc))
+            return
+        except _LINK_ERRORS as exc:  # the device node went away (cable loss)
+            self._failed(f"serial link lost: {exc}")
+            self._close()
+            return
+        self.counters["failed_cycles"] = 0
+        self.counters["frames"] += 1
+        stamp = time.time()
+        for tool in tools:
+            name = self.handles.get(tool.handle)
+            if name is None:
+                continue
+            valid = tool.status == ndi.VALID and ndi.quaternion_is_unit(tool.quaternion)
+            position = tuple(v / 1000.0 for v in tool.translation) if valid else (0.0, 0.0, 0.0)
+            pose = Pose(
+                position,
+                tuple(tool.quaternion) if valid else (1.0, 0.0, 0.0, 0.0),
+                stamp,
+                tool.error / 1000.0 if valid else 0.0,
+                tool.frame,
+                valid,
+                self.frame,
+                name,
+            )
+            self.outputs[name].write(pose)
+
+    # -- the device ------------------------------------------------------------------
+    def _open(self, baud: int) -> None:
+        path = Path(self.port)
+        if not self.port:
+            raise DriverError("property port is empty: name the serial device")
+        if not path.exists():
+            raise DriverError(
+                f"serial device {self.port!r} does not exist (is the tracker plugged in?)"
+            )
+        try:
+            self.serial = serial.Serial(
+                self.port, baudrate=baud, timeout=self.timeout, write_timeout=self.timeout
+            )
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise DriverError(f"cannot open {self.port!r} as a serial port: {exc}") from None
+
+    def _close(self) -> None:
+        if self.serial is not None:
+            with contextlib.suppress(Exception):
+                self.serial.close()
+        self.serial = None
+
+    def _connect(self) -> None:
+        """Open at 9600 baud, INIT, switch baud, set up every tool."""
+        self._close()
+        self._open(9600)
+        self.serial.reset_input_buffer()
+        try:
+            self._command("INIT")
+        except (TimeoutError, ndi.NdiError) as exc:
+            self._close()
+            raise DriverError(f"no NDI device answers on {self.port!r}: {exc}") from None
+        code = BAUD_TO_CODE[self.baud]
+        self._command("COMM", f"{code}0000")  # OKAY comes at the old rate
+        self.serial.baudrate = self.baud
+        self.handles = {}
+        for tool in self.tools:
+            handle = int(self._command("PHRQ", "*********1****"), 16)
+            for address in range(0, len(tool.rom), 64):
+                chunk = tool.rom[address : address + 64].ljust(64, b"\0")
+                self._command("PVWR", f"{handle:02X}{address:04X}{chunk.hex().upper()}")
+            self._command("PINIT", f"{handle:02X}")
+            self._command("PENA", f"{handle:02X}D")
+            self.handles[handle] = tool.name
+
+    def _command(self, name: str, params: str = "") -> str:
+        self.serial.write(ndi.command(name, params))
+        return ndi.parse_reply(self._read_line())
+
+    def _read_line(self) -> bytes:
+        deadline = time.monotonic() + self.timeout
+        data = b""
+        while time.monotonic() < deadline:
+            chunk = self.serial.read_until(b"\r")
+            data += chunk
+            if data.endswith(b"\r"):
+                return data
+        raise TimeoutError(f"no reply within {self.timeout:g} s")
+
+    def _poll(self) -> list[ndi.ToolFrame]:
+        """One BX/TX round: returns every tool's frame (garbage before the reply skipped)."""
+        self.serial.reset_input_buffer()
+        if not self.binary:
+            self.serial.write(ndi.command("TX", "0801"))
+            tools, _ = ndi.decode_tx(ndi.parse_reply(self._read_line()))
+            return tools
+        self.serial.write(ndi.command("BX", "0801"))
+        deadline = time.monotonic() + self.timeout
+        buffer = b""
+        while time.monotonic() < deadline:
+            buffer += self.serial.read(max(1, self.serial.in_waiting))
+            start = buffer.find(b"\xc4\xa5")
+            if start < 0:
+                if b"\r" in buffer and b"ERROR" in buffer:  # a text error instead of BX
+                    ndi.parse_reply(buffer[buffer.index(b"ERROR") : buffer.index(b"\r") + 1])
+                buffer = buffer[-1:]
+                continue
+            if len(buffer) - start < 6:
+                continue
+            total = ndi.bx_length(buffer[start : start + 6])
+            if len(buffer) - start >= total:
+                tools, _ = ndi.decode_bx(buffer[start : start + total])
+                return tools
+        raise TimeoutError(f"no BX reply within {self.timeout:g} s")
+
+    def _failed(self, reason: str) -> None:
+        self.counters["failed_cycles"] += 1
+        self.last_error = reason
+        if self.counters["failed_cycles"] >= self.reconnect_after:
+            self._close()
+
+    def _try_reconnect(self) -> None:
+        try:
+            self._connect()
+            self._command("TSTART")
+        except (DriverError, TimeoutError, ndi.NdiError, *_LINK_ERRORS) as exc:
+            self.last_error = f"reconnecting: {exc}"
+            self._close()
+            return
+        self.counters["reconnects"] += 1
+        self.counters["failed_cycles"] = 0
+        self.last_error = ""
+
+    @operation
+    def status(self) -> dict[str, Any]:
+        """Connected or not, counters, tool handles, last error."""
+        return {
+            "connected": self.serial is not None,
+            **self.counters,
+            "handles": {f"{h:02X}": n for h, n in self.handles.items()},
+            "last_error": self.last_error,
+        }

@@ -1,0 +1,408 @@
+"""A simulated NDI Polaris Vicra on a pseudo-terminal, speaking the combined API.
+
+The device listens on a pty behind a stable symlink (like `/dev/serial/by-id/...`),
+so a driver opens it with pyserial exactly as it would open the USB adapter, and
+a cable loss removes the device node and a re-plug creates it again. It answers
+INIT, COMM, VER, BEEP, PHSR, PHRQ, PVWR, PINIT, PENA, PDIS, PHF, TSTART, TSTOP, BX
+and TX, with and without CRC (upper- or lower-case hex), at 20 Hz with 0.25 mm
+RMS noise, inside the Vicra's pyramid field of view; tools can be occluded, and
+faults injected: `silent` (stops answering), `bad_crc` (replies with a wrong
+CRC), `garbage` (random bytes before each reply).
+
+The field of view is an approximation of the Vicra pyramid (557-1336 mm from the
+sensor, +-26 deg horizontally, +-23 deg vertically), enough to put a tool in or out.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import random
+import select
+import struct
+import threading
+import time
+import tty
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from components.tracking import ndi
+from framework.component import Component, operation
+from framework.properties import prop
+
+NEAR_MM, FAR_MM = 557.0, 1336.0
+HALF_X, HALF_Y = math.radians(26.0), math.radians(23.0)
+ROM_MAGIC = b"FWROM1"
+
+
+def in_field_of_view(translation_mm: tuple[float, float, float]) -> bool:
+    """True if a point (sensor frame, mm, z along the optical axis) is in the pyramid."""
+    x, y, z = translation_mm
+    return (
+        NEAR_MM <= z <= FAR_MM and abs(x) <= z * math.tan(HALF_X) and abs(y) <= z * math.tan(HALF_Y)
+    )
+
+
+def make_rom(markers_mm: list[list[float]], name: str = "") -> bytes:
+    """A tool definition in fw's stand-in for NDI's .rom format: a 16-byte part name
+    (as the real files carry a part number) and the markers in mm."""
+    data = ROM_MAGIC + name.encode("ascii")[:16].ljust(16, b"\0") + bytes([len(markers_mm)])
+    for marker in markers_mm:
+        data += struct.pack("<3f", *marker)
+    return data + bytes(-len(data) % 64)
+
+
+def read_rom(data: bytes) -> tuple[str, list[tuple[float, float, float]]]:
+    """(part name, markers) of a tool definition; ValueError if it is not one."""
+    if not data.startswith(ROM_MAGIC) or len(data) < 23:
+        raise ValueError("not a tool definition")
+    name = data[6:22].rstrip(b"\0").decode("ascii", "replace")
+    count = data[22]
+    if len(data) < 23 + 12 * count:
+        raise ValueError("truncated tool definition")
+    return name, [struct.unpack_from("<3f", data, 23 + 12 * i) for i in range(count)]
+
+
+@dataclass
+class SimTool:
+    """A tool as the device knows it."""
+
+    handle: int
+    rom: bytearray = field(default_factory=bytearray)
+    name: str = ""
+    markers: list[tuple[float, float, float]] = field(default_factory=list)
+    initialized: bool = False
+    enabled: bool = False
+
+
+@dataclass
+class ScenePose:
+    """Where a named tool is (sensor frame) and whether something hides it."""
+
+    translation: tuple[float, float, float] = (0.0, 0.0, 900.0)
+    quaternion: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    occluded: bool = False
+
+
+class VicraDevice:
+    """The device itself: a thread answering on the pty master."""
+
+    def __init__(self, link: str | Path, rate: float = 20.0, noise_mm: float = 0.25, seed: int = 0):
+        self.link = Path(link)
+        self.rate, self.noise_mm = rate, noise_mm
+        self.random = random.Random(seed)
+        self.scene: dict[str, ScenePose] = {}  # by the part name in the tool definition
+        self.fault = ""
+        self.commands: list[str] = []
+        self._lock = threading.Lock()
+        self._master: int | None = None
+        self._slave: int | None = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._reset_state()
+
+    def _reset_state(self) -> None:
+        self.initialized = False
+        self.tracking = False
+        self.baud = 9600
+        self.tools: dict[int, SimTool] = {}
+        self._next_handle = 0x0A
+        self._t0 = time.monotonic()
+        self._noise_frame = -1
+        self._noise: dict[int, tuple[float, float, float]] = {}
+
+    # -- the cable ---------------------------------------------------------------------
+    def plug(self) -> str:
+        """Create the device node (a new pty behind the stable link); returns the link."""
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        self._master, self._slave = master, slave
+        self.link.parent.mkdir(parents=True, exist_ok=True)
+        with contextlib.suppress(FileNotFoundError):
+            self.link.unlink()
+        self.link.symlink_to(os.ttyname(slave))
+        self._reset_state()
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._serve, name="vicra-sim", daemon=True)
+        self._thread.start()
+        return str(self.link)
+
+    def unplug(self) -> None:
+        """Pull the cable: the device node disappears and the open port breaks."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(1.0)
+        with contextlib.suppress(FileNotFoundError):
+            self.link.unlink()
+        for fd in (self._master, self._slave):
+            if fd is not None:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        self._master = self._slave = None
+
+    # -- serving -------------------------------------------------------------------
+    def _serve(self) -> None:
+        buffer = b""
+        master = self._master
+        while not self._stop.is_set() and master is not None:
+            ready, _, _ = select.select([master], [], [], 0.05)
+            if not ready:
+                continue
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:
+                return
+            buffer += chunk
+            while b"\r" in buffer:
+                line, _, buffer = buffer.partition(b"\r")
+                response = self._answer(line)
+                if response is None:
+                    continue
+                if self.fault == "garbage":
+                    response = bytes(self.random.randrange(256) for _ in range(7)) + response
+                with contextlib.suppress(OSError):
+                    os.write(master, response)
+
+    def _answer(self, line: bytes) -> bytes | None:
+        if self.fault == "silent" or not line.strip():
+            return None
+        try:
+            name, params, _ = ndi.parse_command(line)
+        except ndi.NdiError:
+            return self._reply("ERROR04")
+        self.commands.append(name)
+        handler = getattr(self, f"_cmd_{name.lower()}", None)
+        if handler is None:
+            return self._reply("ERROR01")
+        if not self.initialized and name not in ("INIT", "COMM", "VER", "BEEP"):
+            return self._reply("ERROR01")
+        with self._lock:
+            return handler(params)
+
+    def _reply(self, text: str) -> bytes:
+        frame = ndi.reply(text)
+        if self.fault == "bad_crc":
+            frame = frame[:-5] + (b"0000" if frame[-5:-1] != b"0000" else b"FFFF") + b"\r"
+        return frame
+
+    # -- commands ------------------------------------------------------------------
+    def _cmd_init(self, params: str) -> bytes:
+        self._reset_state()
+        self.initialized = True
+        return self._reply("OKAY")
+
+    def _cmd_comm(self, params: str) -> bytes:
+        if not params or params[0] not in ndi.BAUD_CODES:
+            return self._reply("ERROR07")
+        self.baud = ndi.BAUD_CODES[params[0]]  # answered at the old rate, then switched
+        return self._reply("OKAY")
+
+    def _cmd_ver(self, params: str) -> bytes:
+        return self._reply("Polaris Vicra Control Firmware\nfw simulator 1.0\n")
+
+    def _cmd_beep(self, params: str) -> bytes:
+        return self._reply("1")
+
+    def _cmd_phsr(self, params: str) -> bytes:
+        kind = params[:2] or "00"
+        picked = [
+            t
+            for t in self.tools.values()
+            if kind == "00"
+            or (kind == "02" and not t.initialized)
+            or (kind == "03" and t.initialized and not t.enabled)
+            or (kind == "04" and t.enabled)
+        ]
+        text = f"{len(picked):02X}" + "".join(
+            f"{t.handle:02X}{(0x01 | (0x10 if t.initialized else 0) | (0x20 if t.enabled else 0)):03X}"
+            for t in picked
+        )
+        return self._reply(text)
+
+    def _cmd_phrq(self, params: str) -> bytes:
+        if len(self.tools) >= 6:  # the Vicra tracks at most 6 rigid bodies
+            return self._reply("ERROR0E")
+        handle = self._next_handle
+        self._next_handle += 1
+        self.tools[handle] = SimTool(handle)
+        return self._reply(f"{handle:02X}")
+
+    def _tool(self, params: str) -> SimTool | None:
+        try:
+            return self.tools.get(int(params[:2], 16))
+        except ValueError:
+            return None
+
+    def _cmd_pvwr(self, params: str) -> bytes:
+        tool = self._tool(params)
+        if tool is None:
+            return self._reply("ERROR0D")
+        try:
+            address = int(params[2:6], 16)
+            data = bytes.fromhex(params[6:])
+        except ValueError:
+            return self._reply("ERROR07")
+        if len(data) != 64:
+            return self._reply("ERROR07")
+        end = address + 64
+        if len(tool.rom) < end:
+            tool.rom.extend(bytes(end - len(tool.rom)))
+        tool.rom[address:end] = data
+        return self._reply("OKAY")
+
+    def _cmd_pinit(self, params: str) -> bytes:
+        tool = self._tool(params)
+        if tool is None:
+            return self._reply("ERROR0D")
+        try:
+            tool.name, tool.markers = read_rom(bytes(tool.rom))
+        except ValueError:
+            return self._reply("ERROR0C")
+        tool.initialized = True
+        return self._reply("OKAY")
+
+    def _cmd_pena(self, params: str) -> bytes:
+        tool = self._tool(params)
+        if tool is None or not tool.initialized:
+            return self._reply("ERROR0D")
+        tool.enabled = True
+        return self._reply("OKAY")
+
+    def _cmd_pdis(self, params: str) -> bytes:
+        tool = self._tool(params)
+        if tool is None:
+            return self._reply("ERROR0D")
+        tool.enabled = False
+        return self._reply("OKAY")
+
+    def _cmd_phf(self, params: str) -> bytes:
+        tool = self._tool(params)
+        if tool is None:
+            return self._reply("ERROR0D")
+        del self.tools[tool.handle]
+        return self._reply("OKAY")
+
+    def _cmd_tstart(self, params: str) -> bytes:
+        self.tracking = True
+        self._t0 = time.monotonic()
+        return self._reply("OKAY")
+
+    def _cmd_tstop(self, params: str) -> bytes:
+        self.tracking = False
+        return self._reply("OKAY")
+
+    def _frames(self) -> list[ndi.ToolFrame]:
+        frame = int((time.monotonic() - self._t0) * self.rate)
+        if frame != self._noise_frame:  # one noise sample per device frame
+            self._noise_frame = frame
+            sigma = self.noise_mm / math.sqrt(3.0)  # per axis, so the 3-D RMS is noise_mm
+            self._noise = {
+                h: (
+                    self.random.gauss(0, sigma),
+                    self.random.gauss(0, sigma),
+                    self.random.gauss(0, sigma),
+                )
+                for h in self.tools
+            }
+        out = []
+        for handle, tool in sorted(self.tools.items()):
+            if not tool.enabled:
+                out.append(ndi.ToolFrame(handle, ndi.DISABLED))
+                continue
+            pose = self.scene.get(tool.name)
+            if pose is None or pose.occluded or not in_field_of_view(pose.translation):
+                out.append(ndi.ToolFrame(handle, ndi.MISSING, port_status=0x01, frame=frame))
+                continue
+            noise = self._noise.get(handle, (0.0, 0.0, 0.0))
+            position = tuple(p + n for p, n in zip(pose.translation, noise, strict=True))
+            out.append(
+                ndi.ToolFrame(
+                    handle, ndi.VALID, pose.quaternion, position, self.noise_mm, 0x31, frame
+                )
+            )
+        return out
+
+    def _cmd_bx(self, params: str) -> bytes:
+        if not self.tracking:
+            return self._reply("ERROR01")
+        frame = ndi.encode_bx(self._frames())
+        if self.fault == "bad_crc":
+            frame = frame[:-2] + bytes([frame[-2] ^ 0xFF, frame[-1]])
+        return frame
+
+    def _cmd_tx(self, params: str) -> bytes:
+        if not self.tracking:
+            return self._reply("ERROR01")
+        return self._reply(ndi.encode_tx(self._frames()))
+
+
+class VicraSimulator(Component):
+    """Hosts a `VicraDevice` in a component, so it runs in its own process and the
+    simulated OR (or a test) can move, hide and break it by operations."""
+
+    needs_configuration = True
+    link = prop(str, "", doc="device path to create (default: a temp folder)")
+    rate = prop(float, 20.0, unit="Hz", min=1.0, max=60.0, doc="frame rate")
+    noise = prop(float, 0.25, unit="mm", min=0.0, max=10.0, doc="3-D RMS position noise")
+    seed = prop(int, 0, doc="noise seed (repeatable runs)")
+
+    def configure_hook(self) -> bool:
+        import tempfile
+
+        path = self.link or str(Path(tempfile.mkdtemp(prefix="fw-vicra-")) / "ttyVICRA")
+        self.device = VicraDevice(path, self.rate, self.noise, self.seed)
+        self.device.plug()
+        return True
+
+    def cleanup_hook(self) -> None:
+        self.device.unplug()
+
+    @operation
+    def device_path(self) -> str:
+        """Where the driver should open the port."""
+        return str(self.device.link)
+
+    @operation
+    def place(
+        self, tool: str, translation: list[float], quaternion: list[float] | None = None
+    ) -> None:
+        """Put a tool (by the name in its definition) at a pose (sensor frame, mm)."""
+        pose = self.device.scene.setdefault(tool, ScenePose())
+        pose.translation = tuple(float(v) for v in translation)  # type: ignore[assignment]
+        if quaternion is not None:
+            pose.quaternion = tuple(float(v) for v in quaternion)  # type: ignore[assignment]
+
+    @operation
+    def occlude(self, tool: str, hidden: bool = True) -> None:
+        """Hide (or show again) a tool."""
+        self.device.scene.setdefault(tool, ScenePose()).occluded = hidden
+
+    @operation
+    def inject(self, fault: str = "") -> None:
+        """'' (none), 'silent', 'bad_crc' or 'garbage'."""
+        if fault not in ("", "silent", "bad_crc", "garbage"):
+            raise ValueError(f"unknown fault {fault!r} (silent, bad_crc, garbage)")
+        self.device.fault = fault
+
+    @operation
+    def unplug(self) -> None:
+        """Pull the cable."""
+        self.device.unplug()
+
+    @operation
+    def replug(self) -> str:
+        """Plug the cable back (the device restarts, uninitialised)."""
+        return self.device.plug()
+
+    @operation
+    def state(self) -> dict[str, Any]:
+        """What the device believes: initialised, tracking, baud, tools."""
+        return {
+            "initialized": self.device.initialized,
+            "tracking": self.device.tracking,
+            "baud": self.device.baud,
+            "tools": len(self.device.tools),
+            "commands": self.device.commands[-20:],
+        }
