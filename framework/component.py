@@ -127,6 +127,12 @@ class Component:
         self.declared_properties: dict[str, Property] = {}
         self._values: dict[str, Any] = {}
         self.operations: dict[str, Callable[..., Any]] = {}
+        for attr, _ in declarations(type(self)):
+            if attr in _RESERVED:
+                raise FwError(
+                    f"{type(self).__name__}.{attr} shadows the component API; "
+                    "rename that port, property or operation"
+                )
         for attr, decl in declarations(type(self)):
             if isinstance(decl, In):
                 port = InputPort(attr, decl.type, decl.doc, decl.policy)
@@ -404,6 +410,13 @@ class Component:
         }
 
 
+def _reserved_names() -> frozenset[str]:
+    names = {n for n in vars(Component) if not n.startswith("__")}
+    return frozenset(
+        names | {"name", "inputs", "outputs", "operations", "last_error", "declared_properties"}
+    )
+
+
 def declarations(cls: type) -> list[tuple[str, Any]]:
     """Declared ports, properties and operations of a class, base classes first."""
     seen: dict[str, Any] = {}
@@ -412,3 +425,6 @@ def declarations(cls: type) -> list[tuple[str, Any]]:
             if isinstance(value, (In, Out, Property)) or hasattr(value, "__fw_operation__"):
                 seen[attr] = value
     return list(seen.items())
+
+
+_RESERVED = _reserved_names()

@@ -147,6 +147,8 @@ def encode_bx(tools: list[ToolFrame], system_status: int = 0) -> bytes:
 
 def bx_length(header: bytes) -> int:
     """Total length of a BX reply from its first 6 bytes (checking start and CRC)."""
+    if len(header) < 6:
+        raise NdiError(f"BX header of {len(header)} bytes (needs 6)")
     start, length = _HEADER.unpack_from(header, 0)
     if start != BX_START:
         raise NdiError(f"not a BX reply (start {start:#06x})")
@@ -199,7 +201,7 @@ def decode_bx(frame: bytes) -> tuple[list[ToolFrame], int]:
 
 
 def _signed(value: float, digits: int, decimals: int) -> str:
-    scaled = int(round(value * 10**decimals))
+    scaled = round(value * 10**decimals)
     limit = 10**digits - 1
     scaled = max(-limit, min(limit, scaled))
     return f"{'+' if scaled >= 0 else '-'}{abs(scaled):0{digits}d}"

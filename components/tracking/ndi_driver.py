@@ -89,7 +89,7 @@ class NdiTracker(Component):
     """The Polaris Vicra (or any NDI combined-API tracker) as a component."""
 
     emits = ()
-    port = prop(str, "", doc="serial device (e.g. /dev/ttyUSB0)")
+    device = prop(str, "", doc="serial device (e.g. /dev/ttyUSB0)")
     baud = prop(int, 115200, choices=sorted(BAUD_TO_CODE), doc="baud rate after COMM")
     tools_file = prop(str, "", doc="tools YAML (markers, tool definition files)")
     binary = prop(bool, True, doc="stream with BX (binary) instead of TX (text)")
@@ -178,19 +178,19 @@ class NdiTracker(Component):
 
     # -- the device ------------------------------------------------------------------
     def _open(self, baud: int) -> None:
-        path = Path(self.port)
-        if not self.port:
-            raise DriverError("property port is empty: name the serial device")
+        path = Path(self.device)
+        if not self.device:
+            raise DriverError("property device is empty: name the serial device")
         if not path.exists():
             raise DriverError(
-                f"serial device {self.port!r} does not exist (is the tracker plugged in?)"
+                f"serial device {self.device!r} does not exist (is the tracker plugged in?)"
             )
         try:
             self.serial = serial.Serial(
-                self.port, baudrate=baud, timeout=self.timeout, write_timeout=self.timeout
+                self.device, baudrate=baud, timeout=self.timeout, write_timeout=self.timeout
             )
         except (serial.SerialException, OSError, ValueError) as exc:
-            raise DriverError(f"cannot open {self.port!r} as a serial port: {exc}") from None
+            raise DriverError(f"cannot open {self.device!r} as a serial port: {exc}") from None
 
     def _close(self) -> None:
         if self.serial is not None:
@@ -207,7 +207,7 @@ class NdiTracker(Component):
             self._command("INIT")
         except (TimeoutError, ndi.NdiError) as exc:
             self._close()
-            raise DriverError(f"no NDI device answers on {self.port!r}: {exc}") from None
+            raise DriverError(f"no NDI device answers on {self.device!r}: {exc}") from None
         code = BAUD_TO_CODE[self.baud]
         self._command("COMM", f"{code}0000")  # OKAY comes at the old rate
         self.serial.baudrate = self.baud

@@ -397,7 +397,7 @@ class VicraSimulator(Component):
         return self.device.plug()
 
     @operation
-    def state(self) -> dict[str, Any]:
+    def device_state(self) -> dict[str, Any]:
         """What the device believes: initialised, tracking, baud, tools."""
         return {
             "initialized": self.device.initialized,

@@ -224,3 +224,16 @@ def test_properties_load_from_yaml_with_located_errors(write):
     assert lines[0].startswith(f"{bad}:1:1: gain: error[property-value]: property d.gain must")
     assert lines[1].startswith(f"{bad}:2:1: gian: error[unknown-property]")
     assert d.gain == 4.0, "nothing applied from a bad file"
+
+
+def test_declarations_that_shadow_the_component_api_are_refused():
+    from framework.component import Component, operation
+    from framework.errors import FwError
+
+    class Bad(Component):
+        @operation
+        def state(self):
+            return "mine"
+
+    with pytest.raises(FwError, match=r"Bad\.state shadows the component API"):
+        Bad("b")

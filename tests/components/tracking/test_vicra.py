@@ -1,0 +1,181 @@
+"""Spec: the driver against the simulated Vicra in its own process, through a real pty:
+tools are set up and streamed, occlusion and field of view are reported, garbage and
+CRC errors are survived, a cable loss is recovered, bad configuration is explained."""
+
+import subprocess
+
+import pytest
+
+from components.tracking.ndi_driver import NdiTracker
+from framework import keys
+from framework.container import spawn_container
+from framework.messages import Pose
+from framework.ports import InputPort, ReadStatus
+from framework.remote import RemoteComponent
+from tests.conftest import REPO, wait_until
+
+TOOLS = str(REPO / "procedures" / "seeg" / "tools.yaml")
+
+
+@pytest.fixture
+def vicra(bus_config, hub, tmp_path):
+    """The simulated Vicra in its own process; returns its remote handle."""
+    spec = {
+        "name": "sim",
+        "bus": bus_config.to_dict(),
+        "components": [
+            {
+                "name": "vicra_sim",
+                "class": "components.tracking.vicra_sim:VicraSimulator",
+                "properties": {"link": str(tmp_path / "dev" / "ttyVICRA"), "seed": 3},
+                "configure": True,
+            }
+        ],
+    }
+    proc = spawn_container(spec, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    assert wait_until(lambda: keys.alive("vicra_sim") in hub.alive(keys.ALL_ALIVE, 0.5), 20)
+    sim = RemoteComponent(hub, "vicra_sim")
+    sim.call("place", tool="cto", translation=[10.0, 20.0, 900.0])
+    sim.call("place", tool="rto", translation=[100.0, -50.0, 1000.0])
+    yield sim
+    proc.terminate()
+    proc.wait(20)
+
+
+@pytest.fixture
+def driver(vicra, hub):
+    d = NdiTracker("vicra")
+    d.device = vicra.call("device_path")
+    d.tools_file = TOOLS
+    for port in d.outputs.values():
+        port.bus = hub
+        port.connect(f"vicra/{port.name}")
+    yield d
+    if d.state.value == "Running":
+        d.stop()
+    if d.state.value == "Stopped":
+        d.cleanup()
+
+
+def started(driver):
+    assert driver.configure(), driver.last_error
+    assert driver.start(), driver.last_error
+    return driver
+
+
+def test_setup_follows_the_protocol_and_switches_baud(driver, vicra):
+    started(driver)
+    state = vicra.call("device_state")
+    assert state["initialized"] and state["tracking"] and state["baud"] == 115200
+    assert state["commands"][:3] == ["INIT", "COMM", "PHRQ"]
+    assert {"PVWR", "PINIT", "PENA", "TSTART"} <= set(state["commands"])
+
+
+@pytest.mark.parametrize("binary", [True, False], ids=["BX", "TX"])
+def test_poses_are_published_in_metres_with_quality(driver, hub, binary):
+    reader = InputPort("inp", Pose)
+    reader.bus = hub
+    reader.connect("vicra/cto")
+    driver.binary = binary
+    started(driver)
+    driver.update()
+    status, pose = reader.read()
+    assert status is ReadStatus.NEW and pose.valid and pose.tool == "cto"
+    assert pose.position == pytest.approx((0.010, 0.020, 0.900), abs=0.002)
+    assert pose.rms == pytest.approx(0.00025) and pose.frame == "vicra"
+    reader.close()
+
+
+def test_occlusion_and_leaving_the_field_of_view_make_a_tool_invalid(driver, vicra):
+    started(driver)
+    vicra.call("occlude", tool="rto")
+    driver.update()
+    assert driver.cto.last.valid and not driver.rto.last.valid
+    vicra.call("place", tool="cto", translation=[10.0, 20.0, 2000.0])  # beyond 1336 mm
+    driver.update()
+    assert not driver.cto.last.valid
+
+
+def test_noise_has_the_vicra_rms(driver):
+    import numpy as np
+
+    started(driver)
+    frames: dict[int, tuple[float, float, float]] = {}
+
+    def sample() -> bool:
+        driver.update()
+        frames[driver.cto.last.frame_number] = driver.cto.last.position
+        return len(frames) >= 30  # one noise sample per 20 Hz device frame
+
+    assert wait_until(sample, timeout=20, interval=0.01)
+    xs = np.array(list(frames.values()))
+    rms_mm = float(np.sqrt(np.mean(np.sum((xs - xs.mean(axis=0)) ** 2, axis=1)))) * 1000
+    assert 0.15 < rms_mm < 0.4, f"3-D RMS {rms_mm:.3f} mm, the Vicra's is 0.25 mm"
+
+
+@pytest.mark.parametrize("fault", ["garbage", "bad_crc"])
+def test_the_driver_survives_corrupt_bytes(driver, vicra, fault):
+    started(driver)
+    before = driver.status()["frames"]
+    vicra.call("inject", fault=fault)
+    for _ in range(3):
+        driver.update()
+    if fault == "garbage":  # bytes before the reply are skipped: frames keep coming
+        assert driver.status()["frames"] - before >= 2
+    vicra.call("inject", fault="")
+    # three bad cycles in a row make the driver reconnect; then data flows again
+    assert wait_until(
+        lambda: driver.update() or (driver.cto.last is not None and driver.cto.last.valid),
+        timeout=5,
+    )
+    status = driver.status()
+    assert driver.state.value == "Running" and status["connected"]
+    if fault == "bad_crc":
+        assert status["crc_errors"] >= 1
+
+
+def test_a_silent_device_and_a_cable_loss_are_recovered(driver, vicra):
+    started(driver)
+    driver.reconnect_after = 2
+    vicra.call("inject", fault="silent")
+    driver.update()
+    driver.update()
+    assert driver.status()["timeouts"] == 2 and not driver.status()["connected"]
+    vicra.call("inject", fault="")
+    vicra.call("unplug")
+    driver.update()
+    assert not driver.status()["connected"] and "reconnecting" in driver.last_error
+    vicra.call("replug")
+    assert wait_until(lambda: driver.update() or driver.status()["connected"], timeout=5)
+    assert driver.status()["reconnects"] == 1
+    driver.update()
+    assert driver.cto.last.valid and driver.state.value == "Running"
+
+
+def test_bad_configuration_is_explained(tmp_path):
+    d = NdiTracker("vicra")
+    d.tools_file = TOOLS
+    regular = tmp_path / "not_a_tty"
+    regular.write_text("hello")
+    for path, message in [
+        ("", "property device is empty"),
+        (str(tmp_path / "none"), "does not exist"),
+        (str(regular), "as a serial port"),
+    ]:
+        d.device = path
+        assert not d.configure()
+        assert message in d.last_error and d.state.value == "PreOperational"
+    bad = tmp_path / "tools.yaml"
+    for text, message in [
+        ("tools: {wand: {markers: [[0,0,0],[1,0,0],[0,1,0]]}}", "unknown tool 'wand'"),
+        ("tools: {cto: {markers: [[0,0,0]]}}", "at least 3"),
+        (
+            "tools: {cto: {markers: [[0,0,0],[1,0,0],[0,1,0]], rom: x.rom}}",
+            "cannot read tool definition 'x.rom'",
+        ),
+        ("nothing: here", "needs a `tools:` mapping"),
+    ]:
+        bad.write_text(text)
+        d.tools_file = str(bad)
+        assert not d.configure()
+        assert message in d.last_error and str(bad) in d.last_error
