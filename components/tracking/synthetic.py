@@ -1,0 +1,110 @@
+"""A synthetic tracking world with known truth: trackers, tools, a moving robot.
+
+Used by the simulated Certus, the Sensor Manager's tests and benchmarks, and the
+calibration benchmarks: every transform is known, so every estimate can be checked.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from components.tracking.geometry import invert, matrix_to_quat
+from components.tracking.sensor_manager import SensorConfig, SensorsConfig
+from framework.messages import Pose
+
+
+def rigid(
+    translation: tuple[float, float, float], rotvec: tuple[float, float, float]
+) -> np.ndarray:
+    """A 4x4 transform from a translation (m) and a rotation vector (rad)."""
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
+    out[:3, 3] = translation
+    return out
+
+
+@dataclass
+class Rig:
+    """One tracker's geometry: where the reference tool is in its frame, where the robot
+    base is from the reference tool, where its CTO markers sit on the end-effector."""
+
+    name: str
+    sensor_from_rto: np.ndarray
+    rto_from_base: np.ndarray
+    ee_from_cto: np.ndarray
+    noise: float  # 3-D RMS, m
+    rate: float
+
+    def observe(
+        self, base_from_ee: np.ndarray, rng: np.random.Generator, stamp: float = 0.0, frame: int = 0
+    ) -> tuple[Pose, Pose]:
+        """(CTO, RTO) as the tracker reports them, with its noise."""
+        cto = self.sensor_from_rto @ self.rto_from_base @ base_from_ee @ self.ee_from_cto
+        return (
+            self._pose(cto, rng, stamp, frame, "cto"),
+            self._pose(self.sensor_from_rto, rng, stamp, frame, "rto"),
+        )
+
+    def _pose(
+        self, t: np.ndarray, rng: np.random.Generator, stamp: float, frame: int, tool: str
+    ) -> Pose:
+        noise = rng.normal(0.0, self.noise / np.sqrt(3.0), 3) if self.noise else np.zeros(3)
+        position = tuple(float(v) for v in t[:3, 3] + noise)
+        return Pose(
+            position, matrix_to_quat(t[:3, :3]), stamp, self.noise, frame, True, self.name, tool
+        )
+
+
+def standard_rigs() -> list[Rig]:
+    """The thesis setup: a Certus (master, 100 Hz, 0.1 mm) and a Vicra (20 Hz, 0.25 mm)."""
+    rto_from_base = rigid((0.6, -0.2, 0.1), (0.0, 0.0, 0.3))
+    return [
+        Rig(
+            "certus",
+            rigid((0.1, 0.2, 2.0), (0.2, -0.1, 0.05)),
+            rto_from_base,
+            rigid((0.0, 0.02, 0.08), (0.0, 0.1, 0.0)),
+            0.0001,
+            100.0,
+        ),
+        Rig(
+            "vicra",
+            rigid((-0.05, 0.1, 0.95), (-0.1, 0.3, 0.0)),
+            rto_from_base @ rigid((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)),
+            rigid((0.01, -0.03, 0.07), (0.0, -0.1, 0.2)),
+            0.00025,
+            20.0,
+        ),
+    ]
+
+
+def sensors_config(rigs: list[Rig], hysteresis: int = 5, **overrides: float) -> SensorsConfig:
+    """A Sensor Manager configuration with the exact calibration of these rigs."""
+    master = rigs[0]
+    sensors = []
+    for priority, rig in enumerate(rigs, start=1):
+        sensors.append(
+            SensorConfig(
+                name=rig.name,
+                priority=priority,
+                rate=rig.rate,
+                keys={"cto": f"{rig.name}/cto", "rto": f"{rig.name}/rto"},
+                master_from_sensor=master.rto_from_base @ invert(rig.rto_from_base),
+                rto_from_base=rig.rto_from_base,
+                ee_from_cto=rig.ee_from_cto,
+                limits={"fast": 0.075, "slow": 0.025},
+                **overrides,
+            )
+        )
+    return SensorsConfig(sensors, hysteresis, master.name)
+
+
+def ee_path(t: float) -> np.ndarray:
+    """A slow end-effector motion in the robot base frame (m, rad)."""
+    return rigid(
+        (0.5 + 0.05 * np.sin(0.5 * t), 0.1 * np.cos(0.3 * t), 0.4 + 0.02 * t % 0.1),
+        (0.0, np.pi / 2 + 0.1 * np.sin(0.2 * t), 0.0),
+    )
