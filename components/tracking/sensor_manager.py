@@ -33,7 +33,13 @@ from typing import Any
 
 import numpy as np
 
-from components.tracking.geometry import as_matrix, invert, pose_matrix, rotation_angle
+from components.tracking.geometry import (
+    as_matrix,
+    invert,
+    pose_matrix,
+    rotation_angle,
+    transform,
+)
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError, Location
 from framework.messages import EventMessage, Pose
@@ -177,6 +183,8 @@ class SensorManagerCore:
         self.best: str | None = None
         self.kinematics: np.ndarray | None = None
         self._c = np.stack([s.master_from_sensor for s in config.sensors])
+        self._x = np.stack([s.rto_from_base for s in config.sensors])
+        self._y = np.stack([s.ee_from_cto for s in config.sensors])
         self._y_inv = invert(np.stack([s.ee_from_cto for s in config.sensors]))
         self.last: Decision | None = None
 
@@ -211,11 +219,13 @@ class SensorManagerCore:
                 False, "stale", f"no new frame for {age * 1e3:.0f} ms (limit {limit * 1e3:.0f} ms)"
             )
         for pose in (track.cto, track.rto):
-            norm = math.sqrt(sum(v * v for v in pose.orientation))
-            if not pose.is_finite() or abs(norm - 1.0) > 1e-3:
+            w, x, y, z = pose.orientation
+            px, py, pz = pose.position
+            norm2 = w * w + x * x + y * y + z * z
+            if not math.isfinite(px + py + pz + norm2) or abs(norm2 - 1.0) > 2e-3:
                 return Health(False, "corrupt", f"{pose.tool}: not a finite unit pose")
         previous = track.previous_cto
-        if previous is not None and previous.valid and previous.is_finite():
+        if previous is not None and previous.valid and math.isfinite(sum(previous.position)):
             dt = max(track.cto_at - track.previous_cto_at, 1.0 / cfg.rate)
             jump = math.dist(track.cto.position, previous.position)
             if jump > cfg.max_speed * dt + 5 * max(track.cto.rms, 1e-4):
@@ -265,8 +275,15 @@ class SensorManagerCore:
         the CTO, is compared across sensors: each sensor sees its own markers."""
         if not candidates:
             return {}
-        cto = np.stack([pose_matrix(self.tracks[i].cto) for i in candidates])  # type: ignore[arg-type]
-        rto = np.stack([pose_matrix(self.tracks[i].rto) for i in candidates])  # type: ignore[arg-type]
+        tracks = [self.tracks[i] for i in candidates]
+        cto = transform(
+            np.array([t.cto.position for t in tracks]),  # type: ignore[union-attr]
+            np.array([t.cto.orientation for t in tracks]),
+        )  # type: ignore[union-attr]
+        rto = transform(
+            np.array([t.rto.position for t in tracks]),  # type: ignore[union-attr]
+            np.array([t.rto.orientation for t in tracks]),
+        )  # type: ignore[union-attr]
         local = invert(rto) @ cto
         master = self._c[candidates] @ local @ self._y_inv[candidates]
         return {i: (local[k], master[k]) for k, i in enumerate(candidates)}
@@ -278,11 +295,19 @@ class SensorManagerCore:
         if not candidates:
             return
         if self.kinematics is not None:
-            for i in candidates:
+            predicted = self._x[candidates] @ self.kinematics @ self._y[candidates]
+            measured = np.stack([poses[i][0] for i in candidates])
+            offsets = np.linalg.norm(measured[:, :3, 3] - predicted[:, :3, 3], axis=1)
+            angles = rotation_angle(np.swapaxes(measured[:, :3, :3], 1, 2) @ predicted[:, :3, :3])
+            for k, i in enumerate(candidates):
                 cfg = self.tracks[i].config
-                predicted = cfg.rto_from_base @ self.kinematics @ cfg.ee_from_cto
-                measured = poses[i][0]
-                self._compare(i, measured, predicted, "the robot's kinematics")
+                if offsets[k] > cfg.tolerance_position or angles[k] > cfg.tolerance_angle:
+                    self.tracks[i].health = Health(
+                        False,
+                        "calibration",
+                        f"{offsets[k] * 1e3:.1f} mm, "
+                        f"{math.degrees(angles[k]):.2f} deg away from the robot's kinematics",
+                    )
             return
         if len(candidates) < 2:
             return
@@ -304,13 +329,6 @@ class SensorManagerCore:
         offset = float(np.linalg.norm(a[:3, 3] - b[:3, 3]))
         angle = float(rotation_angle(a[:3, :3].T @ b[:3, :3]))
         return offset <= cfg.tolerance_position and angle <= cfg.tolerance_angle
-
-    def _compare(self, i: int, measured: np.ndarray, predicted: np.ndarray, what: str) -> None:
-        if not self._close(i, measured, predicted):
-            offset = float(np.linalg.norm(measured[:3, 3] - predicted[:3, 3]))
-            self.tracks[i].health = Health(
-                False, "calibration", f"{offset * 1e3:.1f} mm away from {what}"
-            )
 
 
 class SensorManager(Component):

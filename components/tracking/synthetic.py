@@ -105,6 +105,6 @@ def sensors_config(rigs: list[Rig], hysteresis: int = 5, **overrides: float) -> 
 def ee_path(t: float) -> np.ndarray:
     """A slow end-effector motion in the robot base frame (m, rad)."""
     return rigid(
-        (0.5 + 0.05 * np.sin(0.5 * t), 0.1 * np.cos(0.3 * t), 0.4 + 0.02 * t % 0.1),
+        (0.5 + 0.05 * np.sin(0.5 * t), 0.1 * np.cos(0.3 * t), 0.4 + 0.02 * np.sin(0.1 * t)),
         (0.0, np.pi / 2 + 0.1 * np.sin(0.2 * t), 0.0),
     )
