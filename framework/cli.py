@@ -8,6 +8,7 @@ command line, 3 an internal error (a bug in fw: please report it).
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import os
 import sys
@@ -19,6 +20,8 @@ from framework.clock import SimulatedClock
 from framework.errors import Finding, FindingsError, FwError
 from framework.statechart.events import Event, Listener, Output
 from framework.statechart.model import CONFIG_DONE, CONFIG_FAILED, State, Transition
+
+COMMAND_PROVIDERS = ["framework.cli_deploy", "components.tracking.cli"]
 
 EPILOG_VALIDATE = """\
 examples:
@@ -355,9 +358,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="one JSON object per trace line")
     p.set_defaults(func=cmd_run)
 
-    from framework.cli_deploy import add_commands
-
-    add_commands(sub)
+    for provider in COMMAND_PROVIDERS:  # domain packages add their own commands
+        importlib.import_module(provider).add_commands(sub)
     return parser
 
 

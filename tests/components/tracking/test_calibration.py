@@ -1,0 +1,106 @@
+"""Spec: pivot and hand-eye calibration recover known truth; fw calibrate writes a
+sensors file the Sensor Manager accepts, with residuals like the thesis's Table 3.4."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from components.tracking.calibration import (
+    hand_eye,
+    pivot_calibration,
+    protocol_poses,
+    tracker_to_tracker,
+)
+from components.tracking.geometry import invert, rotation_angle
+from components.tracking.sensor_manager import load_sensors
+from components.tracking.synthetic import rigid, sensors_config, standard_rigs
+from framework.cli import main
+
+
+def measured(rig, poses, rng=None, mm=0.0, deg=0.0):
+    out = []
+    for b in poses:
+        a = rig.rto_from_base @ b @ rig.ee_from_cto
+        if rng is not None:
+            a = a @ rigid(
+                tuple(rng.normal(0, mm / 1e3 / np.sqrt(3), 3)),
+                tuple(rng.normal(0, np.radians(deg) / np.sqrt(3), 3)),
+            )
+        out.append(a)
+    return out
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    x=st.tuples(*[st.floats(-1, 1)] * 6),
+    y=st.tuples(*[st.floats(-0.2, 0.2)] * 6),
+)
+def test_noise_free_hand_eye_recovers_any_x_and_y_exactly(seed, x, y):
+    rig = standard_rigs()[0]
+    rig.rto_from_base = rigid(x[:3], x[3:])
+    rig.ee_from_cto = rigid(y[:3], y[3:])
+    poses = protocol_poses(8, seed)
+    fit = hand_eye(measured(rig, poses), poses)
+    assert np.allclose(fit.x, rig.rto_from_base, atol=1e-6)
+    assert np.allclose(fit.y, rig.ee_from_cto, atol=1e-6)
+    assert fit.translation_residual.max() < 1e-6
+
+
+def test_hand_eye_with_vicra_noise_and_eight_poses_is_sub_millimetre():
+    rig = standard_rigs()[1]
+    errors = []
+    for seed in range(10):
+        poses = protocol_poses(8, seed)
+        fit = hand_eye(measured(rig, poses, np.random.default_rng(seed), 0.25, 0.1), poses)
+        errors.append(np.linalg.norm(fit.x[:3, 3] - rig.rto_from_base[:3, 3]) * 1e3)
+        assert np.degrees(rotation_angle(fit.x[:3, :3].T @ rig.rto_from_base[:3, :3])) < 0.2
+    assert np.median(errors) < 0.8
+
+
+def test_degenerate_poses_are_refused():
+    rig = standard_rigs()[0]
+    poses = [rigid((0.5 + 0.01 * k, 0.0, 0.4), (0.0, 0.0, 0.0)) for k in range(5)]
+    with pytest.raises(ValueError, match="rotations about at least two axes"):
+        hand_eye(measured(rig, poses), poses)
+    with pytest.raises(ValueError, match="at least 3"):
+        hand_eye(measured(rig, poses[:2]), poses[:2])
+
+
+def test_pivot_calibration_finds_the_tool_tip():
+    rng = np.random.default_rng(1)
+    tip, pivot = np.array([0.01, -0.02, 0.15]), np.array([0.3, 0.1, 1.0])
+    poses = []
+    for _ in range(20):
+        t = rigid((0, 0, 0), tuple(rng.uniform(-0.5, 0.5, 3)))
+        t[:3, 3] = pivot - t[:3, :3] @ tip + rng.normal(0, 0.0001, 3)
+        poses.append(t)
+    fit = pivot_calibration(poses)
+    assert np.linalg.norm(fit.tip - tip) < 0.0005 and np.linalg.norm(fit.pivot - pivot) < 0.0005
+    assert fit.rms < 0.0005
+    with pytest.raises(ValueError):
+        pivot_calibration(poses[:2])
+
+
+def test_tracker_to_tracker_is_eq_3_3():
+    rigs = standard_rigs()
+    expected = sensors_config(rigs).sensors[1].master_from_sensor
+    c = tracker_to_tracker(rigs[0].rto_from_base, rigs[1].rto_from_base)
+    assert np.allclose(c, expected)
+    assert np.allclose(
+        tracker_to_tracker(rigs[0].rto_from_base, rigs[0].rto_from_base), np.eye(4)
+    ), "eq. 3.4: the master's C is the identity"
+
+
+def test_fw_calibrate_writes_a_loadable_sensors_file(tmp_path, capsys):
+    out = tmp_path / "sensors.yaml"
+    assert main(["calibrate", "-o", str(out)]) == 0
+    text = out.read_text()
+    assert "translation residual [m]" in text and "rotation residual [deg]" in text
+    config = load_sensors(out)
+    rigs = standard_rigs()
+    truth = rigs[0].rto_from_base @ invert(rigs[1].rto_from_base)
+    c = config.sensors[1].master_from_sensor
+    assert np.linalg.norm(c[:3, 3] - truth[:3, 3]) < 0.002
+    assert "certus" in capsys.readouterr().out
