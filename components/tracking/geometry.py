@@ -29,7 +29,7 @@ def matrix_to_quat(r: np.ndarray) -> tuple[float, float, float, float]:
     """A unit quaternion (w, x, y, z) from one rotation matrix (w >= 0)."""
     from scipy.spatial.transform import Rotation
 
-    x, y, z, w = Rotation.from_matrix(r).as_quat()
+    x, y, z, w = (float(v) for v in Rotation.from_matrix(r).as_quat())
     q = (w, x, y, z)
     return q if w >= 0 else tuple(-v for v in q)  # type: ignore[return-value]
 

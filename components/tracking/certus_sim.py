@@ -1,0 +1,102 @@
+"""A simulated Optotrak Certus (or any tracker of the synthetic world) on the bus.
+
+The Certus's API is proprietary over Ethernet, so fw ships no driver for it: a real
+one would be a component with the same two outputs (`cto`, `rto`, `Pose` in metres,
+sensor frame) publishing on `certus/<tool>`; swap this class for it in the
+topology. The simulation observes the synthetic world (`components.tracking.
+synthetic`) at the rig's rate and noise (Certus: 100 Hz, 0.1 mm), inside an
+approximate field of view (1.5-7 m from the sensor, +-35 deg), and takes faults
+by operation: occlusion, a crash (stops publishing), corrupt (NaN) data, a bumped
+reference tool.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from components.tracking.geometry import pose_matrix
+from components.tracking.synthetic import ee_path, rigid, standard_rigs
+from framework.component import Component, In, Out, operation
+from framework.messages import Pose
+from framework.ports import ReadStatus
+from framework.properties import prop
+
+NEAR_M, FAR_M, HALF_ANGLE = 1.5, 7.0, math.radians(35.0)
+
+
+def in_certus_view(position: tuple[float, float, float]) -> bool:
+    """True if a point (sensor frame, m) is inside the approximate Certus volume."""
+    x, y, z = position
+    distance = math.sqrt(x * x + y * y + z * z)
+    return NEAR_M <= distance <= FAR_M and math.atan2(math.hypot(x, y), z) <= HALF_ANGLE
+
+
+class TrackerSim(Component):
+    """Publishes what one tracker of the synthetic world sees, at its rate."""
+
+    rig = prop(str, "certus", choices=["certus", "vicra"], doc="which synthetic tracker")
+    seed = prop(int, 0, doc="noise seed")
+    check_view = prop(bool, True, doc="report tools outside the field of view as missing")
+    ee_pose = In(Pose, doc="end-effector in the robot base frame (default: a slow path)")
+    cto = Out(Pose, doc="calibration tool optical, sensor frame")
+    rto = Out(Pose, doc="reference tool optical, sensor frame")
+
+    def configure_hook(self) -> bool:
+        self.model = next(r for r in standard_rigs() if r.name == self.rig)
+        self.rng = np.random.default_rng(self.seed)
+        self.hidden: set[str] = set()
+        self.crashed = False
+        self.corrupt = False
+        self.t0 = time.monotonic()
+        self.frame_number = 0
+        return True
+
+    def update_hook(self) -> None:
+        if self.crashed:
+            return  # a crashed driver publishes nothing: the data goes stale
+        status, ee = self.ee_pose.read()
+        truth = (
+            pose_matrix(ee)
+            if status is not ReadStatus.NO_DATA and ee is not None
+            else ee_path(time.monotonic() - self.t0)
+        )
+        self.frame_number += 1
+        cto, rto = self.model.observe(truth, self.rng, time.time(), self.frame_number)
+        if "cto" in self.hidden or (
+            self.check_view and not in_certus_view(cto.position) and self.rig == "certus"
+        ):
+            cto = dataclasses.replace(cto, valid=False)
+        if "rto" in self.hidden:
+            rto = dataclasses.replace(rto, valid=False)
+        if self.corrupt:
+            cto = dataclasses.replace(cto, position=(math.nan, 0.0, 0.0))
+        self.cto.write(cto)
+        self.rto.write(rto)
+
+    @operation
+    def occlude(self, tool: str, hidden: bool = True) -> None:
+        """Hide (or show again) `cto` or `rto`."""
+        if tool not in ("cto", "rto"):
+            raise ValueError(f"unknown tool {tool!r} (cto, rto)")
+        (self.hidden.add if hidden else self.hidden.discard)(tool)
+
+    @operation
+    def crash(self, crashed: bool = True) -> None:
+        """Stop (or resume) publishing, like a driver that died."""
+        self.crashed = crashed
+
+    @operation
+    def corrupt_data(self, corrupt: bool = True) -> None:
+        """Publish NaN positions."""
+        self.corrupt = corrupt
+
+    @operation
+    def bump_reference(self, dx: float = 0.02) -> None:
+        """Someone bumps the reference tool by `dx` metres (the calibration is now wrong)."""
+        self.model = dataclasses.replace(
+            self.model, sensor_from_rto=self.model.sensor_from_rto @ rigid((dx, 0, 0), (0, 0, 0))
+        )
