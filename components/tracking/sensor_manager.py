@@ -32,13 +32,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from components.tracking.geometry import (
     as_matrix,
     invert,
     pose_matrix,
     rotation_angle,
-    transform,
 )
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError, Location
@@ -182,8 +182,15 @@ class SensorManagerCore:
         self.by_name = {t.config.name: t for t in self.tracks}
         self.best: str | None = None
         self.kinematics: np.ndarray | None = None
+        count = len(config.sensors)
+        self._points = np.zeros((2 * count, 3))  # latest CTO positions, then RTO positions
+        self._quats = np.tile([0.0, 0.0, 0.0, 1.0], (2 * count, 1))  # x, y, z, w (scipy order)
+        self._index = {s.name: i for i, s in enumerate(config.sensors)}
+        self._all = np.arange(count)
         self._c = np.stack([s.master_from_sensor for s in config.sensors])
         self._x = np.stack([s.rto_from_base for s in config.sensors])
+        self._tol_pos = np.array([s.tolerance_position for s in config.sensors])
+        self._tol_ang = np.array([s.tolerance_angle for s in config.sensors])
         self._y = np.stack([s.ee_from_cto for s in config.sensors])
         self._y_inv = invert(np.stack([s.ee_from_cto for s in config.sensors]))
         self.last: Decision | None = None
@@ -191,6 +198,10 @@ class SensorManagerCore:
     def offer(self, sensor: str, tool: str, pose: Pose, arrival: float) -> None:
         """A new sample of `tool` (cto/rto) from `sensor`, received at `arrival`."""
         track = self.by_name[sensor]
+        row = self._index[sensor] + (0 if tool == "cto" else len(self.tracks))
+        self._points[row] = pose.position
+        w, x, y, z = pose.orientation
+        self._quats[row] = (x, y, z, w)
         if tool == "cto":
             if track.cto is not None:
                 track.previous_cto, track.previous_cto_at = track.cto, track.cto_at
@@ -238,13 +249,17 @@ class SensorManagerCore:
 
     def evaluate(self, now: float) -> Decision:
         """One cycle: every sensor's health, the best sensor, the robot pose (eq. 3.5)."""
-        candidates: list[int] = []
+        healthy: list[int] = []
         for index, track in enumerate(self.tracks):
             track.health = self._basic(track, now)
             if track.health.ok:
-                candidates.append(index)
-        poses = self._robot_poses(candidates)
-        self._check_calibration(candidates, poses)
+                healthy.append(index)
+        candidates = np.array(healthy, dtype=int)
+        local = master = np.zeros((0, 4, 4))
+        if healthy:
+            local, master = self._robot_poses(candidates)
+            self._check_calibration(candidates, local, master)
+        row = {index: k for k, index in enumerate(healthy)}
         best, robot = None, None
         for index, track in enumerate(self.tracks):
             if track.health.ok:
@@ -259,67 +274,67 @@ class SensorManagerCore:
             )
             if best is None and eligible:
                 best = track.config.name
-                robot = poses.get(index, (None, None))[1]
+                robot = master[row[index]] if index in row else None
         changed = best != self.best
         self.best = best
         self.last = Decision(best, {t.config.name: t.health for t in self.tracks}, robot, changed)
         return self.last
 
-    def _robot_poses(self, candidates: list[int]) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-        """index -> (the CTO in the sensor's reference-tool frame, the end-effector in the
-        master frame), batched over sensors.
+    def _robot_poses(self, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(the CTO in each sensor's reference-tool frame, the end-effector in the master
+        frame) for the candidate sensors, batched.
 
         Eq. 3.5 with C_i = X_master X_i^-1 (eq. 3.3) mapping sensor i's reference frame
         into the master's: ee = C_i (T_RTO,i)^-1 T_CTO,i Y_i^-1. (The thesis writes C_i^-1
         in eq. 3.5, which matches the opposite direction for C.) The end-effector, not
         the CTO, is compared across sensors: each sensor sees its own markers."""
-        if not candidates:
-            return {}
-        tracks = [self.tracks[i] for i in candidates]
-        cto = transform(
-            np.array([t.cto.position for t in tracks]),  # type: ignore[union-attr]
-            np.array([t.cto.orientation for t in tracks]),
-        )  # type: ignore[union-attr]
-        rto = transform(
-            np.array([t.rto.position for t in tracks]),  # type: ignore[union-attr]
-            np.array([t.rto.orientation for t in tracks]),
-        )  # type: ignore[union-attr]
-        local = invert(rto) @ cto
-        master = self._c[candidates] @ local @ self._y_inv[candidates]
-        return {i: (local[k], master[k]) for k, i in enumerate(candidates)}
+        n = len(self.tracks)
+        every = len(candidates) == n
+        rows = np.concatenate([candidates, candidates + n]) if not every else slice(None)
+        rotations = Rotation.from_quat(self._quats[rows]).as_matrix()  # one C call
+        points = self._points[rows]
+        k = len(candidates)
+        rto_t = np.swapaxes(rotations[k:], 1, 2)
+        local = np.zeros((k, 4, 4))
+        local[:, :3, :3] = rto_t @ rotations[:k]
+        local[:, :3, 3] = (rto_t @ (points[:k] - points[k:])[:, :, None])[:, :, 0]
+        local[:, 3, 3] = 1.0
+        c = self._c if every else self._c[candidates]
+        y_inv = self._y_inv if every else self._y_inv[candidates]
+        return local, c @ local @ y_inv
 
     def _check_calibration(
-        self, candidates: list[int], poses: dict[int, tuple[np.ndarray, np.ndarray]]
+        self, candidates: np.ndarray, local: np.ndarray, master: np.ndarray
     ) -> None:
         """Fault-tree level 4: against kinematics if known, else against each other."""
-        if not candidates:
+        if not len(candidates):
             return
         if self.kinematics is not None:
-            predicted = self._x[candidates] @ self.kinematics @ self._y[candidates]
-            measured = np.stack([poses[i][0] for i in candidates])
-            offsets = np.linalg.norm(measured[:, :3, 3] - predicted[:, :3, 3], axis=1)
-            angles = rotation_angle(np.swapaxes(measured[:, :3, :3], 1, 2) @ predicted[:, :3, :3])
-            for k, i in enumerate(candidates):
-                cfg = self.tracks[i].config
-                if offsets[k] > cfg.tolerance_position or angles[k] > cfg.tolerance_angle:
-                    self.tracks[i].health = Health(
-                        False,
-                        "calibration",
-                        f"{offsets[k] * 1e3:.1f} mm, "
-                        f"{math.degrees(angles[k]):.2f} deg away from the robot's kinematics",
-                    )
+            every = len(candidates) == len(self.tracks)
+            x = self._x if every else self._x[candidates]
+            y = self._y if every else self._y[candidates]
+            predicted = x @ self.kinematics @ y
+            offsets = np.linalg.norm(local[:, :3, 3] - predicted[:, :3, 3], axis=1)
+            angles = rotation_angle(np.swapaxes(local[:, :3, :3], 1, 2) @ predicted[:, :3, :3])
+            bad = (offsets > self._tol_pos[candidates]) | (angles > self._tol_ang[candidates])
+            for k in np.flatnonzero(bad):
+                self.tracks[candidates[k]].health = Health(
+                    False,
+                    "calibration",
+                    f"{offsets[k] * 1e3:.1f} mm, "
+                    f"{math.degrees(angles[k]):.2f} deg away from the robot's kinematics",
+                )
             return
         if len(candidates) < 2:
             return
-        master = {i: poses[i][1] for i in candidates}
-        for i in candidates:
+        for k, i in enumerate(candidates):
             agree = 0
-            others = [j for j in candidates if j != i]
+            others = [j for j in range(len(candidates)) if j != k]
             for j in others:
-                if self._close(i, master[i], master[j]):
+                if self._close(i, master[k], master[j]):
                     agree += 1
             if agree * 2 < len(others) or (len(others) == 1 and agree == 0):
-                names = ", ".join(self.tracks[j].config.name for j in others)
+                names = ", ".join(self.tracks[candidates[j]].config.name for j in others)
                 self.tracks[i].health = Health(
                     False, "calibration", f"disagrees with {names} beyond tolerance"
                 )
