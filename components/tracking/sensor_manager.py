@@ -432,7 +432,8 @@ class SensorManager(Component):
     @operation
     def current(self) -> dict[str, Any]:
         """The latest decision (best sensor, limits, health of every sensor)."""
-        last = self.core.last
-        if last is None:
+        core = getattr(self, "core", None)
+        last = core.last if core is not None else None
+        if last is None:  # not configured yet, or no cycle run yet
             return {"best": None, "limits": {}, "calibration": None, "health": {}}
         return self.describe_decision(last)

@@ -72,8 +72,9 @@ def standard_rigs() -> list[Rig]:
         ),
         Rig(
             "vicra",
-            rigid((-0.05, 0.1, 0.95), (-0.1, 0.3, 0.0)),
-            rto_from_base @ rigid((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)),
+            # the Vicra looks obliquely at both tools (its pyramid is too narrow side by side)
+            rigid((-0.4621, -0.4102, 0.9885), (-0.3347, 0.1218, 0.6909)),
+            rto_from_base,
             rigid((0.01, -0.03, 0.07), (0.0, -0.1, 0.2)),
             0.00025,
             20.0,

@@ -94,6 +94,9 @@ class VicraDevice:
         self.rate, self.noise_mm = rate, noise_mm
         self.random = random.Random(seed)
         self.scene: dict[str, ScenePose] = {}  # by the part name in the tool definition
+        self.world: Any = None
+        """Optional `callable(tool, seconds) -> (translation_mm, quaternion) | None` that
+        moves the tools (the simulated OR); the scene's occlusion flags still apply."""
         self.fault = ""
         self.commands: list[str] = []
         self._lock = threading.Lock()
@@ -312,6 +315,10 @@ class VicraDevice:
                 out.append(ndi.ToolFrame(handle, ndi.DISABLED))
                 continue
             pose = self.scene.get(tool.name)
+            if self.world is not None:
+                seen = self.world(tool.name, time.monotonic() - self._t0)
+                hidden = pose.occluded if pose is not None else False
+                pose = None if seen is None else ScenePose(seen[0], seen[1], hidden)
             if pose is None or pose.occluded or not in_field_of_view(pose.translation):
                 out.append(ndi.ToolFrame(handle, ndi.MISSING, port_status=0x01, frame=frame))
                 continue
@@ -338,6 +345,28 @@ class VicraDevice:
         return self._reply(ndi.encode_tx(self._frames()))
 
 
+def synthetic_world(rig_name: str) -> Any:
+    """A world callable for `VicraDevice.world`: the synthetic robot path seen by one of
+    the synthetic trackers (noise-free: the device adds its own)."""
+    import dataclasses
+
+    import numpy as np
+
+    from components.tracking.synthetic import ee_path, standard_rigs
+
+    rig = dataclasses.replace(next(r for r in standard_rigs() if r.name == rig_name), noise=0.0)
+    rng = np.random.default_rng(0)
+
+    def see(tool: str, seconds: float) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+        cto, rto = rig.observe(ee_path(seconds), rng)
+        pose = {"cto": cto, "rto": rto}.get(tool)
+        if pose is None:
+            return None
+        return tuple(v * 1000.0 for v in pose.position), pose.orientation
+
+    return see
+
+
 class VicraSimulator(Component):
     """Hosts a `VicraDevice` in a component, so it runs in its own process and the
     simulated OR (or a test) can move, hide and break it by operations."""
@@ -347,12 +376,15 @@ class VicraSimulator(Component):
     rate = prop(float, 20.0, unit="Hz", min=1.0, max=60.0, doc="frame rate")
     noise = prop(float, 0.25, unit="mm", min=0.0, max=10.0, doc="3-D RMS position noise")
     seed = prop(int, 0, doc="noise seed (repeatable runs)")
+    follow_world = prop(bool, False, doc="move the tools with the synthetic tracking world")
 
     def configure_hook(self) -> bool:
         import tempfile
 
         path = self.link or str(Path(tempfile.mkdtemp(prefix="fw-vicra-")) / "ttyVICRA")
         self.device = VicraDevice(path, self.rate, self.noise, self.seed)
+        if self.follow_world:
+            self.device.world = synthetic_world("vicra")
         self.device.plug()
         return True
 
