@@ -211,6 +211,7 @@ class NdiTracker(Component):
         code = BAUD_TO_CODE[self.baud]
         self._command("COMM", f"{code}0000")  # OKAY comes at the old rate
         self.serial.baudrate = self.baud
+        self._free_stale_handles()
         self.handles = {}
         for tool in self.tools:
             handle = int(self._command("PHRQ", "*********1****"), 16)
@@ -220,6 +221,13 @@ class NdiTracker(Component):
             self._command("PINIT", f"{handle:02X}")
             self._command("PENA", f"{handle:02X}D")
             self.handles[handle] = tool.name
+
+    def _free_stale_handles(self) -> None:
+        """PHSR:01 lists handles left from an earlier session; PHF frees each."""
+        reply = self._command("PHSR", "01")
+        for i in range(int(reply[:2], 16)):
+            handle = reply[2 + 5 * i : 4 + 5 * i]
+            self._command("PHF", handle)
 
     def _command(self, name: str, params: str = "") -> str:
         self.serial.write(ndi.command(name, params))

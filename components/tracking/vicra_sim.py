@@ -214,6 +214,7 @@ class VicraDevice:
             t
             for t in self.tools.values()
             if kind == "00"
+            or (kind == "01" and not t.enabled)
             or (kind == "02" and not t.initialized)
             or (kind == "03" and t.initialized and not t.enabled)
             or (kind == "04" and t.enabled)

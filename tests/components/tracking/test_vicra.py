@@ -34,7 +34,7 @@ def vicra(bus_config, hub, tmp_path):
     }
     proc = spawn_container(spec, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     assert wait_until(lambda: keys.alive("vicra_sim") in hub.alive(keys.ALL_ALIVE, 0.5), 20)
-    sim = RemoteComponent(hub, "vicra_sim")
+    sim = RemoteComponent(hub, "vicra_sim", 10.0)  # generous: CI machines are shared
     sim.call("place", tool="cto", translation=[10.0, 20.0, 900.0])
     sim.call("place", tool="rto", translation=[100.0, -50.0, 1000.0])
     yield sim
@@ -67,8 +67,20 @@ def test_setup_follows_the_protocol_and_switches_baud(driver, vicra):
     started(driver)
     state = vicra.call("device_state")
     assert state["initialized"] and state["tracking"] and state["baud"] == 115200
-    assert state["commands"][:3] == ["INIT", "COMM", "PHRQ"]
+    assert state["commands"][:4] == ["INIT", "COMM", "PHSR", "PHRQ"]
     assert {"PVWR", "PINIT", "PENA", "TSTART"} <= set(state["commands"])
+    assert state["tools"] == 2
+
+
+def test_stale_handles_are_found_with_phsr_and_freed(driver, vicra):
+    from components.tracking import ndi
+
+    started(driver)
+    driver.serial.write(ndi.command("PHRQ", "*********1****"))  # a handle nobody enables
+    assert ndi.parse_reply(driver._read_line()) == "0C"
+    assert vicra.call("device_state")["tools"] == 3
+    driver._free_stale_handles()
+    assert vicra.call("device_state")["tools"] == 2, "PHSR:01 listed it, PHF freed it"
 
 
 @pytest.mark.parametrize("binary", [True, False], ids=["BX", "TX"])
