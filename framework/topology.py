@@ -376,16 +376,8 @@ class _Loader:
             return self.connection(topo, arg, here, timeout)
         if kind == "set":
             comp_name, prop = arg["property"].split(".", 1)
-            comp = topo.components.get(comp_name)
-            if comp is None:
-                self.error(
-                    "unknown-component",
-                    f"unknown component {comp_name!r}",
-                    here,
-                    self.close(comp_name, topo.components),
-                )
-                return None
-            if comp.info is None:
+            comp = self.component(topo, comp_name, here)
+            if comp is None or comp.info is None:
                 return None
             declared = comp.info.properties.get(prop)
             if declared is None:
@@ -409,16 +401,8 @@ class _Loader:
             if isinstance(arg, dict) and "timeout" in arg:
                 step_timeout = parse_duration(arg["timeout"])
             comp_name, op = ref.split(".", 1)
-            comp = topo.components.get(comp_name)
-            if comp is None:
-                self.error(
-                    "unknown-component",
-                    f"unknown component {comp_name!r}",
-                    here,
-                    self.close(comp_name, topo.components),
-                )
-                return None
-            if comp.info is None:
+            comp = self.component(topo, comp_name, here)
+            if comp is None or comp.info is None:
                 return None
             signature = comp.info.operations.get(op)
             if signature is None:

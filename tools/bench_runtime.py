@@ -170,32 +170,16 @@ def port_inter_process(bus: Bus, seconds: float) -> list[float]:
     return got[5:]
 
 
-def rewire(bus: Bus, count: int) -> list[float]:
+def rewire(bus: Bus, count: int, prepared: bool = False) -> list[float]:
+    """Alternate the port between the two pingers' keys: connect() -> first sample."""
     inp: InputPort[Scalar] = InputPort("inp", Scalar)
     inp.bus = bus
     first = threading.Event()
     inp.on_data = lambda port: first.set()
-    times = []
-    for i in range(count):
-        key = "ping_a/out" if i % 2 else "ping_b/out"
-        first.clear()
-        t0 = time.perf_counter()
-        inp.connect(key)
-        if first.wait(1.0):
-            times.append(time.perf_counter() - t0)
-        time.sleep(0.02)
-    inp.disconnect()
-    return times
-
-
-def rewire_prepared(bus: Bus, count: int) -> list[float]:
-    inp: InputPort[Scalar] = InputPort("inp", Scalar)
-    inp.bus = bus
-    first = threading.Event()
-    inp.on_data = lambda port: first.set()
-    inp.prepare("ping_a/out")
-    inp.prepare("ping_b/out")
-    wait(lambda: inp.standby_ready("ping_a/out") and inp.standby_ready("ping_b/out"), 5)
+    if prepared:
+        inp.prepare("ping_a/out")
+        inp.prepare("ping_b/out")
+        wait(lambda: inp.standby_ready("ping_a/out") and inp.standby_ready("ping_b/out"), 5)
     times = []
     for i in range(count):
         key = "ping_a/out" if i % 2 else "ping_b/out"
@@ -288,7 +272,7 @@ def main() -> int:
             print("rewire ...", file=sys.stderr)
             results["rewire_to_first_sample"] = stats(rewire(bus, 40 if args.quick else 200))
             results["rewire_prepared_to_first_sample"] = stats(
-                rewire_prepared(bus, 40 if args.quick else 200)
+                rewire(bus, 40 if args.quick else 200, prepared=True)
             )
             print("remote calls ...", file=sys.stderr)
             results["remote_request_round_trip"] = stats(remote_calls(bus, n // 2))
