@@ -361,6 +361,18 @@ class _Loader:
                     )
         return steps
 
+    def component(self, topo: Topology, name: str, where: tuple[Any, ...]) -> ComponentSpec | None:
+        """The named component, or None with an `unknown-component` finding."""
+        comp = topo.components.get(name)
+        if comp is None:
+            self.error(
+                "unknown-component",
+                f"unknown component {name!r}",
+                where,
+                self.close(name, topo.components),
+            )
+        return comp
+
     def step(
         self, topo: Topology, spec: dict[str, Any], where: tuple[Any, ...], timeout: float
     ) -> Step | None:
