@@ -200,8 +200,8 @@ def _join(topology_path: str) -> tuple[Any, Any]:
     # A container declares its queryables before its liveliness tokens and declarations
     # travel in order: once every token is visible, every queryable can be asked.
     expected = {keys.alive(name) for name in topology.components}
-    deadline = time.monotonic() + 2.0
-    while time.monotonic() < deadline and not expected <= set(bus.alive(keys.ALL_ALIVE, 0.5)):
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline and not expected <= set(bus.alive(keys.ALL_ALIVE, 1.0)):
         time.sleep(0.02)
     return topology, bus
 
@@ -259,7 +259,7 @@ def cmd_status(args: argparse.Namespace) -> int:
         if not found:
             raise FwError(f"nothing is running in deployment {topology.bus.namespace!r}")
         try:
-            chart = RemoteComponent(bus, "coordinator", 1.0).call("active")
+            chart = RemoteComponent(bus, "coordinator", 3.0).call("active")
         except RemoteError:
             chart = None
         if args.json:
@@ -276,7 +276,7 @@ def cmd_status(args: argparse.Namespace) -> int:
         for container, names in found.items():
             for name in names:
                 try:
-                    state = RemoteComponent(bus, name, 0.5).state()
+                    state = RemoteComponent(bus, name, 2.0).state()
                 except RemoteError:
                     state = "NOT RESPONDING"
                 print(f"{name:<20} {container:<16} {state}")

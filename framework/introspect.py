@@ -34,8 +34,9 @@ class Snapshot:
     unreachable: list[str]
 
 
-def containers(bus: Bus, timeout: float = 1.0) -> dict[str, list[str]]:
-    """Container name -> names of the components it hosts."""
+def containers(bus: Bus, timeout: float = 3.0) -> dict[str, list[str]]:
+    """Container name -> names of the components it hosts. (A query returns as soon as
+    every container answered; the timeout only bounds a starved machine.)"""
     out: dict[str, list[str]] = {}
     replies = bus.session.get(keys.container("*"), payload=b'{"op": "list"}', timeout=timeout)
     for reply in replies:
@@ -46,7 +47,7 @@ def containers(bus: Bus, timeout: float = 1.0) -> dict[str, list[str]]:
     return dict(sorted(out.items()))
 
 
-def snapshot(bus: Bus, timeout: float = 1.0) -> Snapshot:
+def snapshot(bus: Bus, timeout: float = 3.0) -> Snapshot:
     """Discover containers, describe every component and derive the connections."""
     found = containers(bus, timeout)
     described: dict[str, dict[str, Any]] = {}

@@ -33,7 +33,10 @@ def test_the_demo_runs_swaps_stops_and_resumes(bus_config, tmp_path):
         assert wait_until(lambda: leaf() == ["Working.Use_T1"], timeout=10)
         assert wait_until(lambda: leaf() == ["Working.Use_T2"], timeout=10), "swapped by itself"
         deployment.send("e_STOP")
-        assert wait_until(lambda: leaf() == ["Stopped"], timeout=10)
+        assert wait_until(
+            lambda: leaf() == ["Stopped"] and not deployment.coordinator.active()["pending"],
+            timeout=10,
+        )
         state = RemoteComponent(deployment.hub, "supervisor").state()
         assert state == "Stopped", "all_stop stopped the robot side"
         screen = _screen(deployment, 0.0)
