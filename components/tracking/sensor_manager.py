@@ -183,14 +183,16 @@ class SensorManagerCore:
         self.best: str | None = None
         self.kinematics: np.ndarray | None = None
         count = len(config.sensors)
-        self._points = np.zeros((2 * count, 3))  # latest CTO positions, then RTO positions
-        self._quats = np.tile([0.0, 0.0, 0.0, 1.0], (2 * count, 1))  # x, y, z, w (scipy order)
+        # latest CTO then RTO samples per sensor, as plain lists: one np.array per cycle is
+        # cheaper than writing rows into arrays at every sample
+        self._points: list[tuple[float, ...]] = [(0.0, 0.0, 0.0)] * (2 * count)
+        self._quats: list[tuple[float, ...]] = [(0.0, 0.0, 0.0, 1.0)] * (2 * count)
         self._index = {s.name: i for i, s in enumerate(config.sensors)}
         self._all = np.arange(count)
         self._c = np.stack([s.master_from_sensor for s in config.sensors])
         self._x = np.stack([s.rto_from_base for s in config.sensors])
-        self._tol_pos = np.array([s.tolerance_position for s in config.sensors])
-        self._tol_ang = np.array([s.tolerance_angle for s in config.sensors])
+        self._tol_pos2 = np.array([s.tolerance_position**2 for s in config.sensors])
+        self._tol_cos = np.cos([s.tolerance_angle for s in config.sensors])
         self._y = np.stack([s.ee_from_cto for s in config.sensors])
         self._y_inv = invert(np.stack([s.ee_from_cto for s in config.sensors]))
         self.last: Decision | None = None
@@ -201,7 +203,7 @@ class SensorManagerCore:
         row = self._index[sensor] + (0 if tool == "cto" else len(self.tracks))
         self._points[row] = pose.position
         w, x, y, z = pose.orientation
-        self._quats[row] = (x, y, z, w)
+        self._quats[row] = (x, y, z, w)  # scipy's order
         if tool == "cto":
             if track.cto is not None:
                 track.previous_cto, track.previous_cto_at = track.cto, track.cto_at
@@ -290,9 +292,11 @@ class SensorManagerCore:
         the CTO, is compared across sensors: each sensor sees its own markers."""
         n = len(self.tracks)
         every = len(candidates) == n
-        rows = np.concatenate([candidates, candidates + n]) if not every else slice(None)
-        rotations = Rotation.from_quat(self._quats[rows]).as_matrix()  # one C call
-        points = self._points[rows]
+        quats, points = np.array(self._quats), np.array(self._points)
+        if not every:
+            rows = np.concatenate([candidates, candidates + n])
+            quats, points = quats[rows], points[rows]
+        rotations = Rotation.from_quat(quats).as_matrix()  # one C call for every tool
         k = len(candidates)
         rto_t = np.swapaxes(rotations[k:], 1, 2)
         local = np.zeros((k, 4, 4))
@@ -314,9 +318,13 @@ class SensorManagerCore:
             x = self._x if every else self._x[candidates]
             y = self._y if every else self._y[candidates]
             predicted = x @ self.kinematics @ y
-            offsets = np.linalg.norm(local[:, :3, 3] - predicted[:, :3, 3], axis=1)
-            angles = rotation_angle(np.swapaxes(local[:, :3, :3], 1, 2) @ predicted[:, :3, :3])
-            bad = (offsets > self._tol_pos[candidates]) | (angles > self._tol_ang[candidates])
+            diff = local[:, :3, 3] - predicted[:, :3, 3]
+            offsets2 = (diff * diff).sum(axis=1)
+            # trace(A^T B) = 1 + 2 cos(angle): compare cosines, no arccos for healthy rows
+            cosines = ((local[:, :3, :3] * predicted[:, :3, :3]).sum(axis=(1, 2)) - 1.0) / 2.0
+            bad = (offsets2 > self._tol_pos2[candidates]) | (cosines < self._tol_cos[candidates])
+            offsets = np.sqrt(offsets2)
+            angles = np.arccos(np.clip(cosines, -1.0, 1.0))
             for k in np.flatnonzero(bad):
                 self.tracks[candidates[k]].health = Health(
                     False,
