@@ -44,9 +44,10 @@ def test_known_cases():
 
 def test_capsules_touching_or_overlapping_have_non_positive_distance():
     p, q = np.array([[0.0, 0, 0]]), np.array([[1.0, 0, 0]])
-    d = capsule_distances(p, q, [0.1], p + [0, 0.15, 0], q + [0, 0.15, 0], [0.05])
+    up = np.array([0.0, 0.15, 0.0])
+    d = capsule_distances(p, q, [0.1], p + up, q + up, [0.05])
     assert abs(d[0, 0]) < 1e-12, "touching"
-    d = capsule_distances(p, q, [0.2], p + [0, 0.15, 0], q + [0, 0.15, 0], [0.05])
+    d = capsule_distances(p, q, [0.2], p + up, q + up, [0.05])
     assert d[0, 0] < 0, "overlapping"
 
 

@@ -1,0 +1,98 @@
+"""Skeletons (15 joints, thesis Fig. 3.14), the Kinect's noise model, envelopes.
+
+A skeleton is a (15, 3) array of joint positions in metres (NaN where a joint is not
+seen). Envelopes are capsules along the limbs plus a sphere for the head, each grown
+by a margin of `sigmas` standard deviations of the depth noise at that distance.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+JOINTS = (
+    "head",
+    "neck",
+    "torso",
+    "left_shoulder",
+    "left_elbow",
+    "left_hand",
+    "right_shoulder",
+    "right_elbow",
+    "right_hand",
+    "left_hip",
+    "left_knee",
+    "left_foot",
+    "right_hip",
+    "right_knee",
+    "right_foot",
+)
+J = {name: i for i, name in enumerate(JOINTS)}
+LIMBS: tuple[tuple[str, str, float], ...] = (
+    ("head", "head", 0.12),
+    ("head", "neck", 0.07),
+    ("neck", "torso", 0.17),
+    ("left_shoulder", "right_shoulder", 0.08),
+    ("torso", "left_hip", 0.15),
+    ("torso", "right_hip", 0.15),
+    ("left_hip", "right_hip", 0.10),
+    ("left_shoulder", "left_elbow", 0.06),
+    ("left_elbow", "left_hand", 0.05),
+    ("right_shoulder", "right_elbow", 0.06),
+    ("right_elbow", "right_hand", 0.05),
+    ("left_hip", "left_knee", 0.08),
+    ("left_knee", "left_foot", 0.07),
+    ("right_hip", "right_knee", 0.08),
+    ("right_knee", "right_foot", 0.07),
+)
+"""(from joint, to joint, radius in m) of every capsule; the head is a sphere."""
+_A = np.array([J[a] for a, _, _ in LIMBS])
+_B = np.array([J[b] for _, b, _ in LIMBS])
+_R = np.array([r for _, _, r in LIMBS])
+
+
+def depth_sigma(z: np.ndarray | float) -> np.ndarray:
+    """Kinect v1 depth noise (1 sigma, m) at distance z (Khoshelham & Oude Elberink 2012)."""
+    return 1.425e-3 * np.square(z)
+
+
+def standing(at: tuple[float, float], facing: float = 0.0, height: float = 1.75) -> np.ndarray:
+    """A standing person's skeleton (world frame, z up) at floor position `at`."""
+    s = height / 1.75
+    local = (
+        np.array(
+            [
+                (0.0, 0.0, 1.65),
+                (0.0, 0.0, 1.47),
+                (0.0, 0.0, 1.20),
+                (0.0, 0.20, 1.45),
+                (0.0, 0.25, 1.18),
+                (0.0, 0.27, 0.93),
+                (0.0, -0.20, 1.45),
+                (0.0, -0.25, 1.18),
+                (0.0, -0.27, 0.93),
+                (0.0, 0.10, 0.95),
+                (0.0, 0.11, 0.52),
+                (0.0, 0.11, 0.08),
+                (0.0, -0.10, 0.95),
+                (0.0, -0.11, 0.52),
+                (0.0, -0.11, 0.08),
+            ]
+        )
+        * s
+    )
+    c, w = np.cos(facing), np.sin(facing)
+    rotation = np.array([[c, -w, 0.0], [w, c, 0.0], [0.0, 0.0, 1.0]])
+    return local @ rotation.T + np.array([at[0], at[1], 0.0])
+
+
+def envelope(
+    skeleton: np.ndarray, sigma: np.ndarray | float = 0.0, sigmas: float = 3.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Capsules (p, q, radius) around a skeleton; `sigma` is the position noise (m) per
+    joint or overall, and the margin is `sigmas` of it. Limbs with an unseen (NaN) end
+    are left out."""
+    sigma = np.broadcast_to(np.asarray(sigma, dtype=float), (len(JOINTS),))
+    p, q = skeleton[_A], skeleton[_B]
+    seen = ~(np.isnan(p).any(axis=1) | np.isnan(q).any(axis=1))
+    margin = sigmas * np.maximum(sigma[_A], sigma[_B])
+    return p[seen], q[seen], (_R + margin)[seen]
