@@ -1,0 +1,194 @@
+"""Simulated Kinect v1 cameras seeing the people of the simulated OR as skeletons.
+
+`KinectModel.observe` turns the true skeletons (world frame) into what one camera
+reports: the users inside its field of view (57 x 43 deg, 0.8-4 m), each with a
+per-camera user id (at most 16), joints in the camera frame with depth noise
+sigma = 1.425e-3 z^2 (Khoshelham & Oude Elberink 2012) plus lateral noise, joints
+hidden behind a nearer person dropped (NaN), whole frames dropped now and then,
+and short ghost skeletons (false positives lasting under a second) as the thesis
+observed. `KinectSim` is the component that publishes it on `kinect/<i>/users`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from components.people.skeleton import JOINTS, depth_sigma, standing
+from framework.component import Component, Out, operation
+from framework.messages import Skeleton, Skeletons
+from framework.properties import prop
+
+H_FOV, V_FOV = math.radians(57.0), math.radians(43.0)
+NEAR, FAR = 0.8, 4.0
+MAX_USERS = 16
+BODY_RADIUS = 0.2  # how wide a person is, for hiding people behind
+
+
+def look_at(position: tuple[float, float, float], target: tuple[float, float, float]) -> np.ndarray:
+    """Camera pose (world_from_camera, 4x4): z along the optical axis towards `target`,
+    x to the right, y down, as depth cameras report."""
+    eye, at = np.asarray(position, float), np.asarray(target, float)
+    z = at - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([x, y, z], axis=1)
+    pose[:3, 3] = eye
+    return pose
+
+
+@dataclass
+class KinectModel:
+    """One camera: where it is and how it errs."""
+
+    name: str
+    world_from_camera: np.ndarray
+    lateral_noise: float = 0.01
+    dropout: float = 0.02
+    ghost_rate: float = 0.02  # ghosts started per second
+    rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
+    _ids: dict[int, int] = field(default_factory=dict)
+    _ghosts: list[tuple[float, float, np.ndarray, int]] = field(default_factory=list)
+
+    def in_view(self, points: np.ndarray) -> np.ndarray:
+        """Which camera-frame points are inside the field of view and depth range."""
+        x, y, z = points[..., 0], points[..., 1], points[..., 2]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return (
+                (z >= NEAR)
+                & (z <= FAR)
+                & (np.abs(np.arctan2(x, z)) <= H_FOV / 2)
+                & (np.abs(np.arctan2(y, z)) <= V_FOV / 2)
+            )
+
+    def to_camera(self, world: np.ndarray) -> np.ndarray:
+        """World points (..., 3) into the camera frame."""
+        camera_from_world = np.linalg.inv(self.world_from_camera)
+        return world @ camera_from_world[:3, :3].T + camera_from_world[:3, 3]
+
+    def _hidden(self, joints: np.ndarray, others: list[np.ndarray]) -> np.ndarray:
+        """Joints (camera frame) behind a nearer person's body, seen from the camera."""
+        hidden = np.zeros(len(joints), dtype=bool)
+        for other in others:
+            torso = np.nanmean(other[[1, 2]], axis=0)  # neck and torso
+            if not np.isfinite(torso).all():
+                continue
+            depth = np.linalg.norm(torso)
+            direction = torso / depth
+            along = joints @ direction
+            lateral = np.linalg.norm(joints - np.outer(along, direction), axis=1)
+            hidden |= (along > depth + 0.1) & (lateral < BODY_RADIUS)
+        return hidden
+
+    def observe(
+        self, people: dict[int, np.ndarray], now: float, dt: float
+    ) -> list[tuple[int, np.ndarray]]:
+        """(user id, joints in the camera frame) for this frame."""
+        if self.rng.random() < self.dropout:
+            return []  # a dropped frame
+        in_camera = {pid: self.to_camera(s) for pid, s in people.items()}
+        visible = {pid: j for pid, j in in_camera.items() if self.in_view(j).mean() > 0.5}
+        out = []
+        for pid, joints in sorted(visible.items(), key=lambda kv: np.nanmean(kv[1][:, 2])):
+            nearer = [
+                j
+                for other, j in visible.items()
+                if other != pid and np.nanmean(j[:, 2]) < np.nanmean(joints[:, 2])
+            ]
+            seen = joints.copy()
+            seen[self._hidden(seen, nearer) | ~self.in_view(seen)] = np.nan
+            if np.isnan(seen).all(axis=1).mean() > 0.6:
+                continue  # mostly hidden: the camera loses this user
+            seen += self.noise(seen)
+            out.append((self._user_id(pid), seen))
+        out += self._ghost_frame(now, dt)
+        return out[:MAX_USERS]
+
+    def noise(self, joints: np.ndarray) -> np.ndarray:
+        """Depth noise along z (1.425e-3 z^2) plus lateral noise, per joint."""
+        z = np.nan_to_num(joints[:, 2])
+        noise = self.rng.normal(0.0, 1.0, joints.shape)
+        noise[:, :2] *= self.lateral_noise
+        noise[:, 2] *= depth_sigma(z)
+        return noise
+
+    def _user_id(self, person: int) -> int:
+        if person not in self._ids:
+            used = set(self._ids.values())
+            self._ids[person] = next(i for i in range(1, 100) if i not in used)
+        return self._ids[person]
+
+    def _ghost_frame(self, now: float, dt: float) -> list[tuple[int, np.ndarray]]:
+        if self.rng.random() < self.ghost_rate * dt:
+            at = (self.rng.uniform(-1.0, 1.0), self.rng.uniform(1.5, 3.5))
+            ghost = self.to_camera(standing(at, self.rng.uniform(0, 2 * math.pi)))
+            self._ghosts.append(
+                (now, now + self.rng.uniform(0.1, 0.9), ghost, 50 + len(self._ghosts))
+            )
+        self._ghosts = [g for g in self._ghosts if g[1] > now]
+        return [(uid, g + self.noise(g)) for start, _, g, uid in self._ghosts]
+
+    def to_message(self, users: list[tuple[int, np.ndarray]], stamp: float) -> Skeletons:
+        """The `Skeletons` message of one frame (NaN joints sent with confidence 0)."""
+        skeletons = []
+        for uid, joints in users:
+            confidence = np.where(np.isnan(joints).any(axis=1), 0.0, 1.0)
+            skeletons.append(
+                Skeleton(
+                    uid, tuple(np.nan_to_num(joints).ravel().tolist()), tuple(confidence.tolist())
+                )
+            )
+        return Skeletons(stamp, self.name, tuple(skeletons))
+
+
+def from_message(message: Skeletons) -> list[tuple[int, np.ndarray]]:
+    """(user id, joints with NaN where confidence is 0) of a `Skeletons` message."""
+    out = []
+    for user in message.users:
+        joints = np.array(user.joints, dtype=float).reshape(len(JOINTS), 3)
+        joints[np.array(user.confidence) <= 0.0] = np.nan
+        out.append((user.user_id, joints))
+    return out
+
+
+class KinectSim(Component):
+    """Publishes one simulated camera's skeletons at 30 Hz (people placed by operation)."""
+
+    position = prop(list, [0.0, -2.5, 2.2], doc="camera position in the world (m)")
+    target = prop(list, [0.0, 0.0, 1.0], doc="point the camera looks at (m)")
+    seed = prop(int, 0, doc="noise seed")
+    ghost_rate = prop(float, 0.02, min=0.0, max=10.0, doc="ghosts per second")
+    users = Out(Skeletons, doc="the users this camera sees")
+
+    def configure_hook(self) -> bool:
+        self.model = KinectModel(
+            self.name,
+            look_at(tuple(self.position), tuple(self.target)),
+            ghost_rate=self.ghost_rate,
+            rng=np.random.default_rng(self.seed),
+        )
+        self.people: dict[int, np.ndarray] = {}
+        self.clock = 0.0
+        return True
+
+    def update_hook(self) -> None:
+        self.clock += 1.0 / 30.0
+        import time
+
+        frame = self.model.observe(self.people, self.clock, 1.0 / 30.0)
+        self.users.write(self.model.to_message(frame, time.time()))
+
+    @operation
+    def place(self, person: int, x: float, y: float, facing: float = 0.0) -> None:
+        """Put a standing person at floor position (x, y)."""
+        self.people[person] = standing((x, y), facing)
+
+    @operation
+    def remove(self, person: int) -> None:
+        """The person leaves the room."""
+        self.people.pop(person, None)
