@@ -78,7 +78,8 @@ def fuse(detections: list[Detection]) -> tuple[np.ndarray, np.ndarray]:
     """Inverse-variance weighted joints and their fused sigma; NaN joints are skipped."""
     joints = np.stack([d.joints for d in detections])  # (k, 15, 3)
     sigma = np.stack([d.sigma for d in detections])  # (k, 15)
-    weight = np.where(np.isnan(joints).any(axis=2), 0.0, 1.0 / np.square(sigma))
+    with np.errstate(divide="ignore"):  # unseen joints may carry sigma 0: weight 0 anyway
+        weight = np.where(np.isnan(joints).any(axis=2), 0.0, 1.0 / np.square(sigma))
     total = weight.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         fused = np.nansum(joints * weight[..., None], axis=0) / total[:, None]

@@ -93,6 +93,12 @@ def envelope(
     are left out."""
     sigma = np.broadcast_to(np.asarray(sigma, dtype=float), (len(JOINTS),))
     p, q = skeleton[_A], skeleton[_B]
-    seen = ~(np.isnan(p).any(axis=1) | np.isnan(q).any(axis=1))
+    seen = limbs_seen(skeleton)
     margin = sigmas * np.maximum(sigma[_A], sigma[_B])
     return p[seen], q[seen], (_R + margin)[seen]
+
+
+def limbs_seen(skeleton: np.ndarray) -> np.ndarray:
+    """Which of `LIMBS` have both ends seen (the capsules `envelope` returns, in order)."""
+    p, q = skeleton[_A], skeleton[_B]
+    return ~(np.isnan(p).any(axis=1) | np.isnan(q).any(axis=1))

@@ -1,0 +1,115 @@
+"""Spec: the People Detector from camera users to people, distances and counts,
+containing bad input (NaN joints, a stopped camera, a wrong calibration)."""
+
+import numpy as np
+
+from components.people.detector import CameraConfig, DetectorConfig, PeopleDetectorCore
+from components.people.kinect_sim import KinectModel, look_at
+from components.people.skeleton import standing
+from components.tracking.synthetic import rigid
+
+FRAME = 1.0 / 30.0
+
+
+def setup(ghosts=0.0, wrong=None):
+    cams = [
+        KinectModel(
+            "k0",
+            look_at((0.0, -3.0, 2.0), (0.0, 0.0, 1.0)),
+            ghost_rate=ghosts,
+            dropout=0.0,
+            rng=np.random.default_rng(1),
+        ),
+        KinectModel(
+            "k1",
+            look_at((3.0, 0.5, 2.0), (0.0, 0.0, 1.0)),
+            ghost_rate=ghosts,
+            dropout=0.0,
+            rng=np.random.default_rng(2),
+        ),
+    ]
+    master = cams[0].world_from_camera
+    configs = []
+    for cam in cams:
+        calibration = np.linalg.inv(master) @ cam.world_from_camera
+        if cam.name == wrong:
+            calibration = rigid((0.8, 0.0, 0.0), (0.0, 0.4, 0.0)) @ calibration
+        configs.append(CameraConfig(cam.name, calibration))
+    core = PeopleDetectorCore(DetectorConfig(configs, base_from_master=master, area_radius=1.2))
+    return cams, core
+
+
+def run(cams, core, people, frames, start=0, robot=None, drop=(), corrupt=False):
+    frame = None
+    for k in range(start, start + frames):
+        users = {}
+        for cam in cams:
+            if cam.name in drop:
+                continue
+            seen = cam.observe(people, k * FRAME, FRAME)
+            if corrupt:
+                seen = [(u, np.where(np.arange(15)[:, None] == 3, np.nan, j)) for u, j in seen]
+                seen = [(u, j) for u, j in seen] + [(99, np.full((15, 3), np.inf))]
+            users[cam.name] = seen
+        frame = core.process(users, k * FRAME, robot)
+    return frame
+
+
+def test_people_are_counted_near_the_table_and_far_from_it():
+    cams, core = setup()
+    # 0.5 m and 1.6 m from the table centre; the area's radius is 1.2 m
+    frame = run(cams, core, {1: standing((0.5, 0.0)), 2: standing((0.0, -1.6))}, 40)
+    assert len(frame.people) == 2 and frame.users_near == 1
+
+
+def test_the_robot_person_distance_names_the_closest_pair():
+    cams, core = setup()
+    alice = standing((0.7, 0.0), facing=np.pi)
+    robot = (
+        np.array([[0.0, 0.0, 0.3], [0.0, 0.0, 0.9]]),
+        np.array([[0.0, 0.0, 0.9], [0.45, 0.0, 1.2]]),
+        np.array([0.08, 0.06]),
+    )
+    frame = run(cams, core, {1: alice}, 40, robot=robot)
+    assert 0.0 < frame.min_distance < 0.3
+    track_id, limb, link = frame.closest
+    assert track_id == frame.people[0].id and link == 1
+    assert limb in {
+        "torso-left_hip",
+        "neck-torso",
+        "torso-right_hip",
+        "left_shoulder-right_shoulder",
+        "head-neck",
+        "head-head",
+        "left_shoulder-left_elbow",
+        "right_shoulder-right_elbow",
+        "left_elbow-left_hand",
+        "right_elbow-right_hand",
+    }
+    touching = (robot[0], np.array([[0.0, 0.0, 0.9], [0.62, 0.0, 1.2]]), robot[2])
+    assert run(cams, core, {1: alice}, 3, start=40, robot=touching).min_distance <= 0.0
+
+
+def test_nan_and_infinite_joints_are_contained_and_never_a_person():
+    cams, core = setup()
+    frame = run(cams, core, {1: standing((0.5, 0.0))}, 40, corrupt=True)
+    assert len(frame.people) == 1 and frame.rejected_joints > 0
+
+
+def test_a_camera_that_stops_leaves_the_person_tracked_by_the_other():
+    cams, core = setup()
+    frame = run(cams, core, {1: standing((0.5, 0.0))}, 40)
+    person = frame.people[0].id
+    frame = run(cams, core, {1: standing((0.5, 0.0))}, 40, start=40, drop=("k1",))
+    assert [t.id for t in frame.people] == [person]
+
+
+def test_a_wrongly_calibrated_camera_does_not_merge_into_the_person():
+    # What holds today: the misplaced copy is never fused with the real person, and
+    # within the confirmation delay neither is counted. (Known gap, see the notes: held
+    # for longer than confirm_after, the misplaced copy would be confirmed too.)
+    cams, core = setup(wrong="k1")
+    frame = run(cams, core, {1: standing((0.5, 0.0))}, 20)  # 0.67 s
+    assert len(frame.tracks) == 2, "two single-camera tracks, not one fused person"
+    assert frame.people == []
+    assert all(len(t.cameras) == 1 for t in frame.tracks)
