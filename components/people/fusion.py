@@ -57,9 +57,16 @@ def rule_matches(
 def robust_cost(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Median joint distance over the joints both see: (n, m), inf if none in common."""
     d = joint_distances(a, b)
-    with np.errstate(all="ignore"):
-        cost = np.nanmedian(np.where(np.isnan(d), np.nan, d), axis=2) if d.size else d[..., 0]
-    return np.where(np.isnan(cost), np.inf, cost)
+    if not d.size:
+        return np.full(d.shape[:2], np.inf)
+    valid = ~np.isnan(d)
+    count = valid.sum(axis=2)
+    ordered = np.sort(np.where(valid, d, np.inf), axis=2)  # unseen joints sort last
+    low = np.take_along_axis(ordered, np.maximum((count - 1) // 2, 0)[..., None], 2)[..., 0]
+    high = np.take_along_axis(ordered, np.maximum(count // 2, 0)[..., None], 2)[..., 0]
+    with np.errstate(invalid="ignore"):
+        median = np.where(count % 2 == 1, low, (low + high) / 2.0)
+    return np.where(count > 0, median, np.inf)
 
 
 def hungarian_matches(
@@ -85,6 +92,7 @@ def fuse(detections: list[Detection]) -> tuple[np.ndarray, np.ndarray]:
         fused = np.nansum(joints * weight[..., None], axis=0) / total[:, None]
         fused_sigma = 1.0 / np.sqrt(total)
     fused[total == 0] = np.nan
+    fused_sigma[total == 0] = np.nan  # unseen: no sigma (never an infinite one)
     return fused, fused_sigma
 
 
@@ -93,6 +101,7 @@ def group(detections: list[Detection], matcher: str = "hungarian") -> list[list[
     the other into the growing set of groups (the fused joints of each group)."""
     match = hungarian_matches if matcher == "hungarian" else rule_matches
     groups: list[list[Detection]] = []
+    fused: list[np.ndarray] | None = None
     by_camera: dict[str, list[Detection]] = {}
     for d in detections:
         by_camera.setdefault(d.camera, []).append(d)
@@ -101,13 +110,18 @@ def group(detections: list[Detection], matcher: str = "hungarian") -> list[list[
         if not groups:
             groups = [[u] for u in users]
             continue
-        fused = np.stack([fuse(g)[0] for g in groups])
-        pairs = match(fused, np.stack([u.joints for u in users]))
+        if fused is None:
+            fused = [fuse(g)[0] for g in groups]
+        pairs = match(np.stack(fused), np.stack([u.joints for u in users]))
         matched = set()
         for i, j in pairs:
             groups[i].append(users[j])
+            fused[i] = fuse(groups[i])[0]  # only the groups that changed are fused again
             matched.add(j)
-        groups += [[u] for j, u in enumerate(users) if j not in matched]
+        for j, u in enumerate(users):
+            if j not in matched:
+                groups.append([u])
+                fused.append(u.joints)
     return groups
 
 

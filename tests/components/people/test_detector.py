@@ -113,3 +113,21 @@ def test_a_wrongly_calibrated_camera_does_not_merge_into_the_person():
     assert len(frame.tracks) == 2, "two single-camera tracks, not one fused person"
     assert frame.people == []
     assert all(len(t.cameras) == 1 for t in frame.tracks)
+
+
+def test_a_person_with_an_unseen_joint_has_a_finite_envelope():
+    # regression: an unseen fused joint had sigma = inf, an infinite envelope, and a
+    # distance of -inf to the robot (a collision that was not there)
+    cams, core = setup()
+    alice = standing((0.7, 0.0))
+    robot = (np.array([[-1.5, 0.0, 0.3]]), np.array([[-1.5, 0.0, 0.9]]), np.array([0.08]))
+
+    def hide_hand(users):
+        return [(u, np.where(np.arange(15)[:, None] == 5, np.nan, j)) for u, j in users]
+
+    frame = None
+    for k in range(40):
+        users = {c.name: hide_hand(c.observe({1: alice}, k * FRAME, FRAME)) for c in cams}
+        frame = core.process(users, k * FRAME, robot)
+    assert np.isnan(frame.people[0].sigma[5])
+    assert 1.5 < frame.min_distance < 2.5, frame.min_distance

@@ -1,0 +1,186 @@
+#!/usr/bin/env python3
+"""Benchmark people detection on the simulated cameras (a benchmark, not a test).
+
+* frame cost (fusion, tracking, envelopes, robot-person distances) with 8 cameras
+  and 16 people (target p99 <= 3 ms), for both matchers;
+* the thesis protocol (3.6.3.B): users enter the area around the table, stay and
+  leave, 30 trials with 1 and with 2 users; each trial is judged while they are in
+  (a positive) and after they left (a negative): TP/FP/TN/FN, accuracy, sensitivity,
+  specificity and the exact binomial test against p = 0.8 (Tables 4.1/4.2; thesis
+  accuracy 0.923 and 0.992, target >= 0.995 for both).
+
+    python tools/bench_people.py [--quick] [--out out/bench]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import binomtest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from components.people.detector import (
+    CameraConfig,
+    DetectorConfig,
+    PeopleDetectorCore,
+)
+from components.people.kinect_sim import KinectModel, look_at
+from components.people.skeleton import standing
+
+FRAME = 1.0 / 30.0
+
+
+def cameras(count: int, seed: int, ghosts: float = 0.02) -> list[KinectModel]:
+    out = []
+    for i in range(count):
+        angle = 2 * math.pi * i / count
+        position = (3.2 * math.cos(angle), 3.2 * math.sin(angle), 2.2)
+        out.append(
+            KinectModel(
+                f"k{i}",
+                look_at(position, (0.0, 0.0, 1.0)),
+                ghost_rate=ghosts,
+                rng=np.random.default_rng(seed + i),
+            )
+        )
+    return out
+
+
+def detector(cams: list[KinectModel], matcher: str = "hungarian") -> PeopleDetectorCore:
+    master = cams[0].world_from_camera
+    configs = [CameraConfig(c.name, np.linalg.inv(master) @ c.world_from_camera) for c in cams]
+    return PeopleDetectorCore(
+        DetectorConfig(configs, base_from_master=master, matcher=matcher, area_radius=1.5)
+    )
+
+
+ROBOT = (
+    np.array([[0.0, 0.0, 0.3], [0.0, 0.0, 0.7], [0.0, 0.0, 1.1], [0.2, 0.0, 1.3]]),
+    np.array([[0.0, 0.0, 0.7], [0.0, 0.0, 1.1], [0.2, 0.0, 1.3], [0.45, 0.0, 1.2]]),
+    np.array([0.08, 0.07, 0.06, 0.04]),
+)
+
+
+def frame_cost(n_cameras: int, n_people: int, frames: int, matcher: str) -> dict[str, float]:
+    cams = cameras(n_cameras, 0)
+    core = detector(cams, matcher)
+    rng = np.random.default_rng(1)
+    people = {}
+    for p in range(n_people):  # on a ring around the table, 1-2.5 m out
+        angle = 2 * math.pi * p / n_people
+        radius = rng.uniform(1.0, 2.5)
+        people[p] = standing((radius * math.cos(angle), radius * math.sin(angle)), angle)
+    times = []
+    for k in range(frames):
+        users = {c.name: c.observe(people, k * FRAME, FRAME) for c in cams}
+        t0 = time.perf_counter()
+        core.process(users, k * FRAME, ROBOT)
+        times.append(time.perf_counter() - t0)
+    times = sorted(times[10:])
+    return {
+        "p50_ms": statistics.median(times) * 1e3,
+        "p99_ms": times[int(len(times) * 0.99)] * 1e3,
+        "people": len(core.tracker.people),
+    }
+
+
+def protocol(users: int, trials: int) -> dict[str, float]:
+    tp = fp = tn = fn = 0
+    for trial in range(trials):
+        cams = cameras(2, 100 + trial)
+        core = detector(cams)
+        rng = np.random.default_rng(trial)
+        outside = {u: (4.0 + u, -3.0) for u in range(users)}
+        inside = {u: (rng.uniform(-0.8, 0.8), rng.uniform(-0.8, 0.8)) for u in range(users)}
+        script = [(0.0, outside), (1.0, inside), (4.0, outside), (6.0, None)]
+        judged_in = judged_out = None
+        for k in range(int(6.0 / FRAME)):
+            t = k * FRAME
+            where = next(p for start, p in reversed(script) if start <= t and p is not None)
+            people = {u: standing(xy) for u, xy in where.items()}
+            frame = core.process({c.name: c.observe(people, t, FRAME) for c in cams}, t)
+            if abs(t - 3.5) < FRAME / 2:
+                judged_in = frame.users_near
+            if abs(t - 5.9) < FRAME / 2:
+                judged_out = frame.users_near
+        tp += judged_in == users
+        fn += judged_in != users
+        tn += judged_out == 0
+        fp += judged_out != 0
+    n = tp + fp + tn + fn
+    accuracy = (tp + tn) / n
+    return {
+        "TP": tp,
+        "FP": fp,
+        "TN": tn,
+        "FN": fn,
+        "accuracy": accuracy,
+        "sensitivity": tp / (tp + fn),
+        "specificity": tn / (tn + fp),
+        "binomial_p_vs_0.8": binomtest(tp + tn, n, 0.8, alternative="greater").pvalue,
+    }
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--out", default="out/bench")
+    args = parser.parse_args()
+    frames = 60 if args.quick else 300
+    trials = 6 if args.quick else 30
+    cost = {m: frame_cost(8, 16, frames, m) for m in ("hungarian", "rule")}
+    results = {
+        "frame_cost_8x16": cost,
+        "protocol_1_user": protocol(1, trials),
+        "protocol_2_users": protocol(2, trials),
+    }
+    targets = {
+        "frame p99 <= 3 ms (8 cameras x 16 people)": cost["hungarian"]["p99_ms"] <= 3,
+        "accuracy >= 0.995 with 1 user": results["protocol_1_user"]["accuracy"] >= 0.995,
+        "accuracy >= 0.995 with 2 users": results["protocol_2_users"]["accuracy"] >= 0.995,
+    }
+    lines = [
+        "# People detection benchmark",
+        "",
+        "| matcher | frame p50 ms | frame p99 ms | people tracked (of 16) |",
+        "|---|---:|---:|---:|",
+    ]
+    lines += [
+        f"| {m} | {c['p50_ms']:.2f} | {c['p99_ms']:.2f} | {c['people']} |" for m, c in cost.items()
+    ]
+    lines += [
+        "",
+        "| users | TP | FP | TN | FN | accuracy | sensitivity | specificity | binomial p (>0.8) |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for users in (1, 2):
+        r = results[f"protocol_{users}_user{'s' if users > 1 else ''}"]
+        lines.append(
+            f"| {users} | {r['TP']} | {r['FP']} | {r['TN']} | {r['FN']} | "
+            f"{r['accuracy']:.3f} | {r['sensitivity']:.3f} | {r['specificity']:.3f} | "
+            f"{r['binomial_p_vs_0.8']:.2g} |"
+        )
+    lines += ["", "Targets:"] + [f"- [{'x' if ok else ' '}] {t}" for t, ok in targets.items()]
+    report = "\n".join(lines) + "\n"
+    print(report)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "people.md").write_text(report, encoding="utf-8")
+    (out / "people.json").write_text(
+        json.dumps({"results": results, "targets": targets}, indent=2, default=float)
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
