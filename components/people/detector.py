@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from components.people.distance import capsule_distances, closest_pair
-from components.people.fusion import Detection, fuse, group, noise_for
+from components.people.fusion import Detection, group_and_fuse, noise_for
 from components.people.skeleton import LIMBS, envelope, limbs_seen
 from components.people.tracking import PeopleTracker, Person, Track
 
@@ -89,10 +89,10 @@ class PeopleDetectorCore:
                 sigma = noise_for(joints, camera.lateral_noise)
                 in_base = joints @ transform[:3, :3].T + transform[:3, 3]
                 detections.append(Detection(name, uid, in_base, np.nan_to_num(sigma)))
-        people = []
-        for members in group(detections, self.config.matcher):
-            joints, sigma = fuse(members)
-            people.append(Person(joints, sigma, frozenset(d.camera for d in members)))
+        people = [
+            Person(joints, sigma, frozenset(d.camera for d in members))
+            for members, joints, sigma in group_and_fuse(detections, self.config.matcher)
+        ]
         tracks = self.tracker.update(people, now)
         confirmed = [t for t in tracks if t.confirmed]
         near = 0

@@ -96,33 +96,39 @@ def fuse(detections: list[Detection]) -> tuple[np.ndarray, np.ndarray]:
     return fused, fused_sigma
 
 
-def group(detections: list[Detection], matcher: str = "hungarian") -> list[list[Detection]]:
-    """Cluster the detections of all cameras into people: cameras are merged one after
-    the other into the growing set of groups (the fused joints of each group)."""
+def group_and_fuse(
+    detections: list[Detection], matcher: str = "hungarian"
+) -> list[tuple[list[Detection], np.ndarray, np.ndarray]]:
+    """Cluster the detections of all cameras into people, merging cameras one after the
+    other into the growing set of groups; each group with its fused joints and sigma."""
     match = hungarian_matches if matcher == "hungarian" else rule_matches
     groups: list[list[Detection]] = []
-    fused: list[np.ndarray] | None = None
+    fused: list[tuple[np.ndarray, np.ndarray]] = []
     by_camera: dict[str, list[Detection]] = {}
     for d in detections:
         by_camera.setdefault(d.camera, []).append(d)
     for camera in sorted(by_camera):
         users = by_camera[camera]
-        if not groups:
-            groups = [[u] for u in users]
-            continue
-        if fused is None:
-            fused = [fuse(g)[0] for g in groups]
-        pairs = match(np.stack(fused), np.stack([u.joints for u in users]))
+        pairs = (
+            match(np.stack([f[0] for f in fused]), np.stack([u.joints for u in users]))
+            if groups
+            else []
+        )
         matched = set()
         for i, j in pairs:
             groups[i].append(users[j])
-            fused[i] = fuse(groups[i])[0]  # only the groups that changed are fused again
+            fused[i] = fuse(groups[i])  # only the groups that changed are fused again
             matched.add(j)
         for j, u in enumerate(users):
             if j not in matched:
                 groups.append([u])
-                fused.append(u.joints)
-    return groups
+                fused.append((u.joints, u.sigma))
+    return [(g, joints, sigma) for g, (joints, sigma) in zip(groups, fused, strict=True)]
+
+
+def group(detections: list[Detection], matcher: str = "hungarian") -> list[list[Detection]]:
+    """The people (as their detections) of one frame; see `group_and_fuse`."""
+    return [members for members, _, _ in group_and_fuse(detections, matcher)]
 
 
 def noise_for(joints_in_camera: np.ndarray, lateral: float = 0.01) -> np.ndarray:
