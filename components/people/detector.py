@@ -7,7 +7,9 @@ a noise margin; distances between robot link capsules and every person; the numb
 of people inside the area around the table. Bad input is contained: non-finite joints
 become unseen joints, a camera that stops simply contributes nothing, and a camera
 whose calibration is wrong cannot create people (its users fail to match the others
-and stay tentative unless seen long enough).
+and are not trusted: a person only a non-master camera sees, where another reporting
+camera should see them too, is never confirmed, and the disagreement is recorded
+(`disagreements`); the master camera is trusted on ties).
 """
 
 from __future__ import annotations
@@ -57,6 +59,20 @@ class Frame:
     rejected_joints: int
 
 
+SUSPECT = 5.0  # frames of net disagreement with the master before a camera is suspect
+
+
+def _in_view(point: np.ndarray) -> bool:
+    from components.people.kinect_sim import FAR, H_FOV, NEAR, V_FOV
+
+    x, y, z = point
+    return bool(
+        NEAR <= z <= FAR
+        and abs(np.arctan2(x, z)) <= H_FOV / 2
+        and abs(np.arctan2(y, z)) <= V_FOV / 2
+    )
+
+
 class PeopleDetectorCore:
     """Everything between camera users and robot-person distances."""
 
@@ -64,6 +80,12 @@ class PeopleDetectorCore:
         self.config = config
         self.cameras = {c.name: c for c in config.cameras}
         self.tracker = PeopleTracker(config.confirm_after, config.delete_after)
+        self.master = config.cameras[0].name if config.cameras else ""
+        self.disagreements: dict[tuple[str, str], int] = {}
+        self.suspicion: dict[str, float] = {}
+        """Per camera: grows while it misses people the master sees where it should see
+        them, shrinks while it agrees; a suspect camera's lone users are not trusted."""
+        """(camera, camera that should have seen its user) -> frames: calibration suspects."""
 
     def process(
         self,
@@ -89,10 +111,23 @@ class PeopleDetectorCore:
                 sigma = noise_for(joints, camera.lateral_noise)
                 in_base = joints @ transform[:3, :3].T + transform[:3, 3]
                 detections.append(Detection(name, uid, in_base, np.nan_to_num(sigma)))
-        people = [
-            Person(joints, sigma, frozenset(d.camera for d in members))
-            for members, joints, sigma in group_and_fuse(detections, self.config.matcher)
-        ]
+        reporting = [name for name in users if name in self.cameras]
+        grouped = group_and_fuse(detections, self.config.matcher)
+        self._update_suspicion(grouped, reporting)
+        people = []
+        for members, joints, sigma in grouped:
+            cameras = frozenset(d.camera for d in members)
+            trusted = True
+            if len(cameras) == 1 and next(iter(cameras)) != self.master:
+                camera = next(iter(cameras))
+                others = [j for _, j, _ in grouped if j is not joints]
+                missing = self._should_see(joints, cameras, reporting, others)
+                for other in missing:
+                    self.disagreements[(camera, other)] = (
+                        self.disagreements.get((camera, other), 0) + 1
+                    )
+                trusted = not missing and self.suspicion.get(camera, 0.0) < SUSPECT
+            people.append(Person(joints, sigma, cameras, trusted))
         tracks = self.tracker.update(people, now)
         confirmed = [t for t in tracks if t.confirmed]
         near = 0
@@ -108,6 +143,60 @@ class PeopleDetectorCore:
         if robot is not None and confirmed:
             distance, closest = self._distances(confirmed, robot)
         return Frame(tracks, confirmed, near, distance, closest, rejected)
+
+    def _update_suspicion(
+        self, grouped: list[tuple[list[Detection], np.ndarray, np.ndarray]], reporting: list[str]
+    ) -> None:
+        for members, joints, _ in grouped:
+            cameras = frozenset(d.camera for d in members)
+            if self.master not in cameras:
+                continue
+            for camera in cameras - {self.master}:  # agrees with the master
+                self.suspicion[camera] = max(0.0, self.suspicion.get(camera, 0.0) - 1.0)
+            if cameras == {self.master}:
+                others = [j for _, j, _ in grouped if j is not joints]
+                for camera in self._should_see(joints, cameras, reporting, others):
+                    self.suspicion[camera] = min(3 * SUSPECT, self.suspicion.get(camera, 0.0) + 1.0)
+                    self.disagreements[(camera, self.master)] = (
+                        self.disagreements.get((camera, self.master), 0) + 1
+                    )
+
+    def _should_see(
+        self,
+        joints: np.ndarray,
+        seen_by: frozenset[str],
+        reporting: list[str],
+        others: list[np.ndarray],
+    ) -> list[str]:
+        """Reporting cameras that should see this person (torso inside their field of view,
+        not hidden behind another person) but did not."""
+        torso = joints[2]
+        if not np.isfinite(torso).all():
+            return []
+        missing = []
+        for name in reporting:
+            if name in seen_by:
+                continue
+            camera_from_base = np.linalg.inv(
+                self.config.base_from_master @ self.cameras[name].master_from_camera
+            )
+            point = camera_from_base[:3, :3] @ torso + camera_from_base[:3, 3]
+            if not _in_view(point):
+                continue
+            depth = float(np.linalg.norm(point))
+            direction = point / depth
+            hidden = False
+            for other in others:
+                if not np.isfinite(other[2]).all():
+                    continue
+                o = camera_from_base[:3, :3] @ other[2] + camera_from_base[:3, 3]
+                along = float(o @ direction)
+                if 0.0 < along < depth - 0.1 and np.linalg.norm(o - along * direction) < 0.35:
+                    hidden = True
+                    break
+            if not hidden:
+                missing.append(name)
+        return missing
 
     def _distances(
         self, people: list[Track], robot: tuple[np.ndarray, np.ndarray, np.ndarray]

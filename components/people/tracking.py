@@ -25,6 +25,9 @@ class Person:
     joints: np.ndarray
     sigma: np.ndarray
     cameras: frozenset[str]
+    trusted: bool = True
+    """False when only a non-master camera sees it where another camera should (a
+    camera whose calibration is wrong produces exactly such misplaced copies)."""
 
 
 @dataclass
@@ -38,6 +41,8 @@ class Track:
     last_seen: float
     confirmed: bool = False
     cameras: frozenset[str] = field(default_factory=frozenset)
+    frames: int = 0
+    untrusted: int = 0
 
 
 class PeopleTracker:
@@ -69,6 +74,8 @@ class PeopleTracker:
                     track, person = self.tracks[i], people[j]
                     track.joints, track.sigma = person.joints, person.sigma
                     track.last_seen, track.cameras = now, person.cameras
+                    track.frames += 1
+                    track.untrusted += not person.trusted
                     matched_tracks.add(i)
                     matched_people.add(j)
         for j, person in enumerate(people):
@@ -81,6 +88,8 @@ class PeopleTracker:
                         now,
                         now,
                         cameras=person.cameras,
+                        frames=1,
+                        untrusted=int(not person.trusted),
                     )
                 )
         alive = []
@@ -92,7 +101,10 @@ class PeopleTracker:
                 and track.last_seen == now
                 and (
                     len(track.cameras) >= self.cameras_to_confirm
-                    or now - track.first_seen >= self.confirm_after
+                    or (
+                        track.untrusted * 2 <= track.frames  # mostly credible
+                        and now - track.first_seen >= self.confirm_after
+                    )
                 )
             ):
                 track.confirmed = True
