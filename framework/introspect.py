@@ -7,6 +7,7 @@ only asks (containers' and components' queryables) and never changes anything.
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -47,9 +48,21 @@ def containers(bus: Bus, timeout: float = 3.0) -> dict[str, list[str]]:
     return dict(sorted(out.items()))
 
 
+def discover(bus: Bus, patience: float = 10.0) -> dict[str, list[str]]:
+    """`containers`, asked again until someone answers or `patience` runs out: a session
+    that has just joined may not reach every process yet (gossip is still connecting),
+    and "nothing is running" must not be concluded from one early, empty answer."""
+    deadline = time.monotonic() + patience
+    found = containers(bus)
+    while not found and time.monotonic() < deadline:
+        time.sleep(0.2)
+        found = containers(bus)
+    return found
+
+
 def snapshot(bus: Bus, timeout: float = 3.0) -> Snapshot:
     """Discover containers, describe every component and derive the connections."""
-    found = containers(bus, timeout)
+    found = discover(bus) if bus.peers() else {}
     described: dict[str, dict[str, Any]] = {}
     unreachable = []
     for names in found.values():
