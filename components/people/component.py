@@ -1,0 +1,140 @@
+"""The Workspace People Detector as a component: camera ports in, people out.
+
+Cameras come from a YAML file (any number, no code change):
+
+    master: k0
+    base_from_master: {position: [x, y, z], quaternion: [w, x, y, z]}   # eq. 3.10
+    area: {center: [0.0, 0.0], radius: 1.5}                             # around the table
+    cameras:
+      k0: {key: kinect/0/users}                                         # the master
+      k1: {key: kinect/1/users, calibration: {position: [...], quaternion: [...]}}  # eq. 3.8
+
+A camera whose data stops (no new frame) simply contributes nothing; robot link
+capsules join with the SEEG robot model (Pinocchio forward kinematics).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from components.people.detector import CameraConfig, DetectorConfig, PeopleDetectorCore
+from components.people.kinect_sim import from_message
+from components.tracking.geometry import as_matrix
+from framework.component import Component, Out, operation
+from framework.errors import FwError
+from framework.messages import EventMessage, Scalar, Skeletons
+from framework.ports import ConnPolicy, InputPort, ReadStatus
+from framework.properties import prop
+from framework.yamlio import load_yaml
+
+
+class CameraConfigError(FwError):
+    """A cameras file is wrong (the message names file:line)."""
+
+
+def load_cameras(path: str) -> tuple[DetectorConfig, dict[str, str]]:
+    """The detector configuration and each camera's bus key, from YAML."""
+    doc = load_yaml(path)
+    data = doc.data if isinstance(doc.data, dict) else None
+    if data is None or not isinstance(data.get("cameras"), dict) or not data["cameras"]:
+        raise CameraConfigError(f"{doc.location(())}: a cameras file needs a `cameras:` mapping")
+    master = data.get("master", next(iter(data["cameras"])))
+    if master not in data["cameras"]:
+        raise CameraConfigError(f"{doc.location(('master',))}: master {master!r} is not a camera")
+    cameras, keys = [], {}
+    for name, spec in data["cameras"].items():
+        where = doc.location(("cameras", name))
+        if not isinstance(spec, dict) or "key" not in spec:
+            raise CameraConfigError(f"{where}: camera {name!r} needs a `key`")
+        try:
+            calibration = as_matrix(spec.get("calibration", np.eye(4).tolist()))
+        except ValueError as exc:
+            raise CameraConfigError(f"{where}: {exc}") from None
+        keys[name] = spec["key"]
+        cameras.append(CameraConfig(name, calibration, float(spec.get("lateral_noise", 0.01))))
+    cameras.sort(key=lambda c: c.name != master)  # the master first
+    area = data.get("area") or {}
+    try:
+        config = DetectorConfig(
+            cameras,
+            as_matrix(data.get("base_from_master", np.eye(4).tolist())),
+            matcher=str(data.get("matcher", "hungarian")),
+            area_center=tuple(area.get("center", (0.0, 0.0))),  # type: ignore[arg-type]
+            area_radius=float(area.get("radius", 1.5)),
+        )
+    except (TypeError, ValueError) as exc:
+        raise CameraConfigError(f"{doc.location(())}: {exc}") from None
+    if config.matcher not in ("hungarian", "rule"):
+        raise CameraConfigError(f"{doc.location(('matcher',))}: matcher is 'hungarian' or 'rule'")
+    return config, keys
+
+
+class WorkspacePeopleDetector(Component):
+    """Feeds `PeopleDetectorCore` from the cameras' ports and publishes people."""
+
+    cameras_file = prop(str, "", doc="cameras YAML (keys, calibration, area)")
+    people = Out(EventMessage, doc="tracks: id, confirmed, cameras, torso position")
+    users_near = Out(Scalar, doc="confirmed people inside the area around the table")
+    min_distance = Out(Scalar, doc="closest robot-person distance (m; inf without a robot)")
+
+    def configure_hook(self) -> bool:
+        try:
+            if not self.cameras_file:
+                raise CameraConfigError("property cameras_file is empty")
+            config, keys = load_cameras(self.cameras_file)
+        except FwError as exc:
+            self.last_error = str(exc)
+            return False
+        self.core = PeopleDetectorCore(config)
+        self.camera_ports: dict[str, InputPort[Skeletons]] = {}
+        for name, key in keys.items():
+            port = self.inputs.get(f"camera_{name}") or InputPort(
+                f"camera_{name}", Skeletons, policy=ConnPolicy()
+            )
+            port.owner, port.bus = self.name, self.people.bus
+            self.inputs[port.name] = port
+            port.connect(key)
+            self.camera_ports[name] = port
+        self.last: dict[str, Any] = {}
+        return True
+
+    def cleanup_hook(self) -> None:
+        for port in getattr(self, "camera_ports", {}).values():
+            port.close()
+
+    def update_hook(self) -> None:
+        users = {}
+        for name, port in self.camera_ports.items():
+            status, message = port.read()
+            if status is ReadStatus.NEW:  # a stopped camera contributes nothing
+                users[name] = from_message(message)
+        now = time.monotonic()
+        frame = self.core.process(users, now)
+        stamp = time.time()
+        self.last = {
+            "people": [
+                {
+                    "id": t.id,
+                    "cameras": sorted(t.cameras),
+                    "torso": [round(float(v), 3) for v in np.nan_to_num(t.joints[2])],
+                }
+                for t in frame.people
+            ],
+            "tentative": len(frame.tracks) - len(frame.people),
+            "users_near": frame.users_near,
+            "disagreements": {f"{a}->{b}": n for (a, b), n in self.core.disagreements.items()},
+        }
+        self.people.write(EventMessage(stamp, "people", self.name, self.last))
+        self.users_near.write(Scalar(stamp, float(frame.users_near)))
+        self.min_distance.write(Scalar(stamp, frame.min_distance))
+
+    @operation
+    def current(self) -> dict[str, Any]:
+        """The latest frame: confirmed people, tentative count, users near, disagreements."""
+        return dict(
+            getattr(self, "last", {})
+            or {"people": [], "tentative": 0, "users_near": 0, "disagreements": {}}
+        )
