@@ -127,6 +127,8 @@ class Component:
         self.declared_properties: dict[str, Property] = {}
         self._values: dict[str, Any] = {}
         self.operations: dict[str, Callable[..., Any]] = {}
+        self.bus: Any = None
+        """The bus of the hosting container (set when a container adds the component)."""
         for attr, _ in declarations(type(self)):
             if attr in _RESERVED:
                 raise FwError(
@@ -160,6 +162,21 @@ class Component:
             known = ", ".join(sorted([*self.inputs, *self.outputs])) or "none"
             raise FwError(f"component {self.name!r} has no port {name!r} (ports: {known})")
         return found
+
+    def add_input(
+        self, name: str, kind: type, key: str, policy: ConnPolicy | None = None
+    ) -> InputPort[Any]:
+        """An input port decided at configure time (one per sensor or camera of a config
+        file), connected to `key`; configuring again reuses the same port."""
+        if self.bus is None:
+            raise FwError(f"{self.name}: add_input needs the component to be hosted by a container")
+        port = self.inputs.get(name)
+        if port is None:
+            port = InputPort(name, kind, policy=policy)
+            port.owner, port.bus = self.name, self.bus
+            self.inputs[name] = port
+        port.connect(key)
+        return port
 
     def get_property(self, name: str) -> Any:
         """The value of a declared property."""

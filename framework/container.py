@@ -76,6 +76,7 @@ class Container:
         activity.check(component)
         if properties:
             component.set_properties(properties)
+        component.bus = self.bus
         for port in (*component.inputs.values(), *component.outputs.values()):
             port.bus = self.bus
         for port in component.outputs.values():

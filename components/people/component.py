@@ -26,7 +26,7 @@ from components.tracking.geometry import as_matrix
 from framework.component import Component, Out, operation
 from framework.errors import FwError
 from framework.messages import EventMessage, Scalar, Skeletons
-from framework.ports import ConnPolicy, InputPort, ReadStatus
+from framework.ports import InputPort, ReadStatus
 from framework.properties import prop
 from framework.yamlio import load_yaml
 
@@ -91,13 +91,7 @@ class WorkspacePeopleDetector(Component):
         self.core = PeopleDetectorCore(config)
         self.camera_ports: dict[str, InputPort[Skeletons]] = {}
         for name, key in keys.items():
-            port = self.inputs.get(f"camera_{name}") or InputPort(
-                f"camera_{name}", Skeletons, policy=ConnPolicy()
-            )
-            port.owner, port.bus = self.name, self.people.bus
-            self.inputs[port.name] = port
-            port.connect(key)
-            self.camera_ports[name] = port
+            self.camera_ports[name] = self.add_input(f"camera_{name}", Skeletons, key)
         self.last: dict[str, Any] = {}
         return True
 

@@ -375,13 +375,7 @@ class SensorManager(Component):
         self.tracker_ports: list[tuple[str, str, InputPort[Pose]]] = []
         for sensor in config.sensors:
             for tool, key in sensor.keys.items():
-                name = f"{sensor.name}_{tool}"
-                port = self.inputs.get(name) or InputPort(
-                    name, Pose, policy=ConnPolicy("buffer", 64)
-                )
-                port.owner, port.bus = self.name, self.ee_pose.bus
-                self.inputs[name] = port
-                port.connect(key)
+                port = self.add_input(f"{sensor.name}_{tool}", Pose, key, ConnPolicy("buffer", 64))
                 self.tracker_ports.append((sensor.name, tool, port))
         self._last_status = 0.0
         return True
