@@ -11,7 +11,6 @@ truth. Target: X within 0.6 mm and 0.05 deg with 8 poses.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -19,6 +18,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from benchlib import write_report
 
 from components.tracking.calibration import hand_eye, protocol_poses
 from components.tracking.geometry import rotation_angle
@@ -82,13 +84,7 @@ def main() -> int:
             f"{r['Y_deg']['median']:.4f} / {r['Y_deg']['p95']:.4f} | "
             f"{r['solve_s']['median'] * 1e3:.1f} |"
         )
-    lines += ["", "Targets:"] + [f"- [{'x' if ok else ' '}] {t}" for t, ok in targets.items()]
-    report = "\n".join(lines) + "\n"
-    print(report)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "calibration.md").write_text(report, encoding="utf-8")
-    (out / "calibration.json").write_text(json.dumps({"rows": rows, "targets": targets}, indent=2))
+    write_report(args.out, "calibration", lines, targets, {"rows": rows})
     return 0
 
 

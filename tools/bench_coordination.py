@@ -16,10 +16,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import platform
-import statistics
 import sys
 import tempfile
 import threading
@@ -28,6 +26,9 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from benchlib import percentiles, write_report
 
 from framework.bus import free_port
 from framework.deployer import Deployment
@@ -62,15 +63,6 @@ class Timing(Listener):
             self.request_at = time.perf_counter()
             self.event_to_tag.append(self.request_at - self.event_at)
             self.event_at = None
-
-
-def stats(samples: list[float]) -> dict[str, float]:
-    ordered = sorted(samples)
-    return {
-        "n": len(ordered),
-        "p50_us": statistics.median(ordered) * 1e6,
-        "p99_us": ordered[min(len(ordered) - 1, int(len(ordered) * 0.99))] * 1e6,
-    }
 
 
 def main() -> int:
@@ -111,9 +103,9 @@ def main() -> int:
                 t0 = time.perf_counter()
                 remote.request("state")
                 round_trips.append(time.perf_counter() - t0)
-            results["event_to_tag"] = stats(timing.event_to_tag)
-            results["tag_to_ack_tracker_swap"] = stats(timing.tag_to_ack)
-            results["baseline_remote_request"] = stats(round_trips)
+            results["event_to_tag"] = percentiles(timing.event_to_tag)
+            results["tag_to_ack_tracker_swap"] = percentiles(timing.tag_to_ack)
+            results["baseline_remote_request"] = percentiles(round_trips)
             failures = [o for o in deployment.configurator.history if not o.ok]
         finally:
             deployment.stop()
@@ -135,15 +127,7 @@ def main() -> int:
         f"| {name} | {r['n']} | {r['p50_us']:.1f} | {r['p99_us']:.1f} |"
         for name, r in results.items()
     ]
-    lines += ["", "Targets:"] + [f"- [{'x' if ok else ' '}] {t}" for t, ok in targets.items()]
-    report = "\n".join(lines) + "\n"
-    print(report)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "coordination.md").write_text(report, encoding="utf-8")
-    (out / "coordination.json").write_text(
-        json.dumps({"results": results, "targets": targets}, indent=2)
-    )
+    write_report(args.out, "coordination", lines, targets, {"results": results})
     return 0
 
 

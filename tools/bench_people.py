@@ -15,7 +15,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import statistics
 import sys
@@ -26,6 +25,9 @@ import numpy as np
 from scipy.stats import binomtest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from benchlib import write_report
 
 from components.people.detector import (
     CameraConfig,
@@ -170,15 +172,7 @@ def main() -> int:
             f"{r['accuracy']:.3f} | {r['sensitivity']:.3f} | {r['specificity']:.3f} | "
             f"{r['binomial_p_vs_0.8']:.2g} |"
         )
-    lines += ["", "Targets:"] + [f"- [{'x' if ok else ' '}] {t}" for t, ok in targets.items()]
-    report = "\n".join(lines) + "\n"
-    print(report)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "people.md").write_text(report, encoding="utf-8")
-    (out / "people.json").write_text(
-        json.dumps({"results": results, "targets": targets}, indent=2, default=float)
-    )
+    write_report(args.out, "people", lines, targets, {"results": results})
     return 0
 
 

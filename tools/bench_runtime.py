@@ -23,7 +23,6 @@ import json
 import os
 import platform
 import signal
-import statistics
 import subprocess
 import sys
 import threading
@@ -32,6 +31,9 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from benchlib import percentiles, write_report
 
 from framework import keys
 from framework.bus import Bus, BusConfig, free_port
@@ -53,18 +55,6 @@ for i in range({count}):
 time.sleep(0.5)
 bus.close()
 """
-
-
-def stats(samples: list[float]) -> dict[str, float]:
-    """Median, p99 and count of samples given in seconds, reported in microseconds."""
-    ordered = sorted(samples)
-    if not ordered:
-        return {"n": 0, "p50_us": float("nan"), "p99_us": float("nan")}
-    return {
-        "n": len(ordered),
-        "p50_us": statistics.median(ordered) * 1e6,
-        "p99_us": ordered[min(len(ordered) - 1, int(len(ordered) * 0.99))] * 1e6,
-    }
 
 
 def wait(predicate: Any, timeout: float) -> bool:
@@ -256,31 +246,31 @@ def main() -> int:
     results: dict[str, dict[str, float]] = {}
     try:
         print("raw zenoh ...", file=sys.stderr)
-        results["raw_in_process"] = stats(raw_in_process(bus, n))
+        results["raw_in_process"] = percentiles(raw_in_process(bus, n))
         # same 100 Hz rate as the port test: at lower rates idle wake-ups dominate latency
-        results["raw_inter_process_100hz"] = stats(
+        results["raw_inter_process_100hz"] = percentiles(
             raw_inter_process(bus, config, n // 4 if args.quick else n // 2, 0.01)
         )
         print("ports ...", file=sys.stderr)
-        results["port_in_process"] = stats(port_in_process(bus, n))
+        results["port_in_process"] = percentiles(port_in_process(bus, n))
         pingers = start_pingers(config, ["ping_a", "ping_b"], 100.0)
         try:
             wait(lambda: len(bus.alive(keys.ALL_ALIVE, 0.5)) >= 2, 30)
-            results["port_inter_process_100hz"] = stats(
+            results["port_inter_process_100hz"] = percentiles(
                 port_inter_process(bus, 3.0 if args.quick else 15.0)
             )
             print("rewire ...", file=sys.stderr)
-            results["rewire_to_first_sample"] = stats(rewire(bus, 40 if args.quick else 200))
-            results["rewire_prepared_to_first_sample"] = stats(
+            results["rewire_to_first_sample"] = percentiles(rewire(bus, 40 if args.quick else 200))
+            results["rewire_prepared_to_first_sample"] = percentiles(
                 rewire(bus, 40 if args.quick else 200, prepared=True)
             )
             print("remote calls ...", file=sys.stderr)
-            results["remote_request_round_trip"] = stats(remote_calls(bus, n // 2))
+            results["remote_request_round_trip"] = percentiles(remote_calls(bus, n // 2))
         finally:
             pingers.send_signal(signal.SIGTERM)
             pingers.wait(20)
         print("liveliness ...", file=sys.stderr)
-        results["liveliness_after_sigkill"] = stats(
+        results["liveliness_after_sigkill"] = percentiles(
             liveliness(bus, config, 3 if args.quick else 10)
         )
     finally:
@@ -313,16 +303,7 @@ def main() -> int:
         lines.append(
             f"| {name} | {row['n']} | {row['p50_us']:.1f} | {row['p99_us']:.1f} | {ratio} |"
         )
-    lines += ["", "Targets:"] + [f"- [{'x' if ok else ' '}] {t}" for t, ok in targets.items()]
-    report = "\n".join(lines) + "\n"
-    print(report)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "runtime.md").write_text(report, encoding="utf-8")
-    (out / "runtime.json").write_text(
-        json.dumps({"results": results, "targets": targets}, indent=2)
-    )
-    print(f"wrote {out / 'runtime.md'}", file=sys.stderr)
+    write_report(args.out, "runtime", lines, targets, {"results": results})
     return 0
 
 

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import json
 import platform
 import statistics
 import sys
@@ -30,6 +29,9 @@ from typing import Any
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from benchlib import write_report
 
 from framework.clock import SimulatedClock
 from framework.statechart.interpreter import Interpreter
@@ -291,19 +293,10 @@ def main() -> int:
             if "sismic_ms" in load
             else ""
         ),
-        "",
-        "Targets:",
     ]
-    lines += [f"- [{'x' if ok else ' '}] {name}" for name, ok in targets.items()]
-    report = "\n".join(lines) + "\n"
-    print(report)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "statechart.md").write_text(report, encoding="utf-8")
-    (out / "statechart.json").write_text(
-        json.dumps({"events": events, "rows": rows, "load": load, "targets": targets}, indent=2)
+    write_report(
+        args.out, "statechart", lines, targets, {"events": events, "rows": rows, "load": load}
     )
-    print(f"wrote {out / 'statechart.md'} and {out / 'statechart.json'}", file=sys.stderr)
     return 0
 
 

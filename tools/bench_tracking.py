@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import os
 import platform
@@ -27,6 +26,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from benchlib import write_report
 
 from components.tracking.sensor_manager import SensorManagerCore
 from components.tracking.synthetic import (
@@ -194,18 +196,8 @@ def main() -> int:
         "",
         f"False alarms: {alarms} in {evaluated} cycles ({simulated:g} simulated s of "
         "nominal noisy tracking, Certus 0.1 mm and Vicra 0.25 mm RMS)",
-        "",
-        "Targets:",
     ]
-    lines += [f"- [{'x' if ok else ' '}] {t}" for t, ok in targets.items()]
-    report = "\n".join(lines) + "\n"
-    print(report)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "tracking.md").write_text(report, encoding="utf-8")
-    (out / "tracking.json").write_text(
-        json.dumps({"results": results, "targets": targets}, indent=2)
-    )
+    write_report(args.out, "tracking", lines, targets, {"results": results})
     return 0
 
 
