@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import shutil
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -189,6 +191,16 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     return 0
 
 
+@contextlib.contextmanager
+def _joined(topology_path: str) -> Iterator[tuple[Any, Any]]:
+    """Join a running deployment's bus (closed on the way out); see `_join`."""
+    topology, bus = _join(topology_path)
+    try:
+        yield topology, bus
+    finally:
+        bus.close()
+
+
 def _join(topology_path: str) -> tuple[Any, Any]:
     from framework.bus import Bus
     from framework.topology import load_topology
@@ -221,8 +233,7 @@ def cmd_send(args: argparse.Namespace) -> int:
         raise FwError(f"--payload is not JSON: {exc.msg}") from None
     if not isinstance(payload, dict):
         raise FwError("--payload must be a JSON object")
-    topology, bus = _join(args.topology)
-    try:
+    with _joined(args.topology) as (topology, bus):
         if topology.statechart is not None:
             chart = load_statechart(topology.statechart)
             vocabulary = sorted(set(chart.events) | set(BUILTIN_EVENTS))
@@ -245,8 +256,6 @@ def cmd_send(args: argparse.Namespace) -> int:
         publisher.undeclare()
         print(f"sent {args.event}" + (f" {json.dumps(payload)}" if payload else ""))
         return 0
-    finally:
-        bus.close()
 
 
 def cmd_status(args: argparse.Namespace) -> int:
@@ -254,8 +263,7 @@ def cmd_status(args: argparse.Namespace) -> int:
     from framework.introspect import discover
     from framework.remote import RemoteComponent, RemoteError
 
-    topology, bus = _join(args.topology)
-    try:
+    with _joined(args.topology) as (topology, bus):
         found = discover(bus) if bus.peers() else {}
         if not found:
             raise FwError(f"nothing is running in deployment {topology.bus.namespace!r}")
@@ -282,16 +290,13 @@ def cmd_status(args: argparse.Namespace) -> int:
                     state = "NOT RESPONDING"
                 print(f"{name:<20} {container:<16} {state}")
         return 0
-    finally:
-        bus.close()
 
 
 def cmd_ls(args: argparse.Namespace) -> int:
     """Components, ports, keys and connections of a running deployment."""
     from framework.introspect import snapshot
 
-    topology, bus = _join(args.topology)
-    try:
+    with _joined(args.topology) as (topology, bus):
         snap = snapshot(bus)
         if not snap.containers:
             raise FwError(f"nothing is running in deployment {topology.bus.namespace!r}")
@@ -324,8 +329,6 @@ def cmd_ls(args: argparse.Namespace) -> int:
                 f"{', '.join(conn.readers) or '(no reader)'}"
             )
         return 0
-    finally:
-        bus.close()
 
 
 def _summary(topic: str, data: dict[str, Any]) -> str:
