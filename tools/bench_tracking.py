@@ -46,7 +46,9 @@ def many_rigs(n: int) -> list:
     return [dataclasses.replace(base[i % 2], name=f"s{i}") for i in range(n)]
 
 
-def cycle_times(n: int, cycles: int) -> dict[str, float]:
+def cycle_times(n: int, cycles: int, every_cycle: bool = True) -> dict[str, float]:
+    """Cycle time with `n` sensors: each delivering a frame every cycle (the worst case),
+    or at its own rate (Certus 100 Hz, Vicra 20 Hz) with phases spread over the period."""
     rigs = many_rigs(n)
     core = SensorManagerCore(sensors_config(rigs, 3))
     rng = np.random.default_rng(0)
@@ -54,12 +56,14 @@ def cycle_times(n: int, cycles: int) -> dict[str, float]:
     truth = ee_path(0.0)
     observed = [rig.observe(truth, rng) for rig in rigs]
     core.set_kinematics(truth)
+    periods = [round(1.0 / (rig.rate * TICK)) for rig in rigs]
     for k in range(cycles):
         now = k * TICK
         t0 = time.perf_counter()  # a cycle = taking every new sample + evaluating
-        for rig, (cto, rto) in zip(rigs, observed, strict=True):
-            core.offer(rig.name, "cto", cto, now)
-            core.offer(rig.name, "rto", rto, now)
+        for i, (rig, (cto, rto)) in enumerate(zip(rigs, observed, strict=True)):
+            if every_cycle or (k + 7 * i) % periods[i] == 0:
+                core.offer(rig.name, "cto", cto, now)
+                core.offer(rig.name, "rto", rto, now)
         core.evaluate(now)
         samples.append(time.perf_counter() - t0)
     samples = sorted(samples[100:])
@@ -155,6 +159,7 @@ def main() -> int:
     for n in (2, 8, 16):
         print(f"cycle time, {n} sensors ...", file=sys.stderr)
         results[f"cycle_{n}_sensors"] = cycle_times(n, cycles)
+        results[f"cycle_{n}_sensors_at_rate"] = cycle_times(n, cycles, every_cycle=False)
     latency = {}
     for cause in ("cto_missing", "stale", "corrupt", "calibration"):
         print(f"detection latency: {cause} ...", file=sys.stderr)
@@ -171,7 +176,11 @@ def main() -> int:
     results["false_alarms"] = {"simulated_s": simulated, "cycles": evaluated, "alarms": alarms}
     c16 = results["cycle_16_sensors"]
     targets = {
-        "cycle p99 <= 100 us at 16 sensors": c16["p99_us"] <= 100,  # type: ignore[index]
+        "cycle p99 <= 100 us at 16 sensors (worst case)": c16["p99_us"] <= 100,  # type: ignore[index]
+        "cycle p99 <= 100 us at 16 sensors (at rate)": results["cycle_16_sensors_at_rate"][  # type: ignore[index]
+            "p99_us"
+        ]
+        <= 100,
         "detection <= 2 periods for every cause": all(
             v["max_periods"] <= 2 for v in latency.values()
         ),
@@ -181,12 +190,18 @@ def main() -> int:
         f"# Tracking benchmark ({time.strftime('%Y-%m-%d %H:%M')}, Python "
         f"{platform.python_version()}, {os.cpu_count()} cores)",
         "",
-        "| sensors | cycle p50 µs | cycle p99 µs |",
-        "|---:|---:|---:|",
+        "Cycle = taking the new samples + evaluating, 1 kHz. Worst case: every sensor "
+        "delivers a frame in every cycle; at rate: Certus 100 Hz, Vicra 20 Hz.",
+        "",
+        "| sensors | worst p50 µs | worst p99 µs | at rate p50 µs | at rate p99 µs |",
+        "|---:|---:|---:|---:|---:|",
     ]
     for n in (2, 8, 16):
-        row = results[f"cycle_{n}_sensors"]
-        lines.append(f"| {n} | {row['p50_us']:.1f} | {row['p99_us']:.1f} |")  # type: ignore[index]
+        worst, at_rate = results[f"cycle_{n}_sensors"], results[f"cycle_{n}_sensors_at_rate"]
+        lines.append(
+            f"| {n} | {worst['p50_us']:.1f} | {worst['p99_us']:.1f} "  # type: ignore[index]
+            f"| {at_rate['p50_us']:.1f} | {at_rate['p99_us']:.1f} |"  # type: ignore[index]
+        )
     lines += ["", "| fault | trials | median periods | max periods |", "|---|---:|---:|---:|"]
     lines += [
         f"| {c} | {v['n']} | {v['median_periods']:.2f} | {v['max_periods']:.2f} |"

@@ -7,22 +7,40 @@ import numpy as np
 from framework.messages import Pose
 
 
+def _quadratic_form() -> np.ndarray:
+    """The 16 x 9 map from the products q_a q_b to the rotation matrix entries."""
+    entries = {  # entry: {(a, b): coefficient} over w, x, y, z = 0, 1, 2, 3
+        (0, 0): {(0, 0): 1, (1, 1): 1, (2, 2): -1, (3, 3): -1},
+        (0, 1): {(1, 2): 2, (0, 3): -2},
+        (0, 2): {(1, 3): 2, (0, 2): 2},
+        (1, 0): {(1, 2): 2, (0, 3): 2},
+        (1, 1): {(0, 0): 1, (1, 1): -1, (2, 2): 1, (3, 3): -1},
+        (1, 2): {(2, 3): 2, (0, 1): -2},
+        (2, 0): {(1, 3): 2, (0, 2): -2},
+        (2, 1): {(2, 3): 2, (0, 1): 2},
+        (2, 2): {(0, 0): 1, (1, 1): -1, (2, 2): -1, (3, 3): 1},
+    }
+    form = np.zeros((16, 9))
+    for (row, col), terms in entries.items():
+        for (a, b), coefficient in terms.items():
+            form[4 * a + b, 3 * row + col] = coefficient
+    return form
+
+
+_QUADRATIC = _quadratic_form()
+
+
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) from quaternions (..., 4) in w, x, y, z order."""
+    """Rotation matrices (..., 3, 3) from quaternions (..., 4) in w, x, y, z order.
+
+    The entries are a quadratic form in q, divided by |q|^2 so that non-unit
+    quaternions still give rotations; three numpy calls whatever the batch size
+    (the Sensor Manager converts every tool's quaternion at 1 kHz)."""
     q = np.asarray(q, dtype=float)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    out = np.empty((*q.shape[:-1], 3, 3))
-    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    out[..., 0, 1] = 2 * (x * y - z * w)
-    out[..., 0, 2] = 2 * (x * z + y * w)
-    out[..., 1, 0] = 2 * (x * y + z * w)
-    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    out[..., 1, 2] = 2 * (y * z - x * w)
-    out[..., 2, 0] = 2 * (x * z - y * w)
-    out[..., 2, 1] = 2 * (y * z + x * w)
-    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return out
+    products = q[..., :, None] * q[..., None, :]
+    flat = products.reshape(*q.shape[:-1], 16)
+    scale = np.einsum("...ii->...", products)[..., None]
+    return ((flat @ _QUADRATIC) / scale).reshape(*q.shape[:-1], 3, 3)
 
 
 def matrix_to_quat(r: np.ndarray) -> tuple[float, float, float, float]:

@@ -32,12 +32,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from components.tracking.geometry import (
     as_matrix,
     invert,
     pose_matrix,
+    quat_to_matrix,
     rotation_angle,
 )
 from framework.component import Component, In, Out, operation
@@ -152,14 +152,8 @@ class Health:
 @dataclass
 class _Track:
     config: SensorConfig
-    cto: Pose | None = None
-    rto: Pose | None = None
-    cto_at: float = -math.inf
-    rto_at: float = -math.inf
-    previous_cto: Pose | None = None
-    previous_cto_at: float = -math.inf
-    fresh: bool = False
     streak: int = 0
+    code: int = -1
     health: Health = field(default_factory=lambda: Health(False, "no_data"))
 
 
@@ -173,8 +167,18 @@ class Decision:
     changed: bool
 
 
+_NEVER = (0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -math.inf)
+_NO_PREVIOUS = (math.nan, math.nan, math.nan, -math.inf, 0.0)
+_NO_DATA, _CTO_MISSING, _RTO_MISSING, _STALE, _CORRUPT, _JUMP, _CALIBRATION = range(1, 8)
+
+
 class SensorManagerCore:
-    """The fault tree and the choice, without any I/O (time is an argument)."""
+    """The fault tree and the choice, without any I/O (time is an argument).
+
+    Samples are kept as plain per-row lists (rows 0..n-1 the CTOs, n..2n-1 the RTOs):
+    `offer` is called for every sample and must stay cheap; `evaluate` turns them into
+    arrays once per cycle and runs levels 1-4 of the fault tree on every sensor at
+    once, so a cycle costs about the same with 2 or 16 sensors."""
 
     def __init__(self, config: SensorsConfig):
         self.config = config
@@ -182,139 +186,167 @@ class SensorManagerCore:
         self.by_name = {t.config.name: t for t in self.tracks}
         self.best: str | None = None
         self.kinematics: np.ndarray | None = None
-        count = len(config.sensors)
-        # latest CTO then RTO samples per sensor, as plain lists: one np.array per cycle is
-        # cheaper than writing rows into arrays at every sample
-        self._points: list[tuple[float, ...]] = [(0.0, 0.0, 0.0)] * (2 * count)
-        self._quats: list[tuple[float, ...]] = [(0.0, 0.0, 0.0, 1.0)] * (2 * count)
-        self._index = {s.name: i for i, s in enumerate(config.sensors)}
-        self._all = np.arange(count)
-        self._c = np.stack([s.master_from_sensor for s in config.sensors])
-        self._x = np.stack([s.rto_from_base for s in config.sensors])
-        self._tol_pos2 = np.array([s.tolerance_position**2 for s in config.sensors])
-        self._tol_cos = np.cos([s.tolerance_angle for s in config.sensors])
-        self._y = np.stack([s.ee_from_cto for s in config.sensors])
-        self._y_inv = invert(np.stack([s.ee_from_cto for s in config.sensors]))
+        n = self._n = len(config.sensors)
+        sensors = config.sensors
+        self._index = {s.name: i for i, s in enumerate(sensors)}
+        # a row per tool sample: x y z, qw qx qy qz, valid (1/0), arrival
+        # (written in place: a row assignment is cheaper than building arrays each cycle)
+        self._rows = np.array([_NEVER] * (2 * n))
+        # per sensor: the CTO sample before the latest (x y z, arrival) and the latest's RMS
+        self._before = np.array([_NO_PREVIOUS] * n)
+        self._last_cto: list[tuple[float, ...]] = [_NEVER] * n
+        self._fresh = [False] * n
+        self._stale_limit = np.array([s.stale_periods / s.rate for s in sensors])
+        self._period = np.array([1.0 / s.rate for s in sensors])
+        self._max_speed = np.array([s.max_speed for s in sensors])
+        self._c = np.stack([s.master_from_sensor for s in sensors])
+        self._x = np.stack([s.rto_from_base for s in sensors])
+        self._tol_pos2 = np.array([s.tolerance_position**2 for s in sensors])
+        self._tol_cos = np.cos([s.tolerance_angle for s in sensors])
+        self._y = np.stack([s.ee_from_cto for s in sensors])
+        self._y_inv = invert(self._y)
         self.last: Decision | None = None
 
     def offer(self, sensor: str, tool: str, pose: Pose, arrival: float) -> None:
         """A new sample of `tool` (cto/rto) from `sensor`, received at `arrival`."""
-        track = self.by_name[sensor]
-        row = self._index[sensor] + (0 if tool == "cto" else len(self.tracks))
-        self._points[row] = pose.position
-        w, x, y, z = pose.orientation
-        self._quats[row] = (x, y, z, w)  # scipy's order
+        index = self._index[sensor]
+        row = index
         if tool == "cto":
-            if track.cto is not None:
-                track.previous_cto, track.previous_cto_at = track.cto, track.cto_at
-            track.cto, track.cto_at = pose, arrival
+            last = self._last_cto[index]
+            if last[7]:
+                self._before[index] = (last[0], last[1], last[2], last[8], pose.rms)
+            else:
+                self._before[index] = (math.nan, math.nan, math.nan, -math.inf, pose.rms)
         else:
-            track.rto, track.rto_at = pose, arrival
-        track.fresh = True
+            row += self._n
+        sample = (*pose.position, *pose.orientation, float(pose.valid), arrival)
+        self._rows[row] = sample
+        if row == index:
+            self._last_cto[index] = sample
+        self._fresh[index] = True
 
     def set_kinematics(self, base_from_ee: np.ndarray | None) -> None:
         """The robot's end-effector in its base frame from joints (None: unknown)."""
         self.kinematics = base_from_ee
 
-    def _basic(self, track: _Track, now: float) -> Health:
-        """Fault-tree levels 1-3 (missing, stale, corrupt)."""
-        cfg = track.config
-        if track.cto is None or track.rto is None:
+    def _fault_codes(self, now: float, rows: np.ndarray, before: np.ndarray) -> np.ndarray:
+        """Fault-tree levels 1-3 for every sensor: 0 (healthy) or the first cause found."""
+        n = self._n
+        at, valid = rows[:, 8], rows[:, 7] != 0.0
+        quats = rows[:, 3:7]
+        norm2 = np.einsum("ij,ij->i", quats, quats)
+        unfit = ~np.isfinite(rows[:, :3].sum(axis=1) + norm2) | (np.abs(norm2 - 1.0) > 2e-3)
+        with np.errstate(invalid="ignore"):  # -inf - -inf before a second frame
+            dt = np.maximum(at[:n] - before[:, 3], self._period)
+        step = rows[:n, :3] - before[:, :3]
+        jump2 = np.einsum("ij,ij->i", step, step)  # NaN before a second frame: no jump
+        allowed = self._max_speed * dt + 5 * np.maximum(before[:, 4], 1e-4)
+        leaves = (
+            (at[:n] == -math.inf) | (at[n:] == -math.inf),
+            ~valid[:n],
+            ~valid[n:],
+            now - np.minimum(at[:n], at[n:]) > self._stale_limit,
+            unfit[:n] | unfit[n:],
+            jump2 > allowed * allowed,
+        )
+        codes = np.zeros(n, dtype=np.int8)
+        for code in range(len(leaves), 0, -1):  # the first leaf in the tree's order wins
+            codes[leaves[code - 1]] = code
+        return codes
+
+    def _describe(self, index: int, code: int, now: float) -> Health:
+        """The verdict of one sensor, in words (only built when its verdict changes)."""
+        n = self._n
+        if code == 0:
+            return Health(True)
+        if code == _NO_DATA:
             return Health(False, "no_data", "no frame yet")
-        if not track.cto.valid:
+        if code == _CTO_MISSING:
             return Health(False, "cto_missing", "the robot's tool is not seen")
-        if not track.rto.valid:
+        if code == _RTO_MISSING:
             return Health(False, "rto_missing", "the reference tool is not seen")
-        limit = cfg.stale_periods / cfg.rate
-        age = now - min(track.cto_at, track.rto_at)
-        if age > limit:
+        if code == _STALE:
+            age = now - min(self._rows[index, 8], self._rows[index + n, 8])
+            limit = self._stale_limit[index]
             return Health(
                 False, "stale", f"no new frame for {age * 1e3:.0f} ms (limit {limit * 1e3:.0f} ms)"
             )
-        for pose in (track.cto, track.rto):
-            w, x, y, z = pose.orientation
-            px, py, pz = pose.position
-            norm2 = w * w + x * x + y * y + z * z
-            if not math.isfinite(px + py + pz + norm2) or abs(norm2 - 1.0) > 2e-3:
-                return Health(False, "corrupt", f"{pose.tool}: not a finite unit pose")
-        previous = track.previous_cto
-        if previous is not None and previous.valid and math.isfinite(sum(previous.position)):
-            dt = max(track.cto_at - track.previous_cto_at, 1.0 / cfg.rate)
-            jump = math.dist(track.cto.position, previous.position)
-            if jump > cfg.max_speed * dt + 5 * max(track.cto.rms, 1e-4):
-                return Health(
-                    False,
-                    "corrupt",
-                    f"the robot's tool jumped {jump * 1e3:.1f} mm in {dt * 1e3:.0f} ms",
-                )
-        return Health(True)
+        if code == _CORRUPT:
+            return Health(False, "corrupt", "a tool's pose is not a finite unit pose")
+        if code == _JUMP:
+            before = self._before[index]
+            jump = math.dist(self._rows[index, :3], before[:3])
+            dt = max(self._rows[index, 8] - before[3], self._period[index])
+            return Health(
+                False,
+                "corrupt",
+                f"the robot's tool jumped {jump * 1e3:.1f} mm in {dt * 1e3:.0f} ms",
+            )
+        raise AssertionError(code)  # calibration verdicts are built by _check_calibration
 
     def evaluate(self, now: float) -> Decision:
         """One cycle: every sensor's health, the best sensor, the robot pose (eq. 3.5)."""
-        healthy: list[int] = []
-        for index, track in enumerate(self.tracks):
-            track.health = self._basic(track, now)
-            if track.health.ok:
-                healthy.append(index)
-        candidates = np.array(healthy, dtype=int)
-        local = master = np.zeros((0, 4, 4))
-        if healthy:
-            local, master = self._robot_poses(candidates)
-            self._check_calibration(candidates, local, master)
-        row = {index: k for k, index in enumerate(healthy)}
+        rows = self._rows
+        codes = self._fault_codes(now, rows, self._before)
+        candidates = np.flatnonzero(codes == 0)
+        local = np.zeros((0, 4, 4))
+        verdicts: dict[int, Health] = {}
+        if len(candidates):
+            local = self._local_poses(candidates, rows)
+            verdicts = self._check_calibration(candidates, local)
+            for index in verdicts:
+                codes[index] = _CALIBRATION
         best, robot = None, None
-        for index, track in enumerate(self.tracks):
-            if track.health.ok:
-                if track.fresh:
-                    track.streak += 1
-            else:
+        hysteresis, fresh = self.config.hysteresis, self._fresh
+        for index, (track, code) in enumerate(zip(self.tracks, codes.tolist(), strict=True)):
+            if code == _CALIBRATION:
+                track.health = verdicts[index]
+            elif code != track.code:
+                track.health = self._describe(index, code, now)
+            track.code = code
+            if code:
                 track.streak = 0
+            elif fresh[index]:
+                track.streak += 1
             track.health.streak = track.streak
-            track.fresh = False
-            eligible = track.health.ok and (
-                track.streak >= self.config.hysteresis or track.config.name == self.best
-            )
-            if best is None and eligible:
-                best = track.config.name
-                robot = master[row[index]] if index in row else None
+            if best is None and not code:
+                name = track.config.name
+                if track.streak >= hysteresis or name == self.best:
+                    best = name
+                    k = int(np.searchsorted(candidates, index))
+                    robot = self._c[index] @ local[k] @ self._y_inv[index]
+        self._fresh = [False] * self._n
         changed = best != self.best
         self.best = best
         self.last = Decision(best, {t.config.name: t.health for t in self.tracks}, robot, changed)
         return self.last
 
-    def _robot_poses(self, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(the CTO in each sensor's reference-tool frame, the end-effector in the master
-        frame) for the candidate sensors, batched.
+    def _local_poses(self, candidates: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """The CTO in each candidate sensor's reference-tool frame, batched.
 
         Eq. 3.5 with C_i = X_master X_i^-1 (eq. 3.3) mapping sensor i's reference frame
         into the master's: ee = C_i (T_RTO,i)^-1 T_CTO,i Y_i^-1. (The thesis writes C_i^-1
         in eq. 3.5, which matches the opposite direction for C.) The end-effector, not
         the CTO, is compared across sensors: each sensor sees its own markers."""
-        n = len(self.tracks)
-        every = len(candidates) == n
-        quats, points = np.array(self._quats), np.array(self._points)
-        if not every:
-            rows = np.concatenate([candidates, candidates + n])
-            quats, points = quats[rows], points[rows]
-        rotations = Rotation.from_quat(quats).as_matrix()  # one C call for every tool
+        n = self._n
+        if len(candidates) != n:
+            rows = rows[np.concatenate([candidates, candidates + n])]
+        points, quats = rows[:, :3], rows[:, 3:7]
+        rotations = quat_to_matrix(quats)
         k = len(candidates)
         rto_t = np.swapaxes(rotations[k:], 1, 2)
         local = np.zeros((k, 4, 4))
         local[:, :3, :3] = rto_t @ rotations[:k]
         local[:, :3, 3] = (rto_t @ (points[:k] - points[k:])[:, :, None])[:, :, 0]
         local[:, 3, 3] = 1.0
-        c = self._c if every else self._c[candidates]
-        y_inv = self._y_inv if every else self._y_inv[candidates]
-        return local, c @ local @ y_inv
+        return local
 
-    def _check_calibration(
-        self, candidates: np.ndarray, local: np.ndarray, master: np.ndarray
-    ) -> None:
-        """Fault-tree level 4: against kinematics if known, else against each other."""
-        if not len(candidates):
-            return
+    def _check_calibration(self, candidates: np.ndarray, local: np.ndarray) -> dict[int, Health]:
+        """Fault-tree level 4, against kinematics if known, else against each other:
+        the verdicts of the sensors that fail it, by sensor index."""
+        failed: dict[int, Health] = {}
         if self.kinematics is not None:
-            every = len(candidates) == len(self.tracks)
+            every = len(candidates) == self._n
             x = self._x if every else self._x[candidates]
             y = self._y if every else self._y[candidates]
             predicted = x @ self.kinematics @ y
@@ -323,29 +355,27 @@ class SensorManagerCore:
             # trace(A^T B) = 1 + 2 cos(angle): compare cosines, no arccos for healthy rows
             cosines = ((local[:, :3, :3] * predicted[:, :3, :3]).sum(axis=(1, 2)) - 1.0) / 2.0
             bad = (offsets2 > self._tol_pos2[candidates]) | (cosines < self._tol_cos[candidates])
-            offsets = np.sqrt(offsets2)
-            angles = np.arccos(np.clip(cosines, -1.0, 1.0))
             for k in np.flatnonzero(bad):
-                self.tracks[candidates[k]].health = Health(
+                angle = math.degrees(math.acos(min(1.0, max(-1.0, cosines[k]))))
+                failed[int(candidates[k])] = Health(
                     False,
                     "calibration",
-                    f"{offsets[k] * 1e3:.1f} mm, "
-                    f"{math.degrees(angles[k]):.2f} deg away from the robot's kinematics",
+                    f"{math.sqrt(offsets2[k]) * 1e3:.1f} mm, "
+                    f"{angle:.2f} deg away from the robot's kinematics",
                 )
-            return
+            return failed
         if len(candidates) < 2:
-            return
+            return failed
+        master = self._c[candidates] @ local @ self._y_inv[candidates]
         for k, i in enumerate(candidates):
-            agree = 0
             others = [j for j in range(len(candidates)) if j != k]
-            for j in others:
-                if self._close(i, master[k], master[j]):
-                    agree += 1
+            agree = sum(self._close(int(i), master[k], master[j]) for j in others)
             if agree * 2 < len(others) or (len(others) == 1 and agree == 0):
                 names = ", ".join(self.tracks[candidates[j]].config.name for j in others)
-                self.tracks[i].health = Health(
+                failed[int(i)] = Health(
                     False, "calibration", f"disagrees with {names} beyond tolerance"
                 )
+        return failed
 
     def _close(self, i: int, a: np.ndarray, b: np.ndarray) -> bool:
         cfg = self.tracks[i].config
