@@ -1,0 +1,68 @@
+"""Differential inverse kinematics: a Cartesian setpoint each cycle to joint setpoints.
+
+Damped least squares (Wampler 1986; Nakamura & Hanafusa 1986) on the 6x7
+Jacobian, so the solution stays bounded near singularities; the seventh degree
+of freedom pulls gently toward a rest posture in the Jacobian's null space (the
+elbow does not drift over a long approach); every step respects the joint
+velocity limits and keeps a margin from the joint position limits.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from components.robot.lwr4 import HOME, Kinematics
+
+
+class DifferentialIK:
+    """Maps a desired TCP pose to the next joint setpoint, one control cycle at a time."""
+
+    def __init__(
+        self,
+        kinematics: Kinematics | None = None,
+        dt: float = 0.001,
+        damping: float = 0.02,
+        rest: tuple[float, ...] = HOME,
+        rest_gain: float = 0.5,
+        limit_margin: float = np.radians(2.0),
+    ):
+        self.kin = kinematics or Kinematics()
+        self.dt = dt
+        self.damping2 = damping * damping
+        self.rest = np.array(rest)
+        self.rest_gain = rest_gain
+        self.lower = self.kin.lower + limit_margin
+        self.upper = self.kin.upper - limit_margin
+        self.max_step = self.kin.velocity_limit * dt
+
+    def error(self, q: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """Pose error (6,): translation (m) then rotation vector (rad), base frame."""
+        pose = self.kin.tcp(q)
+        rotation = pin.log3(target[:3, :3] @ pose[:3, :3].T)
+        return np.concatenate([target[:3, 3] - pose[:3, 3], rotation])
+
+    def step(self, q: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """Joints one cycle closer to putting the TCP at `target` (4x4, base frame)."""
+        pose, jac = self.kin.jacobian(q)
+        err = np.concatenate(
+            [target[:3, 3] - pose[:3, 3], pin.log3(target[:3, :3] @ pose[:3, :3].T)]
+        )
+        jjt = jac @ jac.T + self.damping2 * np.eye(6)
+        pinv = jac.T @ np.linalg.solve(jjt, np.eye(6))
+        dq = pinv @ err
+        null = np.eye(7) - pinv @ jac
+        dq += null @ (self.rest_gain * self.dt * (self.rest - q))
+        scale = np.max(np.abs(dq) / self.max_step)
+        if scale > 1.0:  # keep the direction, respect every joint's speed
+            dq /= scale
+        return np.clip(q + dq, self.lower, self.upper)
+
+    def solve(self, q: np.ndarray, target: np.ndarray, iterations: int = 2000) -> np.ndarray:
+        """Joints placing the TCP at `target`, from `q` (offline use: homes, tests)."""
+        q = np.asarray(q, dtype=float)
+        for _ in range(iterations):
+            q = self.step(q, target)
+            if np.linalg.norm(self.error(q, target)) < 1e-7:
+                break
+        return q

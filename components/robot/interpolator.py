@@ -1,0 +1,226 @@
+"""The Cartesian interpolator (thesis 3.6.1): straight-line TCP motion with live limits.
+
+The TCP moves along the straight path from where it is to the goal: position by
+linear interpolation, orientation by the geodesic (slerp), both driven by one
+path parameter `s` in metres. `s` follows a trapezoidal velocity profile from
+ruckig (online trajectory generation, infinite jerk = constant-acceleration
+ramps): because ruckig replans from the current state every cycle, the maximum
+velocity and acceleration may change while moving (the speed ramps to the new
+limit at constant acceleration) and a new goal may arrive at any time.
+
+* **STOP** brakes at `brake_acceleration` (velocity control to zero: the exact
+  v^2/2a stop), then returns along the path to where the STOP was asserted and
+  holds there.
+* **A new goal while moving** brakes on the current path, then starts the new one
+  (a path cannot turn a corner at speed).
+* Rotation-dominated paths: `s` runs over max(translation, angle x
+  `rotation_radius`), so a pure reorientation still has a finite duration.
+
+Each cycle the Cartesian setpoint goes through differential IK (`ik.py`) to the
+joint setpoint the robot interface receives. `InterpolatorCore` is the logic
+(no I/O, time advances one `dt` per `step`); the component wraps it.
+"""
+
+from __future__ import annotations
+
+import math
+from enum import Enum
+
+import numpy as np
+import pinocchio as pin
+from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig
+
+from components.robot.ik import DifferentialIK
+
+
+class Phase(Enum):
+    """What the interpolator is doing."""
+
+    IDLE = "idle"
+    MOVING = "moving"
+    REACHED = "reached"
+    STOPPING = "stopping"
+    RETURNING = "returning"
+    STOPPED = "stopped"
+
+
+class LimitError(ValueError):
+    """A velocity or acceleration limit that is not a positive finite number."""
+
+
+def _check_limit(name: str, value: float, ceiling: float) -> float:
+    value = float(value)
+    if not (math.isfinite(value) and 0.0 < value <= ceiling):
+        raise LimitError(f"{name} must be in (0, {ceiling:g}], got {value!r}")
+    return value
+
+
+class InterpolatorCore:
+    """Straight-line Cartesian motion with live limits, STOP and return (module docstring)."""
+
+    MAX_VELOCITY = 0.25  # m/s: far above any surgical approach speed, a sanity ceiling
+    MAX_ACCELERATION = 5.0  # m/s^2
+
+    def __init__(
+        self,
+        q0: np.ndarray,
+        ik: DifferentialIK | None = None,
+        velocity: float = 0.075,
+        acceleration: float = 0.25,
+        brake_acceleration: float = 2.0,
+        rotation_radius: float = 0.1,
+    ):
+        self.ik = ik or DifferentialIK()
+        self.dt = self.ik.dt
+        self.velocity = _check_limit("velocity", velocity, self.MAX_VELOCITY)
+        self.acceleration = _check_limit("acceleration", acceleration, self.MAX_ACCELERATION)
+        self.brake_acceleration = _check_limit(
+            "brake_acceleration", brake_acceleration, self.MAX_ACCELERATION
+        )
+        self.rotation_radius = rotation_radius
+        self._otg = Ruckig(1, self.dt)
+        self._in = InputParameter(1)
+        self._out = OutputParameter(1)
+        self.phase = Phase.IDLE
+        self.goal: np.ndarray | None = None
+        self._pending: np.ndarray | None = None
+        self.stop_s = 0.0
+        self.stop_pose: np.ndarray | None = None
+        self._return_after_stop = True
+        self.sync(q0)
+
+    # --- state -------------------------------------------------------------------------
+    @property
+    def s(self) -> float:
+        """Distance travelled along the current path (m)."""
+        return float(self._in.current_position[0])
+
+    @property
+    def speed(self) -> float:
+        """Current path speed (m/s)."""
+        return float(self._in.current_velocity[0])
+
+    @property
+    def moving(self) -> bool:
+        """True while the commanded TCP is in motion (or about to be)."""
+        return self.phase in (Phase.MOVING, Phase.STOPPING, Phase.RETURNING)
+
+    def sync(self, q: np.ndarray) -> None:
+        """Take the measured joints as the commanded ones, at rest (after brakes)."""
+        self.q = np.asarray(q, dtype=float).copy()
+        self.pose = self.ik.kin.tcp(self.q)
+        self._start_path(self.pose, self.pose)
+        self.phase = Phase.IDLE
+        self._pending = None
+
+    # --- commands ----------------------------------------------------------------------
+    def go_to(self, goal: np.ndarray) -> None:
+        """Move the TCP to `goal` (4x4, base frame) along a straight line."""
+        goal = np.asarray(goal, dtype=float)
+        if goal.shape != (4, 4) or not np.all(np.isfinite(goal)):
+            raise ValueError("a goal is a finite 4x4 pose")
+        if self.phase in (Phase.MOVING, Phase.STOPPING, Phase.RETURNING) and self.speed > 1e-9:
+            self._pending = goal  # brake on this path first, then turn
+            self._brake(Phase.STOPPING)
+            self._return_after_stop = False
+            return
+        self._begin(goal)
+
+    def set_limits(self, velocity: float, acceleration: float | None = None) -> None:
+        """New maximum path velocity (m/s) and acceleration (m/s^2), effective at once."""
+        self.velocity = _check_limit("velocity", velocity, self.MAX_VELOCITY)
+        if acceleration is not None:
+            self.acceleration = _check_limit("acceleration", acceleration, self.MAX_ACCELERATION)
+        if self.phase is Phase.MOVING:
+            self._in.max_velocity = [self.velocity]
+            self._in.max_acceleration = [max(self.acceleration, 1e-9)]
+
+    def stop(self) -> None:
+        """Brake at full deceleration, then return to where this STOP was asserted."""
+        self._pending = None
+        self.stop_s = self.s
+        self.stop_pose = self.pose.copy()
+        self._return_after_stop = True
+        if self.speed > 1e-12 or self.phase is Phase.MOVING:
+            self._brake(Phase.STOPPING)
+        else:
+            self.phase = Phase.STOPPED
+
+    # --- the cycle ---------------------------------------------------------------------
+    def step(self) -> np.ndarray:
+        """Advance one cycle; the joint setpoint for the robot."""
+        if self.moving:
+            result = self._otg.update(self._in, self._out)
+            self._out.pass_to_input(self._in)
+            if result == Result.Finished:
+                self._finished()
+            elif result not in (Result.Working,):
+                raise RuntimeError(f"ruckig failed: {result}")
+            self.pose = self._pose_at(self.s)
+        self.q = self.ik.step(self.q, self.pose)
+        return self.q
+
+    # --- internals ---------------------------------------------------------------------
+    def _start_path(self, start: np.ndarray, goal: np.ndarray) -> None:
+        self._start = start.copy()
+        self._goal = goal.copy()
+        self._delta_p = goal[:3, 3] - start[:3, 3]
+        self._delta_r = pin.log3(start[:3, :3].T @ goal[:3, :3])  # in the start frame
+        self.length = max(
+            float(np.linalg.norm(self._delta_p)),
+            float(np.linalg.norm(self._delta_r)) * self.rotation_radius,
+        )
+        self._in.current_position = [0.0]
+        self._in.current_velocity = [0.0]
+        self._in.current_acceleration = [0.0]
+
+    def _begin(self, goal: np.ndarray) -> None:
+        self.goal = goal.copy()
+        self._start_path(self.pose, goal)
+        if self.length < 1e-9:
+            self.phase = Phase.REACHED
+            return
+        self._position_control(self.length, self.velocity, self.acceleration)
+        self.phase = Phase.MOVING
+
+    def _position_control(self, target: float, velocity: float, acceleration: float) -> None:
+        self._in.control_interface = ControlInterface.Position
+        self._in.target_position = [target]
+        self._in.target_velocity = [0.0]
+        self._in.target_acceleration = [0.0]
+        self._in.max_velocity = [velocity]
+        self._in.max_acceleration = [acceleration]
+        self._in.max_jerk = [math.inf]
+
+    def _brake(self, phase: Phase) -> None:
+        self._in.control_interface = ControlInterface.Velocity
+        self._in.target_velocity = [0.0]
+        self._in.target_acceleration = [0.0]
+        self._in.max_acceleration = [self.brake_acceleration]
+        self._in.max_jerk = [math.inf]
+        self.phase = phase
+
+    def _finished(self) -> None:
+        if self.phase is Phase.MOVING:
+            self.phase = Phase.REACHED
+        elif self.phase is Phase.STOPPING:
+            self._in.current_velocity = [0.0]
+            self._in.current_acceleration = [0.0]
+            if self._pending is not None:
+                goal, self._pending = self._pending, None
+                self.pose = self._pose_at(self.s)
+                self._begin(goal)
+            elif self._return_after_stop and abs(self.s - self.stop_s) > 1e-9:
+                self._position_control(self.stop_s, self.velocity, self.acceleration)
+                self.phase = Phase.RETURNING
+            else:
+                self.phase = Phase.STOPPED
+        elif self.phase is Phase.RETURNING:
+            self.phase = Phase.STOPPED
+
+    def _pose_at(self, s: float) -> np.ndarray:
+        u = 0.0 if self.length < 1e-12 else s / self.length
+        out = np.eye(4)
+        out[:3, 3] = self._start[:3, 3] + u * self._delta_p
+        out[:3, :3] = self._start[:3, :3] @ pin.exp3(u * self._delta_r)
+        return out

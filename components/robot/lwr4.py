@@ -1,0 +1,239 @@
+"""The KUKA LWR 4+ from its published kinematics: one table, two consumers.
+
+The DH table below is the single source. `mjcf()` turns it into a MuJoCo model
+(physics: the simulated robot), `Kinematics` into a Pinocchio model (forward
+kinematics, Jacobians, link capsules for collision distances). A test checks
+that both agree on the TCP pose for random joint values.
+
+Sources:
+- Kinematics (standard DH, a = 0): d = 0.3105, 0, 0.40, 0, 0.39, 0, 0.078 m;
+  alpha = [pi/2, -pi/2, -pi/2, pi/2, pi/2, -pi/2, 0]. Jubien, Gautier, Janot,
+  "Dynamic identification of the Kuka LWR robot using motor torques and noise
+  filtering", IEEE ICRA 2014, Table I.
+- Joint position limits +-170 deg (A1, A3, A5, A7) and +-120 deg (A2, A4, A6);
+  velocity limits 110, 110, 128, 128, 204, 184, 184 deg/s; torques 176, 176,
+  100, 100, 100, 38, 38 N m: KUKA LBR 4+ specification (KUKA Roboter GmbH).
+- Link radii and masses are approximations of the LBR 4+ outline drawing
+  (total ~16 kg); they shape the collision capsules and the simulated dynamics,
+  not the kinematics.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+D = (0.3105, 0.0, 0.40, 0.0, 0.39, 0.0, 0.078)
+ALPHA = (math.pi / 2, -math.pi / 2, -math.pi / 2, math.pi / 2, math.pi / 2, -math.pi / 2, 0.0)
+POSITION_LIMIT = tuple(math.radians(v) for v in (170, 120, 170, 120, 170, 120, 170))
+VELOCITY_LIMIT = tuple(math.radians(v) for v in (110, 110, 128, 128, 204, 184, 184))
+TORQUE_LIMIT = (176.0, 176.0, 100.0, 100.0, 100.0, 38.0, 38.0)
+LINK_MASS = (4.0, 4.0, 3.0, 2.7, 1.7, 1.6, 0.3)
+LINK_RADIUS = (0.07, 0.07, 0.065, 0.065, 0.06, 0.06, 0.045)
+TOOL_LENGTH = 0.10
+"""Flange to TCP (the tip of the needle guide), m, along the flange's z."""
+JOINTS = tuple(f"a{i}" for i in range(1, 8))
+HOME = (0.0, -0.45, 0.0, 1.45, 0.0, -1.25, 0.0)
+"""A comfortable pose above the table (rad): elbow up, tool pointing down."""
+
+
+def _rx(angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def _quat_wxyz(rotation: np.ndarray) -> tuple[float, ...]:
+    from components.tracking.geometry import matrix_to_quat
+
+    return matrix_to_quat(rotation)
+
+
+def link_offset(i: int) -> np.ndarray:
+    """The fixed transform from joint i's rotating frame to joint i+1's (DH: Tz(d) Rx(alpha))."""
+    out = np.eye(4)
+    out[:3, :3] = _rx(ALPHA[i])
+    out[2, 3] = D[i]
+    return out
+
+
+def tool_offset() -> np.ndarray:
+    """Flange (frame 7) to TCP."""
+    out = np.eye(4)
+    out[2, 3] = TOOL_LENGTH
+    return out
+
+
+def dh_forward(q: np.ndarray) -> np.ndarray:
+    """Base to TCP by the DH product: the reference both models are checked against."""
+    out = np.eye(4)
+    for i, angle in enumerate(q):
+        c, s = math.cos(angle), math.sin(angle)
+        rz = np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+        out = out @ rz @ link_offset(i)
+    return out @ tool_offset()
+
+
+def _fmt(values: object) -> str:
+    return " ".join(f"{float(v):.9g}" for v in values)  # type: ignore[attr-defined]
+
+
+def robot_mjcf(kp: float = 2500.0, kv: float = 120.0) -> tuple[str, str]:
+    """The arm as MJCF: (its <body> tree, its <actuator> entries).
+
+    Bodies link1..link7 sit at joint frames; each hinge turns about its body's z;
+    each link's capsule runs from its joint to the next joint's origin. Joints are
+    driven by position servos limited to the rated torques; gravity is compensated
+    in the bodies (the KUKA controller does the same), brakes are the interface's job.
+    """
+    lines: list[str] = []
+    indent = "    "
+    for i in range(7):
+        pad = indent * (i + 1)
+        pos = (0.0, 0.0, 0.0) if i == 0 else (0.0, 0.0, D[i - 1])
+        quat = (1.0, 0.0, 0.0, 0.0) if i == 0 else _quat_wxyz(_rx(ALPHA[i - 1]))
+        lines.append(
+            f'{pad}<body name="link{i + 1}" pos="{_fmt(pos)}" quat="{_fmt(quat)}" gravcomp="1">'
+        )
+        limit = math.degrees(POSITION_LIMIT[i])
+        lines.append(
+            f'{pad}  <joint name="{JOINTS[i]}" axis="0 0 1" range="{-limit:.6g} {limit:.6g}" '
+            f'damping="2" armature="0.1"/>'
+        )
+        length = max(D[i], 0.02)
+        lines.append(
+            f'{pad}  <geom name="link{i + 1}_geom" type="capsule" fromto="0 0 0 0 0 {length:.6g}" '
+            f'size="{LINK_RADIUS[i]}" mass="{LINK_MASS[i]}" rgba="1 0.45 0.1 1"/>'
+        )
+    pad = indent * 8
+    lines.append(f'{pad}<site name="flange" pos="0 0 {D[6]:.6g}" size="0.01"/>')
+    lines.append(
+        f'{pad}<geom name="tool_geom" type="capsule" fromto="0 0 {D[6]:.6g} 0 0 '
+        f'{D[6] + TOOL_LENGTH:.6g}" size="0.012" mass="0.2" rgba="0.8 0.8 0.85 1"/>'
+    )
+    lines.append(f'{pad}<site name="tcp" pos="0 0 {D[6] + TOOL_LENGTH:.6g}" size="0.006"/>')
+    for i in reversed(range(7)):
+        lines.append(f"{indent * (i + 1)}</body>")
+    actuators = [
+        f'    <position name="{JOINTS[i]}_servo" joint="{JOINTS[i]}" kp="{kp}" kv="{kv}" '
+        f'forcerange="{-TORQUE_LIMIT[i]} {TORQUE_LIMIT[i]}" ctrlrange="{-POSITION_LIMIT[i]:.6g} '
+        f'{POSITION_LIMIT[i]:.6g}"/>'
+        for i in range(7)
+    ]
+    return "\n".join(lines), "\n".join(actuators)
+
+
+def mjcf(scene_bodies: str = "") -> str:
+    """A complete MJCF document: the arm at the world origin plus `scene_bodies`."""
+    arm, actuators = robot_mjcf()
+    return f"""<mujoco model="lwr4plus">
+  <compiler angle="degree" autolimits="true"/>
+  <option timestep="0.001" integrator="implicitfast"/>
+  <worldbody>
+    <light pos="0 0 3" dir="0 0 -1"/>
+    <geom name="floor" type="plane" pos="0 0 -0.8" size="3 3 0.1" rgba="0.85 0.85 0.85 1"/>
+    <body name="base" pos="0 0 0">
+      <geom name="base_geom" type="cylinder" fromto="0 0 -0.05 0 0 0" size="0.09" rgba="0.4 0.4 0.4 1"/>
+{arm}
+    </body>
+{scene_bodies}
+  </worldbody>
+  <actuator>
+{actuators}
+  </actuator>
+</mujoco>
+"""
+
+
+@dataclass(frozen=True)
+class Capsules:
+    """Segments a-b (n x 3 each) with radii (n,): the robot's collision geometry."""
+
+    a: np.ndarray
+    b: np.ndarray
+    radius: np.ndarray
+
+
+class Kinematics:
+    """Pinocchio model of the arm: TCP pose, Jacobian, link capsules for given joints."""
+
+    def __init__(self) -> None:
+        import pinocchio as pin
+
+        self._pin = pin
+        model = pin.Model()
+        parent = 0
+        placement = pin.SE3.Identity()
+        for i in range(7):
+            limit = POSITION_LIMIT[i]
+            parent = model.addJoint(
+                parent,
+                pin.JointModelRZ(),
+                placement,
+                JOINTS[i],
+                np.array([TORQUE_LIMIT[i]]),
+                np.array([VELOCITY_LIMIT[i]]),
+                np.array([-limit]),
+                np.array([limit]),
+            )
+            com = np.array([0.0, 0.0, D[i] / 2])
+            model.appendBodyToJoint(
+                parent,
+                pin.Inertia.FromCylinder(LINK_MASS[i], LINK_RADIUS[i], max(D[i], 0.02)),
+                pin.SE3(np.eye(3), com),
+            )
+            offset = link_offset(i)
+            placement = pin.SE3(offset[:3, :3], offset[:3, 3])
+        flange = placement
+        tcp = flange * pin.SE3(np.eye(3), np.array([0.0, 0.0, TOOL_LENGTH]))
+        self.tcp_frame = model.addFrame(pin.Frame("tcp", parent, tcp, pin.FrameType.OP_FRAME))
+        self.model = model
+        self.data = model.createData()
+        self.lower = np.array([-v for v in POSITION_LIMIT])
+        self.upper = np.array(POSITION_LIMIT)
+        self.velocity_limit = np.array(VELOCITY_LIMIT)
+
+    def tcp(self, q: np.ndarray) -> np.ndarray:
+        """Base to TCP (4x4) for joints q."""
+        pin = self._pin
+        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
+        return self.data.oMf[self.tcp_frame].homogeneous.copy()
+
+    def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(TCP pose 4x4, 6x7 Jacobian in the base-aligned TCP frame: linear then angular)."""
+        pin = self._pin
+        q = np.asarray(q, dtype=float)
+        pose = self.tcp(q)
+        jac = pin.computeFrameJacobian(
+            self.model, self.data, q, self.tcp_frame, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+        )
+        return pose, jac
+
+    def joint_origins(self, q: np.ndarray) -> np.ndarray:
+        """Positions (9 x 3) of the base, the seven joint frames' successors and the TCP."""
+        pin = self._pin
+        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
+        points = [np.zeros(3)]
+        points += [self.data.oMi[j].translation.copy() for j in range(1, 8)]
+        flange = self.data.oMi[7].homogeneous @ link_offset(6)
+        points.append(flange[:3, 3])
+        points.append(self.data.oMf[self.tcp_frame].translation.copy())
+        return np.array(points)
+
+    @cached_property
+    def _capsule_spec(self) -> tuple[list[tuple[int, int]], np.ndarray]:
+        # (from point, to point) over joint_origins(); frames 1/2, 3/4, 5/6 coincide,
+        # so the arm is base-shoulder, shoulder-elbow, elbow-wrist, wrist-flange, tool
+        pairs = [(0, 2), (3, 4), (5, 6), (7, 8), (8, 9)]
+        radii = np.array([LINK_RADIUS[0], LINK_RADIUS[2], LINK_RADIUS[4], LINK_RADIUS[6], 0.012])
+        return pairs, radii
+
+    def capsules(self, q: np.ndarray) -> Capsules:
+        """The arm's collision capsules in the base frame for joints q."""
+        points = self.joint_origins(q)
+        pairs, radii = self._capsule_spec
+        a = np.array([points[i] for i, _ in pairs])
+        b = np.array([points[j] for _, j in pairs])
+        return Capsules(a, b, radii.copy())

@@ -1,0 +1,145 @@
+"""The Cartesian interpolator: trapezoidal path speed, live limits, STOP and return."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from components.robot.interpolator import InterpolatorCore, LimitError, Phase
+from components.robot.lwr4 import HOME, Kinematics
+
+KIN = Kinematics()
+DT = 0.001
+
+
+def core(**kwargs) -> InterpolatorCore:
+    return InterpolatorCore(np.array(HOME), **kwargs)
+
+
+def goal_at(offset: tuple[float, float, float]) -> np.ndarray:
+    goal = KIN.tcp(np.array(HOME))
+    goal[:3, 3] += offset
+    return goal
+
+
+def run(c: InterpolatorCore, until: Phase, limit: int = 40000) -> list[tuple[float, float]]:
+    """Step until `until`; (s, speed) per cycle."""
+    trace = []
+    for _ in range(limit):
+        c.step()
+        trace.append((c.s, c.speed))
+        if c.phase is until:
+            return trace
+    raise AssertionError(f"never reached {until}: {c.phase}")
+
+
+def test_reaches_the_goal_on_a_straight_line_within_the_limits():
+    c = core(velocity=0.075, acceleration=0.25)
+    goal = goal_at((0.06, 0.0, -0.20))
+    c.go_to(goal)
+    start = KIN.tcp(np.array(HOME))[:3, 3]
+    trace = run(c, Phase.REACHED)
+    assert np.allclose(c.pose, goal, atol=1e-9)
+    speeds = np.array([v for _, v in trace])
+    assert speeds.max() <= 0.075 + 1e-12
+    assert np.isclose(speeds.max(), 0.075)  # long path: cruises at the limit
+    accelerations = np.abs(np.diff(speeds)) / DT
+    assert accelerations.max() <= 0.25 + 1e-6
+    # the joint-space result follows the Cartesian line
+    tcp = KIN.tcp(c.q)[:3, 3]
+    assert np.linalg.norm(tcp - goal[:3, 3]) < 1e-4
+    direction = (goal[:3, 3] - start) / np.linalg.norm(goal[:3, 3] - start)
+    assert np.linalg.norm(np.cross(c.pose[:3, 3] - start, direction)) < 1e-9
+
+
+def test_lowering_the_velocity_while_moving_ramps_down_at_constant_acceleration():
+    c = core(velocity=0.075, acceleration=0.25)
+    c.go_to(goal_at((0.0, 0.0, -0.25)))
+    for _ in range(600):
+        c.step()
+    assert np.isclose(c.speed, 0.075)
+    c.set_limits(0.01)
+    speeds = [c.speed]
+    for _ in range(400):
+        c.step()
+        speeds.append(c.speed)
+    decel = -np.diff(speeds) / DT
+    ramp = decel[decel > 1e-6]
+    assert np.allclose(ramp[:-1], 0.25, atol=1e-6), "a constant-acceleration ramp"
+    assert np.isclose(speeds[-1], 0.01)
+
+
+def test_stop_brakes_at_maximum_deceleration_then_returns_to_the_stop_point():
+    c = core(velocity=0.075, acceleration=0.25, brake_acceleration=2.0)
+    c.go_to(goal_at((0.0, 0.0, -0.25)))
+    for _ in range(700):
+        c.step()
+    c.stop()
+    stop_s, stop_pose = c.s, c.pose.copy()
+    trace = run(c, Phase.STOPPED)
+    overshoot = max(s for s, _ in trace) - stop_s
+    assert np.isclose(overshoot, 0.075**2 / (2 * 2.0), rtol=0.05)  # v^2 / 2a
+    assert np.allclose(c.pose, stop_pose, atol=1e-9)
+    assert c.speed == 0.0
+
+
+def test_new_goal_while_moving_brakes_then_heads_for_it():
+    c = core()
+    c.go_to(goal_at((0.0, 0.0, -0.2)))
+    for _ in range(500):
+        c.step()
+    second = goal_at((0.1, 0.1, -0.05))
+    c.go_to(second)
+    assert c.phase is Phase.STOPPING
+    run(c, Phase.REACHED)
+    assert np.allclose(c.pose, second, atol=1e-9)
+
+
+def test_pure_rotation_takes_finite_time_and_ends_exactly():
+    c = core()
+    goal = KIN.tcp(np.array(HOME))
+    rot = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # 90 deg about z
+    goal[:3, :3] = goal[:3, :3] @ rot
+    c.go_to(goal)
+    trace = run(c, Phase.REACHED)
+    assert len(trace) > 100
+    assert np.allclose(c.pose, goal, atol=1e-9)
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf"), 10.0])
+def test_bad_limits_are_refused_with_a_reason(bad):
+    c = core()
+    with pytest.raises(LimitError, match="velocity must be in"):
+        c.set_limits(bad)
+
+
+def test_bad_goal_is_refused():
+    c = core()
+    goal = goal_at((0.0, 0.0, -0.1))
+    goal[0, 3] = np.nan
+    with pytest.raises(ValueError, match="finite"):
+        c.go_to(goal)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    dz=st.floats(-0.25, -0.02),
+    velocity=st.floats(0.005, 0.1),
+    acceleration=st.floats(0.05, 1.0),
+    stop_after=st.integers(1, 3000),
+)
+def test_stop_anywhere_ends_at_rest_exactly_where_asserted(dz, velocity, acceleration, stop_after):
+    c = core(velocity=velocity, acceleration=acceleration)
+    c.go_to(goal_at((0.0, 0.0, dz)))
+    for _ in range(stop_after):
+        c.step()
+        if c.phase is Phase.REACHED:
+            break
+    c.stop()
+    where = c.pose.copy()
+    speeds = [v for _, v in run(c, Phase.STOPPED)]
+    assert max(abs(v) for v in speeds) <= velocity + 1e-9
+    assert np.allclose(c.pose[:3, 3], where[:3, 3], atol=1e-9)
+    assert c.speed == 0.0
