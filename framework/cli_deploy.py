@@ -120,16 +120,21 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         from framework.statechart.loader import load_statechart
         from framework.statechart.model import BUILTIN_EVENTS
 
-        events = None
+        events = states = None
         if topology.statechart is not None:
-            events = set(load_statechart(topology.statechart).events) | set(BUILTIN_EVENTS)
+            chart = load_statechart(topology.statechart)
+            events = set(chart.events) | set(BUILTIN_EVENTS)
+            states = {state.path for state in chart.states.values()}
         operations = {
             f"{n}.{op}"
             for n, c in topology.components.items()
             if c.info
             for op in c.info.operations
         }
-        scenario = load_scenario(args.scenario, events, operations)
+        scenario = load_scenario(args.scenario, events, operations, states)
+        if not args.record:  # a scenario run always leaves its flight recording
+            args.record = str(Path("out") / "scenarios" / f"{scenario.name}.mcap")
+            Path(args.record).parent.mkdir(parents=True, exist_ok=True)
     printer = next((x for x in listeners if isinstance(x, _Printer)), None)
     deployment = Deployment(
         topology,
@@ -173,7 +178,11 @@ def cmd_deploy(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         end = started + args.duration if args.duration else None
+        runner = deployment.runner
         while end is None or time.monotonic() < end:
+            if runner is not None and runner.finished.is_set():
+                time.sleep(0.5)  # let the last reactions land in the recording
+                break
             if interactive:
                 sys.stdout.write("\x1b[H\x1b[2J" + _screen(deployment, started) + "\n")
                 sys.stdout.flush()
@@ -188,7 +197,21 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         if not args.workdir and not args.keep_logs:
             shutil.rmtree(workdir, ignore_errors=True)
     print("fw: stopped", file=sys.stderr)
+    if deployment.runner is not None:
+        return _scenario_report(deployment.runner)
     return 0
+
+
+def _scenario_report(runner: Any) -> int:
+    """Print PASS/FAIL per check and expectation; 0 if everything passed."""
+    outcomes = runner.report()
+    print(f"\nscenario {runner.scenario.name}:")
+    for outcome in outcomes:
+        detail = f"  ({outcome.detail})" if outcome.detail else ""
+        print(f"  {'PASS' if outcome.ok else 'FAIL'}  {outcome.what}{detail}")
+    failed = sum(not o.ok for o in outcomes)
+    print(f"{'PASSED' if not failed else 'FAILED'}: {len(outcomes) - failed} of {len(outcomes)}")
+    return 1 if failed else 0
 
 
 @contextlib.contextmanager

@@ -121,7 +121,7 @@ class Component:
         self._state = State.INIT
         self.last_error = ""
         self._listeners: list[Callable[[StateChange], None]] = []
-        self._lock = threading.RLock()
+        self._lifecycle_lock = _YieldingLock()
         self.inputs: dict[str, InputPort[Any]] = {}
         self.outputs: dict[str, OutputPort[Any]] = {}
         self.declared_properties: dict[str, Property] = {}
@@ -223,7 +223,7 @@ class Component:
             inspect.signature(method).bind(**kwargs)
         except TypeError as exc:
             raise OperationError(f"{self.name}.{operation_name}: {exc}") from None
-        with self._lock:
+        with self._lifecycle_lock:
             try:
                 return method(**kwargs)
             except FwError:
@@ -272,7 +272,7 @@ class Component:
         return True, ""
 
     def _guarded(self, op: str, hook: str, success: State, failure: State) -> bool:
-        with self._lock:
+        with self._lifecycle_lock:
             self._check(op)
             try:
                 ok, why = self._run_hook(hook)
@@ -304,7 +304,7 @@ class Component:
 
     def recover(self) -> bool:
         """RunTimeError -> Running; Exception -> the initial state."""
-        with self._lock:
+        with self._lifecycle_lock:
             self._check("recover")
             self.last_error = ""
             self._set_state(State.RUNNING if self._state is State.RUNTIME_ERROR else self._initial)
@@ -313,14 +313,14 @@ class Component:
     def error(self, reason: str = "error() called") -> None:
         """Called by the component itself: Running -> RunTimeError (error_hook runs instead
         of update_hook until recover())."""
-        with self._lock:
+        with self._lifecycle_lock:
             self._check("error")
             self._set_state(State.RUNTIME_ERROR, reason)
 
     def exception(self, reason: str) -> None:
         """Go to Exception: stop_hook if running, cleanup_hook, then exception_hook; any of
         them failing means FatalError."""
-        with self._lock:
+        with self._lifecycle_lock:
             was = self._state
             if was in (State.EXCEPTION, State.FATAL_ERROR):  # already there: nothing to undo
                 self.last_error = reason
@@ -344,12 +344,13 @@ class Component:
 
     def fatal(self, reason: str) -> None:
         """Unrecoverable: FatalError (the process should be restarted)."""
-        with self._lock:
+        with self._lifecycle_lock:
             self._set_state(State.FATAL_ERROR, reason)
 
     def update(self) -> None:
         """One activity cycle: update_hook when Running, error_hook in RunTimeError."""
-        with self._lock:
+        self._lifecycle_lock.let_waiters_in()
+        with self._lifecycle_lock:
             state = self._state
             if state is not State.RUNNING and state is not State.RUNTIME_ERROR:
                 return
@@ -445,3 +446,32 @@ def declarations(cls: type) -> list[tuple[str, Any]]:
 
 
 _RESERVED = _reserved_names()
+
+
+class _YieldingLock:
+    """The component's re-entrant lock, which a busy activity lets others take.
+
+    A component updated at 1 kHz re-acquires its lock as soon as it releases it, and
+    Python locks are not fair: an operation or lifecycle request from another thread
+    could wait for seconds. `let_waiters_in` (called before each update) steps aside
+    while anyone is waiting, so requests are served within one update."""
+
+    def __init__(self) -> None:
+        self._lifecycle_lock = threading.RLock()
+        self._waiting = 0
+
+    def __enter__(self) -> _YieldingLock:
+        self._waiting += 1
+        self._lifecycle_lock.acquire()
+        self._waiting -= 1
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._lifecycle_lock.release()
+
+    def let_waiters_in(self) -> None:
+        """Wait (briefly, repeatedly) while other threads wait for the lock."""
+        for _ in range(1000):
+            if not self._waiting:
+                return
+            time.sleep(0.0001)

@@ -17,6 +17,7 @@ import contextlib
 import importlib
 import json
 import logging
+import os
 import signal
 import subprocess
 import sys
@@ -420,8 +421,14 @@ def serve(spec: dict[str, Any], ready: Callable[[], None] | None = None) -> int:
     starting = False
     if ready is not None:
         ready()
+    parent = os.getppid()
     while not done.is_set() and not bus.closed:
         done.wait(0.2)
+        if os.getppid() != parent:  # whoever started us died: never linger as an orphan
+            log.warning(
+                "container %s: parent process %d is gone; shutting down", spec["name"], parent
+            )
+            break
     container.shutdown()
     return 0
 

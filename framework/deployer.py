@@ -110,6 +110,7 @@ class Deployment:
     """Start only this host's processes (`None`: the control host, see `host_of`)."""
     scenario: Any = None
     report: Any = None
+    runner: Any = None
     processes: list[Process] = field(default_factory=list)
     hub: Bus | None = None
     control: Container | None = None
@@ -197,7 +198,6 @@ class Deployment:
         """Start the Coordinator (the chart begins with its setup configurations) and the
         scenario, if any."""
         if self.coordinator is not None and self.coordinator.state.value != "Running":
-            self.coordinator.start()
             if self.scenario is not None:
                 from framework.remote import RemoteComponent
                 from framework.scenario import ScenarioRunner
@@ -206,10 +206,13 @@ class Deployment:
                     component, _, op = ref.partition(".")
                     return RemoteComponent(self.hub, component).call(op, **args)  # type: ignore[arg-type]
 
-                self._runner = ScenarioRunner(
+                self.runner = ScenarioRunner(
                     self.scenario, self.send, call, self.report or (lambda text: None)
                 )
-                self._runner.start()
+                self.coordinator.extra_listeners.append(self.runner)
+            self.coordinator.start()
+            if self.runner is not None:
+                self.runner.start()
 
     def _wait_for_liveliness(self, components: list[str] | None = None) -> None:
         assert self.hub is not None
@@ -242,9 +245,8 @@ class Deployment:
 
     def stop(self) -> None:
         """Shut down in order: `shutdown: first` processes, then the others, then control."""
-        runner = getattr(self, "_runner", None)
-        if runner is not None:
-            runner.stop()
+        if self.runner is not None:
+            self.runner.stop()
         if self.coordinator is not None:
             with contextlib.suppress(Exception):
                 if self.coordinator.state.value == "Running":

@@ -1,15 +1,30 @@
-"""Scenarios: what happens when during a deployment (`fw deploy --scenario FILE`).
+"""Scenarios: what happens when during a deployment, and what must come of it.
 
-A scenario is a list of timed steps relative to the chart's start: an event for
-the chart (`send`, as an operator would) or an operation call on a component
-(`call`, as a simulated-OR driver would). The SEEG issue extends the steps with
-the simulated operating room (occluders, people walking).
+`fw deploy TOPOLOGY --scenario FILE` plays the steps in order while the chart
+runs, then reports PASS or FAIL for every expectation (exit code 1 on FAIL).
 
-    scenario: swap_then_stop
+    scenario: all_trackers_occluded
+    start: System_OK            # time zero: this state's first entry (default: chart start)
+    timeout: 60s                # give up (FAIL) after this long
     steps:
-      - {at: 1s, send: e_START}
-      - {at: 3.5s, send: e_TOK, payload: {tracker: vicra}}
-      - {at: 5s, call: supervisor.reset, args: {to: 0}}
+      - {at: 0.5s, send: e_START}                       # as an operator would
+      - {when: Moving_Fast, after: 2s, call: certus.occlude, args: {tool: cto}}
+      - {when: No_Tracker, after: 1s, check: robot.report, expect: {braked: true}}
+      - {at: 20s, send: e_RELEASE}
+    expect:
+      - {state: Target_Reached, within: 45s}   # entered at least once (in time)
+      - {event: e_NOTRACKER}                   # seen at least once
+      - {never_state: Fault}
+      - {never_event: e_STOP}
+    end: Target_Reached                        # stop early once this state is active
+
+Steps run one after the other: `at` waits until that time after time zero,
+`when` waits for the named state's next entry not yet used by an earlier `when`
+of the same state (consecutive steps with the same `when` share one entry), and
+`after` adds a delay to either. A state is named by its full path or by any dotted
+suffix of it (`Stopped`, `Task.Stopped`). `check` calls an operation and
+compares the given fields of its result (a failed check is a FAIL, the scenario
+goes on).
 """
 
 from __future__ import annotations
@@ -23,48 +38,104 @@ from typing import Any
 
 from framework import schema
 from framework.errors import Finding, FindingsError, Location
+from framework.statechart.events import Event, Listener
 from framework.statechart.loader import parse_duration
 from framework.yamlio import load_yaml
 
 
 @dataclass
 class ScenarioStep:
-    """One timed step."""
+    """One step: wait for its time or state, then send, call or check."""
 
-    at: float
+    at: float | None = None
+    when: str = ""
+    after: float = 0.0
     send: str = ""
     call: str = ""
+    check: str = ""
     payload: dict[str, Any] = field(default_factory=dict)
+    expect: dict[str, Any] = field(default_factory=dict)
     location: Location = field(default_factory=Location)
+
+    def describe(self) -> str:
+        """How the step reads in a report."""
+        trigger = f"{self.at:g}s" if self.at is not None else f"on {self.when}"
+        if self.after:
+            trigger += f" +{self.after:g}s"
+        action = (
+            f"send {self.send}"
+            if self.send
+            else f"call {self.call}"
+            if self.call
+            else f"check {self.check}"
+        )
+        return f"{trigger}: {action}"
+
+
+@dataclass
+class Expectation:
+    """One thing the run must (or must never) show."""
+
+    kind: str  # state, event, never_state, never_event
+    name: str
+    within: float | None = None
+    location: Location = field(default_factory=Location)
+
+    def describe(self) -> str:
+        """How the expectation reads in a report."""
+        text = f"{self.kind.replace('_', ' ')} {self.name}"
+        return text + (f" within {self.within:g}s" if self.within is not None else "")
 
 
 @dataclass
 class Scenario:
-    """A loaded scenario, steps in time order."""
+    """A loaded scenario."""
 
     name: str
     steps: list[ScenarioStep]
+    expect: list[Expectation] = field(default_factory=list)
+    start: str = ""
+    timeout: float = 120.0
+    end: str = ""
 
 
 def load_scenario(
-    path: str | Path, events: set[str] | None = None, operations: set[str] | None = None
+    path: str | Path,
+    events: set[str] | None = None,
+    operations: set[str] | None = None,
+    states: set[str] | None = None,
 ) -> Scenario:
-    """Load and check a scenario; `events`/`operations` (when given) are the names it may
-    use. Every problem is a located finding (`FindingsError`)."""
+    """Load and check a scenario; `events`, `operations` and `states` (full paths), when
+    given, are the names it may use. Every problem is a located finding."""
     doc = load_yaml(path)
     problems = schema.check(doc, "scenario")
     if problems:
         raise FindingsError(problems)
-    steps, findings = [], []
-    for i, spec in enumerate(doc.data["steps"]):
+    data = doc.data
+    findings: list[Finding] = []
+
+    def known_state(name: str, where: Location) -> None:
+        if states is not None and not any(_matches(s, name) for s in states):
+            findings.append(
+                Finding("error", "unknown-state", f"the chart has no state {name!r}", where)
+            )
+
+    steps = []
+    for i, spec in enumerate(data["steps"]):
         where = doc.location(("steps", i))
         step = ScenarioStep(
-            parse_duration(spec["at"]),
-            spec.get("send", ""),
-            spec.get("call", ""),
-            dict(spec.get("payload") or spec.get("args") or {}),
-            where,
+            at=parse_duration(spec["at"]) if "at" in spec else None,
+            when=spec.get("when", ""),
+            after=parse_duration(spec.get("after", 0)),
+            send=spec.get("send", ""),
+            call=spec.get("call", ""),
+            check=spec.get("check", ""),
+            payload=dict(spec.get("payload") or spec.get("args") or {}),
+            expect=dict(spec.get("expect") or {}),
+            location=where,
         )
+        if step.when:
+            known_state(step.when, where)
         if step.send and events is not None and step.send not in events:
             findings.append(
                 Finding(
@@ -75,23 +146,57 @@ def load_scenario(
                     f"known: {', '.join(sorted(events))}",
                 )
             )
-        if step.call and operations is not None and step.call not in operations:
-            findings.append(
-                Finding(
-                    "error",
-                    "unknown-operation",
-                    f"no operation {step.call!r} in the topology",
-                    where,
+        for ref in (step.call, step.check):
+            if ref and operations is not None and ref not in operations:
+                findings.append(
+                    Finding(
+                        "error", "unknown-operation", f"no operation {ref!r} in the topology", where
+                    )
                 )
-            )
         steps.append(step)
+    expectations = []
+    for i, spec in enumerate(data.get("expect") or []):
+        where = doc.location(("expect", i))
+        ((kind, name),) = ((k, v) for k, v in spec.items() if k != "within")
+        within = parse_duration(spec["within"]) if "within" in spec else None
+        if kind.endswith("state"):
+            known_state(name, where)
+        elif events is not None and name not in events:
+            findings.append(
+                Finding("error", "unknown-event", f"the chart has no event {name!r}", where)
+            )
+        expectations.append(Expectation(kind, name, within, where))
+    for key in ("start", "end"):
+        if data.get(key):
+            known_state(data[key], doc.location((key,)))
     if findings:
         raise FindingsError(findings)
-    return Scenario(doc.data["scenario"], sorted(steps, key=lambda s: s.at))
+    return Scenario(
+        data["scenario"],
+        steps,
+        expectations,
+        data.get("start", ""),
+        parse_duration(data.get("timeout", "120s")),
+        data.get("end", ""),
+    )
 
 
-class ScenarioRunner:
-    """Plays a scenario on its own thread, on monotonic time from `start()`."""
+def _matches(path: str, name: str) -> bool:
+    return path == name or path.endswith("." + name)
+
+
+@dataclass
+class Outcome:
+    """One line of the final report."""
+
+    ok: bool
+    what: str
+    detail: str = ""
+
+
+class ScenarioRunner(Listener):
+    """Plays a scenario on its own thread while listening to the chart; `report()` says
+    what passed. Attach it to the Coordinator's listeners before the chart starts."""
 
     def __init__(
         self,
@@ -102,32 +207,166 @@ class ScenarioRunner:
     ):
         self.scenario, self._send, self._call, self._report = scenario, send, call, report
         self._stop = threading.Event()
+        self.finished = threading.Event()
         self._thread: threading.Thread | None = None
+        self._changed = threading.Condition()
+        self._zero: float | None = None
+        self._started = time.monotonic()
+        self.entries: list[tuple[float, str]] = []  # (monotonic time, state path)
+        self.events: list[tuple[float, str]] = []
+        self.active: set[str] = set()
         self.done: list[ScenarioStep] = []
+        self.outcomes: list[Outcome] = []
+        self._used: dict[str, int] = {}  # state name -> index of the entry its last `when` used
 
+    # --- chart listener (the Coordinator's thread) -----------------------------------
+    def on_entry(self, state: Any) -> None:
+        with self._changed:
+            now = time.monotonic()
+            self.entries.append((now, state.path))
+            self.active.add(state.path)
+            if (
+                self._zero is None
+                and self.scenario.start
+                and _matches(state.path, self.scenario.start)
+            ):
+                self._zero = now
+            self._changed.notify_all()
+
+    def on_exit(self, state: Any) -> None:
+        with self._changed:
+            self.active.discard(state.path)
+            self._changed.notify_all()
+
+    def on_event(self, event: Event) -> None:
+        with self._changed:
+            self.events.append((time.monotonic(), event.name))
+            self._changed.notify_all()
+
+    # --- playing ---------------------------------------------------------------------
     def start(self) -> None:
-        """Begin playing (time zero is now)."""
+        """Begin playing (time zero is now, or the `start` state's first entry)."""
+        self._started = time.monotonic()
+        if not self.scenario.start:
+            self._zero = self._started
         self._thread = threading.Thread(target=self._play, name="fw-scenario", daemon=True)
         self._thread.start()
 
+    def _deadline(self) -> float:
+        return self._started + self.scenario.timeout
+
+    def _wait(self, condition: Callable[[], bool], until: float | None = None) -> bool:
+        """Wait for `condition` (checked under the lock); False on stop or timeout."""
+        end = self._deadline() if until is None else min(until, self._deadline())
+        with self._changed:
+            while not condition():
+                left = end - time.monotonic()
+                if left <= 0 or self._stop.is_set():
+                    return condition()
+                self._changed.wait(min(left, 0.05))
+        return True
+
     def _play(self) -> None:
-        zero = time.monotonic()
-        for step in self.scenario.steps:
-            if self._stop.wait(max(0.0, zero + step.at - time.monotonic())):
+        try:
+            if not self._wait(lambda: self._zero is not None):
+                self.outcomes.append(
+                    Outcome(False, f"start state {self.scenario.start} never entered")
+                )
                 return
-            try:
-                if step.send:
-                    self._send(step.send, step.payload)
-                    self._report(f"scenario   {step.at:g}s: send {step.send}")
-                else:
-                    self._call(step.call, step.payload)
-                    self._report(f"scenario   {step.at:g}s: call {step.call}")
-            except Exception as exc:  # a failing step is reported, the scenario goes on
-                self._report(f"scenario   {step.at:g}s: {step.send or step.call} failed: {exc}")
-            self.done.append(step)
+            previous: ScenarioStep | None = None
+            for step in self.scenario.steps:
+                share = previous is not None and bool(step.when) and previous.when == step.when
+                if not self._run_step(step, share):
+                    return
+                previous = step
+            if self.scenario.end:
+                self._wait(lambda: any(_matches(s, self.scenario.end) for s in self.active))
+            else:
+                self._wait(self._expectations_met)
+        finally:
+            self.finished.set()
+
+    def _run_step(self, step: ScenarioStep, share: bool) -> bool:
+        assert self._zero is not None
+        if step.when and not share:
+            used = self._used.get(step.when, -1)
+
+            def entered() -> bool:
+                for index in range(used + 1, len(self.entries)):
+                    if _matches(self.entries[index][1], step.when):
+                        self._used[step.when] = index
+                        return True
+                return False
+
+            if not self._wait(entered):
+                self.outcomes.append(Outcome(False, step.describe(), f"{step.when} never entered"))
+                return False
+        if step.at is not None:
+            self._wait(lambda: False, self._zero + step.at)
+        if step.after:
+            self._wait(lambda: False, time.monotonic() + step.after)
+        if self._stop.is_set() or time.monotonic() >= self._deadline():
+            self.outcomes.append(Outcome(False, step.describe(), "not played: time out"))
+            return False
+        elapsed = time.monotonic() - self._zero
+        try:
+            if step.send:
+                self._send(step.send, step.payload)
+            elif step.call:
+                self._call(step.call, step.payload)
+            else:
+                result = self._call(step.check, step.payload)
+                wrong = {
+                    k: result.get(k) if isinstance(result, dict) else result
+                    for k, v in step.expect.items()
+                    if not isinstance(result, dict) or result.get(k) != v
+                }
+                ok = not wrong
+                missing = isinstance(result, dict) and any(k not in result for k in step.expect)
+                got = result if missing or not isinstance(result, dict) else wrong
+                detail = "" if ok else f"expected {step.expect}, got {got}"
+                self.outcomes.append(Outcome(ok, step.describe(), detail))
+            self._report(f"scenario   {elapsed:7.3f}s {step.describe()}")
+        except Exception as exc:  # a failing step is reported, the scenario goes on
+            self.outcomes.append(Outcome(False, step.describe(), f"failed: {exc}"))
+            self._report(f"scenario   {elapsed:7.3f}s {step.describe()} failed: {exc}")
+        self.done.append(step)
+        return True
+
+    def _expectations_met(self) -> bool:
+        return all(
+            self._check(e)[0] for e in self.scenario.expect if not e.kind.startswith("never")
+        )
+
+    def _check(self, e: Expectation) -> tuple[bool, str]:
+        zero = self._zero if self._zero is not None else self._started
+        limit = None if e.within is None else zero + e.within
+        if e.kind in ("state", "never_state"):
+            times = [t for t, p in self.entries if _matches(p, e.name)]
+        else:
+            times = [t for t, n in self.events if n == e.name]
+        if e.kind.startswith("never"):
+            return (not times, f"at {times[0] - zero:.3f}s" if times else "")
+        hits = [t for t in times if limit is None or t <= limit]
+        if hits:
+            return True, f"at {hits[0] - zero:.3f}s"
+        return False, "late" if times else "never"
 
     def stop(self) -> None:
         """Stop playing (steps not yet due are skipped)."""
         self._stop.set()
+        with self._changed:
+            self._changed.notify_all()
         if self._thread is not None:
             self._thread.join(2.0)
+
+    def report(self) -> list[Outcome]:
+        """Every check and expectation with PASS or FAIL."""
+        out = list(self.outcomes)
+        played = len(self.done)
+        if played < len(self.scenario.steps) and not any(not o.ok for o in self.outcomes):
+            out.append(Outcome(False, f"only {played} of {len(self.scenario.steps)} steps played"))
+        for e in self.scenario.expect:
+            ok, detail = self._check(e)
+            out.append(Outcome(ok, e.describe(), detail))
+        return out

@@ -23,9 +23,9 @@ import numpy as np
 from components.people.detector import CameraConfig, DetectorConfig, PeopleDetectorCore
 from components.people.kinect_sim import from_message
 from components.tracking.geometry import as_matrix
-from framework.component import Component, Out, operation
+from framework.component import Component, In, Out, operation
 from framework.errors import FwError
-from framework.messages import EventMessage, Scalar, Skeletons
+from framework.messages import EventMessage, JointState, Scalar, Skeletons
 from framework.ports import InputPort, ReadStatus
 from framework.properties import prop
 from framework.yamlio import load_yaml
@@ -79,6 +79,7 @@ class WorkspacePeopleDetector(Component):
     people = Out(EventMessage, doc="tracks: id, confirmed, cameras, torso position")
     users_near = Out(Scalar, doc="confirmed people inside the area around the table")
     min_distance = Out(Scalar, doc="closest robot-person distance (m; inf without a robot)")
+    joints = In(JointState, doc="robot joints: link capsules by Pinocchio forward kinematics")
 
     def configure_hook(self) -> bool:
         try:
@@ -93,6 +94,8 @@ class WorkspacePeopleDetector(Component):
         for name, key in keys.items():
             self.camera_ports[name] = self.add_input(f"camera_{name}", Skeletons, key)
         self.last: dict[str, Any] = {}
+        self.kinematics: Any = None
+        self.robot: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         return True
 
     def cleanup_hook(self) -> None:
@@ -105,8 +108,16 @@ class WorkspacePeopleDetector(Component):
             status, message = port.read()
             if status is ReadStatus.NEW:  # a stopped camera contributes nothing
                 users[name] = from_message(message)
+        status, joints = self.joints.read()
+        if status is ReadStatus.NEW:
+            if self.kinematics is None:
+                from components.robot.lwr4 import Kinematics
+
+                self.kinematics = Kinematics()
+            capsules = self.kinematics.capsules(np.asarray(joints.position))
+            self.robot = (capsules.a, capsules.b, capsules.radius)
         now = time.monotonic()
-        frame = self.core.process(users, now)
+        frame = self.core.process(users, now, self.robot)
         stamp = time.time()
         self.last = {
             "people": [

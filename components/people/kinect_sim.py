@@ -17,8 +17,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from components.people.skeleton import JOINTS, depth_sigma, standing
-from framework.component import Component, Out, operation
+from framework.component import Component, In, Out, operation
 from framework.messages import Skeleton, Skeletons
+from framework.ports import ReadStatus
 from framework.properties import prop
 
 H_FOV, V_FOV = math.radians(57.0), math.radians(43.0)
@@ -164,6 +165,7 @@ class KinectSim(Component):
     seed = prop(int, 0, doc="noise seed")
     ghost_rate = prop(float, 0.02, min=0.0, max=10.0, doc="ghosts per second")
     users = Out(Skeletons, doc="the users this camera sees")
+    world = In(Skeletons, doc="true skeletons of the simulated OR (sim/people); else `place`")
 
     def configure_hook(self) -> bool:
         self.model = KinectModel(
@@ -180,6 +182,12 @@ class KinectSim(Component):
         self.clock += 1.0 / 30.0
         import time
 
+        status, truth = self.world.read()
+        if status is not ReadStatus.NO_DATA and truth is not None:
+            self.people = {
+                u.user_id: np.array(u.joints, dtype=float).reshape(len(JOINTS), 3)
+                for u in truth.users
+            }
         frame = self.model.observe(self.people, self.clock, 1.0 / 30.0)
         self.users.write(self.model.to_message(frame, time.time()))
 

@@ -24,13 +24,22 @@ joint setpoint the robot interface receives. `InterpolatorCore` is the logic
 from __future__ import annotations
 
 import math
+import threading
+import time
 from enum import Enum
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
 from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig
 
 from components.robot.ik import DifferentialIK
+from components.robot.interface import tcp_message
+from framework.component import Component, In, Out, operation
+from framework.errors import FwError
+from framework.messages import EventMessage, JointState, Pose
+from framework.ports import ReadStatus
+from framework.properties import prop
 
 
 class Phase(Enum):
@@ -224,3 +233,137 @@ class InterpolatorCore:
         out[:3, 3] = self._start[:3, 3] + u * self._delta_p
         out[:3, :3] = self._start[:3, :3] @ pin.exp3(u * self._delta_r)
         return out
+
+
+class CartesianInterpolator(Component):
+    """Feeds `InterpolatorCore` at 1 kHz: goals by name, limits by port, joint setpoints out.
+
+    It starts from the measured joints (it waits for the first `joints` sample) and
+    writes a setpoint every cycle once started, so the robot's watchdog only fires if
+    this component dies. `sync` re-reads the measured joints (after the brakes)."""
+
+    procedure_file = prop(str, "", doc="procedure YAML (goals, accelerations)")
+    joints = In(JointState, doc="measured joints (from the robot interface)")
+    limits = In(EventMessage, doc="new limits: payload {velocity, acceleration} (m/s, m/s^2)")
+    setpoint = Out(JointState, doc="joint setpoints for the robot interface, every cycle")
+    command = Out(Pose, doc="commanded TCP in the robot base frame")
+    status = Out(EventMessage, doc="phase (idle, moving, reached, stopping, returning, stopped)")
+
+    def configure_hook(self) -> bool:
+        from components.supervisor.procedure import load_procedure
+
+        try:
+            if not self.procedure_file:
+                raise FwError("property procedure_file is empty")
+            self.procedure = load_procedure(self.procedure_file)
+        except FwError as exc:
+            self.last_error = str(exc)
+            return False
+        self.core: InterpolatorCore | None = None
+        self._goal_name = ""
+        self._phase: Phase | None = None
+        self._core_lock = threading.Lock()
+        return True
+
+    def update_hook(self) -> None:
+        status, measured = self.joints.read()
+        if status is ReadStatus.NO_DATA:
+            return
+        with self._core_lock:
+            if self.core is None:
+                p = self.procedure
+                self.core = InterpolatorCore(
+                    np.asarray(measured.position),
+                    acceleration=p.acceleration,
+                    brake_acceleration=p.brake_acceleration,
+                )
+            core = self.core
+            status, limits = self.limits.read()
+            if status is ReadStatus.NEW:
+                try:
+                    core.set_limits(limits.payload["velocity"], limits.payload.get("acceleration"))
+                except (KeyError, TypeError, LimitError) as exc:
+                    self.last_error = f"limits refused: {exc}"
+            q = core.step()
+            phase = core.phase
+        stamp = time.time()
+        self.setpoint.write(JointState(stamp, tuple(q.tolist())))
+        self.command.write(tcp_message(core.pose, stamp))
+        if phase is not self._phase:
+            self._phase = phase
+            self.status.write(EventMessage(stamp, phase.value, self.name, self.report()))
+
+    def _core(self) -> InterpolatorCore:
+        if getattr(self, "core", None) is None:
+            raise FwError("no joint state received yet: is the robot interface running?")
+        assert self.core is not None
+        return self.core
+
+    @operation
+    def go_to(self, goal: str) -> dict[str, Any]:
+        """Move to a named goal of the procedure (target, home); the same goal while
+        moving there is a no-op, so a tracker swap does not interrupt the motion."""
+        if goal not in self.procedure.goals:
+            raise FwError(f"unknown goal {goal!r}: one of {', '.join(self.procedure.goals)}")
+        with self._core_lock:
+            core = self._core()
+            if not (goal == self._goal_name and core.phase in (Phase.MOVING, Phase.REACHED)):
+                core.go_to(self.procedure.goals[goal])
+            self._goal_name = goal
+            return self.report()
+
+    @operation
+    def go_to_pose(self, position: list[float], rpy_deg: list[float]) -> dict[str, Any]:
+        """Move to a pose given in the robot base frame (m, deg)."""
+        from components.supervisor.procedure import pose_from
+
+        pose = pose_from(position, rpy_deg)
+        with self._core_lock:
+            self._core().go_to(pose)
+            self._goal_name = "pose"
+            return self.report()
+
+    @operation
+    def set_limits(self, velocity: float, acceleration: float | None = None) -> dict[str, Any]:
+        """Maximum path velocity (m/s) and acceleration (m/s^2), effective at once."""
+        with self._core_lock:
+            self._core().set_limits(velocity, acceleration)
+            return self.report()
+
+    @operation
+    def stop_motion(self) -> dict[str, Any]:
+        """Brake at full deceleration, then return to where the STOP was asserted."""
+        with self._core_lock:
+            self._core().stop()
+            self._goal_name = ""
+            return self.report()
+
+    @operation
+    def sync(self) -> dict[str, Any]:
+        """Restart from the measured joints, at rest (after the brakes were released).
+        While moving this does nothing: a sync must never cut a motion short."""
+        with self._core_lock:
+            core = self._core()
+            if not core.moving:
+                status, measured = self.joints.read()
+                if status is not ReadStatus.NO_DATA:
+                    core.sync(np.asarray(measured.position))
+                    self._goal_name = ""
+            return self.report()
+
+    @operation
+    def report(self) -> dict[str, Any]:
+        """Phase, goal, path progress and speed, limits."""
+        core = getattr(self, "core", None)
+        if core is None:
+            return {"phase": "waiting for joints"}
+        return {
+            "phase": core.phase.value,
+            "goal": self._goal_name,
+            "s": round(core.s, 6),
+            "length": round(core.length, 6),
+            "speed": round(core.speed, 6),
+            "velocity": core.velocity,
+            "acceleration": core.acceleration,
+            "tcp": [round(v, 6) for v in core.pose[:3, 3].tolist()],
+        }

@@ -60,7 +60,8 @@ class Rig:
 
 def standard_rigs() -> list[Rig]:
     """The thesis setup: a Certus (master, 100 Hz, 0.1 mm) and a Vicra (20 Hz, 0.25 mm)."""
-    rto_from_base = rigid((0.6, -0.2, 0.1), (0.0, 0.0, 0.3))
+    # the reference tool lies on the table beside the patient's head (components.sim.scene)
+    rto_from_base = invert(rigid((0.45, -0.30, -0.06), (0.0, 0.0, 0.3)))
     return [
         Rig(
             "certus",
@@ -72,8 +73,9 @@ def standard_rigs() -> list[Rig]:
         ),
         Rig(
             "vicra",
-            # the Vicra looks obliquely at both tools (its pyramid is too narrow side by side)
-            rigid((-0.4621, -0.4102, 0.9885), (-0.3347, 0.1218, 0.6909)),
+            # the Vicra looks down obliquely at the table: the reference tool and the
+            # robot's tool from home to target, with 4 cm to spare, fit its pyramid
+            rigid((0.1, 0.0241, 1.1927), (-2.0912, 1.2074, 0.5001)),
             rto_from_base,
             rigid((0.01, -0.03, 0.07), (0.0, -0.1, 0.2)),
             0.00025,

@@ -29,7 +29,10 @@ from pathlib import Path
 from typing import Any
 
 from components.tracking import ndi
-from framework.component import Component, operation
+from components.tracking.geometry import pose_matrix
+from framework.component import Component, In, operation
+from framework.messages import Pose
+from framework.ports import ReadStatus
 from framework.properties import prop
 
 NEAR_MM, FAR_MM = 557.0, 1336.0
@@ -346,9 +349,10 @@ class VicraDevice:
         return self._reply(ndi.encode_tx(self._frames()))
 
 
-def synthetic_world(rig_name: str) -> Any:
-    """A world callable for `VicraDevice.world`: the synthetic robot path seen by one of
-    the synthetic trackers (noise-free: the device adds its own)."""
+def synthetic_world(rig_name: str, robot: Any = None) -> Any:
+    """A world callable for `VicraDevice.world`: the robot seen by one of the synthetic
+    trackers (noise-free: the device adds its own). `robot()` gives the end-effector in
+    the base frame (4x4) or None, in which case the synthetic path is used."""
     import dataclasses
 
     import numpy as np
@@ -359,7 +363,8 @@ def synthetic_world(rig_name: str) -> Any:
     rng = np.random.default_rng(0)
 
     def see(tool: str, seconds: float) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
-        cto, rto = rig.observe(ee_path(seconds), rng)
+        ee = robot() if robot is not None else None
+        cto, rto = rig.observe(ee if ee is not None else ee_path(seconds), rng)
         pose = {"cto": cto, "rto": rto}.get(tool)
         if pose is None:
             return None
@@ -378,6 +383,7 @@ class VicraSimulator(Component):
     noise = prop(float, 0.25, unit="mm", min=0.0, max=10.0, doc="3-D RMS position noise")
     seed = prop(int, 0, doc="noise seed (repeatable runs)")
     follow_world = prop(bool, False, doc="move the tools with the synthetic tracking world")
+    ee_pose = In(Pose, doc="the robot's TCP in its base frame (with follow_world; else a path)")
 
     def configure_hook(self) -> bool:
         import tempfile
@@ -385,9 +391,14 @@ class VicraSimulator(Component):
         path = self.link or str(Path(tempfile.mkdtemp(prefix="fw-vicra-")) / "ttyVICRA")
         self.device = VicraDevice(path, self.rate, self.noise, self.seed)
         if self.follow_world:
-            self.device.world = synthetic_world("vicra")
+            self.device.world = synthetic_world("vicra", self._robot)
         self.device.plug()
         return True
+
+    def _robot(self) -> Any:
+        """The latest robot TCP (4x4), read when the device makes a frame."""
+        status, pose = self.ee_pose.read()
+        return None if status is ReadStatus.NO_DATA or pose is None else pose_matrix(pose)
 
     def cleanup_hook(self) -> None:
         self.device.unplug()

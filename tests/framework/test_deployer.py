@@ -130,13 +130,19 @@ def test_a_scenario_plays_timed_events_and_calls(toy, tmp_path, write):
         """
         scenario: swap
         steps:
-          - {at: 0.5s, send: e_SWAP}
           - {at: 0.2s, call: supervisor.received}
+          - {at: 0.5s, send: e_SWAP}
+          - {when: Use_T2, check: supervisor.stats, expect: {dropped_invalid: 0}}
+        expect:
+          - {state: Use_T2, within: 10s}
+          - {never_event: e_BREAK}
         """,
         "scenario.yaml",
     )
-    scenario = load_scenario(path, {"e_SWAP", "e_BREAK"}, {"supervisor.received"})
-    assert [s.at for s in scenario.steps] == [0.2, 0.5], "played in time order"
+    scenario = load_scenario(
+        path, {"e_SWAP", "e_BREAK"}, {"supervisor.received", "supervisor.stats"}
+    )
+    assert [s.at for s in scenario.steps] == [0.2, 0.5, None], "played in file order"
     reports = []
     deployment = Deployment(toy, tmp_path, scenario=scenario, report=reports.append)
     deployment.start()
@@ -144,8 +150,11 @@ def test_a_scenario_plays_timed_events_and_calls(toy, tmp_path, write):
         assert settled_in(deployment, "Use_T2"), "the scenario's e_SWAP arrived by itself"
         assert any("send e_SWAP" in r for r in reports)
         assert any("call supervisor.received" in r for r in reports)
+        assert deployment.runner.finished.wait(10), "every step played, expectations met"
     finally:
         deployment.stop()
+    outcomes = deployment.runner.report()
+    assert [o.ok for o in outcomes] == [True, True, True], outcomes
 
 
 def test_a_bad_scenario_is_refused_with_located_errors(write):

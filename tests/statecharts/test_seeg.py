@@ -65,7 +65,8 @@ def test_start_selects_the_best_tracker_then_moves_fast_in_the_safe_area(seeg):
     r = started(seeg)
     assert "tracker_1_up" in configured(r) and task(r) == "Moving_Fast"
     calls = [o.operation for o in r.outputs if o.kind == "call"]
-    assert calls == ["sensor_manager.report_best_tracker", "interpolator.go_to"]
+    assert calls == ["supervisor.report_best_tracker"]
+    assert configured(r)[-3:] == ["tracker_1_up", "goto_target", "move_fast"]
     assert r.interpreter.variables["tracker"] == "certus"
 
 
@@ -88,17 +89,18 @@ def test_a_tracker_fault_reselects_and_resumes_at_the_right_speed(seeg):
     assert task(r) == "Tracker_Selection"
     r.send(("e_TOK", {"tracker": "vicra"}))
     assert task(r) == "Moving_Slow", "the area was remembered while reselecting"
-    assert configured(r)[-2:] == ["tracker_2_up", "move_slow"]
+    assert configured(r)[-3:] == ["tracker_2_up", "goto_target", "move_slow"]
 
 
 def test_no_tracker_stops_with_brakes_and_release_restarts(seeg):
     r = started(seeg)
     r.send(("e_TFAULT", {"tracker": "certus", "fault": "MISSING"}), "e_NOTRACKER")
-    assert task(r) == "Stopped" and configured(r)[-1] == "robot_stop"
+    assert task(r) == "No_Tracker" and configured(r)[-1] == "no_tracker"
+    assert r.interpreter.variables["tracker"] == "none"
     r.send("e_START")
-    assert task(r) == "Stopped", "only RELEASE leaves the stop"
+    assert task(r) == "No_Tracker", "only RELEASE leaves the stop"
     r.send("e_RELEASE")
-    assert configured(r)[-1] == "release_brakes" and task(r) == "Tracker_Selection"
+    assert configured(r)[-1] == "release" and task(r) == "Tracker_Selection"
     r.send(("e_TOK", {"tracker": "certus"}))
     assert task(r) == "Moving_Fast"
 
@@ -107,7 +109,7 @@ def test_a_silent_sensor_manager_counts_as_no_tracker(seeg):
     r = Run(seeg, auto_ack=True)
     r.send("e_START")
     r.interpreter.advance(1.0)
-    assert task(r) == "Stopped"
+    assert task(r) == "No_Tracker"
 
 
 def test_a_possible_collision_stops_from_any_task_state(seeg):
@@ -123,6 +125,7 @@ def test_target_reached_waits_then_goes_home_on_request(seeg):
     assert task(r) == "Target_Reached" and configured(r)[-1] == "hold_position"
     r.send(("e_GOTO", {"where": "home"}), ("e_TOK", {"tracker": "certus"}))
     assert task(r) == "Moving_Fast" and r.interpreter.variables["goal"] == "home"
+    assert "goto_home" in configured(r)
 
 
 def test_a_failed_motion_configuration_stops_the_robot(seeg):
@@ -138,7 +141,7 @@ def test_a_failed_stop_goes_to_fault_and_alerts(seeg):
     r.auto_ack = False
     r.send(
         ("e_STOP", {"reason": "collision"}),
-        ("config.failed", {"tag": "robot_stop", "reason": "no answer"}),
+        ("config.failed", {"tag": "stop", "reason": "no answer"}),
     )
     assert task(r) == "Fault"
     assert any(o.kind == "send" and o.event == "e_STOP" for o in r.outputs)

@@ -1,0 +1,132 @@
+"""A procedure file (`procedures/seeg.yaml`): goals, areas and speeds of one surgery.
+
+Read by the Supervisor and the Cartesian interpolator; every error names
+file:line and the field, and nothing is half-loaded.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from framework.errors import FwError
+from framework.yamlio import load_yaml
+
+
+class ProcedureError(FwError):
+    """A procedure file is wrong (file:line and the field in the message)."""
+
+
+@dataclass(frozen=True)
+class Speeds:
+    """Path speeds (m/s) while one tracker is in use."""
+
+    fast: float
+    slow: float
+
+
+@dataclass
+class Procedure:
+    """What the Supervisor and the interpolator need to know about the surgery."""
+
+    name: str
+    goals: dict[str, np.ndarray]  # name -> 4x4 pose in the robot base frame
+    critical_radius: float
+    target_tolerance: float
+    acceleration: float
+    brake_acceleration: float
+    max_near: int
+    collision_distance: float
+    speeds: dict[str, Speeds] = field(default_factory=dict)
+
+    @property
+    def target(self) -> np.ndarray:
+        """The target pose (4x4)."""
+        return self.goals["target"]
+
+
+def pose_from(position: Any, rpy_deg: Any) -> np.ndarray:
+    """A 4x4 pose from a position (m) and roll-pitch-yaw angles (deg)."""
+    p = [float(v) for v in position]
+    r = [float(v) for v in rpy_deg]
+    if len(p) != 3 or len(r) != 3 or not all(math.isfinite(v) for v in p + r):
+        raise ValueError("a pose needs 3 finite position values and 3 finite angles")
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_euler("xyz", r, degrees=True).as_matrix()
+    out[:3, 3] = p
+    return out
+
+
+def load_procedure(path: str | Path) -> Procedure:
+    """Read and check a procedure file."""
+    doc = load_yaml(path)
+    data = doc.data
+
+    def fail(message: str, *where: Any) -> ProcedureError:
+        return ProcedureError(f"{doc.location(where)}: {message}")
+
+    if not isinstance(data, dict):
+        raise fail("a procedure file is a mapping (procedure, target, home, ...)")
+
+    def number(key: str, default: float | None = None, positive: bool = True) -> float:
+        value = data.get(key, default)
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int | float)
+            or not math.isfinite(value)
+        ):
+            raise fail(f"`{key}` must be a number", key)
+        if positive and value <= 0:
+            raise fail(f"`{key}` must be positive", key)
+        return float(value)
+
+    goals = {}
+    for name in ("target", "home"):
+        spec = data.get(name)
+        if not isinstance(spec, dict) or "position" not in spec:
+            raise fail(f"`{name}` needs a position (m) and rpy_deg (deg)", name)
+        try:
+            goals[name] = pose_from(spec["position"], spec.get("rpy_deg", (0, 0, 0)))
+        except (TypeError, ValueError) as exc:
+            raise fail(f"`{name}`: {exc}", name) from None
+    people = data.get("people", {}) or {}
+    if not isinstance(people, dict):
+        raise fail("`people` is a mapping (max_near, collision_distance)", "people")
+    max_near = people.get("max_near", 2)
+    if isinstance(max_near, bool) or not isinstance(max_near, int) or max_near < 0:
+        raise fail("`max_near` is a whole number of people >= 0", "people", "max_near")
+    collision = people.get("collision_distance", 0.10)
+    if isinstance(collision, bool) or not isinstance(collision, int | float) or collision < 0:
+        raise fail("`collision_distance` is a distance >= 0 (m)", "people", "collision_distance")
+    trackers = data.get("trackers")
+    if not isinstance(trackers, dict) or not trackers:
+        raise fail("`trackers` maps each tracker to its fast and slow speeds (m/s)", "trackers")
+    speeds = {}
+    for tracker, spec in trackers.items():
+        try:
+            fast, slow = float(spec["fast"]), float(spec["slow"])
+        except (TypeError, KeyError, ValueError):
+            raise fail(
+                f"tracker {tracker!r} needs `fast` and `slow` (m/s)", "trackers", tracker
+            ) from None
+        if not (0 < slow <= fast <= 0.25):
+            raise fail(
+                f"tracker {tracker!r}: need 0 < slow <= fast <= 0.25 m/s", "trackers", tracker
+            )
+        speeds[str(tracker)] = Speeds(fast, slow)
+    return Procedure(
+        name=str(data.get("procedure", Path(path).stem)),
+        goals=goals,
+        critical_radius=number("critical_radius", 0.05),
+        target_tolerance=number("target_tolerance", 0.0005),
+        acceleration=number("acceleration", 0.25),
+        brake_acceleration=number("brake_acceleration", 2.0),
+        max_near=max_near,
+        collision_distance=float(collision),
+        speeds=speeds,
+    )

@@ -1,0 +1,268 @@
+"""The Supervisor (thesis 3.5.3): turns measurements into the procedure's events.
+
+It watches the Sensor Manager, the people detector, the robot and the
+interpolator, and raises the events the SEEG chart reacts to:
+
+* `e_CRITICAL_AREA` / `e_SAFE_AREA`: the TCP entered or left the sphere of
+  `critical_radius` around the target (eq. 3.11), or more than `max_near`
+  confirmed people stand near the table;
+* `e_STOP {reason}`: a possible collision (robot-envelope distance under
+  `collision_distance`), on the rising edge and again whenever motion starts while
+  it persists;
+* `e_TOK {tracker}` / `e_NOTRACKER`: answers to `report_best_tracker`;
+* `e_TFAULT {tracker, fault}`: the tracker in use is no longer the best one (its
+  fault, or a better one recovered); `e_NOTRACKER` if none is left;
+* `e_TARGET {goal}`: the interpolator reached the goal.
+
+`change_movement_parameters(speed)` sends the interpolator the limits of the
+tracker in use for the area ("fast" or "slow"), from the procedure file.
+`SupervisorCore` is the logic (plain values in, events out); the component feeds it.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from components.supervisor.procedure import Procedure, load_procedure
+from framework.component import Component, In, Out, operation
+from framework.errors import FwError
+from framework.messages import EventMessage, Pose, Scalar
+from framework.ports import ReadStatus
+from framework.properties import prop
+
+Event = tuple[str, dict[str, Any]]
+
+
+@dataclass
+class SupervisorCore:
+    """The Supervisor's decisions (see the module docstring)."""
+
+    procedure: Procedure
+    in_use: str | None = None
+    best: str | None = None
+    health: dict[str, Any] = field(default_factory=dict)
+    area: str | None = None
+    in_collision: bool = False
+    phase: str = ""
+    goal: str = ""
+    tcp: tuple[float, float, float] | None = None
+    users_near: int = 0
+    min_distance: float = math.inf
+
+    # --- inputs ----------------------------------------------------------------------
+    def tracking(self, best: str | None, health: dict[str, Any]) -> list[Event]:
+        """A Sensor Manager decision."""
+        self.best, self.health = best, health
+        if self.in_use is None or best == self.in_use:
+            return []
+        lost = self.in_use
+        self.in_use = None
+        if best is None:
+            return [("e_NOTRACKER", {})]
+        cause = (health.get(lost) or {}).get("cause") or f"{best} is better"
+        return [("e_TFAULT", {"tracker": lost, "fault": cause})]
+
+    def observe(
+        self,
+        tcp: tuple[float, float, float] | None = None,
+        users_near: int | None = None,
+        min_distance: float | None = None,
+    ) -> list[Event]:
+        """New robot TCP (base frame), people count near the table, robot-person distance."""
+        if tcp is not None:
+            self.tcp = tcp
+        if users_near is not None:
+            self.users_near = users_near
+        if min_distance is not None:
+            self.min_distance = min_distance
+        events = self._area()
+        collision = self.min_distance < self.procedure.collision_distance
+        if collision and not self.in_collision:
+            events.append(("e_STOP", {"reason": self._collision_reason()}))
+        self.in_collision = collision
+        return events
+
+    def motion(self, phase: str, goal: str) -> list[Event]:
+        """The interpolator changed phase."""
+        started = phase == "moving" and self.phase != "moving"
+        self.phase, self.goal = phase, goal
+        if started and self.in_collision:
+            return [("e_STOP", {"reason": self._collision_reason()})]
+        if phase == "reached" and goal in ("target", "home"):
+            return [("e_TARGET", {"goal": goal})]
+        return []
+
+    # --- answers and commands --------------------------------------------------------
+    def report_best_tracker(self) -> Event:
+        """e_TOK with the best tracker, or e_NOTRACKER."""
+        if self.best is None:
+            return ("e_NOTRACKER", {})
+        return ("e_TOK", {"tracker": self.best})
+
+    def use_tracker(self, tracker: str) -> None:
+        """The Configurator connected `tracker`: watch it from now on."""
+        if tracker not in self.procedure.speeds:
+            raise FwError(
+                f"tracker {tracker!r} has no speeds in the procedure "
+                f"({', '.join(self.procedure.speeds)})"
+            )
+        self.in_use = tracker
+
+    def limits(self, speed: str) -> dict[str, float]:
+        """Interpolator limits for the tracker in use at `speed` (fast, slow)."""
+        if speed not in ("fast", "slow"):
+            raise FwError(f"speed is 'fast' or 'slow', not {speed!r}")
+        speeds = self.procedure.speeds.get(self.in_use or "")
+        if speeds is None:  # no tracker in use: the slowest speed of any tracker
+            velocity = min(s.slow for s in self.procedure.speeds.values())
+        else:
+            velocity = speeds.fast if speed == "fast" else speeds.slow
+        return {"velocity": velocity, "acceleration": self.procedure.acceleration}
+
+    # --- internals -------------------------------------------------------------------
+    def _area(self) -> list[Event]:
+        if self.tcp is None:
+            return []
+        target = self.procedure.target[:3, 3]
+        distance = math.dist(self.tcp, target)
+        crowded = self.users_near > self.procedure.max_near
+        critical = distance < self.procedure.critical_radius or crowded
+        area = "critical" if critical else "safe"
+        if area == self.area:
+            return []
+        self.area = area
+        if not critical:
+            return [("e_SAFE_AREA", {"distance": round(distance, 4)})]
+        why = "crowded" if crowded else "near the target"
+        return [
+            (
+                "e_CRITICAL_AREA",
+                {"distance": round(distance, 4), "users_near": self.users_near, "why": why},
+            )
+        ]
+
+    def _collision_reason(self) -> str:
+        return (
+            f"possible collision: robot {self.min_distance * 100:.1f} cm from a person "
+            f"(limit {self.procedure.collision_distance * 100:.0f} cm)"
+        )
+
+
+class Supervisor(Component):
+    """Feeds `SupervisorCore` from its inputs and publishes its events on `events`."""
+
+    emits = (
+        "e_CRITICAL_AREA",
+        "e_SAFE_AREA",
+        "e_STOP",
+        "e_TOK",
+        "e_NOTRACKER",
+        "e_TFAULT",
+        "e_TARGET",
+    )
+    procedure_file = prop(str, "", doc="procedure YAML (target, areas, speeds)")
+    tracking = In(EventMessage, doc="Sensor Manager decisions (best tracker, health)")
+    tcp = In(Pose, doc="robot TCP in the base frame")
+    users_near = In(Scalar, doc="confirmed people near the table")
+    min_distance = In(Scalar, doc="closest robot-person distance (m)")
+    motion = In(EventMessage, doc="interpolator phase changes")
+    tracked = In(Pose, doc="the robot's tool as the tracker in use sees it (rewired per tracker)")
+    events = Out(EventMessage, doc="events for the Coordinator (fw/events)")
+    limits = Out(EventMessage, doc="interpolator limits {velocity, acceleration}")
+
+    def configure_hook(self) -> bool:
+        try:
+            if not self.procedure_file:
+                raise FwError("property procedure_file is empty")
+            self.core = SupervisorCore(load_procedure(self.procedure_file))
+        except FwError as exc:
+            self.last_error = str(exc)
+            return False
+        self._core_lock = threading.Lock()
+        return True
+
+    def update_hook(self) -> None:
+        events: list[Event] = []
+        with self._core_lock:
+            core = self.core
+            status, decision = self.tracking.read()
+            if status is ReadStatus.NEW:
+                events += core.tracking(
+                    decision.payload.get("best"), decision.payload.get("health", {})
+                )
+            tcp = self._new(self.tcp)
+            near = self._new(self.users_near)
+            distance = self._new(self.min_distance)
+            if tcp is not None or near is not None or distance is not None:
+                events += core.observe(
+                    tcp.position if tcp is not None else None,
+                    int(near.value) if near is not None else None,
+                    distance.value if distance is not None else None,
+                )
+            while True:
+                status, change = self.motion.read()
+                if status is not ReadStatus.NEW:
+                    break
+                events += core.motion(change.name, str(change.payload.get("goal", "")))
+        for name, payload in events:
+            self._emit(name, payload)
+
+    @staticmethod
+    def _new(port: Any) -> Any:
+        status, sample = port.read()
+        return sample if status is ReadStatus.NEW else None
+
+    def _emit(self, name: str, payload: dict[str, Any]) -> None:
+        self.events.write(EventMessage(time.time(), name, self.name, payload))
+
+    @operation
+    def report_best_tracker(self) -> str:
+        """Raise e_TOK (with the best tracker) or e_NOTRACKER."""
+        with self._core_lock:
+            name, payload = self.core.report_best_tracker()
+        self._emit(name, payload)
+        return name
+
+    @operation
+    def use_tracker(self, tracker: str) -> str:
+        """Watch `tracker` as the one in use (called by tracker_N_up)."""
+        with self._core_lock:
+            self.core.use_tracker(tracker)
+        return tracker
+
+    @operation
+    def change_movement_parameters(self, speed: str) -> dict[str, float]:
+        """Send the interpolator the limits for the tracker in use at `speed` (fast, slow)."""
+        with self._core_lock:
+            limits = self.core.limits(speed)
+        self.limits.write(EventMessage(time.time(), "limits", self.name, limits))
+        return limits
+
+    @operation
+    def report(self) -> dict[str, Any]:
+        """Tracker in use, best tracker, area, people, distance, motion, tracked tool."""
+        core = self.core
+        status, tool = self.tracked.read()
+        seen = None
+        if status is not ReadStatus.NO_DATA and tool is not None:
+            seen = {
+                "tracker": tool.frame,
+                "valid": tool.valid,
+                "position": [round(v, 5) for v in tool.position],
+                "age_s": round(time.time() - tool.stamp, 3),
+            }
+        return {
+            "tracked": seen,
+            "tracker": core.in_use,
+            "best": core.best,
+            "area": core.area,
+            "users_near": core.users_near,
+            "min_distance": None if math.isinf(core.min_distance) else core.min_distance,
+            "in_collision": core.in_collision,
+            "phase": core.phase,
+            "goal": core.goal,
+        }
