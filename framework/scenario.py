@@ -19,9 +19,9 @@ runs, then reports PASS or FAIL for every expectation (exit code 1 on FAIL).
     end: Target_Reached                        # stop early once this state is active
 
 Steps run one after the other: `at` waits until that time after time zero,
-`when` waits for the named state's next entry not yet used by an earlier `when`
-of the same state (consecutive steps with the same `when` share one entry), and
-`after` adds a delay to either. A state is named by its full path or by any dotted
+`when` waits for the named state's first entry since the previous step was
+triggered (consecutive steps with the same `when` share one entry), and `after`
+adds a delay to either. A state is named by its full path or by any dotted
 suffix of it (`Stopped`, `Task.Stopped`). `check` calls an operation and
 compares the given fields of its result (a failed check is a FAIL, the scenario
 goes on).
@@ -217,7 +217,7 @@ class ScenarioRunner(Listener):
         self.active: set[str] = set()
         self.done: list[ScenarioStep] = []
         self.outcomes: list[Outcome] = []
-        self._used: dict[str, int] = {}  # state name -> index of the entry its last `when` used
+        self._mark = 0.0  # when the previous step's `at` or `when` was met
 
     # --- chart listener (the Coordinator's thread) -----------------------------------
     def on_entry(self, state: Any) -> None:
@@ -274,6 +274,7 @@ class ScenarioRunner(Listener):
                 )
                 return
             previous: ScenarioStep | None = None
+            self._mark = self._zero
             for step in self.scenario.steps:
                 share = previous is not None and bool(step.when) and previous.when == step.when
                 if not self._run_step(step, share):
@@ -289,12 +290,12 @@ class ScenarioRunner(Listener):
     def _run_step(self, step: ScenarioStep, share: bool) -> bool:
         assert self._zero is not None
         if step.when and not share:
-            used = self._used.get(step.when, -1)
+            mark = self._mark
 
             def entered() -> bool:
-                for index in range(used + 1, len(self.entries)):
-                    if _matches(self.entries[index][1], step.when):
-                        self._used[step.when] = index
+                for t, path in self.entries:
+                    if t >= mark and _matches(path, step.when):
+                        self._mark = t
                         return True
                 return False
 
@@ -303,6 +304,7 @@ class ScenarioRunner(Listener):
                 return False
         if step.at is not None:
             self._wait(lambda: False, self._zero + step.at)
+            self._mark = max(self._mark, self._zero + step.at)
         if step.after:
             self._wait(lambda: False, time.monotonic() + step.after)
         if self._stop.is_set() or time.monotonic() >= self._deadline():
