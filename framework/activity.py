@@ -209,5 +209,5 @@ class SteppedExecutor:
             component.update()
             updates += 1 + self.run_pending()
             heapq.heappush(self._periodic, (deadline + period, order, component, period))
-        self.clock.set(end)
+        self.clock.set(max(end, self.clock.now()))  # a deadline within rounding of `end` ran
         return updates

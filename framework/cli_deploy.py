@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import shutil
 import sys
 import tempfile
@@ -82,6 +83,11 @@ def _screen(deployment: Any, started: float) -> str:
         )
         pending = ", ".join(info["pending"].values()) or "-"
         lines.append(f"waiting on {pending}")
+        if deployment.topology.external_events:
+            lines.append(
+                f"send      {', '.join(deployment.topology.external_events)}   with: fw send "
+                f"EVENT --topology {os.path.relpath(deployment.topology.file)}"
+            )
     history = deployment.configurator.history[-5:] if deployment.configurator else []
     for outcome in history:
         mark = "ok  " if outcome.ok else "FAIL"

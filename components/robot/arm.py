@@ -71,6 +71,11 @@ class SimulatedArm:
         self._held = np.array(q0, dtype=float)
 
     @property
+    def commanded(self) -> bool:
+        """True while released and receiving setpoints (the watchdog is armed)."""
+        return self._commanded and not self.braked
+
+    @property
     def time(self) -> float:
         """Simulated time (s) since power on."""
         return float(self.data.time)

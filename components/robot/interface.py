@@ -5,10 +5,17 @@ real time, or on the stepped clock in tests); a real FRI driver would be another
 component with the same ports and operations, swapped in the topology. Safety
 lives here too, below everything else: brakes at power on, a watchdog on the
 setpoint stream, and a guard against setpoint jumps (see `arm.py`).
+
+While it is being commanded, each cycle waits up to `lockstep_ms` (wall time) for
+the controller's setpoint before stepping, like FRI's synchronous mode: on a
+loaded host the simulated arm then runs slower than real time instead of
+missing setpoints, and only a controller silent for `watchdog_cycles` such
+waits (a dead one) makes the watchdog brake.
 """
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Any
 
@@ -22,6 +29,8 @@ from framework.messages import EventMessage, JointState, Pose
 from framework.ports import ReadStatus
 from framework.properties import prop
 
+SELF_BRAKES = ("watchdog", "setpoint")
+"""Brake reasons of the arm's own safety (not asked for by the procedure)."""
 STILL_RAD_S = 2e-3
 STILL_CYCLES = 50
 STILL_TIMEOUT = 2.0  # s
@@ -46,6 +55,9 @@ class RobotInterface(Component):
 
     watchdog_cycles = prop(int, 5, min=1, max=1000, doc="cycles without setpoint before braking")
     mode = prop(str, "position", choices=list(MODES), doc="joint servo mode")
+    lockstep_ms = prop(
+        float, 20.0, unit="ms", min=0.0, max=1000.0, doc="wait for each setpoint (0: never)"
+    )
     setpoint = In(JointState, doc="joint position setpoints (rad), one per cycle")
     joints = Out(JointState, doc="measured joints, every cycle")
     tcp = Out(Pose, doc="measured TCP in the robot base frame, every cycle")
@@ -57,10 +69,19 @@ class RobotInterface(Component):
         self._last_status = -1.0
         self._brake_when_still: tuple[str, float] | None = None  # (reason, deadline)
         self._still_cycles = 0
+        self._arrived = threading.Event()
+        return True
+
+    def start_hook(self) -> bool:
+        self.setpoint.on_data = lambda _port: self._arrived.set()
         return True
 
     def update_hook(self) -> None:
         arm = self.arm
+        if arm.commanded and self.lockstep_ms > 0 and not self.setpoint.pending():
+            self._arrived.clear()
+            if not self.setpoint.pending():
+                self._arrived.wait(self.lockstep_ms / 1000.0)
         status, sample = self.setpoint.read()
         if status is ReadStatus.NEW and not arm.braked:
             arm.command(np.asarray(sample.position))
@@ -129,6 +150,7 @@ class RobotInterface(Component):
         return {
             "braked": arm.braked,
             "reason": arm.reason,
+            "fault": arm.braked and arm.reason.startswith(SELF_BRAKES),
             "mode": arm.mode,
             "time": round(arm.time, 4),
             "q": [round(v, 5) for v in arm.q.tolist()],

@@ -12,7 +12,10 @@ interpolator, and raises the events the SEEG chart reacts to:
 * `e_TOK {tracker}` / `e_NOTRACKER`: answers to `report_best_tracker`;
 * `e_TFAULT {tracker, fault}`: the tracker in use is no longer the best one (its
   fault, or a better one recovered); `e_NOTRACKER` if none is left;
-* `e_TARGET {goal}`: the interpolator reached the goal.
+* `e_TARGET {goal}`: the interpolator reached the goal and the measured TCP is
+  within `target_tolerance` of it;
+* `e_STOP {reason}` also when the arm braked by itself (watchdog, setpoint
+  guard): the chart must know the robot no longer follows.
 
 `change_movement_parameters(speed)` sends the interpolator the limits of the
 tracker in use for the area ("fast" or "slow"), from the procedure file.
@@ -52,6 +55,8 @@ class SupervisorCore:
     tcp: tuple[float, float, float] | None = None
     users_near: int = 0
     min_distance: float = math.inf
+    arriving: str = ""  # the goal the interpolator reached, until the TCP is there too
+    robot_fault: str = ""
 
     # --- inputs ----------------------------------------------------------------------
     def tracking(self, best: str | None, health: dict[str, Any]) -> list[Event]:
@@ -79,7 +84,7 @@ class SupervisorCore:
             self.users_near = users_near
         if min_distance is not None:
             self.min_distance = min_distance
-        events = self._area()
+        events = self._area() + self._arrival()
         collision = self.min_distance < self.procedure.collision_distance
         if collision and not self.in_collision:
             events.append(("e_STOP", {"reason": self._collision_reason()}))
@@ -92,9 +97,18 @@ class SupervisorCore:
         self.phase, self.goal = phase, goal
         if started and self.in_collision:
             return [("e_STOP", {"reason": self._collision_reason()})]
-        if phase == "reached" and goal in ("target", "home"):
-            return [("e_TARGET", {"goal": goal})]
-        return []
+        self.arriving = goal if phase == "reached" and goal in self.procedure.goals else ""
+        return self._arrival()
+
+    def robot(self, braked: bool, fault: bool, reason: str) -> list[Event]:
+        """The robot interface's status: a brake the arm applied by itself stops the task."""
+        if not (braked and fault):
+            self.robot_fault = ""
+            return []
+        if reason == self.robot_fault:
+            return []
+        self.robot_fault = reason
+        return [("e_STOP", {"reason": f"robot braked: {reason}"})]
 
     # --- answers and commands --------------------------------------------------------
     def report_best_tracker(self) -> Event:
@@ -124,6 +138,15 @@ class SupervisorCore:
         return {"velocity": velocity, "acceleration": self.procedure.acceleration}
 
     # --- internals -------------------------------------------------------------------
+    def _arrival(self) -> list[Event]:
+        if not self.arriving or self.tcp is None:
+            return []
+        goal = self.procedure.goals[self.arriving][:3, 3]
+        if math.dist(self.tcp, goal) > self.procedure.target_tolerance:
+            return []
+        goal_name, self.arriving = self.arriving, ""
+        return [("e_TARGET", {"goal": goal_name})]
+
     def _area(self) -> list[Event]:
         if self.tcp is None:
             return []
@@ -171,6 +194,7 @@ class Supervisor(Component):
     min_distance = In(Scalar, doc="closest robot-person distance (m)")
     motion = In(EventMessage, doc="interpolator phase changes")
     tracked = In(Pose, doc="the robot's tool as the tracker in use sees it (rewired per tracker)")
+    robot = In(EventMessage, doc="robot interface status (brakes, reason, fault)")
     events = Out(EventMessage, doc="events for the Coordinator (fw/events)")
     limits = Out(EventMessage, doc="interpolator limits {velocity, acceleration}")
 
@@ -208,6 +232,12 @@ class Supervisor(Component):
                 if status is not ReadStatus.NEW:
                     break
                 events += core.motion(change.name, str(change.payload.get("goal", "")))
+            robot = self._new(self.robot)
+            if robot is not None:
+                p = robot.payload
+                events += core.robot(
+                    bool(p.get("braked")), bool(p.get("fault")), str(p.get("reason", ""))
+                )
         for name, payload in events:
             self._emit(name, payload)
 

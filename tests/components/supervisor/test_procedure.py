@@ -1,0 +1,50 @@
+"""Spec: a procedure file is read whole or refused with file:line and the field."""
+
+import numpy as np
+import pytest
+
+from components.supervisor.procedure import ProcedureError, load_procedure
+from tests.conftest import REPO
+
+
+def test_the_seeg_procedure_loads_with_the_thesis_speeds():
+    p = load_procedure(REPO / "procedures" / "seeg.yaml")
+    assert p.speeds["certus"].fast == 0.075 and p.speeds["certus"].slow == 0.010
+    assert np.allclose(p.target[:3, 3], [0.60, 0.0, 0.12])
+    assert np.allclose(p.target[:3, 2], [0.0, 0.0, -1.0], atol=1e-9), "the tool points down"
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "message"),
+    [
+        ("procedure: x\n", 1, "`target` needs a position"),
+        (
+            "target: {position: [0, 0]}\nhome: {position: [0, 0, 0]}\n",
+            1,
+            "3 finite position values",
+        ),
+        (
+            "target: {position: [0, 0, 0]}\nhome: {position: [0, 0, 0]}\ncritical_radius: -1\n"
+            "trackers: {certus: {fast: 0.1, slow: 0.01}}\n",
+            3,
+            "`critical_radius` must be positive",
+        ),
+        (
+            "target: {position: [0, 0, 0]}\nhome: {position: [0, 0, 0]}\n"
+            "trackers:\n  certus: {fast: 0.01, slow: 0.05}\n",
+            4,
+            "slow <= fast",
+        ),
+        (
+            "target: {position: [0, 0, 0]}\nhome: {position: [0, 0, 0]}\n"
+            "people: {max_near: -1}\ntrackers: {certus: {fast: 0.1, slow: 0.01}}\n",
+            3,
+            "`max_near` is a whole number",
+        ),
+    ],
+)
+def test_bad_procedures_are_refused_with_a_located_reason(write, text, line, message):
+    path = write(text, "procedure.yaml")
+    with pytest.raises(ProcedureError) as err:
+        load_procedure(path)
+    assert f"{path}:{line}:" in str(err.value) and message in str(err.value)

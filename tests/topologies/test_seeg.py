@@ -1,0 +1,54 @@
+"""Spec: `fw deploy topologies/seeg.yaml --scenario F` on real processes, for every
+scenario of the procedure: the simulated OR plays it and every expectation holds."""
+
+import dataclasses
+
+import pytest
+
+from framework.deployer import Deployment
+from framework.scenario import load_scenario
+from framework.statechart.loader import load_statechart
+from framework.statechart.model import BUILTIN_EVENTS
+from framework.topology import load_topology
+from tests.conftest import REPO
+
+SCENARIOS = sorted((REPO / "procedures" / "seeg" / "scenarios").glob("*.yaml"))
+
+
+def seeg_topology(bus_config, tmp_path):
+    topology = load_topology(REPO / "topologies" / "seeg.yaml")
+    topology.bus = dataclasses.replace(
+        topology.bus, namespace=bus_config.namespace, hub_port=bus_config.hub_port
+    )
+    link = str(tmp_path / "ttyVICRA")  # a private device node for this test
+    topology.components["vicra_sim"].properties["link"] = link
+    topology.components["vicra"].properties["device"] = link
+    return topology
+
+
+def test_every_scenario_is_checked_against_the_chart_and_topology():
+    topology = load_topology(REPO / "topologies" / "seeg.yaml")
+    chart = load_statechart(topology.statechart)
+    operations = {f"{n}.{op}" for n, c in topology.components.items() for op in c.info.operations}
+    assert len(SCENARIOS) >= 5
+    for path in SCENARIOS:
+        load_scenario(
+            path,
+            set(chart.events) | set(BUILTIN_EVENTS),
+            operations,
+            {s.path for s in chart.states.values()},
+        )
+
+
+@pytest.mark.parametrize("path", SCENARIOS, ids=[p.stem for p in SCENARIOS])
+def test_scenario_passes_on_real_processes(path, bus_config, tmp_path):
+    topology = seeg_topology(bus_config, tmp_path)
+    scenario = load_scenario(path)
+    deployment = Deployment(topology, tmp_path / "logs", scenario=scenario)
+    deployment.start()
+    try:
+        assert deployment.runner.finished.wait(scenario.timeout + 30), "scenario never finished"
+    finally:
+        deployment.stop()
+    failed = [o for o in deployment.runner.report() if not o.ok]
+    assert not failed, failed
