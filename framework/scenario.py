@@ -24,7 +24,9 @@ triggered (consecutive steps with the same `when` share one entry), and `after`
 adds a delay to either. A state is named by its full path or by any dotted
 suffix of it (`Stopped`, `Task.Stopped`). `check` calls an operation and
 compares the given fields of its result (a failed check is a FAIL, the scenario
-goes on).
+goes on); with `wait: 30s` it asks again until they match or the wait is over,
+for outcomes whose timing depends on the host (a simulated arm slows down, it
+does not skip, when the machine is busy).
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ class ScenarioStep:
     check: str = ""
     payload: dict[str, Any] = field(default_factory=dict)
     expect: dict[str, Any] = field(default_factory=dict)
+    wait: float = 0.0
     location: Location = field(default_factory=Location)
 
     def describe(self) -> str:
@@ -132,6 +135,7 @@ def load_scenario(
             check=spec.get("check", ""),
             payload=dict(spec.get("payload") or spec.get("args") or {}),
             expect=dict(spec.get("expect") or {}),
+            wait=parse_duration(spec.get("wait", 0)),
             location=where,
         )
         if step.when:
@@ -317,12 +321,16 @@ class ScenarioRunner(Listener):
             elif step.call:
                 self._call(step.call, step.payload)
             else:
-                result = self._call(step.check, step.payload)
-                wrong = {
-                    k: result.get(k) if isinstance(result, dict) else result
-                    for k, v in step.expect.items()
-                    if not isinstance(result, dict) or result.get(k) != v
-                }
+                until = time.monotonic() + step.wait
+                while True:  # with `wait`, poll until the result matches (a hang bound)
+                    result = self._call(step.check, step.payload)
+                    wrong = {
+                        k: result.get(k) if isinstance(result, dict) else result
+                        for k, v in step.expect.items()
+                        if not isinstance(result, dict) or result.get(k) != v
+                    }
+                    if not wrong or time.monotonic() >= until or self._stop.wait(0.05):
+                        break
                 ok = not wrong
                 missing = isinstance(result, dict) and any(k not in result for k in step.expect)
                 got = result if missing or not isinstance(result, dict) else wrong
