@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from components.tracking.geometry import pose_matrix
+from components.tracking.geometry import invert, pose_matrix
 from components.tracking.synthetic import ee_path, rigid, standard_rigs
 from framework.component import Component, In, Out, operation
 from framework.messages import Pose
@@ -96,7 +96,12 @@ class TrackerSim(Component):
 
     @operation
     def bump_reference(self, dx: float = 0.02) -> None:
-        """Someone bumps the reference tool by `dx` metres (the calibration is now wrong)."""
+        """Someone bumps the reference tool by `dx` metres along its x axis: it moves in
+        the room while the sensor and the robot stay, so the robot's pose relative to it
+        (what the calibration maps) is now wrong."""
+        motion = rigid((dx, 0, 0), (0, 0, 0))
         self.model = dataclasses.replace(
-            self.model, sensor_from_rto=self.model.sensor_from_rto @ rigid((dx, 0, 0), (0, 0, 0))
+            self.model,
+            sensor_from_rto=self.model.sensor_from_rto @ motion,
+            rto_from_base=invert(motion) @ self.model.rto_from_base,
         )
