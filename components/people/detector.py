@@ -73,6 +73,13 @@ def _in_view(point: np.ndarray) -> bool:
     )
 
 
+FULLY_IN_VIEW = 0.8
+"""Fraction of a body that must be in a camera's view before missing it counts against it."""
+SHADOW = 0.35
+"""m: a person this close to the line from a camera through a nearer person's torso
+may be hidden by them (a body is ~0.4 m wide; limbs widen the shadow)."""
+
+
 class PeopleDetectorCore:
     """Everything between camera users and robot-person distances."""
 
@@ -181,17 +188,18 @@ class PeopleDetectorCore:
                 self.config.base_from_master @ self.cameras[name].master_from_camera
             )
             point = camera_from_base[:3, :3] @ torso + camera_from_base[:3, 3]
-            if not _in_view(point):
-                continue
-            depth = float(np.linalg.norm(point))
-            direction = point / depth
+            body = joints[np.isfinite(joints).all(axis=1)] @ camera_from_base[:3, :3].T
+            body += camera_from_base[:3, 3]
+            if np.mean([_in_view(j) for j in body]) < FULLY_IN_VIEW:
+                continue  # at the edge of its view a camera may rightly lose the person
             hidden = False
-            for other in others:
+            for other in others:  # in the shadow of a nearer person, seen from the camera
                 if not np.isfinite(other[2]).all():
                     continue
                 o = camera_from_base[:3, :3] @ other[2] + camera_from_base[:3, 3]
-                along = float(o @ direction)
-                if 0.0 < along < depth - 0.1 and np.linalg.norm(o - along * direction) < 0.35:
+                depth = float(np.linalg.norm(o))
+                along = float(point @ o) / depth
+                if along > depth + 0.1 and np.linalg.norm(point - along * o / depth) < SHADOW:
                     hidden = True
                     break
             if not hidden:
