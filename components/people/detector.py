@@ -62,15 +62,20 @@ class Frame:
 SUSPECT = 5.0  # frames of net disagreement with the master before a camera is suspect
 
 
-def _in_view(point: np.ndarray) -> bool:
+def _fraction_in_view(points: np.ndarray) -> float:
+    """Share of camera-frame points inside the Kinect's view (vectorised `_in_view`)."""
     from components.people.kinect_sim import FAR, H_FOV, NEAR, V_FOV
 
-    x, y, z = point
-    return bool(
-        NEAR <= z <= FAR
-        and abs(np.arctan2(x, z)) <= H_FOV / 2
-        and abs(np.arctan2(y, z)) <= V_FOV / 2
+    if not len(points):
+        return 0.0
+    x, y, z = points[:, 0], points[:, 1], points[:, 2]
+    inside = (
+        (z >= NEAR)
+        & (z <= FAR)
+        & (np.abs(np.arctan2(x, z)) <= H_FOV / 2)
+        & (np.abs(np.arctan2(y, z)) <= V_FOV / 2)
     )
+    return float(inside.mean())
 
 
 FULLY_IN_VIEW = 0.8
@@ -168,6 +173,15 @@ class PeopleDetectorCore:
                         self.disagreements.get((camera, self.master), 0) + 1
                     )
 
+    def _camera_from_base(self, name: str) -> np.ndarray:
+        """The inverse of a camera's registration (cached: calibrations are constant)."""
+        cache = self.__dict__.setdefault("_inverse_registrations", {})
+        if name not in cache:
+            cache[name] = np.linalg.inv(
+                self.config.base_from_master @ self.cameras[name].master_from_camera
+            )
+        return cache[name]
+
     def _should_see(
         self,
         joints: np.ndarray,
@@ -184,13 +198,11 @@ class PeopleDetectorCore:
         for name in reporting:
             if name in seen_by:
                 continue
-            camera_from_base = np.linalg.inv(
-                self.config.base_from_master @ self.cameras[name].master_from_camera
-            )
+            camera_from_base = self._camera_from_base(name)
             point = camera_from_base[:3, :3] @ torso + camera_from_base[:3, 3]
             body = joints[np.isfinite(joints).all(axis=1)] @ camera_from_base[:3, :3].T
             body += camera_from_base[:3, 3]
-            if np.mean([_in_view(j) for j in body]) < FULLY_IN_VIEW:
+            if _fraction_in_view(body) < FULLY_IN_VIEW:
                 continue  # at the edge of its view a camera may rightly lose the person
             hidden = False
             for other in others:  # in the shadow of a nearer person, seen from the camera
