@@ -243,6 +243,9 @@ class CartesianInterpolator(Component):
     this component dies. `sync` re-reads the measured joints (after the brakes)."""
 
     procedure_file = prop(str, "", doc="procedure YAML (goals, accelerations)")
+    max_lag = prop(
+        float, 0.05, unit="rad", min=0.001, max=1.0, doc="command-to-arm gap that stops a motion"
+    )
     joints = In(JointState, doc="measured joints (from the robot interface)")
     limits = In(EventMessage, doc="new limits: payload {velocity, acceleration} (m/s, m/s^2)")
     setpoint = Out(JointState, doc="joint setpoints for the robot interface, every cycle")
@@ -284,6 +287,13 @@ class CartesianInterpolator(Component):
                     core.set_limits(limits.payload["velocity"], limits.payload.get("acceleration"))
                 except (KeyError, TypeError, LimitError) as exc:
                     self.last_error = f"limits refused: {exc}"
+            lag = float(np.max(np.abs(core.q - np.asarray(measured.position))))
+            if core.moving and core.phase is not Phase.STOPPING and lag > self.max_lag:
+                # the arm does not follow (brakes, contact): stop commanding a motion
+                # nobody executes; the STOP returns the command to where the arm stands
+                self.last_error = f"the arm lags the command by {np.degrees(lag):.1f} deg"
+                core.sync(np.asarray(measured.position))
+                core.stop()
             q = core.step()
             phase = core.phase
         stamp = time.time()

@@ -123,3 +123,16 @@ def test_stepped_runs_are_repeatable(bus_config):
             bus.close()
 
     assert np.array_equal(trajectory(), trajectory())
+
+
+def test_an_arm_that_stops_following_stops_the_commanded_motion(cell):
+    cell.robot.call("release")
+    cell.interp.call("sync")
+    cell.interp.call("go_to", goal="target")
+    cell.run(1.0)
+    cell.robot.call("brake", reason="operator")  # the arm stops; nobody told the interpolator
+    cell.run(1.0)
+    report = cell.interp.call("report")
+    assert report["phase"] == "stopped", report
+    assert "lags the command" in cell.interp.last_error
+    assert np.allclose(report["tcp"], cell.tcp(), atol=1e-3), "the command is back at the arm"
