@@ -56,12 +56,17 @@ class SupervisorCore:
     users_near: int = 0
     min_distance: float = math.inf
     arriving: str = ""  # the goal the interpolator reached, until the TCP is there too
+    sensor_limits: dict[str, dict[str, float]] = field(default_factory=dict)
     robot_fault: str = ""
 
     # --- inputs ----------------------------------------------------------------------
-    def tracking(self, best: str | None, health: dict[str, Any]) -> list[Event]:
-        """A Sensor Manager decision."""
+    def tracking(
+        self, best: str | None, health: dict[str, Any], limits: dict[str, float] | None = None
+    ) -> list[Event]:
+        """A Sensor Manager decision (best sensor, every sensor's health, the best's limits)."""
         self.best, self.health = best, health
+        if best is not None and limits is not None:
+            self.sensor_limits[best] = dict(limits)
         if self.in_use is None or best == self.in_use:
             return []
         lost = self.in_use
@@ -127,7 +132,8 @@ class SupervisorCore:
         self.in_use = tracker
 
     def limits(self, speed: str) -> dict[str, float]:
-        """Interpolator limits for the tracker in use at `speed` (fast, slow)."""
+        """Interpolator limits for the tracker in use at `speed` (fast, slow): the
+        procedure's speed, capped by what the Sensor Manager allows for that tracker."""
         if speed not in ("fast", "slow"):
             raise FwError(f"speed is 'fast' or 'slow', not {speed!r}")
         speeds = self.procedure.speeds.get(self.in_use or "")
@@ -135,7 +141,11 @@ class SupervisorCore:
             velocity = min(s.slow for s in self.procedure.speeds.values())
         else:
             velocity = speeds.fast if speed == "fast" else speeds.slow
-        return {"velocity": velocity, "acceleration": self.procedure.acceleration}
+        acceleration = self.procedure.acceleration
+        caps = self.sensor_limits.get(self.in_use or "", {})
+        velocity = min(velocity, caps.get("max_velocity", velocity))
+        acceleration = min(acceleration, caps.get("max_acceleration", acceleration))
+        return {"velocity": velocity, "acceleration": acceleration}
 
     # --- internals -------------------------------------------------------------------
     def _arrival(self) -> list[Event]:
@@ -216,7 +226,9 @@ class Supervisor(Component):
             status, decision = self.tracking.read()
             if status is ReadStatus.NEW:
                 events += core.tracking(
-                    decision.payload.get("best"), decision.payload.get("health", {})
+                    decision.payload.get("best"),
+                    decision.payload.get("health", {}),
+                    decision.payload.get("limits"),
                 )
             tcp = self._new(self.tcp)
             near = self._new(self.users_near)

@@ -63,9 +63,11 @@ def run(poses: int, seed: int) -> dict[str, Any]:
                 "cto": f"{rig.name}/calibration_tool_optical",
                 "rto": f"{rig.name}/reference_tool_optical",
             },
+            # what the robot may do while navigated by this sensor: the procedure's
+            # speeds are capped by these (the slower, noisier sensor allows less)
             "limits": {
-                "fast": 0.075 if priority == 1 else 0.05,
-                "slow": 0.025 if priority == 1 else 0.015,
+                "max_velocity": 0.10 if priority == 1 else 0.05,
+                "max_acceleration": 0.5 if priority == 1 else 0.25,
             },
             "calibration": {"C": _transform(c), "X": _transform(fit.x), "Y": _transform(fit.y)},
         }

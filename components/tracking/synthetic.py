@@ -98,7 +98,7 @@ def sensors_config(rigs: list[Rig], hysteresis: int = 5, **overrides: float) -> 
                 master_from_sensor=master.rto_from_base @ invert(rig.rto_from_base),
                 rto_from_base=rig.rto_from_base,
                 ee_from_cto=rig.ee_from_cto,
-                limits={"fast": 0.075, "slow": 0.025},
+                limits={"max_velocity": 0.10, "max_acceleration": 0.5},
                 **overrides,
             )
         )

@@ -113,3 +113,11 @@ def test_without_a_tracker_in_use_the_slowest_speed_is_used():
     c = SupervisorCore(PROCEDURE)
     assert c.limits("fast")["velocity"] == min(s.slow for s in PROCEDURE.speeds.values())
     assert math.isinf(c.min_distance)
+
+
+def test_the_sensor_managers_limits_cap_the_procedures_speeds():
+    c = SupervisorCore(PROCEDURE)
+    c.tracking("vicra", HEALTHY, {"max_velocity": 0.03, "max_acceleration": 0.1})
+    c.use_tracker("vicra")
+    assert c.limits("fast") == {"velocity": 0.03, "acceleration": 0.1}, "capped"
+    assert c.limits("slow")["velocity"] == 0.010, "below the cap: the procedure's speed"

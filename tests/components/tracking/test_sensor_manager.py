@@ -186,7 +186,7 @@ def test_sensor_files_are_checked_with_locations(write):
         """
         sensors:
           certus: {priority: 1, rate: 100, keys: {cto: certus/cto, rto: certus/rto},
-                   limits: {fast: 0.075, slow: 0.025}}
+                   limits: {max_velocity: 0.1, max_acceleration: 0.5}}
           vicra: {priority: 2, rate: 20, keys: {cto: vicra/cto, rto: vicra/rto},
                   calibration: {C: {position: [0.1, 0, 0], quaternion: [1, 0, 0, 0]}}}
         """,
