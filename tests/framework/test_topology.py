@@ -65,6 +65,8 @@ def test_the_toy_topology_is_clean():
         ("  broken:\n", "  brokn:\n", "unknown-tag"),
         ("external_events: [e_SWAP, e_BREAK]", "external_events: [e_SWAP]", "no-producer"),
         ("activity: {event: inp}", "activity: {event: input}", "activity"),
+        ("activity: {event: inp}", "activity: {after: t1}", "activity"),  # another process
+        ("activity: {event: inp}", "activity: {after: t9}", "activity"),  # no such component
         ("process: trackers", "process: tracker", "process"),
     ],
 )
