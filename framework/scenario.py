@@ -16,6 +16,9 @@ runs, then reports PASS or FAIL for every expectation (exit code 1 on FAIL).
       - {event: e_NOTRACKER}                   # seen at least once
       - {never_state: Fault}
       - {never_event: e_STOP}
+    invariants:                                # sampled at 10 Hz during the whole run
+      - {while: No_Tracker, grace: 3s, check: robot.report, expect: {braked: true}}
+      - {while: Moving, check: interpolator.report, max: {speed: 0.0751}}
     end: Target_Reached                        # stop early once this state is active
 
 Steps run one after the other: `at` waits until that time after time zero,
@@ -91,6 +94,38 @@ class Expectation:
 
 
 @dataclass
+class Invariant:
+    """Something that must hold whenever a state is active (after a grace period)."""
+
+    check: str
+    expect: dict[str, Any] = field(default_factory=dict)
+    maximum: dict[str, float] = field(default_factory=dict)
+    state: str = ""  # empty: always (from time zero)
+    grace: float = 0.0
+    location: Location = field(default_factory=Location)
+
+    def describe(self) -> str:
+        """How the invariant reads in a report."""
+        when = f"while {self.state}" + (f" (+{self.grace:g}s)" if self.grace else "")
+        what = ", ".join(
+            [f"{k} == {v!r}" for k, v in self.expect.items()]
+            + [f"{k} <= {v:g}" for k, v in self.maximum.items()]
+        )
+        return f"{when if self.state else 'always'}: {self.check} {what}"
+
+    def violation(self, result: Any) -> str:
+        """'' if `result` satisfies the invariant, else what is wrong."""
+        if not isinstance(result, dict):
+            return f"got {result!r}"
+        wrong = [f"{k}={result.get(k)!r}" for k, v in self.expect.items() if result.get(k) != v]
+        for k, v in self.maximum.items():
+            value = result.get(k)
+            if not isinstance(value, int | float) or value > v:
+                wrong.append(f"{k}={value!r}")
+        return ", ".join(wrong)
+
+
+@dataclass
 class Scenario:
     """A loaded scenario."""
 
@@ -100,6 +135,7 @@ class Scenario:
     start: str = ""
     timeout: float = 120.0
     end: str = ""
+    invariants: list[Invariant] = field(default_factory=list)
 
 
 def load_scenario(
@@ -170,6 +206,29 @@ def load_scenario(
                 Finding("error", "unknown-event", f"the chart has no event {name!r}", where)
             )
         expectations.append(Expectation(kind, name, within, where))
+    invariants = []
+    for i, spec in enumerate(data.get("invariants") or []):
+        where = doc.location(("invariants", i))
+        inv = Invariant(
+            spec["check"],
+            dict(spec.get("expect") or {}),
+            {k: float(v) for k, v in (spec.get("max") or {}).items()},
+            spec.get("while", ""),
+            parse_duration(spec.get("grace", 0)),
+            where,
+        )
+        if inv.state:
+            known_state(inv.state, where)
+        if operations is not None and inv.check not in operations:
+            findings.append(
+                Finding(
+                    "error",
+                    "unknown-operation",
+                    f"no operation {inv.check!r} in the topology",
+                    where,
+                )
+            )
+        invariants.append(inv)
     for key in ("start", "end"):
         if data.get(key):
             known_state(data[key], doc.location((key,)))
@@ -182,6 +241,7 @@ def load_scenario(
         data.get("start", ""),
         parse_duration(data.get("timeout", "120s")),
         data.get("end", ""),
+        invariants,
     )
 
 
@@ -222,6 +282,8 @@ class ScenarioRunner(Listener):
         self.done: list[ScenarioStep] = []
         self.outcomes: list[Outcome] = []
         self._mark = 0.0  # when the previous step's `at` or `when` was met
+        self.violations: dict[int, tuple[float, str]] = {}  # invariant -> first (time, what)
+        self.samples: dict[int, int] = {}
 
     # --- chart listener (the Coordinator's thread) -----------------------------------
     def on_entry(self, state: Any) -> None:
@@ -255,6 +317,42 @@ class ScenarioRunner(Listener):
             self._zero = self._started
         self._thread = threading.Thread(target=self._play, name="fw-scenario", daemon=True)
         self._thread.start()
+        if self.scenario.invariants:
+            self._watcher = threading.Thread(
+                target=self._watch, name="fw-scenario-invariants", daemon=True
+            )
+            self._watcher.start()
+
+    def _watch(self) -> None:
+        """Sample every invariant at 10 Hz while its state is active (past its grace)."""
+        while not self._stop.is_set() and not self.finished.is_set():
+            now = time.monotonic()
+            with self._changed:
+                active = set(self.active)
+                entries = list(self.entries)
+            for index, inv in enumerate(self.scenario.invariants):
+                if index in self.violations or self._zero is None:
+                    continue
+                if inv.state:
+                    paths = [p for p in active if _matches(p, inv.state)]
+                    if not paths:
+                        continue
+                    entered = max(t for t, p in entries if p in paths)
+                    if now - entered < inv.grace:
+                        continue
+                elif now - self._zero < inv.grace:
+                    continue
+                try:
+                    result = self._call(inv.check, {})
+                except Exception as exc:
+                    result = f"call failed: {exc}"
+                with self._changed:  # the state may have changed during the call
+                    still = not inv.state or any(_matches(p, inv.state) for p in self.active)
+                problem = inv.violation(result)
+                self.samples[index] = self.samples.get(index, 0) + 1
+                if problem and still:
+                    self.violations[index] = (now - self._zero, problem)
+            self._stop.wait(0.1)
 
     def _deadline(self) -> float:
         return self._started + self.scenario.timeout
@@ -379,4 +477,12 @@ class ScenarioRunner(Listener):
         for e in self.scenario.expect:
             ok, detail = self._check(e)
             out.append(Outcome(ok, e.describe(), detail))
+        for index, inv in enumerate(self.scenario.invariants):
+            samples = self.samples.get(index, 0)
+            if index in self.violations:
+                at, what = self.violations[index]
+                out.append(Outcome(False, inv.describe(), f"violated at {at:.3f}s: {what}"))
+            else:
+                detail = f"{samples} samples" if samples else "not exercised: state never held"
+                out.append(Outcome(True, inv.describe(), detail))
         return out

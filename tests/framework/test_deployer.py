@@ -201,3 +201,35 @@ def _start(deployment, failure):
         deployment.start()
     except Exception as exc:  # reported by the test
         failure.append(exc)
+
+
+def test_scenario_invariants_are_sampled_and_a_violation_fails(toy, tmp_path, write):
+    from framework.scenario import load_scenario
+
+    path = write(
+        """
+        scenario: invariants
+        steps:
+          - {at: 0.3s, send: e_SWAP}
+        invariants:
+          - {while: Use_T2, check: supervisor.stats, expect: {dropped_invalid: 0}}
+          - {while: Use_T2, check: supervisor.stats, max: {received: -1}}
+          - {while: Nowhere_Yet, check: supervisor.stats, expect: {received: 0}}
+        end: Use_T2
+        """,
+        "invariants.yaml",
+    )
+    scenario = load_scenario(path)
+    scenario.steps.append(  # stay in Use_T2 a little so the invariants get sampled
+        dataclasses.replace(scenario.steps[0], at=1.0, send="", check="supervisor.stats")
+    )
+    deployment = Deployment(toy, tmp_path, scenario=scenario)
+    deployment.start()
+    try:
+        assert deployment.runner.finished.wait(10)
+    finally:
+        deployment.stop()
+    ok, violated, unexercised = deployment.runner.report()[-3:]
+    assert ok.ok and "samples" in ok.detail
+    assert not violated.ok and "violated at" in violated.detail and "received=" in violated.detail
+    assert unexercised.ok and "not exercised" in unexercised.detail
