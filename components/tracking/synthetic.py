@@ -65,7 +65,9 @@ def standard_rigs() -> list[Rig]:
     return [
         Rig(
             "certus",
-            rigid((0.1, 0.2, 2.0), (0.2, -0.1, 0.05)),
+            # on a stand 1.6 m above the robot base and 1.6 m to its side, looking down at
+            # the table (2.2 m away, inside the Certus's 1.5-7 m volume)
+            rigid((-0.0525, 0.3293, 2.0873), (2.2691, -0.5253, 0.2295)),
             rto_from_base,
             rigid((0.0, 0.02, 0.08), (0.0, 0.1, 0.0)),
             0.0001,
