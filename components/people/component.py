@@ -131,6 +131,8 @@ class WorkspacePeopleDetector(Component):
             "tentative": len(frame.tracks) - len(frame.people),
             "users_near": frame.users_near,
             "disagreements": {f"{a}->{b}": n for (a, b), n in self.core.disagreements.items()},
+            "suspects": len(frame.suspects),
+            "unverified": sorted(set(self.core.cameras) - self.core.verified),
         }
         self.people.write(EventMessage(stamp, "people", self.name, self.last))
         self.users_near.write(Scalar(stamp, float(frame.users_near)))

@@ -57,6 +57,8 @@ class Frame:
     min_distance: float
     closest: tuple[int, str, int] | None  # (track id, limb, robot link index)
     rejected_joints: int
+    suspects: list[Track] = field(default_factory=list)
+    """Lasting single-camera detections from an unverified or suspect camera."""
 
 
 SUSPECT = 5.0  # frames of net disagreement with the master before a camera is suspect
@@ -97,7 +99,10 @@ class PeopleDetectorCore:
         self.suspicion: dict[str, float] = {}
         """Per camera: grows while it misses people the master sees where it should see
         them, shrinks while it agrees; a suspect camera's lone users are not trusted."""
-        """(camera, camera that should have seen its user) -> frames: calibration suspects."""
+        self.verified: set[str] = {self.master}
+        """Cameras that have seen someone together with a verified camera (fused into one
+        person): only their lone users can become people. A camera whose calibration is
+        grossly wrong never fuses with anyone, so its misplaced users stay suspects."""
 
     def process(
         self,
@@ -126,6 +131,10 @@ class PeopleDetectorCore:
         reporting = [name for name in users if name in self.cameras]
         grouped = group_and_fuse(detections, self.config.matcher)
         self._update_suspicion(grouped, reporting)
+        for members, _, _ in grouped:
+            cameras = {d.camera for d in members}
+            if len(cameras) > 1 and cameras & self.verified:
+                self.verified |= cameras
         people = []
         for members, joints, sigma in grouped:
             cameras = frozenset(d.camera for d in members)
@@ -138,7 +147,11 @@ class PeopleDetectorCore:
                     self.disagreements[(camera, other)] = (
                         self.disagreements.get((camera, other), 0) + 1
                     )
-                trusted = not missing and self.suspicion.get(camera, 0.0) < SUSPECT
+                trusted = (
+                    not missing
+                    and self.suspicion.get(camera, 0.0) < SUSPECT
+                    and camera in self.verified
+                )
             people.append(Person(joints, sigma, cameras, trusted))
         tracks = self.tracker.update(people, now)
         confirmed = [t for t in tracks if t.confirmed]
@@ -151,10 +164,19 @@ class PeopleDetectorCore:
                 and np.linalg.norm(torso - center) <= self.config.area_radius
             ):
                 near += 1
+        # lasting detections nobody corroborates are not people, but the robot keeps its
+        # distance from them too: distrust must never hide a real person from a STOP
+        suspects = [
+            t
+            for t in tracks
+            if not t.confirmed
+            and t.last_seen == now
+            and now - t.first_seen >= self.config.confirm_after
+        ]
         distance, closest = float("inf"), None
-        if robot is not None and confirmed:
-            distance, closest = self._distances(confirmed, robot)
-        return Frame(tracks, confirmed, near, distance, closest, rejected)
+        if robot is not None and (confirmed or suspects):
+            distance, closest = self._distances(confirmed + suspects, robot)
+        return Frame(tracks, confirmed, near, distance, closest, rejected, suspects)
 
     def _update_suspicion(
         self, grouped: list[tuple[list[Detection], np.ndarray, np.ndarray]], reporting: list[str]

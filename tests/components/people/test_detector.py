@@ -148,3 +148,27 @@ def test_a_person_with_an_unseen_joint_has_a_finite_envelope():
         frame = core.process(users, k * FRAME, robot)
     assert np.isnan(frame.people[0].sigma[5])
     assert 1.5 < frame.min_distance < 2.5, frame.min_distance
+
+
+def test_a_camera_wrong_enough_to_place_its_user_out_of_everyones_sight_makes_no_phantom():
+    for error in (rigid((3.0, 0.0, 0.0), (0.0, 0.0, 1.5)), rigid((0.0, 0.0, 3.0), (0.0, 0.0, 0.0))):
+        cams, core = setup(wrong="k1", error=error)
+        frame = run(cams, core, {1: standing((0.5, 0.0))}, 90)
+        assert len(frame.people) == 1 and frame.people[0].cameras == {"k0"}, "the real one only"
+        assert core.verified == {"k0"}, "k1 never agreed with the master"
+        assert len(frame.suspects) == 1, "its misplaced user is kept as a suspect"
+
+
+def test_the_robot_keeps_its_distance_from_suspects_too():
+    cams, core = setup(wrong="k1", error=rigid((3.0, 0.0, 0.0), (0.0, 0.0, 1.5)))
+    phantom_side = run(cams, core, {1: standing((0.5, 0.0))}, 60)
+    suspect = phantom_side.suspects[0].joints[2]
+    robot = (suspect[None, :] + [[0.0, 0.0, -0.3]], suspect[None, :] + [[0.0, 0.0, 0.3]], [0.05])
+    frame = run(cams, core, {1: standing((0.5, 0.0))}, 3, start=60, robot=robot)
+    assert frame.min_distance < 0.1 and frame.closest[0] == frame.suspects[0].id
+
+
+def test_a_well_calibrated_camera_earns_trust_by_seeing_someone_with_the_master():
+    cams, core = setup()
+    run(cams, core, {1: standing((0.5, 0.0))}, 10)
+    assert core.verified == {"k0", "k1"}
