@@ -96,34 +96,55 @@ def fuse(detections: list[Detection]) -> tuple[np.ndarray, np.ndarray]:
     return fused, fused_sigma
 
 
+def _weights(joints: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Inverse-variance weights (..., 15); unseen joints weigh nothing."""
+    with np.errstate(divide="ignore"):  # unseen joints may carry sigma 0: weight 0 anyway
+        return np.where(np.isnan(joints).any(axis=-1), 0.0, 1.0 / np.square(sigma))
+
+
 def group_and_fuse(
     detections: list[Detection], matcher: str = "hungarian"
 ) -> list[tuple[list[Detection], np.ndarray, np.ndarray]]:
     """Cluster the detections of all cameras into people, merging cameras one after the
-    other into the growing set of groups; each group with its fused joints and sigma."""
+    other into the growing set of groups; each group with its fused joints and sigma.
+
+    Groups keep running sums of weighted joints and weights, so adding a camera's users
+    costs a few array operations whatever the number of groups (`fuse` of the members
+    gives the same result)."""
     match = hungarian_matches if matcher == "hungarian" else rule_matches
     groups: list[list[Detection]] = []
-    fused: list[tuple[np.ndarray, np.ndarray]] = []
     by_camera: dict[str, list[Detection]] = {}
     for d in detections:
         by_camera.setdefault(d.camera, []).append(d)
+    weighted = np.zeros((0, 15, 3))
+    total = np.zeros((0, 15))
+    fused = np.zeros((0, 15, 3))
     for camera in sorted(by_camera):
         users = by_camera[camera]
-        pairs = (
-            match(np.stack([f[0] for f in fused]), np.stack([u.joints for u in users]))
-            if groups
-            else []
-        )
-        matched = set()
-        for i, j in pairs:
-            groups[i].append(users[j])
-            fused[i] = fuse(groups[i])  # only the groups that changed are fused again
-            matched.add(j)
-        for j, u in enumerate(users):
-            if j not in matched:
-                groups.append([u])
-                fused.append((u.joints, u.sigma))
-    return [(g, joints, sigma) for g, (joints, sigma) in zip(groups, fused, strict=True)]
+        joints = np.stack([u.joints for u in users])
+        weight = _weights(joints, np.stack([u.sigma for u in users]))
+        contribution = np.nan_to_num(joints) * weight[..., None]
+        pairs = match(fused, joints) if groups else []
+        if pairs:
+            rows = np.array([i for i, _ in pairs])
+            cols = np.array([j for _, j in pairs])
+            weighted[rows] += contribution[cols]
+            total[rows] += weight[cols]
+            for i, j in pairs:
+                groups[i].append(users[j])
+        matched = {j for _, j in pairs}
+        fresh = [j for j in range(len(users)) if j not in matched]
+        if fresh:
+            groups.extend([users[j]] for j in fresh)
+            weighted = np.concatenate([weighted, contribution[fresh]])
+            total = np.concatenate([total, weight[fresh]])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            fused = weighted / total[..., None]
+        fused[total == 0] = np.nan
+    with np.errstate(divide="ignore"):
+        sigma = 1.0 / np.sqrt(total)
+    sigma[total == 0] = np.nan  # unseen: no sigma (never an infinite one)
+    return [(g, fused[i], sigma[i]) for i, g in enumerate(groups)]
 
 
 def group(detections: list[Detection], matcher: str = "hungarian") -> list[list[Detection]]:

@@ -1,12 +1,15 @@
 """Spec: matching, fusion and tracking turn camera users into people (issue 6's cases)."""
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from components.people.distance import capsule_distances, closest_pair
 from components.people.fusion import (
     Detection,
     fuse,
     group,
+    group_and_fuse,
     hungarian_matches,
     noise_for,
     rule_matches,
@@ -132,3 +135,24 @@ def test_envelopes_grow_with_noise_and_drop_unseen_limbs():
     alice[JOINTS.index("left_hand")] = np.nan
     p, _, _ = envelope(alice, 0.0)
     assert len(p) == len(r_clean) - 1
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    people=st.integers(1, 5),
+    cameras=st.integers(1, 4),
+    seed=st.integers(0, 10_000),
+)
+def test_grouped_fusion_equals_fusing_each_groups_members(people, cameras, seed):
+    rng = np.random.default_rng(seed)
+    detections = []
+    for c in range(cameras):
+        for p in rng.permutation(people):
+            joints = standing((p * 1.5, 0.0)) + rng.normal(0, 0.02, (15, 3))
+            joints[rng.random(15) < 0.2] = np.nan  # some joints unseen
+            sigma = rng.uniform(0.01, 0.05, 15)
+            detections.append(Detection(f"k{c}", int(p), joints, sigma))
+    for members, joints, sigma in group_and_fuse(detections):
+        expected_joints, expected_sigma = fuse(members)
+        assert np.allclose(joints, expected_joints, equal_nan=True, atol=1e-12)
+        assert np.allclose(sigma, expected_sigma, equal_nan=True)
