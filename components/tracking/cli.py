@@ -56,9 +56,9 @@ def run(poses: int, seed: int) -> dict[str, Any]:
         sensors[rig.name] = {
             "priority": priority,
             "rate": rig.rate,
-            # stale after 3 periods and at least 50 ms: a Python host under load can miss a
+            # stale after 4 periods and at least 50 ms: a Python host under load can miss a
             # 10 ms frame without the tracker being at fault
-            "stale_periods": max(3, math.ceil(0.05 * rig.rate)),
+            "stale_periods": max(4, math.ceil(0.05 * rig.rate)),
             "keys": {
                 "cto": f"{rig.name}/calibration_tool_optical",
                 "rto": f"{rig.name}/reference_tool_optical",

@@ -47,6 +47,7 @@ from framework.ports import ConnPolicy, InputPort, ReadStatus
 from framework.properties import prop
 from framework.yamlio import load_yaml
 
+KINEMATICS_MEMORY = 1.0  # s of robot poses kept to match the samples' stamps
 CAUSES = ("no_data", "cto_missing", "rto_missing", "stale", "corrupt", "calibration")
 
 
@@ -186,6 +187,10 @@ class SensorManagerCore:
         self.by_name = {t.config.name: t for t in self.tracks}
         self.best: str | None = None
         self.kinematics: np.ndarray | None = None
+        # recent (stamp, base_from_ee): a sample is checked against where the robot was
+        # when the sample was taken, not where it is when the sample arrives
+        self._history: list[tuple[float, np.ndarray]] = []
+        self._stamps = [0.0] * len(config.sensors)  # each sensor's latest CTO stamp
         n = self._n = len(config.sensors)
         sensors = config.sensors
         self._index = {s.name: i for i, s in enumerate(sensors)}
@@ -223,11 +228,29 @@ class SensorManagerCore:
         self._rows[row] = sample
         if row == index:
             self._last_cto[index] = sample
+            self._stamps[index] = pose.stamp
         self._fresh[index] = True
 
-    def set_kinematics(self, base_from_ee: np.ndarray | None) -> None:
-        """The robot's end-effector in its base frame from joints (None: unknown)."""
+    def set_kinematics(self, base_from_ee: np.ndarray | None, stamp: float | None = None) -> None:
+        """The robot's end-effector in its base frame from joints (None: unknown), taken
+        at `stamp` (the clock of the samples' stamps; None: no history, use it for all)."""
         self.kinematics = base_from_ee
+        if base_from_ee is None or stamp is None:
+            self._history.clear()
+            return
+        self._history.append((stamp, base_from_ee))
+        while len(self._history) > 2 and stamp - self._history[0][0] > KINEMATICS_MEMORY:
+            self._history.pop(0)
+
+    def _kinematics_at(self, candidates: np.ndarray) -> np.ndarray:
+        """The end-effector pose nearest in time to each candidate's CTO sample."""
+        assert self.kinematics is not None
+        if len(self._history) < 2:
+            return self.kinematics
+        stamps = np.array([t for t, _ in self._history])
+        wanted = np.array([self._stamps[i] for i in candidates])
+        nearest = np.abs(stamps[None, :] - wanted[:, None]).argmin(axis=1)
+        return np.stack([self._history[k][1] for k in nearest])
 
     def _fault_codes(self, now: float, rows: np.ndarray, before: np.ndarray) -> np.ndarray:
         """Fault-tree levels 1-3 for every sensor: 0 (healthy) or the first cause found."""
@@ -349,7 +372,7 @@ class SensorManagerCore:
             every = len(candidates) == self._n
             x = self._x if every else self._x[candidates]
             y = self._y if every else self._y[candidates]
-            predicted = x @ self.kinematics @ y
+            predicted = x @ self._kinematics_at(candidates) @ y
             diff = local[:, :3, 3] - predicted[:, :3, 3]
             offsets2 = (diff * diff).sum(axis=1)
             # trace(A^T B) = 1 + 2 cos(angle): compare cosines, no arccos for healthy rows
@@ -423,8 +446,8 @@ class SensorManager(Component):
                     break
                 self.core.offer(sensor, tool, pose, now)
         status, ee = self.ee_pose.read()
-        if status is not ReadStatus.NO_DATA and ee is not None:
-            self.core.set_kinematics(pose_matrix(ee))
+        if status is ReadStatus.NEW and ee is not None:
+            self.core.set_kinematics(pose_matrix(ee), ee.stamp)
         decision = self.core.evaluate(now)
         if decision.robot_pose is not None:
             from components.tracking.geometry import matrix_to_quat

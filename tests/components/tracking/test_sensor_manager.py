@@ -216,3 +216,24 @@ def test_sensor_files_are_checked_with_locations(write):
         with pytest.raises(SensorConfigError, match=message) as err:
             load_sensors(path)
         assert str(err.value).startswith(f"{path}:")
+
+
+def test_a_late_sample_is_checked_against_where_the_robot_was_when_it_was_taken():
+    from components.tracking.sensor_manager import SensorManagerCore
+    from components.tracking.synthetic import ee_path, sensors_config, standard_rigs
+
+    rigs = standard_rigs()
+    core = SensorManagerCore(sensors_config(rigs, 1))
+    rng = np.random.default_rng(0)
+    then, later = ee_path(0.0), ee_path(0.0).copy()
+    later[:3, 3] += (0.02, 0.0, 0.0)  # the robot moved 2 cm since the sample was taken
+    for rig in rigs:
+        cto, rto = rig.observe(then, rng, stamp=10.0)
+        core.offer(rig.name, "cto", cto, 0.0)
+        core.offer(rig.name, "rto", rto, 0.0)
+    core.set_kinematics(then, stamp=10.0)
+    core.set_kinematics(later, stamp=10.3)
+    decision = core.evaluate(0.001)
+    assert all(h.ok for h in decision.health.values()), decision.health
+    core.set_kinematics(later)  # without stamps: only the latest pose is known
+    assert {h.cause for h in core.evaluate(0.002).health.values()} == {"calibration"}
