@@ -8,7 +8,8 @@ For every sensor, each cycle, the fault tree of 3.3.3 in its order:
    power loss), or `no_data` before the first frame;
 3. `corrupt`: NaN or non-unit quaternion, or an impossible jump of the CTO;
 4. `calibration`: the robot pose this sensor gives disagrees, beyond the
-   tolerance, with the prediction from the robot's kinematics and the
+   tolerance, with the prediction from the robot's kinematics (at the sample's
+   stamp, so a late sample of a moving robot is not a fault) and the
    calibration (the reference tool was moved); without kinematics, with the
    other healthy sensors (two sensors that disagree are both distrusted: the
    robot stops rather than follow the wrong one).
