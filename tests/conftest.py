@@ -124,15 +124,25 @@ def wait_until(predicate, timeout: float = 5.0, interval: float = 0.005) -> bool
     return bool(predicate())
 
 
-@pytest.fixture
-def toy(bus_config):
-    """The toy topology (tests/data/toy) on this test's private bus."""
+def private_topology(path, bus_config, device_dir: Path | None = None):
+    """A topology on the test's private bus; with `device_dir`, a simulated Vicra's
+    device node there instead of the shared path, so tests never share a pty."""
     import dataclasses
 
     from framework.topology import load_topology
 
-    topology = load_topology(REPO / "tests" / "data" / "toy" / "toy.yaml")
+    topology = load_topology(path)
     topology.bus = dataclasses.replace(
         topology.bus, namespace=bus_config.namespace, hub_port=bus_config.hub_port
     )
+    if device_dir is not None and "vicra_sim" in topology.components:
+        link = str(device_dir / "ttyVICRA")
+        topology.components["vicra_sim"].properties["link"] = link
+        topology.components["vicra"].properties["device"] = link
     return topology
+
+
+@pytest.fixture
+def toy(bus_config):
+    """The toy topology (tests/data/toy) on this test's private bus."""
+    return private_topology(REPO / "tests" / "data" / "toy" / "toy.yaml", bus_config)

@@ -1,14 +1,13 @@
 """Spec: the demo topology of the README validates and really runs: it swaps trackers
 on its own, stops on e_STOP and resumes on e_RELEASE."""
 
-import dataclasses
 
 from framework.cli_deploy import _screen
 from framework.deployer import Deployment
 from framework.remote import RemoteComponent
 from framework.statechart.validator import validate_file
-from framework.topology import check_topology, load_topology
-from tests.conftest import REPO, wait_until
+from framework.topology import check_topology
+from tests.conftest import REPO, private_topology, wait_until
 
 DEMO = REPO / "topologies" / "demo.yaml"
 
@@ -19,10 +18,7 @@ def test_the_demo_topology_and_chart_are_clean():
 
 
 def test_the_demo_runs_swaps_stops_and_resumes(bus_config, tmp_path):
-    topology = load_topology(DEMO)
-    topology.bus = dataclasses.replace(
-        topology.bus, namespace=bus_config.namespace, hub_port=bus_config.hub_port
-    )
+    topology = private_topology(DEMO, bus_config)
     deployment = Deployment(topology, tmp_path)
     deployment.start()
     try:

@@ -1,19 +1,14 @@
 """Spec: the people topology deploys two simulated Kinects and the detector on real
 processes; a person placed in the room becomes one confirmed person, leaving removes them."""
 
-import dataclasses
 
 from framework.deployer import Deployment
 from framework.remote import RemoteComponent
-from framework.topology import load_topology
-from tests.conftest import REPO, wait_until
+from tests.conftest import REPO, private_topology, wait_until
 
 
 def test_a_person_in_the_room_is_one_person_and_leaving_clears_it(bus_config, tmp_path):
-    topology = load_topology(REPO / "topologies" / "people.yaml")
-    topology.bus = dataclasses.replace(
-        topology.bus, namespace=bus_config.namespace, hub_port=bus_config.hub_port
-    )
+    topology = private_topology(REPO / "topologies" / "people.yaml", bus_config)
     deployment = Deployment(topology, tmp_path)
     deployment.start()
     try:

@@ -1,8 +1,6 @@
 """Spec: `fw deploy topologies/seeg.yaml --scenario F` on real processes, for every
 scenario of the procedure: the simulated OR plays it and every expectation holds."""
 
-import dataclasses
-
 import pytest
 
 from framework.deployer import Deployment
@@ -10,20 +8,9 @@ from framework.scenario import load_scenario
 from framework.statechart.loader import load_statechart
 from framework.statechart.model import BUILTIN_EVENTS
 from framework.topology import load_topology
-from tests.conftest import REPO
+from tests.conftest import REPO, private_topology
 
 SCENARIOS = sorted((REPO / "procedures" / "seeg" / "scenarios").glob("*.yaml"))
-
-
-def seeg_topology(bus_config, tmp_path):
-    topology = load_topology(REPO / "topologies" / "seeg.yaml")
-    topology.bus = dataclasses.replace(
-        topology.bus, namespace=bus_config.namespace, hub_port=bus_config.hub_port
-    )
-    link = str(tmp_path / "ttyVICRA")  # a private device node for this test
-    topology.components["vicra_sim"].properties["link"] = link
-    topology.components["vicra"].properties["device"] = link
-    return topology
 
 
 def test_every_scenario_is_checked_against_the_chart_and_topology():
@@ -42,7 +29,7 @@ def test_every_scenario_is_checked_against_the_chart_and_topology():
 
 @pytest.mark.parametrize("path", SCENARIOS, ids=[p.stem for p in SCENARIOS])
 def test_scenario_passes_on_real_processes(path, bus_config, tmp_path):
-    topology = seeg_topology(bus_config, tmp_path)
+    topology = private_topology(REPO / "topologies" / "seeg.yaml", bus_config, tmp_path)
     scenario = load_scenario(path)
     deployment = Deployment(topology, tmp_path / "logs", scenario=scenario)
     deployment.start()

@@ -1,22 +1,14 @@
 """Spec: the tracking topology deploys the whole chain on real processes: the simulated
 Vicra on a pty read by the NDI driver, a simulated Certus, the Sensor Manager choosing."""
 
-import dataclasses
 
 from framework.deployer import Deployment
 from framework.remote import RemoteComponent
-from framework.topology import load_topology
-from tests.conftest import REPO, wait_until
+from tests.conftest import REPO, private_topology, wait_until
 
 
 def test_the_tracking_chain_chooses_the_certus_and_falls_back_to_the_vicra(bus_config, tmp_path):
-    topology = load_topology(REPO / "topologies" / "tracking.yaml")
-    topology.bus = dataclasses.replace(
-        topology.bus, namespace=bus_config.namespace, hub_port=bus_config.hub_port
-    )
-    link = str(tmp_path / "ttyVICRA")  # a private device node for this test
-    topology.components["vicra_sim"].properties["link"] = link
-    topology.components["vicra"].properties["device"] = link
+    topology = private_topology(REPO / "topologies" / "tracking.yaml", bus_config, tmp_path)
     deployment = Deployment(topology, tmp_path / "logs")
     deployment.start()
     try:
