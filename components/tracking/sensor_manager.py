@@ -26,6 +26,7 @@ health and cause.
 
 from __future__ import annotations
 
+import bisect
 import math
 import time
 from dataclasses import dataclass, field
@@ -190,7 +191,8 @@ class SensorManagerCore:
         self.kinematics: np.ndarray | None = None
         # recent (stamp, base_from_ee): a sample is checked against where the robot was
         # when the sample was taken, not where it is when the sample arrives
-        self._history: list[tuple[float, np.ndarray]] = []
+        self._times: list[float] = []  # sorted stamps of `_poses`
+        self._poses: list[np.ndarray] = []
         self._stamps = [0.0] * len(config.sensors)  # each sensor's latest CTO stamp
         n = self._n = len(config.sensors)
         sensors = config.sensors
@@ -237,21 +239,29 @@ class SensorManagerCore:
         at `stamp` (the clock of the samples' stamps; None: no history, use it for all)."""
         self.kinematics = base_from_ee
         if base_from_ee is None or stamp is None:
-            self._history.clear()
+            self._times.clear()
+            self._poses.clear()
             return
-        self._history.append((stamp, base_from_ee))
-        while len(self._history) > 2 and stamp - self._history[0][0] > KINEMATICS_MEMORY:
-            self._history.pop(0)
+        self._times.append(stamp)
+        self._poses.append(base_from_ee)
+        if stamp - self._times[0] > 2 * KINEMATICS_MEMORY:  # trim now and then, not per sample
+            cut = bisect.bisect_left(self._times, stamp - KINEMATICS_MEMORY)
+            del self._times[:cut], self._poses[:cut]
 
     def _kinematics_at(self, candidates: np.ndarray) -> np.ndarray:
         """The end-effector pose nearest in time to each candidate's CTO sample."""
         assert self.kinematics is not None
-        if len(self._history) < 2:
+        times = self._times
+        if len(times) < 2:
             return self.kinematics
-        stamps = np.array([t for t, _ in self._history])
-        wanted = np.array([self._stamps[i] for i in candidates])
-        nearest = np.abs(stamps[None, :] - wanted[:, None]).argmin(axis=1)
-        return np.stack([self._history[k][1] for k in nearest])
+        nearest = []
+        for i in candidates:
+            t = self._stamps[i]
+            k = min(bisect.bisect_left(times, t), len(times) - 1)
+            if k > 0 and t - times[k - 1] < times[k] - t:
+                k -= 1
+            nearest.append(self._poses[k])
+        return np.stack(nearest)
 
     def _fault_codes(self, now: float, rows: np.ndarray, before: np.ndarray) -> np.ndarray:
         """Fault-tree levels 1-3 for every sensor: 0 (healthy) or the first cause found."""

@@ -1,7 +1,6 @@
 """Spec: the demo topology of the README validates and really runs: it swaps trackers
 on its own, stops on e_STOP and resumes on e_RELEASE."""
 
-
 from framework.cli_deploy import _screen
 from framework.deployer import Deployment
 from framework.remote import RemoteComponent

@@ -1,7 +1,6 @@
 """Spec: the people topology deploys two simulated Kinects and the detector on real
 processes; a person placed in the room becomes one confirmed person, leaving removes them."""
 
-
 from framework.deployer import Deployment
 from framework.remote import RemoteComponent
 from tests.conftest import REPO, private_topology, wait_until

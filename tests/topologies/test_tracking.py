@@ -1,7 +1,6 @@
 """Spec: the tracking topology deploys the whole chain on real processes: the simulated
 Vicra on a pty read by the NDI driver, a simulated Certus, the Sensor Manager choosing."""
 
-
 from framework.deployer import Deployment
 from framework.remote import RemoteComponent
 from tests.conftest import REPO, private_topology, wait_until
