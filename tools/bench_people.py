@@ -40,18 +40,24 @@ from components.people.detector import (
     DetectorConfig,
     PeopleDetectorCore,
 )
+from components.people.cli import SimulatedCamera
+from components.people.cli import run as calibration_protocol
 from components.people.kinect_sim import KinectModel, look_at
+from components.tracking.geometry import as_matrix
 from components.people.skeleton import standing
 from components.sim.people import Person
 
 FRAME = 1.0 / 30.0
 
 
-def cameras(count: int, seed: int, ghosts: float = 0.02) -> list[KinectModel]:
+def cameras(
+    count: int, seed: int, ghosts: float = 0.02, arc: float = 2 * math.pi, radius: float = 3.2
+) -> list[KinectModel]:
+    """`count` cameras 2.2 m high on a circle around the table, spread over `arc`."""
     out = []
     for i in range(count):
-        angle = 2 * math.pi * i / count
-        position = (3.2 * math.cos(angle), 3.2 * math.sin(angle), 2.2)
+        angle = arc * i / (count if arc >= 2 * math.pi else max(count - 1, 1))
+        position = (radius * math.cos(angle), radius * math.sin(angle), 2.2)
         out.append(
             KinectModel(
                 f"k{i}",
@@ -63,9 +69,32 @@ def cameras(count: int, seed: int, ghosts: float = 0.02) -> list[KinectModel]:
     return out
 
 
-def detector(cams: list[KinectModel], matcher: str = "hungarian") -> PeopleDetectorCore:
-    master = cams[0].world_from_camera
-    configs = [CameraConfig(c.name, np.linalg.inv(master) @ c.world_from_camera) for c in cams]
+def detector(
+    cams: list[KinectModel], matcher: str = "hungarian", calibrate: int | None = None
+) -> PeopleDetectorCore:
+    """A detector for these cameras: with their true poses, or (`calibrate` = seed)
+    with the poses `fw calibrate-cameras` estimates (board and marker protocol)."""
+    area = {"center": [0.0, 0.0], "radius": 1.5}
+    if calibrate is None:
+        master = cams[0].world_from_camera
+        configs = [
+            CameraConfig(c.name, np.linalg.inv(master) @ c.world_from_camera, verified=True)
+            for c in cams
+        ]
+    else:
+        rig = [
+            SimulatedCamera(c.name, c.name, KinectModel(c.name, c.world_from_camera)) for c in cams
+        ]
+        doc, _ = calibration_protocol(rig, cams[0].name, 4, 16, calibrate, 0.05, area)
+        master = as_matrix(doc["base_from_master"])
+        configs = [
+            CameraConfig(
+                name,
+                as_matrix(spec.get("calibration", np.eye(4).tolist())),
+                verified=spec.get("verified", False),
+            )
+            for name, spec in doc["cameras"].items()
+        ]
     return PeopleDetectorCore(
         DetectorConfig(configs, base_from_master=master, matcher=matcher, area_radius=1.5)
     )
@@ -101,11 +130,15 @@ def frame_cost(n_cameras: int, n_people: int, frames: int, matcher: str) -> dict
     }
 
 
+PROTOCOL_ARC, PROTOCOL_RADIUS = math.pi / 2, 2.8
+"""The protocol's two cameras: 90 degrees apart (a board can face both), 2.8 m out."""
+
+
 def protocol(users: int, trials: int) -> dict[str, float]:
     tp = fp = tn = fn = 0
     for trial in range(trials):
-        cams = cameras(2, 100 + trial)
-        core = detector(cams)
+        cams = cameras(2, 100 + trial, arc=PROTOCOL_ARC, radius=PROTOCOL_RADIUS)
+        core = detector(cams, calibrate=trial)
         rng = np.random.default_rng(trial)
         outside = {u: (4.0 + u, -3.0) for u in range(users)}
         inside = {u: (rng.uniform(-0.8, 0.8), rng.uniform(-0.8, 0.8)) for u in range(users)}

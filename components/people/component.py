@@ -7,7 +7,8 @@ Cameras come from a YAML file (any number, no code change):
     area: {center: [0.0, 0.0], radius: 1.5}                             # around the table
     cameras:
       k0: {key: kinect/0/users}                                         # the master
-      k1: {key: kinect/1/users, calibration: {position: [...], quaternion: [...]}}  # eq. 3.8
+      k1: {key: kinect/1/users, calibration: {position: [...], quaternion: [...]},  # eq. 3.8
+           verified: true}   # agreed with the master at calibration (fw calibrate-cameras)
 
 A camera whose data stops (no new frame) simply contributes nothing; robot link
 capsules join with the SEEG robot model (Pinocchio forward kinematics).
@@ -22,6 +23,7 @@ import numpy as np
 
 from components.people.detector import CameraConfig, DetectorConfig, PeopleDetectorCore
 from components.people.kinect_sim import from_message
+from components.people.skeleton import body_center
 from components.tracking.geometry import as_matrix
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError
@@ -53,8 +55,15 @@ def load_cameras(path: str) -> tuple[DetectorConfig, dict[str, str]]:
             calibration = as_matrix(spec.get("calibration", np.eye(4).tolist()))
         except ValueError as exc:
             raise CameraConfigError(f"{where}: {exc}") from None
+        verified = spec.get("verified", False)
+        if not isinstance(verified, bool):
+            raise CameraConfigError(
+                f"{doc.location(('cameras', name, 'verified'))}: verified is true or false"
+            )
         keys[name] = spec["key"]
-        cameras.append(CameraConfig(name, calibration, float(spec.get("lateral_noise", 0.01))))
+        cameras.append(
+            CameraConfig(name, calibration, float(spec.get("lateral_noise", 0.01)), verified)
+        )
     cameras.sort(key=lambda c: c.name != master)  # the master first
     area = data.get("area") or {}
     try:
@@ -124,7 +133,7 @@ class WorkspacePeopleDetector(Component):
                 {
                     "id": t.id,
                     "cameras": sorted(t.cameras),
-                    "torso": [round(float(v), 3) for v in np.nan_to_num(t.joints[2])],
+                    "torso": [round(float(v), 3) for v in np.nan_to_num(body_center(t.joints))],
                 }
                 for t in frame.people
             ],

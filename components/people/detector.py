@@ -20,7 +20,7 @@ import numpy as np
 
 from components.people.distance import capsule_distances, closest_pair
 from components.people.fusion import Detection, group_and_fuse, noise_for
-from components.people.skeleton import LIMBS, envelope, limbs_seen
+from components.people.skeleton import LIMBS, body_center, envelope, limbs_seen
 from components.people.tracking import PeopleTracker, Person, Track
 
 
@@ -31,6 +31,9 @@ class CameraConfig:
     name: str
     master_from_camera: np.ndarray
     lateral_noise: float = 0.01
+    verified: bool = False
+    """Calibration showed it agrees with the master (board residuals): trusted from the
+    first frame; runtime disagreement still makes it a suspect."""
 
 
 @dataclass
@@ -62,6 +65,8 @@ class Frame:
 
 
 SUSPECT = 5.0  # frames of net disagreement with the master before a camera is suspect
+DOUBT = 9  # frames (0.3 s, under the 1 s confirmation) a verified camera may see people
+# only apart from the master's before it must earn trust again by fusing with the master
 
 
 def _fraction_in_view(points: np.ndarray) -> float:
@@ -99,7 +104,9 @@ class PeopleDetectorCore:
         self.suspicion: dict[str, float] = {}
         """Per camera: grows while it misses people the master sees where it should see
         them, shrinks while it agrees; a suspect camera's lone users are not trusted."""
-        self.verified: set[str] = {self.master}
+        self.verified: set[str] = {self.master} | {c.name for c in config.cameras if c.verified}
+        self.doubt: dict[str, int] = {}
+        """Per verified camera: frames it and the master both saw people, none together."""
         """Cameras that have seen someone together with a verified camera (fused into one
         person): only their lone users can become people. A camera whose calibration is
         grossly wrong never fuses with anyone, so its misplaced users stay suspects."""
@@ -131,10 +138,7 @@ class PeopleDetectorCore:
         reporting = [name for name in users if name in self.cameras]
         grouped = group_and_fuse(detections, self.config.matcher)
         self._update_suspicion(grouped, reporting)
-        for members, _, _ in grouped:
-            cameras = {d.camera for d in members}
-            if len(cameras) > 1 and cameras & self.verified:
-                self.verified |= cameras
+        self._update_trust(grouped)
         people = []
         for members, joints, sigma in grouped:
             cameras = frozenset(d.camera for d in members)
@@ -158,10 +162,10 @@ class PeopleDetectorCore:
         near = 0
         center = np.array(self.config.area_center)
         for track in confirmed:
-            torso = track.joints[2, :2]
+            where = body_center(track.joints)[:2]
             if (
-                np.isfinite(torso).all()
-                and np.linalg.norm(torso - center) <= self.config.area_radius
+                np.isfinite(where).all()
+                and np.linalg.norm(where - center) <= self.config.area_radius
             ):
                 near += 1
         # lasting detections nobody corroborates are not people, but the robot keeps its
@@ -178,6 +182,31 @@ class PeopleDetectorCore:
             distance, closest = self._distances(confirmed + suspects, robot)
         return Frame(tracks, confirmed, near, distance, closest, rejected, suspects)
 
+    def _update_trust(self, grouped: list[tuple[list[Detection], np.ndarray, np.ndarray]]) -> None:
+        """Cameras seen fusing with a verified camera become verified; a verified camera
+        that keeps seeing people apart from the master's, never fusing with them, loses
+        its trust (bumped after calibration: its copies land beside the real people)."""
+        alone, with_master = set(), set()
+        for members, _, _ in grouped:
+            cameras = {d.camera for d in members}
+            if len(cameras) > 1 and cameras & self.verified:
+                self.verified |= cameras
+            if len(cameras) == 1:
+                alone |= cameras
+            elif self.master in cameras:
+                with_master |= cameras
+        for camera in with_master:
+            self.doubt.pop(camera, None)
+        if self.master not in alone:
+            return
+        for camera in (alone & self.verified) - with_master - {self.master}:
+            self.doubt[camera] = self.doubt.get(camera, 0) + 1
+            if self.doubt[camera] >= DOUBT:
+                self.verified.discard(camera)
+                self.disagreements[(camera, self.master)] = (
+                    self.disagreements.get((camera, self.master), 0) + 1
+                )
+
     def _update_suspicion(
         self, grouped: list[tuple[list[Detection], np.ndarray, np.ndarray]], reporting: list[str]
     ) -> None:
@@ -191,6 +220,8 @@ class PeopleDetectorCore:
                 others = [j for _, j, _ in grouped if j is not joints]
                 for camera in self._should_see(joints, cameras, reporting, others):
                     self.suspicion[camera] = min(3 * SUSPECT, self.suspicion.get(camera, 0.0) + 1.0)
+                    if self.suspicion[camera] >= SUSPECT:  # trust, even from calibration, is lost
+                        self.verified.discard(camera)
                     self.disagreements[(camera, self.master)] = (
                         self.disagreements.get((camera, self.master), 0) + 1
                     )
@@ -213,7 +244,7 @@ class PeopleDetectorCore:
     ) -> list[str]:
         """Reporting cameras that should see this person (torso inside their field of view,
         not hidden behind another person) but did not."""
-        torso = joints[2]
+        torso = body_center(joints)
         if not np.isfinite(torso).all():
             return []
         missing = []

@@ -55,6 +55,16 @@ def depth_sigma(z: np.ndarray | float) -> np.ndarray:
     return 1.425e-3 * np.square(z)
 
 
+def body_center(skeleton: np.ndarray) -> np.ndarray:
+    """Where a person is (3,): the torso joint, or the mean of the seen joints while the
+    torso is hidden (NaN when nothing is seen). A hidden torso must not hide a person."""
+    torso = skeleton[2]
+    if np.isfinite(torso).all():
+        return torso
+    seen = np.isfinite(skeleton).all(axis=1)
+    return skeleton[seen].mean(axis=0) if seen.any() else np.full(3, np.nan)
+
+
 def standing(at: tuple[float, float], facing: float = 0.0, height: float = 1.75) -> np.ndarray:
     """A standing person's skeleton (world frame, z up) at floor position `at`."""
     s = height / 1.75

@@ -160,16 +160,17 @@ def tracker_to_tracker(x_master: np.ndarray, x_sensor: np.ndarray) -> np.ndarray
     return x_master @ invert(x_sensor)
 
 
-def protocol_poses(count: int, seed: int = 0) -> list[np.ndarray]:
+def protocol_poses(count: int, seed: int = 0, half: float = 0.075) -> list[np.ndarray]:
     """End-effector poses (base frame) spread for a well-conditioned calibration: a
-    cube of positions in front of the robot, orientations tilted about all axes."""
+    cube of positions (half-size `half`, m) in front of the robot, orientations tilted
+    about all axes."""
     from components.tracking.synthetic import rigid
 
     rng = np.random.default_rng(seed)
     poses = []
     for k in range(count):
         corner = np.array([(k >> i) & 1 for i in range(3)], dtype=float) - 0.5
-        position = np.array([0.55, 0.0, 0.45]) + 0.15 * corner + rng.normal(0, 0.02, 3)
+        position = np.array([0.55, 0.0, 0.45]) + 2 * half * corner + rng.normal(0, 0.02, 3)
         tilt = rng.uniform(-0.45, 0.45, 3)
         tilt[1] += np.pi / 2  # the tool points down at the table
         poses.append(rigid(tuple(position), tuple(tilt)))

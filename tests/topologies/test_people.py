@@ -22,7 +22,9 @@ def test_a_person_in_the_room_is_one_person_and_leaving_clears_it(bus_config, tm
 
         assert wait_until(lambda: len(people()) == 1, timeout=10), detector.call("current")
         person = people()[0]
-        assert person["cameras"] == ["k0", "k1"], "named as in procedures/people_demo/cameras.yaml"
+        assert person["cameras"] == ["kinect_0", "kinect_1"], (
+            "named as in procedures/people_demo/cameras.yaml"
+        )
         assert abs(person["torso"][0] - 0.5) < 0.15 and abs(person["torso"][1]) < 0.15
         assert wait_until(lambda: detector.call("current")["users_near"] == 1, timeout=5)
         for camera in ("kinect_0", "kinect_1"):

@@ -2,6 +2,7 @@
 containing bad input (NaN joints, a stopped camera, a wrong calibration)."""
 
 import numpy as np
+import pytest
 
 from components.people.detector import CameraConfig, DetectorConfig, PeopleDetectorCore
 from components.people.kinect_sim import KinectModel, look_at
@@ -11,7 +12,7 @@ from components.tracking.synthetic import rigid
 FRAME = 1.0 / 30.0
 
 
-def setup(ghosts=0.0, wrong=None, error=None):
+def setup(ghosts=0.0, wrong=None, error=None, verified=False):
     cams = [
         KinectModel(
             "k0",
@@ -36,7 +37,7 @@ def setup(ghosts=0.0, wrong=None, error=None):
             calibration = (
                 error if error is not None else rigid((0.8, 0.0, 0.0), (0.0, 0.4, 0.0))
             ) @ calibration
-        configs.append(CameraConfig(cam.name, calibration))
+        configs.append(CameraConfig(cam.name, calibration, verified=verified))
     core = PeopleDetectorCore(DetectorConfig(configs, base_from_master=master, area_radius=1.2))
     return cams, core
 
@@ -106,8 +107,9 @@ def test_a_camera_that_stops_leaves_the_person_tracked_by_the_other():
     assert [t.id for t in frame.people] == [person]
 
 
-def test_a_camera_off_by_60_cm_makes_no_phantom_and_is_reported():
-    cams, core = setup(wrong="k1", error=rigid((0.6, 0.0, 0.0), (0.0, 0.0, 0.0)))
+@pytest.mark.parametrize("verified", [False, True], ids=["unverified", "verified-at-calibration"])
+def test_a_camera_off_by_60_cm_makes_no_phantom_and_is_reported(verified):
+    cams, core = setup(wrong="k1", error=rigid((0.6, 0.0, 0.0), (0.0, 0.0, 0.0)), verified=verified)
     frame = run(cams, core, {1: standing((0.5, 0.0))}, 90)  # 3 s, three times the delay
     assert len(frame.people) == 1, "the real person only, seen by the master"
     assert frame.people[0].cameras == frozenset({"k0"})
@@ -150,9 +152,10 @@ def test_a_person_with_an_unseen_joint_has_a_finite_envelope():
     assert 1.5 < frame.min_distance < 2.5, frame.min_distance
 
 
-def test_a_camera_wrong_enough_to_place_its_user_out_of_everyones_sight_makes_no_phantom():
+@pytest.mark.parametrize("verified", [False, True], ids=["unverified", "verified-at-calibration"])
+def test_a_camera_wrong_enough_to_place_its_user_out_of_everyones_sight_makes_no_phantom(verified):
     for error in (rigid((3.0, 0.0, 0.0), (0.0, 0.0, 1.5)), rigid((0.0, 0.0, 3.0), (0.0, 0.0, 0.0))):
-        cams, core = setup(wrong="k1", error=error)
+        cams, core = setup(wrong="k1", error=error, verified=verified)
         frame = run(cams, core, {1: standing((0.5, 0.0))}, 90)
         assert len(frame.people) == 1 and frame.people[0].cameras == {"k0"}, "the real one only"
         assert core.verified == {"k0"}, "k1 never agreed with the master"
@@ -172,3 +175,41 @@ def test_a_well_calibrated_camera_earns_trust_by_seeing_someone_with_the_master(
     cams, core = setup()
     run(cams, core, {1: standing((0.5, 0.0))}, 10)
     assert core.verified == {"k0", "k1"}
+
+
+ONLY_K1_SEES = (-0.5, 1.5)  # behind k0's view, in the middle of k1's
+
+
+def test_a_camera_verified_at_calibration_is_trusted_from_the_first_frame():
+    cams, core = setup(verified=True)
+    frame = run(cams, core, {1: standing(ONLY_K1_SEES)}, 45)
+    assert [p.cameras for p in frame.people] == [{"k1"}], "a person only k1 sees is a person"
+    cams, core = setup(verified=False)
+    frame = run(cams, core, {1: standing(ONLY_K1_SEES)}, 45)
+    assert frame.people == [] and len(frame.suspects) == 1, "unverified: a suspect at first"
+
+
+def test_a_verified_camera_that_disagrees_with_the_master_loses_its_trust():
+    # bumped after calibration: it places everyone 0.8 m off, so it misses the people
+    # the master sees where it should see them; its trust is revoked, no phantom appears
+    cams, core = setup(wrong="k1", verified=True)
+    frame = run(cams, core, {1: standing((0.5, 0.0))}, 90)
+    assert core.verified == {"k0"}, "k1 must earn its trust again by fusing with the master"
+    assert len(frame.people) == 1 and frame.people[0].cameras == {"k0"}
+
+
+def test_a_person_whose_torso_is_hidden_still_counts_near_the_table():
+    cams, core = setup()
+    alice = standing((0.3, 0.0))
+    run(cams, core, {1: alice}, 40)
+    frame = None
+    for k in range(40, 45):  # the torso joint unseen by every camera
+        users = {
+            c.name: [
+                (u, np.where(np.arange(15)[:, None] == 2, np.nan, j))
+                for u, j in c.observe({1: alice}, k * FRAME, FRAME)
+            ]
+            for c in cams
+        }
+        frame = core.process(users, k * FRAME)
+    assert np.isnan(frame.people[0].joints[2]).all() and frame.users_near == 1

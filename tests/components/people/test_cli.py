@@ -1,0 +1,75 @@
+"""Spec: `fw calibrate-cameras` calibrates a topology's cameras, writes a cameras file
+the detector loads, keeps the file's other settings, and refuses clearly."""
+
+import numpy as np
+import pytest
+import yaml
+
+from components.people.cli import CameraCalibrationError, board_poses, cameras_of
+from components.people.component import CameraConfigError, load_cameras
+from components.people.kinect_sim import KinectModel, look_at
+from components.tracking.geometry import as_matrix
+from framework.cli import main
+
+SEEG = "topologies/seeg.yaml"
+
+
+def test_calibrated_cameras_are_verified_close_to_the_truth_and_keep_the_files_settings(
+    tmp_path, capsys
+):
+    out = tmp_path / "cameras.yaml"
+    out.write_text(
+        "area: {center: [0.6, 0.0], radius: 1.2}\nmatcher: rule\n"
+        "cameras: {kinect_1: {key: old, lateral_noise: 0.02}}\n"
+    )
+    assert main(["calibrate-cameras", SEEG, "-o", str(out)]) == 0
+    assert "kinect_1" in capsys.readouterr().out
+    config, keys = load_cameras(str(out))
+    assert keys == {"kinect_0": "kinect/0/users", "kinect_1": "kinect/1/users"}
+    assert config.area_radius == 1.2 and config.matcher == "rule", "settings kept"
+    k1 = config.cameras[1]
+    assert k1.verified and k1.lateral_noise == 0.02
+    truth = {c.name: c.model.world_from_camera for c in cameras_of(SEEG)}
+    estimated = config.base_from_master @ k1.master_from_camera
+    point = np.array([0.6, 0.0, 0.2, 1.0])  # above the table, where people lean
+    in_camera = np.linalg.inv(truth["kinect_1"]) @ point
+    assert np.linalg.norm((estimated @ in_camera)[:3] - point[:3]) < 0.08, "Kinect-grade error"
+
+
+def test_a_camera_with_large_board_residuals_is_written_unverified_with_a_warning(tmp_path, capsys):
+    out = tmp_path / "cameras.yaml"
+    assert main(["calibrate-cameras", SEEG, "-o", str(out), "--max-residual", "1"]) == 0
+    assert "written unverified" in capsys.readouterr().err
+    config, _ = load_cameras(str(out))
+    assert [c.verified for c in config.cameras] == [False, False]
+
+
+def test_a_topology_without_cameras_or_an_unknown_master_is_refused_clearly(tmp_path, capsys):
+    assert main(["calibrate-cameras", "topologies/tracking.yaml", "-o", str(tmp_path / "c")]) == 1
+    assert "no components.people.kinect_sim:KinectSim components" in capsys.readouterr().err
+    assert main(["calibrate-cameras", SEEG, "--master", "k9", "-o", str(tmp_path / "c")]) == 1
+    assert "master 'k9' is not one of" in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()
+
+
+def test_cameras_that_share_no_view_cannot_hold_a_board_between_them():
+    a = KinectModel("a", look_at((0.0, -3.0, 2.0), (0.0, -6.0, 1.0)))
+    b = KinectModel("b", look_at((0.0, 3.0, 2.0), (0.0, 6.0, 1.0)))
+    with pytest.raises(CameraCalibrationError, match="share too little view"):
+        board_poses(a, b, 4, np.random.default_rng(0))
+
+
+def test_a_verified_flag_that_is_not_a_boolean_is_located(tmp_path):
+    path = tmp_path / "cameras.yaml"
+    path.write_text("cameras:\n  k0: {key: a}\n  k1: {key: b, verified: yes please}\n")
+    with pytest.raises(CameraConfigError, match=r"cameras.yaml:3.*verified is true or false"):
+        load_cameras(str(path))
+
+
+def test_the_seeg_cameras_file_is_a_calibration_of_the_seeg_topology():
+    written = yaml.safe_load(open("procedures/seeg/cameras.yaml"))
+    truth = {c.name: c.model.world_from_camera for c in cameras_of(SEEG)}
+    assert set(written["cameras"]) == set(truth)
+    placed = as_matrix(written["base_from_master"])
+    error = np.linalg.norm(placed[:3, 3] - truth["kinect_0"][:3, 3])
+    assert 0.0 < error < 0.1, "estimated (not the truth), within Kinect-grade error"
