@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from components.people.distance import capsule_distances, closest_pair
-from components.people.fusion import Detection, group_and_fuse, noise_for
-from components.people.skeleton import LIMBS, body_center, envelope, limbs_seen
+from components.people.fusion import group_and_fuse_arrays, noise_for
+from components.people.skeleton import LIMBS, body_center, body_centers, envelopes
 from components.people.tracking import PeopleTracker, Person, Track
 
 
@@ -63,6 +63,9 @@ class Frame:
     suspects: list[Track] = field(default_factory=list)
     """Lasting single-camera detections from an unverified or suspect camera."""
 
+
+Group = tuple[frozenset[str], np.ndarray, np.ndarray]
+"""A person of one frame: the cameras that saw them, fused joints (15, 3) and sigma (15,)."""
 
 SUSPECT = 5.0  # frames of net disagreement with the master before a camera is suspect
 DOUBT = 9  # frames (0.3 s, under the 1 s confirmation) a verified camera may see people
@@ -119,34 +122,35 @@ class PeopleDetectorCore:
     ) -> Frame:
         """One frame: `users` per camera (camera-frame joints), robot link capsules
         (p, q, r in the base frame) if known."""
-        detections, rejected = [], 0
+        batches, rejected = [], 0
         for name, camera_users in users.items():
             camera = self.cameras.get(name)
-            if camera is None:
+            if camera is None or not camera_users:
                 continue  # not configured: ignored, never a person
-            transform = self.config.base_from_master @ camera.master_from_camera
-            for uid, joints in camera_users:
-                joints = np.array(joints, dtype=float)
-                bad = ~np.isfinite(joints).all(axis=1)
-                rejected += int(bad.sum() - np.isnan(joints).all(axis=1).sum())
-                joints[bad] = np.nan
-                if bad.all():
-                    continue
-                sigma = noise_for(joints, camera.lateral_noise)
-                in_base = joints @ transform[:3, :3].T + transform[:3, 3]
-                detections.append(Detection(name, uid, in_base, np.nan_to_num(sigma)))
+            transform = self._base_from_camera(name)
+            joints = np.array([j for _, j in camera_users], dtype=float)  # (n, 15, 3)
+            finite = np.isfinite(joints).all(axis=2)
+            rejected += int((~finite).sum() - np.isnan(joints).all(axis=2).sum())
+            joints[~finite] = np.nan
+            sigma = noise_for(joints, camera.lateral_noise)
+            sigma[~finite] = 0.0
+            keep = finite.any(axis=1)  # a skeleton with nothing seen is nobody
+            in_base = joints[keep] @ transform[:3, :3].T + transform[:3, 3]
+            batches.append((name, in_base, sigma[keep]))
         reporting = [name for name in users if name in self.cameras]
-        grouped = group_and_fuse(detections, self.config.matcher)
-        self._update_suspicion(grouped, reporting)
+        members, fused, fused_sigma = group_and_fuse_arrays(batches, self.config.matcher)
+        grouped = [
+            (frozenset(c for c, _ in group), fused[i], fused_sigma[i])
+            for i, group in enumerate(members)
+        ]
+        self._update_suspicion(grouped, reporting, fused)
         self._update_trust(grouped)
         people = []
-        for members, joints, sigma in grouped:
-            cameras = frozenset(d.camera for d in members)
+        for i, (cameras, joints, sigma) in enumerate(grouped):
             trusted = True
-            if len(cameras) == 1 and next(iter(cameras)) != self.master:
+            if len(cameras) == 1 and self.master not in cameras:
                 camera = next(iter(cameras))
-                others = [j for _, j, _ in grouped if j is not joints]
-                missing = self._should_see(joints, cameras, reporting, others)
+                missing = self._should_see(joints, cameras, reporting, np.delete(fused, i, 0))
                 for other in missing:
                     self.disagreements[(camera, other)] = (
                         self.disagreements.get((camera, other), 0) + 1
@@ -160,14 +164,11 @@ class PeopleDetectorCore:
         tracks = self.tracker.update(people, now)
         confirmed = [t for t in tracks if t.confirmed]
         near = 0
-        center = np.array(self.config.area_center)
-        for track in confirmed:
-            where = body_center(track.joints)[:2]
-            if (
-                np.isfinite(where).all()
-                and np.linalg.norm(where - center) <= self.config.area_radius
-            ):
-                near += 1
+        if confirmed:
+            where = body_centers(np.stack([t.joints for t in confirmed]))[:, :2]
+            offset = where - np.array(self.config.area_center)
+            with np.errstate(invalid="ignore"):  # nobody seen at all: NaN, not near
+                near = int((np.hypot(offset[:, 0], offset[:, 1]) <= self.config.area_radius).sum())
         # lasting detections nobody corroborates are not people, but the robot keeps its
         # distance from them too: distrust must never hide a real person from a STOP
         suspects = [
@@ -182,13 +183,13 @@ class PeopleDetectorCore:
             distance, closest = self._distances(confirmed + suspects, robot)
         return Frame(tracks, confirmed, near, distance, closest, rejected, suspects)
 
-    def _update_trust(self, grouped: list[tuple[list[Detection], np.ndarray, np.ndarray]]) -> None:
+    def _update_trust(self, grouped: list[Group]) -> None:
         """Cameras seen fusing with a verified camera become verified; a verified camera
         that keeps seeing people apart from the master's, never fusing with them, loses
         its trust (bumped after calibration: its copies land beside the real people)."""
-        alone, with_master = set(), set()
-        for members, _, _ in grouped:
-            cameras = {d.camera for d in members}
+        alone: set[str] = set()
+        with_master: set[str] = set()
+        for cameras, _, _ in grouped:
             if len(cameras) > 1 and cameras & self.verified:
                 self.verified |= cameras
             if len(cameras) == 1:
@@ -208,16 +209,17 @@ class PeopleDetectorCore:
                 )
 
     def _update_suspicion(
-        self, grouped: list[tuple[list[Detection], np.ndarray, np.ndarray]], reporting: list[str]
+        self, grouped: list[Group], reporting: list[str], fused: np.ndarray
     ) -> None:
-        for members, joints, _ in grouped:
-            cameras = frozenset(d.camera for d in members)
+        """Cameras that see the master's people with it grow trusted; those that miss
+        people the master sees where they should see them grow suspect."""
+        for i, (cameras, joints, _) in enumerate(grouped):
             if self.master not in cameras:
                 continue
             for camera in cameras - {self.master}:  # agrees with the master
                 self.suspicion[camera] = max(0.0, self.suspicion.get(camera, 0.0) - 1.0)
             if cameras == {self.master}:
-                others = [j for _, j, _ in grouped if j is not joints]
+                others = np.delete(fused, i, axis=0)
                 for camera in self._should_see(joints, cameras, reporting, others):
                     self.suspicion[camera] = min(3 * SUSPECT, self.suspicion.get(camera, 0.0) + 1.0)
                     if self.suspicion[camera] >= SUSPECT:  # trust, even from calibration, is lost
@@ -225,6 +227,13 @@ class PeopleDetectorCore:
                     self.disagreements[(camera, self.master)] = (
                         self.disagreements.get((camera, self.master), 0) + 1
                     )
+
+    def _base_from_camera(self, name: str) -> np.ndarray:
+        """A camera's registration into the robot base (eq. 3.8 then 3.10), cached."""
+        cache = self.__dict__.setdefault("_registrations", {})
+        if name not in cache:
+            cache[name] = self.config.base_from_master @ self.cameras[name].master_from_camera
+        return cache[name]
 
     def _camera_from_base(self, name: str) -> np.ndarray:
         """The inverse of a camera's registration (cached: calibrations are constant)."""
@@ -240,13 +249,14 @@ class PeopleDetectorCore:
         joints: np.ndarray,
         seen_by: frozenset[str],
         reporting: list[str],
-        others: list[np.ndarray],
+        others: np.ndarray,
     ) -> list[str]:
         """Reporting cameras that should see this person (torso inside their field of view,
-        not hidden behind another person) but did not."""
+        not hidden behind another person of `others` (k, 15, 3)) but did not."""
         torso = body_center(joints)
         if not np.isfinite(torso).all():
             return []
+        torsos = others[:, 2][np.isfinite(others[:, 2]).all(axis=1)]
         missing = []
         for name in reporting:
             if name in seen_by:
@@ -257,16 +267,12 @@ class PeopleDetectorCore:
             body += camera_from_base[:3, 3]
             if _fraction_in_view(body) < FULLY_IN_VIEW:
                 continue  # at the edge of its view a camera may rightly lose the person
-            hidden = False
-            for other in others:  # in the shadow of a nearer person, seen from the camera
-                if not np.isfinite(other[2]).all():
-                    continue
-                o = camera_from_base[:3, :3] @ other[2] + camera_from_base[:3, 3]
-                depth = float(np.linalg.norm(o))
-                along = float(point @ o) / depth
-                if along > depth + 0.1 and np.linalg.norm(point - along * o / depth) < SHADOW:
-                    hidden = True
-                    break
+            # hidden in the shadow of a nearer person, seen from the camera
+            o = torsos @ camera_from_base[:3, :3].T + camera_from_base[:3, 3]
+            depth = np.sqrt(np.einsum("ij,ij->i", o, o))
+            along = (o @ point) / depth
+            lateral = np.linalg.norm(point - (along / depth)[:, None] * o, axis=1)
+            hidden = bool(((along > depth + 0.1) & (lateral < SHADOW)).any())
             if not hidden:
                 missing.append(name)
         return missing
@@ -274,22 +280,14 @@ class PeopleDetectorCore:
     def _distances(
         self, people: list[Track], robot: tuple[np.ndarray, np.ndarray, np.ndarray]
     ) -> tuple[float, tuple[int, str, int] | None]:
-        owners, limbs, ps, qs, rs = [], [], [], [], []
-        for track in people:
-            p, q, r = envelope(
-                track.joints, np.nan_to_num(track.sigma, nan=0.05), self.config.margin_sigmas
-            )
-            ps.append(p)
-            qs.append(q)
-            rs.append(r)
-            owners += [track.id] * len(p)
-            limbs += [
-                f"{LIMBS[i][0]}-{LIMBS[i][1]}" for i in np.flatnonzero(limbs_seen(track.joints))
-            ]
-        matrix = capsule_distances(
-            robot[0], robot[1], robot[2], np.vstack(ps), np.vstack(qs), np.hstack(rs)
+        joints = np.stack([t.joints for t in people])
+        sigma = np.stack([t.sigma for t in people])
+        p, q, r, owner, limb = envelopes(
+            joints, np.where(np.isnan(sigma), 0.05, sigma), self.config.margin_sigmas
         )
+        matrix = capsule_distances(robot[0], robot[1], robot[2], p, q, r)
         value, link, column = closest_pair(matrix)
         if link < 0:
             return float("inf"), None
-        return value, (owners[column], limbs[column], link)
+        a, b, _ = LIMBS[limb[column]]
+        return value, (people[owner[column]].id, f"{a}-{b}", link)

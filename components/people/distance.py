@@ -17,15 +17,16 @@ def segment_distances(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.nda
     """Closest distance between segments [p1, q1] (shape (n, 3)) and [p2, q2] ((m, 3)),
     for every pair: an (n, m) array. Degenerate segments (points) are handled."""
     p1, q1, p2, q2 = (np.asarray(a, dtype=float) for a in (p1, q1, p2, q2))
-    d1 = (q1 - p1)[:, None, :]  # (n, 1, 3)
-    d2 = (q2 - p2)[None, :, :]  # (1, m, 3)
-    r = p1[:, None, :] - p2[None, :, :]  # (n, m, 3)
-    a = np.einsum("ijk,ijk->ij", d1, d1)  # |d1|^2, broadcast (n, 1)
-    e = np.einsum("ijk,ijk->ij", d2, d2)  # |d2|^2, (1, m)
-    f = np.einsum("ijk,ijk->ij", d2, r)
-    c = np.einsum("ijk,ijk->ij", d1, r)
-    b = np.einsum("ijk,ijk->ij", d1, d2)
-    a, e = np.broadcast_to(a, r.shape[:2]), np.broadcast_to(e, r.shape[:2])
+    d1, d2 = q1 - p1, q2 - p2  # (n, 3), (m, 3)
+    # the dot products of d1, d2 and r = p1 - p2 for every pair, by matrix products
+    # (no (n, m, 3) temporaries until the closest points)
+    a = np.einsum("ij,ij->i", d1, d1)[:, None]  # |d1|^2, (n, 1)
+    e = np.einsum("ij,ij->i", d2, d2)[None, :]  # |d2|^2, (1, m)
+    b = d1 @ d2.T
+    c = np.einsum("ij,ij->i", d1, p1)[:, None] - d1 @ p2.T  # d1 . r
+    f = p1 @ d2.T - np.einsum("ij,ij->i", d2, p2)[None, :]  # d2 . r
+    shape = (len(p1), len(p2))
+    a, e = np.broadcast_to(a, shape), np.broadcast_to(e, shape)
     denom = a * e - b * b
     first_point, second_point = a <= EPS, e <= EPS
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -40,8 +41,11 @@ def segment_distances(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.nda
         s = np.where(t_low & ~first_point, np.clip(-c / a, 0.0, 1.0), s)
         s = np.where(t_high & ~first_point, np.clip((b - c) / a, 0.0, 1.0), s)
     t = np.clip(t, 0.0, 1.0)
-    closest = r + s[..., None] * d1 - t[..., None] * d2
-    return np.sqrt(np.einsum("ijk,ijk->ij", closest, closest))
+    squared = np.zeros(shape)
+    for k in range(3):  # closest points: r + s d1 - t d2, one axis at a time
+        axis = p1[:, k, None] - p2[None, :, k] + s * d1[:, k, None] - t * d2[None, :, k]
+        squared += axis * axis
+    return np.sqrt(squared)
 
 
 def capsule_distances(

@@ -31,7 +31,8 @@ class Detection:
 
 def joint_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Per-joint distances of every pair: (n, m, 15), NaN where either joint is unseen."""
-    return np.linalg.norm(a[:, None, :, :] - b[None, :, :, :], axis=3)
+    diff = a[:, None, :, :] - b[None, :, :, :]
+    return np.sqrt(diff[..., 0] ** 2 + diff[..., 1] ** 2 + diff[..., 2] ** 2)
 
 
 def rule_matches(
@@ -59,14 +60,16 @@ def robust_cost(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     d = joint_distances(a, b)
     if not d.size:
         return np.full(d.shape[:2], np.inf)
-    valid = ~np.isnan(d)
-    count = valid.sum(axis=2)
-    ordered = np.sort(np.where(valid, d, np.inf), axis=2)  # unseen joints sort last
-    low = np.take_along_axis(ordered, np.maximum((count - 1) // 2, 0)[..., None], 2)[..., 0]
-    high = np.take_along_axis(ordered, np.maximum(count // 2, 0)[..., None], 2)[..., 0]
-    with np.errstate(invalid="ignore"):
-        median = np.where(count % 2 == 1, low, (low + high) / 2.0)
-    return np.where(count > 0, median, np.inf)
+    seen_a, seen_b = ~np.isnan(a[..., 0]), ~np.isnan(b[..., 0])  # (n, 15), (m, 15)
+    count = (seen_a.astype(float) @ seen_b.T.astype(float)).astype(int)  # joints both see
+    ordered = np.sort(d, axis=2).reshape(-1, d.shape[2])  # unseen (NaN) joints sort last
+    rows = np.arange(len(ordered))
+    # the median of the seen joints (low == high when their count is odd)
+    low = ordered[rows, np.maximum((count.ravel() - 1) // 2, 0)]
+    high = ordered[rows, count.ravel() // 2]
+    median = ((low + high) / 2.0).reshape(count.shape)
+    median[count == 0] = np.inf
+    return median
 
 
 def hungarian_matches(
@@ -105,25 +108,48 @@ def _weights(joints: np.ndarray, sigma: np.ndarray) -> np.ndarray:
 def group_and_fuse(
     detections: list[Detection], matcher: str = "hungarian"
 ) -> list[tuple[list[Detection], np.ndarray, np.ndarray]]:
-    """Cluster the detections of all cameras into people, merging cameras one after the
-    other into the growing set of groups; each group with its fused joints and sigma.
+    """Cluster the detections of all cameras into people (see `group_and_fuse_arrays`);
+    each group as its detections with its fused joints and sigma."""
+    by_camera: dict[str, list[Detection]] = {}
+    for d in detections:
+        by_camera.setdefault(d.camera, []).append(d)
+    batches = [
+        (camera, np.stack([u.joints for u in users]), np.stack([u.sigma for u in users]))
+        for camera, users in by_camera.items()
+    ]
+    members, fused, sigma = group_and_fuse_arrays(batches, matcher)
+    return [
+        ([by_camera[c][k] for c, k in group], fused[i], sigma[i]) for i, group in enumerate(members)
+    ]
+
+
+def group_and_fuse_arrays(
+    batches: list[tuple[str, np.ndarray, np.ndarray]], matcher: str = "hungarian"
+) -> tuple[list[list[tuple[str, int]]], np.ndarray, np.ndarray]:
+    """Cluster the users of all cameras into people, merging cameras one after the
+    other (in name order) into the growing set of groups. `batches` holds each
+    camera's users as arrays (camera, joints (n, 15, 3), sigma (n, 15)); returns each
+    group's members as (camera, row), the fused joints (g, 15, 3) and sigma (g, 15).
 
     Groups keep running sums of weighted joints and weights, so adding a camera's users
     costs a few array operations whatever the number of groups (`fuse` of the members
     gives the same result)."""
     match = hungarian_matches if matcher == "hungarian" else rule_matches
-    groups: list[list[Detection]] = []
-    by_camera: dict[str, list[Detection]] = {}
-    for d in detections:
-        by_camera.setdefault(d.camera, []).append(d)
+    groups: list[list[tuple[str, int]]] = []
     weighted = np.zeros((0, 15, 3))
     total = np.zeros((0, 15))
     fused = np.zeros((0, 15, 3))
-    for camera in sorted(by_camera):
-        users = by_camera[camera]
-        joints = np.stack([u.joints for u in users])
-        weight = _weights(joints, np.stack([u.sigma for u in users]))
-        contribution = np.nan_to_num(joints) * weight[..., None]
+    batches = sorted(batches, key=lambda b: b[0])
+    if not batches:
+        return groups, fused, total
+    every = np.concatenate([b[1] for b in batches])
+    weights = _weights(every, np.concatenate([b[2] for b in batches]))
+    contributions = np.where(weights[..., None] > 0, every, 0.0) * weights[..., None]
+    first = 0
+    for camera, joints, _ in batches:
+        weight = weights[first : first + len(joints)]
+        contribution = contributions[first : first + len(joints)]
+        first += len(joints)
         pairs = match(fused, joints) if groups else []
         if pairs:
             rows = np.array([i for i, _ in pairs])
@@ -131,20 +157,20 @@ def group_and_fuse(
             weighted[rows] += contribution[cols]
             total[rows] += weight[cols]
             for i, j in pairs:
-                groups[i].append(users[j])
+                groups[i].append((camera, j))
         matched = {j for _, j in pairs}
-        fresh = [j for j in range(len(users)) if j not in matched]
+        fresh = [j for j in range(len(joints)) if j not in matched]
         if fresh:
-            groups.extend([users[j]] for j in fresh)
+            groups.extend([(camera, j)] for j in fresh)
             weighted = np.concatenate([weighted, contribution[fresh]])
             total = np.concatenate([total, weight[fresh]])
         with np.errstate(invalid="ignore", divide="ignore"):
             fused = weighted / total[..., None]
         fused[total == 0] = np.nan
     with np.errstate(divide="ignore"):
-        sigma = 1.0 / np.sqrt(total)
-    sigma[total == 0] = np.nan  # unseen: no sigma (never an infinite one)
-    return [(g, fused[i], sigma[i]) for i, g in enumerate(groups)]
+        sigma_out = 1.0 / np.sqrt(total)
+    sigma_out[total == 0] = np.nan  # unseen: no sigma (never an infinite one)
+    return groups, fused, sigma_out
 
 
 def group(detections: list[Detection], matcher: str = "hungarian") -> list[list[Detection]]:
@@ -153,6 +179,7 @@ def group(detections: list[Detection], matcher: str = "hungarian") -> list[list[
 
 
 def noise_for(joints_in_camera: np.ndarray, lateral: float = 0.01) -> np.ndarray:
-    """Per-joint sigma (m) of a camera's skeleton from its depths (z along the axis)."""
-    z = joints_in_camera[:, 2]
+    """Per-joint sigma (m) of a camera's skeleton(s) (..., 15, 3) from its depths (z along
+    the axis)."""
+    z = joints_in_camera[..., 2]
     return np.sqrt(np.square(depth_sigma(z)) + lateral**2)

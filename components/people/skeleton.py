@@ -65,6 +65,15 @@ def body_center(skeleton: np.ndarray) -> np.ndarray:
     return skeleton[seen].mean(axis=0) if seen.any() else np.full(3, np.nan)
 
 
+def body_centers(skeletons: np.ndarray) -> np.ndarray:
+    """`body_center` of many skeletons (n, 15, 3) at once: (n, 3)."""
+    seen = np.isfinite(skeletons).all(axis=2)
+    count = seen.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(seen[..., None], skeletons, 0.0).sum(axis=1) / count[:, None]
+    return np.where(seen[:, 2, None], skeletons[:, 2], mean)
+
+
 def standing(at: tuple[float, float], facing: float = 0.0, height: float = 1.75) -> np.ndarray:
     """A standing person's skeleton (world frame, z up) at floor position `at`."""
     s = height / 1.75
@@ -106,6 +115,18 @@ def envelope(
     seen = limbs_seen(skeleton)
     margin = sigmas * np.maximum(sigma[_A], sigma[_B])
     return p[seen], q[seen], (_R + margin)[seen]
+
+
+def envelopes(
+    skeletons: np.ndarray, sigma: np.ndarray, sigmas: float = 3.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`envelope` of many skeletons at once ((n, 15, 3), sigma (n, 15)): the capsules
+    (p, q, radius) of all of them, and for each capsule its skeleton and limb index."""
+    p, q = skeletons[:, _A], skeletons[:, _B]  # (n, limbs, 3)
+    seen = ~(np.isnan(p).any(axis=2) | np.isnan(q).any(axis=2))
+    radius = _R + sigmas * np.maximum(sigma[:, _A], sigma[:, _B])
+    owner, limb = np.nonzero(seen)
+    return p[seen], q[seen], radius[seen], owner, limb
 
 
 def limbs_seen(skeleton: np.ndarray) -> np.ndarray:

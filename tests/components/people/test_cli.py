@@ -67,7 +67,8 @@ def test_a_verified_flag_that_is_not_a_boolean_is_located(tmp_path):
 
 
 def test_the_seeg_cameras_file_is_a_calibration_of_the_seeg_topology():
-    written = yaml.safe_load(open("procedures/seeg/cameras.yaml"))
+    with open("procedures/seeg/cameras.yaml") as f:
+        written = yaml.safe_load(f)
     truth = {c.name: c.model.world_from_camera for c in cameras_of(SEEG)}
     assert set(written["cameras"]) == set(truth)
     placed = as_matrix(written["base_from_master"])
