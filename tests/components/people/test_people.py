@@ -14,7 +14,15 @@ from components.people.fusion import (
     noise_for,
     rule_matches,
 )
-from components.people.skeleton import JOINTS, LIMBS, envelope, standing
+from components.people.skeleton import (
+    JOINTS,
+    LIMBS,
+    body_center,
+    body_centers,
+    envelope,
+    envelopes,
+    standing,
+)
 from components.people.tracking import PeopleTracker, Person
 
 FRAME = 1.0 / 30.0
@@ -156,3 +164,30 @@ def test_grouped_fusion_equals_fusing_each_groups_members(people, cameras, seed)
         expected_joints, expected_sigma = fuse(members)
         assert np.allclose(joints, expected_joints, equal_nan=True, atol=1e-12)
         assert np.allclose(sigma, expected_sigma, equal_nan=True)
+
+
+@given(
+    st.lists(
+        st.tuples(
+            st.floats(-2, 2), st.floats(-2, 2), st.lists(st.booleans(), min_size=15, max_size=15)
+        ),
+        min_size=1,
+        max_size=6,
+    )
+)
+@settings(max_examples=60, deadline=None)
+def test_batched_centers_and_envelopes_equal_one_skeleton_at_a_time(people):
+    skeletons, sigmas = [], []
+    for x, y, hidden in people:
+        joints = standing((x, y))
+        joints[np.array(hidden)] = np.nan
+        skeletons.append(joints)
+        sigmas.append(np.full(15, 0.02))
+    batch, sigma = np.stack(skeletons), np.stack(sigmas)
+    for joints, center in zip(skeletons, body_centers(batch), strict=True):
+        assert np.allclose(center, body_center(joints), equal_nan=True)
+    p, q, r, owner, _ = envelopes(batch, sigma)
+    for k, joints in enumerate(skeletons):
+        one = envelope(joints, sigma[k])
+        assert np.allclose(p[owner == k], one[0]) and np.allclose(q[owner == k], one[1])
+        assert np.allclose(r[owner == k], one[2])
