@@ -21,7 +21,12 @@ from framework.errors import Finding, FindingsError, FwError
 from framework.statechart.events import Event, Listener, Output
 from framework.statechart.model import CONFIG_DONE, CONFIG_FAILED, State, Transition
 
-COMMAND_PROVIDERS = ["framework.cli_deploy", "components.tracking.cli", "components.people.cli"]
+COMMAND_PROVIDERS = [
+    "framework.cli_deploy",
+    "components.tracking.cli",
+    "components.people.cli",
+    "components.bench.cli",
+]
 
 EPILOG_VALIDATE = """\
 examples:

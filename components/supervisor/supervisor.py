@@ -206,6 +206,11 @@ class Supervisor(Component):
     tracked = In(Pose, doc="the robot's tool as the tracker in use sees it (rewired per tracker)")
     robot = In(EventMessage, doc="robot interface status (brakes, reason, fault)")
     events = Out(EventMessage, doc="events for the Coordinator (fw/events)")
+    sources = Out(
+        EventMessage,
+        doc="first valid sample from a new tracker on `tracked`: {tracker, sample_stamp} "
+        "(stamped on receipt; the sensor swap latency ends here)",
+    )
     limits = Out(EventMessage, doc="interpolator limits {velocity, acceleration}")
 
     def configure_hook(self) -> bool:
@@ -217,6 +222,7 @@ class Supervisor(Component):
             self.last_error = str(exc)
             return False
         self._core_lock = threading.Lock()
+        self._source: str | None = None  # the tracker whose samples `tracked` last carried
         return True
 
     def update_hook(self) -> None:
@@ -250,6 +256,17 @@ class Supervisor(Component):
                 events += core.robot(
                     bool(p.get("braked")), bool(p.get("fault")), str(p.get("reason", ""))
                 )
+        tool = self._new(self.tracked)
+        if tool is not None and tool.valid and tool.frame != self._source:
+            self._source = tool.frame
+            self.sources.write(
+                EventMessage(
+                    time.time(),
+                    "tracked_source",
+                    self.name,
+                    {"tracker": tool.frame, "sample_stamp": tool.stamp},
+                )
+            )
         for name, payload in events:
             self._emit(name, payload)
 

@@ -1,0 +1,161 @@
+"""The SEEG deployment under measurement: started on a private bus, watched by stamps.
+
+`SeegRun` starts `topologies/seeg.yaml` with its own Zenoh port, namespace and Vicra
+pseudo-terminal (so a benchmark never meets another deployment), follows the
+chart's states through a Coordinator listener and keeps every sample of the keys
+the experiments time, each with the time it was received here. All processes run on
+this host, so `time.time()` stamps taken in different processes compare directly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from framework.bus import free_port
+from framework.deployer import Deployment
+from framework.errors import FwError
+from framework.messages import EventMessage, Scalar, decode
+from framework.remote import RemoteComponent
+from framework.statechart.events import Listener
+from framework.topology import load_topology
+
+REPO = Path(__file__).resolve().parents[2]
+TOPOLOGY = REPO / "topologies" / "seeg.yaml"
+
+WATCHED: dict[str, type] = {
+    "sensor_manager/status": EventMessage,  # t_trackerfail: the verdict's stamp
+    "supervisor/sources": EventMessage,  # t_newtracker: first valid sample, on receipt
+    "interpolator/status": EventMessage,  # t_stop: the cycle the motion starts braking
+    "people_detector/min_distance": Scalar,  # t_collision: the distance's stamp
+    "fw/events": EventMessage,
+}
+
+
+class BenchError(FwError):
+    """An experiment could not run (the deployment did not reach a state in time)."""
+
+
+@dataclass
+class Sample:
+    """A message seen on a watched key and when it arrived here."""
+
+    key: str
+    message: Any
+    received: float
+
+
+class _States(Listener):
+    def __init__(self) -> None:
+        self.entered: list[tuple[str, float]] = []
+        self.changed = threading.Condition()
+
+    def on_entry(self, state: Any) -> None:
+        with self.changed:
+            self.entered.append((state.name, time.time()))
+            self.changed.notify_all()
+
+
+@dataclass
+class SeegRun:
+    """A running SEEG deployment with the stamps the latency experiments need."""
+
+    workdir: Path = field(default_factory=lambda: Path(tempfile.mkdtemp(prefix="fw-bench-")))
+    deployment: Deployment | None = None
+    samples: list[Sample] = field(default_factory=list)
+    _states: _States = field(default_factory=_States)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+    _subscriptions: list[Any] = field(default_factory=list)
+
+    def start(self) -> SeegRun:
+        """Deploy and wait until the robot waits for START (setup done)."""
+        topology = load_topology(TOPOLOGY)
+        topology.bus = dataclasses.replace(
+            topology.bus, namespace=f"fw_bench_{os.getpid()}", hub_port=free_port()
+        )
+        link = str(self.workdir / "ttyVICRA")
+        topology.components["vicra_sim"].properties["link"] = link
+        topology.components["vicra"].properties["device"] = link
+        self.deployment = Deployment(topology, self.workdir, listeners=[self._states])
+        old = os.getcwd()
+        os.chdir(REPO)  # property paths are relative to the repository
+        try:
+            self.deployment.start(run_chart=False)
+            hub = self.deployment.hub
+            assert hub is not None
+            for key, kind in WATCHED.items():
+                self._subscriptions.append(
+                    hub.subscribe(key, self._receiver(key, kind), history=False)
+                )
+            self.deployment.run_chart()
+            self.wait_state("Wait_Start", 60.0)
+        finally:
+            os.chdir(old)
+        return self
+
+    def _receiver(self, key: str, kind: type) -> Any:
+        def receive(sample: Any) -> None:
+            now = time.time()
+            message, _, _ = decode(bytes(sample.payload.to_bytes()), kind)
+            with self._lock:
+                self.samples.append(Sample(key, message, now))
+
+        return receive
+
+    def stop(self) -> None:
+        """Shut the deployment down (always call it; `with` does)."""
+        for sub in self._subscriptions:
+            sub.undeclare()
+        self._subscriptions.clear()
+        if self.deployment is not None:
+            self.deployment.stop()
+            self.deployment = None
+
+    def __enter__(self) -> SeegRun:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # -- driving ---------------------------------------------------------------------
+    def send(self, event: str, payload: dict[str, Any] | None = None) -> None:
+        """Give the chart an event (as the console would)."""
+        assert self.deployment is not None
+        self.deployment.send(event, payload)
+
+    def call(self, ref: str, **args: Any) -> Any:
+        """Call `component.operation` on the running deployment."""
+        assert self.deployment is not None and self.deployment.hub is not None
+        component, _, op = ref.partition(".")
+        return RemoteComponent(self.deployment.hub, component, timeout=5.0).call(op, **args)
+
+    def mark(self) -> int:
+        """A position in the state history; `wait_state(..., since=mark)` looks after it."""
+        with self._states.changed:
+            return len(self._states.entered)
+
+    def wait_state(self, name: str, timeout: float, since: int | None = None) -> float:
+        """Wait until state `name` is entered (after `since`); returns when it was."""
+        deadline = time.monotonic() + timeout
+        with self._states.changed:
+            while True:
+                start = 0 if since is None else since
+                for state, at in self._states.entered[start:]:
+                    if state == name:
+                        return at
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    now = [s for s, _ in self._states.entered[-5:]]
+                    raise BenchError(f"state {name} not reached in {timeout:g} s (last: {now})")
+                self._states.changed.wait(left)
+
+    def since(self, t: float, key: str) -> list[Sample]:
+        """Samples of `key` received after time `t` (in order)."""
+        with self._lock:
+            return [s for s in self.samples if s.key == key and s.received >= t]
