@@ -17,6 +17,7 @@ timestamp is taken (all `time.time()` on this host):
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -68,11 +69,7 @@ def _failed(tracker: str) -> Any:
 
 
 def _last_task_state(run: SeegRun) -> str:
-    with run._states.changed:
-        for state, _ in reversed(run._states.entered):
-            if state in TASK_STATES:
-                return state
-    return ""
+    return run.last_entered(TASK_STATES)
 
 
 def keep_moving(run: SeegRun, goal: list[str]) -> None:
@@ -101,32 +98,45 @@ def keep_moving(run: SeegRun, goal: list[str]) -> None:
 
 
 def _tracker_in_use(run: SeegRun) -> str:
-    with run._states.changed:
-        for state, _ in reversed(run._states.entered):
-            if state in ("Certus_Up", "Vicra_Up"):
-                return "certus" if state == "Certus_Up" else "vicra"
-    return ""
+    state = run.last_entered(("Certus_Up", "Vicra_Up"))
+    return {"Certus_Up": "certus", "Vicra_Up": "vicra"}.get(state, "")
+
+
+def _repeat(
+    name: str, trials: int, trial: Callable[[], Trial | None], progress: Any, cleanup: Any
+) -> list[Trial]:
+    """Run `trial` until `trials` succeeded; a failed one (BenchError) is cleaned up
+    and retried, at most 10 times in all."""
+    out: list[Trial] = []
+    failures: list[str] = []
+    while len(out) < trials:
+        if len(failures) > 10:
+            raise BenchError(f"{name}: {len(failures)} trials failed; last: {failures[-1]}")
+        try:
+            result = trial()
+        except BenchError as exc:
+            failures.append(str(exc))
+            cleanup()
+            continue
+        if result is not None:
+            out.append(result)
+            if progress:
+                progress(len(out), trials)
+    return out
 
 
 def sensor_swap(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
     """Occlude the Certus while the robot moves; L = t_newtracker - t_trackerfail
     (eq. 3.12). After each trial the Certus is uncovered and the chart swaps back."""
-    out: list[Trial] = []
     goal = ["target"]
-    attempts = 0
-    failures: list[str] = []
-    while len(out) < trials:
-        attempts += 1
-        if attempts > trials + 10:
-            raise BenchError(
-                f"sensor swap: {attempts - len(out)} trials failed; last: {failures[-1]}"
-            )
+
+    def trial() -> Trial:
+        keep_moving(run, goal)
+        if _tracker_in_use(run) != "certus":
+            raise BenchError("the Certus is not in use")
+        t0 = time.time()
+        run.call("certus.occlude", tool="cto")
         try:
-            keep_moving(run, goal)
-            if _tracker_in_use(run) != "certus":
-                raise BenchError("the Certus is not in use")
-            t0 = time.time()
-            run.call("certus.occlude", tool="cto")
             fail = _first(run, "sensor_manager/status", t0, _failed("certus"), "Certus fault")
             new = _first(
                 run,
@@ -135,72 +145,60 @@ def sensor_swap(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
                 lambda m: m.payload.get("tracker") == "vicra",
                 "Vicra sample at the Supervisor",
             )
-        except BenchError as exc:
-            failures.append(str(exc))
-            _recover(run)
-            continue
         finally:
             run.call("certus.occlude", tool="cto", hidden=False)
         t_fail, t_new = fail.message.stamp, new.message.stamp
-        out.append(
-            Trial(
-                t_new - t_fail,
-                t_fail,
-                t_new,
-                {
-                    "sample_age": t_new - new.message.payload.get("sample_stamp", t_new),
-                    "fault": fail.message.payload["health"]["certus"].get("cause", ""),
-                },
-            )
-        )
-        if progress:
-            progress(len(out), trials)
         _back_to(run, "certus")
-    return out
+        return Trial(
+            t_new - t_fail,
+            t_fail,
+            t_new,
+            {
+                "sample_age": t_new - new.message.payload.get("sample_stamp", t_new),
+                "fault": fail.message.payload["health"]["certus"].get("cause", ""),
+            },
+        )
+
+    return _repeat("sensor swap", trials, trial, progress, lambda: _recover(run))
 
 
 def no_sensor_to_stop(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
     """With the Vicra occluded, occlude the Certus while the robot moves;
     L = t_stop - t_trackerfail (eq. 3.13). Then uncover it and RELEASE."""
-    out: list[Trial] = []
     goal = ["target"]
-    run.call("vicra_sim.occlude", tool="cto")
-    attempts = 0
-    failures: list[str] = []
-    try:
-        while len(out) < trials:
-            attempts += 1
-            if attempts > trials + 10:
-                raise BenchError(
-                    f"no sensor to stop: {attempts - len(out)} trials failed; last: {failures[-1]}"
-                )
-            try:
-                keep_moving(run, goal)
-                t0 = time.time()
-                run.call("certus.occlude", tool="cto")
-                fail = _first(run, "sensor_manager/status", t0, _failed("certus"), "Certus fault")
-                stop = _first(
-                    run,
-                    "interpolator/status",
-                    t0,
-                    lambda m: m.name in ("stopping", "stopped"),
-                    "interpolator stop",
-                )
-                run.wait_state("No_Tracker", 10.0, since=None)
-            except BenchError as exc:
-                failures.append(str(exc))
-                run.call("certus.occlude", tool="cto", hidden=False)
-                _recover(run)
-                continue
+
+    def trial() -> Trial:
+        keep_moving(run, goal)
+        mark = run.mark()
+        t0 = time.time()
+        run.call("certus.occlude", tool="cto")
+        try:
+            fail = _first(run, "sensor_manager/status", t0, _failed("certus"), "Certus fault")
+            stop = _first(
+                run,
+                "interpolator/status",
+                t0,
+                lambda m: m.name in ("stopping", "stopped"),
+                "interpolator stop",
+            )
+            run.wait_state("No_Tracker", 10.0, since=mark)
+        finally:
             run.call("certus.occlude", tool="cto", hidden=False)
-            t_fail, t_stop = fail.message.stamp, stop.message.stamp
-            out.append(Trial(t_stop - t_fail, t_fail, t_stop, {"phase": stop.message.name}))
-            if progress:
-                progress(len(out), trials)
-            _healthy(run, "certus")
+        _healthy(run, "certus")
+        t_fail, t_stop = fail.message.stamp, stop.message.stamp
+        return Trial(t_stop - t_fail, t_fail, t_stop, {"phase": stop.message.name})
+
+    run.call("vicra_sim.occlude", tool="cto")
+    try:
+        return _repeat(
+            "no sensor to stop",
+            trials,
+            trial,
+            progress,
+            lambda: (_recover(run), run.call("vicra_sim.occlude", tool="cto")),
+        )
     finally:
         run.call("vicra_sim.occlude", tool="cto", hidden=False)
-    return out
 
 
 def _healthy(run: SeegRun, tracker: str, timeout: float = 10.0) -> None:

@@ -155,6 +155,14 @@ class SeegRun:
                     raise BenchError(f"state {name} not reached in {timeout:g} s (last: {now})")
                 self._states.changed.wait(left)
 
+    def last_entered(self, names: tuple[str, ...]) -> str:
+        """The most recently entered of `names` ("" if none yet)."""
+        with self._states.changed:
+            for state, _ in reversed(self._states.entered):
+                if state in names:
+                    return state
+        return ""
+
     def since(self, t: float, key: str) -> list[Sample]:
         """Samples of `key` received after time `t` (in order)."""
         with self._lock:

@@ -239,9 +239,7 @@ class PeopleDetectorCore:
         """The inverse of a camera's registration (cached: calibrations are constant)."""
         cache = self.__dict__.setdefault("_inverse_registrations", {})
         if name not in cache:
-            cache[name] = np.linalg.inv(
-                self.config.base_from_master @ self.cameras[name].master_from_camera
-            )
+            cache[name] = np.linalg.inv(self._base_from_camera(name))
         return cache[name]
 
     def _should_see(
