@@ -145,7 +145,14 @@ class InterpolatorCore:
             self._in.max_acceleration = [max(self.acceleration, 1e-9)]
 
     def stop(self) -> None:
-        """Brake at full deceleration, then return to where this STOP was asserted."""
+        """Brake at full deceleration, then return to where the STOP was asserted.
+        A STOP while one is already being carried out keeps the first stop point."""
+        if self._return_after_stop and self.phase in (
+            Phase.STOPPING,
+            Phase.RETURNING,
+            Phase.STOPPED,
+        ):
+            return
         self._pending = None
         self.stop_s = self.s
         self.stop_pose = self.pose.copy()
@@ -248,6 +255,7 @@ class CartesianInterpolator(Component):
     )
     joints = In(JointState, doc="measured joints (from the robot interface)")
     limits = In(EventMessage, doc="new limits: payload {velocity, acceleration} (m/s, m/s^2)")
+    halt = In(EventMessage, doc="STOP now (the Supervisor's reflex): any sample brakes")
     setpoint = Out(JointState, doc="joint setpoints for the robot interface, every cycle")
     command = Out(Pose, doc="commanded TCP in the robot base frame")
     status = Out(EventMessage, doc="phase (idle, moving, reached, stopping, returning, stopped)")
@@ -266,6 +274,7 @@ class CartesianInterpolator(Component):
         self._goal_name = ""
         self._phase: Phase | None = None
         self._core_lock = threading.Lock()
+        self.halted = ""  # the reason of the last halt
         return True
 
     def update_hook(self) -> None:
@@ -287,6 +296,11 @@ class CartesianInterpolator(Component):
                     core.set_limits(limits.payload["velocity"], limits.payload.get("acceleration"))
                 except (KeyError, TypeError, LimitError) as exc:
                     self.last_error = f"limits refused: {exc}"
+            status, halt = self.halt.read()
+            if status is ReadStatus.NEW:
+                core.stop()
+                self._goal_name = ""
+                self.halted = str(halt.payload.get("reason", ""))
             lag = float(np.max(np.abs(core.q - np.asarray(measured.position))))
             if core.moving and core.phase is not Phase.STOPPING and lag > self.max_lag:
                 # the arm does not follow (brakes, contact): stop commanding a motion
@@ -375,5 +389,6 @@ class CartesianInterpolator(Component):
             "speed": round(core.speed, 6),
             "velocity": core.velocity,
             "acceleration": core.acceleration,
+            "halted": self.halted,
             "tcp": [round(v, 6) for v in core.pose[:3, 3].tolist()],
         }

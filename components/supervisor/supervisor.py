@@ -10,12 +10,18 @@ interpolator, and raises the events the SEEG chart reacts to:
   `collision_distance`), on the rising edge and again whenever motion starts while
   it persists;
 * `e_TOK {tracker}` / `e_NOTRACKER`: answers to `report_best_tracker`;
-* `e_TFAULT {tracker, fault}`: the tracker in use is no longer the best one (its
-  fault, or a better one recovered); `e_NOTRACKER` if none is left;
+* `e_TFAULT {tracker, failed, fault}`: the tracker in use (`failed`) is no longer the
+  best one (its fault, or a better one recovered); `tracker` is the one to use now (as
+  in `e_TOK`), so the chart swaps without asking; `e_NOTRACKER` if none is left;
 * `e_TARGET {goal}`: the interpolator reached the goal and the measured TCP is
   within `target_tolerance` of it;
 * `e_STOP {reason}` also when the arm braked by itself (watchdog, setpoint
   guard): the chart must know the robot no longer follows.
+
+Every `e_STOP` and `e_NOTRACKER` is preceded by a message on `halt`, wired straight
+to the interpolator: braking starts one hop after the verdict instead of after the
+chart and the Configurator (three more hops). The chart still enters its stop state
+and applies the stop configuration; the reflex only starts the braking earlier.
 
 `change_movement_parameters(speed)` sends the interpolator the limits of the
 tracker in use for the area ("fast" or "slow"), from the procedure file.
@@ -38,6 +44,8 @@ from framework.ports import ReadStatus
 from framework.properties import prop
 
 Event = tuple[str, dict[str, Any]]
+HALTING = ("e_STOP", "e_NOTRACKER")
+"""Events that also halt the interpolator directly (the chart's stop follows)."""
 
 
 @dataclass
@@ -74,7 +82,7 @@ class SupervisorCore:
         if best is None:
             return [("e_NOTRACKER", {})]
         cause = (health.get(lost) or {}).get("cause") or f"{best} is better"
-        return [("e_TFAULT", {"tracker": lost, "fault": cause})]
+        return [("e_TFAULT", {"tracker": best, "failed": lost, "fault": cause})]
 
     def observe(
         self,
@@ -212,6 +220,11 @@ class Supervisor(Component):
         "(stamped on receipt; the sensor swap latency ends here)",
     )
     limits = Out(EventMessage, doc="interpolator limits {velocity, acceleration}")
+    halt = Out(
+        EventMessage,
+        doc="the safety reflex: written with every e_STOP and e_NOTRACKER, before the event, "
+        "so the interpolator brakes without waiting for the chart {reason}",
+    )
 
     def configure_hook(self) -> bool:
         try:
@@ -268,6 +281,9 @@ class Supervisor(Component):
                 )
             )
         for name, payload in events:
+            if name in HALTING:
+                reason = payload.get("reason", "no tracker sees the robot")
+                self.halt.write(EventMessage(time.time(), "halt", self.name, {"reason": reason}))
             self._emit(name, payload)
 
     @staticmethod

@@ -83,18 +83,22 @@ def test_critical_area_slows_and_safe_area_speeds_up(seeg):
     assert task(r) == "Moving_Fast" and configured(r)[-1] == "move_fast"
 
 
-def test_a_tracker_fault_reselects_and_resumes_at_the_right_speed(seeg):
+FAULT = ("e_TFAULT", {"tracker": "vicra", "failed": "certus", "fault": "MISSING"})
+
+
+def test_a_tracker_fault_swaps_to_the_named_best_and_resumes_at_the_right_speed(seeg):
     r = started(seeg)
-    r.send("e_CRITICAL_AREA", ("e_TFAULT", {"tracker": "certus", "fault": "MISSING"}))
-    assert task(r) == "Tracker_Selection"
-    r.send(("e_TOK", {"tracker": "vicra"}))
-    assert task(r) == "Moving_Slow", "the area was remembered while reselecting"
+    calls = len([o for o in r.outputs if o.kind == "call"])
+    r.send("e_CRITICAL_AREA", FAULT)
+    assert task(r) == "Moving_Slow", "the area was remembered across the swap"
     assert configured(r)[-3:] == ["tracker_2_up", "goto_target", "move_slow"]
+    assert r.interpreter.variables["tracker"] == "vicra"
+    assert len([o for o in r.outputs if o.kind == "call"]) == calls, "no report round trip"
 
 
 def test_no_tracker_stops_with_brakes_and_release_restarts(seeg):
     r = started(seeg)
-    r.send(("e_TFAULT", {"tracker": "certus", "fault": "MISSING"}), "e_NOTRACKER")
+    r.send("e_NOTRACKER")
     assert task(r) == "No_Tracker" and configured(r)[-1] == "no_tracker"
     assert r.interpreter.variables["tracker"] == "none"
     r.send("e_START")

@@ -85,6 +85,25 @@ def test_stop_brakes_at_maximum_deceleration_then_returns_to_the_stop_point():
     assert c.speed == 0.0
 
 
+def test_a_second_stop_while_braking_keeps_the_first_stop_point():
+    """The Supervisor's halt and the chart's stop configuration both stop the motion,
+    a few milliseconds apart: the robot must return to where the first one hit."""
+    c = core(velocity=0.075, acceleration=0.25, brake_acceleration=2.0)
+    c.go_to(goal_at((0.0, 0.0, -0.25)))
+    for _ in range(700):
+        c.step()
+    c.stop()
+    first = c.pose.copy()
+    for _ in range(5):
+        c.step()
+    c.stop()
+    assert c.phase is Phase.STOPPING
+    run(c, Phase.STOPPED)
+    c.stop()
+    assert c.phase is Phase.STOPPED
+    assert np.allclose(c.pose, first, atol=1e-9)
+
+
 def test_new_goal_while_moving_brakes_then_heads_for_it():
     c = core()
     c.go_to(goal_at((0.0, 0.0, -0.2)))

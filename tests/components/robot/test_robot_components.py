@@ -85,6 +85,38 @@ def test_stop_brakes_along_the_path_returns_and_the_brakes_engage_when_still(cel
     assert np.linalg.norm(cell.tcp() - asserted) < 0.5e-3, "back where STOP was asserted"
 
 
+def test_the_supervisors_halt_brakes_the_motion_without_the_chart(hub):
+    """The safety reflex: a possible collision reaches the interpolator on the
+    Supervisor's `halt` port, before (and without) any stop configuration."""
+    from components.supervisor.supervisor import Supervisor
+    from framework.messages import Scalar
+    from framework.ports import OutputPort
+
+    cell = Cell(hub)
+    try:
+        supervisor = cell.container.add(Supervisor("supervisor"), Activity.event("min_distance"))
+        supervisor.set_property("procedure_file", str(PROCEDURE))
+        cell.container.connect("supervisor", "min_distance", "test/min_distance")
+        cell.container.connect("interpolator", "halt", "supervisor/halt")
+        assert supervisor.configure() and supervisor.start(), supervisor.last_error
+        distance = OutputPort("distance", Scalar)
+        distance.owner, distance.bus = "test", hub
+        distance.connect("test/min_distance")
+
+        cell.robot.call("release")
+        cell.interp.call("sync")
+        cell.interp.call("go_to", goal="target")
+        cell.run(1.0)
+        assert cell.interp.call("report")["phase"] == "moving"
+        distance.write(Scalar(0.0, 0.05))  # 5 cm: under the collision distance
+        cell.run(0.002)
+        report = cell.interp.call("report")
+        assert report["phase"] == "stopping"
+        assert report["halted"].startswith("possible collision")
+    finally:
+        cell.close()
+
+
 def test_a_dead_interpolator_makes_the_watchdog_brake(cell):
     cell.robot.call("release")
     cell.interp.call("sync")

@@ -59,7 +59,7 @@ def test_losing_the_tracker_in_use_is_a_fault_and_losing_all_is_no_tracker():
     c.use_tracker("certus")
     sick = {"certus": {"ok": False, "cause": "cto_missing"}, "vicra": {"ok": True}}
     assert c.tracking("vicra", sick) == [
-        ("e_TFAULT", {"tracker": "certus", "fault": "cto_missing"})
+        ("e_TFAULT", {"tracker": "vicra", "failed": "certus", "fault": "cto_missing"})
     ]
     assert c.tracking("vicra", sick) == [], "reported once; the chart reselects"
     assert c.report_best_tracker() == ("e_TOK", {"tracker": "vicra"})
