@@ -30,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from benchlib import write_report
 
+from components.bench.scale import cycle_times
 from components.tracking.sensor_manager import SensorManagerCore
 from components.tracking.synthetic import (
     ee_path,
@@ -39,38 +40,6 @@ from components.tracking.synthetic import (
 )
 
 TICK = 0.001
-
-
-def many_rigs(n: int) -> list:
-    base = standard_rigs()
-    return [dataclasses.replace(base[i % 2], name=f"s{i}") for i in range(n)]
-
-
-def cycle_times(n: int, cycles: int, every_cycle: bool = True) -> dict[str, float]:
-    """Cycle time with `n` sensors: each delivering a frame every cycle (the worst case),
-    or at its own rate (Certus 100 Hz, Vicra 20 Hz) with phases spread over the period."""
-    rigs = many_rigs(n)
-    core = SensorManagerCore(sensors_config(rigs, 3))
-    rng = np.random.default_rng(0)
-    samples = []
-    truth = ee_path(0.0)
-    observed = [rig.observe(truth, rng) for rig in rigs]
-    core.set_kinematics(truth)
-    periods = [round(1.0 / (rig.rate * TICK)) for rig in rigs]
-    for k in range(cycles):
-        now = k * TICK
-        t0 = time.perf_counter()  # a cycle = taking every new sample + evaluating
-        for i, (rig, (cto, rto)) in enumerate(zip(rigs, observed, strict=True)):
-            if every_cycle or (k + 7 * i) % periods[i] == 0:
-                core.offer(rig.name, "cto", cto, now)
-                core.offer(rig.name, "rto", rto, now)
-        core.evaluate(now)
-        samples.append(time.perf_counter() - t0)
-    samples = sorted(samples[100:])
-    return {
-        "p50_us": statistics.median(samples) * 1e6,
-        "p99_us": samples[int(len(samples) * 0.99)] * 1e6,
-    }
 
 
 def detection_latency(cause: str, trials: int) -> list[float]:

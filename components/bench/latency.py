@@ -7,9 +7,11 @@ timestamp is taken (all `time.time()` on this host):
   tracker in use as failed (its stamp: when the Sensor Manager decided);
 * t_newtracker: the Supervisor's `sources` record of the first valid sample from
   the new tracker on its rewired `tracked` input (stamped on receipt there);
-* t_nosensors -> here t_stop: the interpolator's status message announcing the
-  `stopping` phase (stamped in the robot process on the control cycle the motion
-  starts braking: later than the thesis's "STOP command sent", never earlier);
+* t_nosensors and t_stop (the thesis' "STOP command sent to the robot"): the
+  Supervisor's `halt` message to the interpolator, stamped when it is written;
+* t_brake (stricter, not in the thesis): the interpolator's status message
+  announcing the `stopping` phase, stamped in the robot process on the 1 kHz control
+  cycle the motion starts braking (so it adds up to one cycle of waiting);
 * t_collision: the people detector's minimum-distance sample under the procedure's
   collision distance (its stamp: when the detector computed it).
 """
@@ -148,6 +150,15 @@ def sensor_swap(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
         finally:
             run.call("certus.occlude", tool="cto", hidden=False)
         t_fail, t_new = fail.message.stamp, new.message.stamp
+        stages = _stages(
+            t_fail,
+            [
+                ("Supervisor raises e_TFAULT", _event_stamp(run, "e_TFAULT", t0)),
+                ("the chart takes it", run.taken_after("e_TFAULT", t_fail)),
+                ("tracker_2_up requested", run.entered_after("Vicra_Up", t_fail)),
+                ("first Vicra sample at the Supervisor", t_new),
+            ],
+        )
         _back_to(run, "certus")
         return Trial(
             t_new - t_fail,
@@ -156,6 +167,7 @@ def sensor_swap(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
             {
                 "sample_age": t_new - new.message.payload.get("sample_stamp", t_new),
                 "fault": fail.message.payload["health"]["certus"].get("cause", ""),
+                "stages": stages,
             },
         )
 
@@ -164,7 +176,8 @@ def sensor_swap(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
 
 def no_sensor_to_stop(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
     """With the Vicra occluded, occlude the Certus while the robot moves;
-    L = t_stop - t_trackerfail (eq. 3.13). Then uncover it and RELEASE."""
+    L = t_nosensors - t_trackerfail (eq. 3.13), and the braking cycle's latency in
+    `detail["brake"]`. Then uncover it and RELEASE."""
     goal = ["target"]
 
     def trial() -> Trial:
@@ -174,7 +187,8 @@ def no_sensor_to_stop(run: SeegRun, trials: int, progress: Any = None) -> list[T
         run.call("certus.occlude", tool="cto")
         try:
             fail = _first(run, "sensor_manager/status", t0, _failed("certus"), "Certus fault")
-            stop = _first(
+            halt = _first(run, "supervisor/halt", t0, lambda m: True, "STOP command")
+            brake = _first(
                 run,
                 "interpolator/status",
                 t0,
@@ -185,8 +199,20 @@ def no_sensor_to_stop(run: SeegRun, trials: int, progress: Any = None) -> list[T
         finally:
             run.call("certus.occlude", tool="cto", hidden=False)
         _healthy(run, "certus")
-        t_fail, t_stop = fail.message.stamp, stop.message.stamp
-        return Trial(t_stop - t_fail, t_fail, t_stop, {"phase": stop.message.name})
+        t_fail, t_stop, t_brake = fail.message.stamp, halt.message.stamp, brake.message.stamp
+        stages = _stages(
+            t_fail,
+            [
+                ("Supervisor sends the halt (STOP command)", t_stop),
+                ("the braking control cycle", t_brake),
+            ],
+        )
+        return Trial(
+            t_stop - t_fail,
+            t_fail,
+            t_stop,
+            {"brake": t_brake - t_fail, "phase": brake.message.name, "stages": stages},
+        )
 
     run.call("vicra_sim.occlude", tool="cto")
     try:
@@ -199,6 +225,26 @@ def no_sensor_to_stop(run: SeegRun, trials: int, progress: Any = None) -> list[T
         )
     finally:
         run.call("vicra_sim.occlude", tool="cto", hidden=False)
+
+
+def _event_stamp(run: SeegRun, name: str, after: float) -> float | None:
+    """The stamp of the first event `name` published on fw/events after `after`."""
+    return next(
+        (s.message.stamp for s in run.since(after, "fw/events") if s.message.name == name), None
+    )
+
+
+def _stages(start: float, marks: list[tuple[str, float | None]]) -> dict[str, float]:
+    """Time (s) spent in each stage of a reaction chain: from the previous mark to this
+    one. A missing mark merges its stage into the next."""
+    out: dict[str, float] = {}
+    previous = start
+    for name, at in marks:
+        if at is None:
+            continue
+        out[name] = at - previous
+        previous = at
+    return out
 
 
 def _healthy(run: SeegRun, tracker: str, timeout: float = 10.0) -> None:
@@ -228,3 +274,169 @@ def _recover(run: SeegRun) -> None:
     for ref in ("certus.occlude", "vicra_sim.occlude"):
         run.call(ref, tool="cto", hidden=False)
     _healthy(run, "certus")
+
+
+COLLIDER = 1
+"""The person of `people_world` who touches the robot in the collision trials."""
+
+
+def collision_reaction(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
+    """A surgeon standing at the table leans over the moving robot; L = t_stop -
+    t_collision (eq. 3.18), and the braking cycle's latency in `detail["brake"]`.
+    Then they stand upright, the distance clears and RELEASE resumes the motion."""
+    limit = _collision_distance()
+    goal = ["target"]
+
+    def trial() -> Trial:
+        _clear(run, limit)
+        keep_moving(run, goal)
+        time.sleep(0.3)  # well into the motion
+        mark = run.mark()
+        t0 = time.time()
+        run.call("people_world.lean", person=COLLIDER, reach=0.9)
+        try:
+            near = _first(
+                run,
+                "people_detector/min_distance",
+                t0,
+                lambda m: m.value < limit,
+                "a robot-person distance under the collision distance",
+            )
+            halt = _first(
+                run,
+                "supervisor/halt",
+                t0,
+                lambda m: str(m.payload.get("reason", "")).startswith("possible collision"),
+                "STOP command",
+            )
+            brake = _first(
+                run,
+                "interpolator/status",
+                t0,
+                lambda m: m.name in ("stopping", "stopped"),
+                "interpolator stop",
+            )
+            run.wait_state("Stopped", 10.0, since=mark)
+        finally:
+            run.call("people_world.lean", person=COLLIDER, reach=0.0)
+        t_collision, t_stop = near.message.stamp, halt.message.stamp
+        t_brake = brake.message.stamp
+        stages = _stages(
+            t_collision,
+            [
+                ("Supervisor sends the halt (STOP command)", t_stop),
+                ("the braking control cycle", t_brake),
+            ],
+        )
+        return Trial(
+            t_stop - t_collision,
+            t_collision,
+            t_stop,
+            {"brake": t_brake - t_collision, "stages": stages, "distance": near.message.value},
+        )
+
+    run.call("people_world.place", person=COLLIDER, x=1.25, y=0.0, facing_deg=180.0)
+    try:
+        return _repeat("collision reaction", trials, trial, progress, lambda: _clear(run, limit))
+    finally:
+        run.call("people_world.leave", person=COLLIDER)
+
+
+def _collision_distance() -> float:
+    from components.bench.seeg_run import REPO
+    from components.supervisor.procedure import load_procedure
+
+    return load_procedure(REPO / "procedures" / "seeg.yaml").collision_distance
+
+
+def _clear(run: SeegRun, limit: float, timeout: float = 10.0) -> None:
+    """Wait until the closest person is clearly beyond the collision distance."""
+    run.call("people_world.lean", person=COLLIDER, reach=0.0)
+    deadline = time.monotonic() + timeout
+    while True:
+        t = time.time()
+        time.sleep(0.15)
+        recent = run.since(t, "people_detector/min_distance")
+        if recent and all(s.message.value > 1.5 * limit for s in recent):
+            return
+        if time.monotonic() > deadline:
+            raise BenchError("the person did not step back from the robot")
+
+
+def repeated_swaps(
+    run: SeegRun, repetitions: int, swaps: int, progress: Any = None
+) -> list[list[Trial]]:
+    """Fig. 4.3: `repetitions` runs of `swaps` consecutive sensor swaps (the thesis:
+    30 x 50), each swap measured as in `sensor_swap`."""
+    out = []
+    for r in range(repetitions):
+        out.append(sensor_swap(run, swaps))
+        if progress:
+            progress(r + 1, repetitions)
+    return out
+
+
+def swap_during_motion(run: SeegRun, motions: int, progress: Any = None) -> dict[str, Any]:
+    """Fig. 4.2: trackers swapped back and forth while the robot approaches at 7.5 cm/s.
+
+    Returns the Sensor Manager's robot pose (master frame, best tracker) through
+    the motions and, per swap, the jump of that pose: both sides of the swap are
+    fitted with a straight line (the motion is linear) and extrapolated to the swap
+    instant; the gap between them is the disagreement of the two trackers'
+    calibrations, which is what the robot sees at a swap."""
+    from framework.messages import Pose
+
+    subscription = run.watch("sensor_manager/robot_pose", Pose)
+    goal = ["target"]
+    windows = []
+    try:
+        for m in range(motions):
+            keep_moving(run, goal)
+            t_start = time.time()
+            for _ in range(2):
+                time.sleep(0.5)
+                run.call("certus.occlude", tool="cto")
+                time.sleep(0.5)
+                run.call("certus.occlude", tool="cto", hidden=False)
+            time.sleep(0.6)
+            windows.append((t_start, time.time()))
+            if progress:
+                progress(m + 1, motions)
+    finally:
+        run.unwatch(subscription)
+        run.call("certus.occlude", tool="cto", hidden=False)
+    trace, swaps = [], []
+    for t_start, t_end in windows:
+        poses = [
+            (s.message.stamp, *s.message.position)
+            for s in run.since(t_start, "sensor_manager/robot_pose")
+            if s.message.stamp <= t_end
+        ]
+        trace += poses
+        best = None
+        for s in run.since(t_start, "sensor_manager/status"):
+            if s.message.stamp > t_end:
+                break
+            now = s.message.payload.get("best")
+            if best is not None and now is not None and now != best:
+                jump = _jump(poses, s.message.stamp)
+                if jump is not None:
+                    swaps.append({"t": s.message.stamp, "from": best, "to": now, "jump_m": jump})
+            best = now
+    return {"trace": trace, "swaps": swaps}
+
+
+def _jump(poses: list[tuple[float, ...]], at: float, span: float = 0.08) -> float | None:
+    """The gap at `at` between straight lines fitted to the poses before and after."""
+    import numpy as np
+
+    before = np.array([p for p in poses if at - span <= p[0] < at - 0.001])
+    after = np.array([p for p in poses if at - 0.001 <= p[0] <= at + span])
+    if len(before) < 5 or len(after) < 5:
+        return None
+    ends = []
+    for side in (before, after):
+        t = side[:, 0] - at
+        coeffs = np.polyfit(t, side[:, 1:4], 1)  # per axis: slope, intercept
+        ends.append(coeffs[1])
+    return float(np.linalg.norm(ends[1] - ends[0]))

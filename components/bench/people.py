@@ -1,5 +1,4 @@
-#!/usr/bin/env python3
-"""Benchmark people detection on the simulated cameras (a benchmark, not a test).
+"""People detection on the simulated cameras (thesis Tables 4.1/4.2, Fig. 4.4).
 
 * frame cost (fusion, tracking, envelopes, robot-person distances) with 8 cameras
   and 16 people (target p99 <= 3 ms), for both matchers;
@@ -14,26 +13,18 @@
   computed here (40 lines with scipy) rather than with motmetrics, which would
   bring pandas for two numbers.
 
-    python tools/bench_people.py [--quick] [--out out/bench]
+`fw bench people` runs it.
 """
 
 from __future__ import annotations
 
-import argparse
 import math
 import statistics
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
-from scipy.stats import binomtest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from benchlib import write_report
 from scipy.optimize import linear_sum_assignment
+from scipy.stats import binomtest
 
 from components.people.cli import SimulatedCamera
 from components.people.cli import run as calibration_protocol
@@ -253,72 +244,3 @@ def crowd(seconds: float, matcher: str, seed: int = 7) -> dict[str, float]:
         "id_switches": switches,
         "ground_truth": gt_total,
     }
-
-
-def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--out", default="out/bench")
-    args = parser.parse_args()
-    frames = 60 if args.quick else 300
-    trials = 6 if args.quick else 30
-    cost = {m: frame_cost(8, 16, frames, m) for m in ("hungarian", "rule")}
-    cost["hungarian, seen only"] = frame_cost(8, 16, frames, "hungarian", everyone=False)
-    results = {
-        "crowd": {m: crowd(20.0 if args.quick else 60.0, m) for m in ("hungarian", "rule")},
-        "frame_cost_8x16": cost,
-        "protocol_1_user": protocol(1, trials),
-        "protocol_2_users": protocol(2, trials),
-    }
-    targets = {
-        "frame p99 <= 3 ms (8 cameras x 16 people)": cost["hungarian"]["p99_ms"] <= 3,
-        "accuracy >= 0.995 with 1 user": results["protocol_1_user"]["accuracy"] >= 0.995,
-        "accuracy >= 0.995 with 2 users": results["protocol_2_users"]["accuracy"] >= 0.995,
-        "crowd MOTA >= 0.95": results["crowd"]["hungarian"]["MOTA"] >= 0.95,
-    }
-    lines = [
-        "# People detection benchmark",
-        "",
-        "8 cameras, 16 people; worst case: every camera reports all 16 (128 users a frame);",
-        "'seen only': each camera reports whom it sees (view, range, occlusion).",
-        "",
-        "| matcher | users a frame | frame p50 ms | frame p99 ms | people tracked (of 16) |",
-        "|---|---:|---:|---:|---:|",
-    ]
-    lines += [
-        f"| {m} | {c['users_per_frame']} | {c['p50_ms']:.2f} | {c['p99_ms']:.2f} | {c['people']} |"
-        for m, c in cost.items()
-    ]
-    lines += [
-        "",
-        "| users | TP | FP | TN | FN | accuracy | sensitivity | specificity | binomial p (>0.8) |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
-    ]
-    for users in (1, 2):
-        r = results[f"protocol_{users}_user{'s' if users > 1 else ''}"]
-        lines.append(
-            f"| {users} | {r['TP']} | {r['FP']} | {r['TN']} | {r['FN']} | "
-            f"{r['accuracy']:.3f} | {r['sensitivity']:.3f} | {r['specificity']:.3f} | "
-            f"{r['binomial_p_vs_0.8']:.2g} |"
-        )
-    lines += [
-        "",
-        "Crowd: 6 people walking around the table, 3 cameras, confirmed tracks vs truth "
-        f"(gate {GATE} m).",
-        "",
-        "| matcher | MOTA | IDF1 | misses | false positives | ID switches | truth |",
-        "|---|---:|---:|---:|---:|---:|---:|",
-    ]
-    for m, r in results["crowd"].items():
-        lines.append(
-            f"| {m} | {r['MOTA']:.3f} | {r['IDF1']:.3f} | {r['misses']} | "
-            f"{r['false_positives']} | {r['id_switches']} | {r['ground_truth']} |"
-        )
-    write_report(args.out, "people", lines, targets, {"results": results})
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -9,6 +9,7 @@ this host, so `time.time()` stamps taken in different processes compare directly
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import os
 import tempfile
@@ -32,7 +33,8 @@ TOPOLOGY = REPO / "topologies" / "seeg.yaml"
 WATCHED: dict[str, type] = {
     "sensor_manager/status": EventMessage,  # t_trackerfail: the verdict's stamp
     "supervisor/sources": EventMessage,  # t_newtracker: first valid sample, on receipt
-    "interpolator/status": EventMessage,  # t_stop: the cycle the motion starts braking
+    "supervisor/halt": EventMessage,  # t_stop: the STOP command sent to the robot
+    "interpolator/status": EventMessage,  # t_brake: the cycle the motion starts braking
     "people_detector/min_distance": Scalar,  # t_collision: the distance's stamp
     "fw/events": EventMessage,
 }
@@ -54,7 +56,12 @@ class Sample:
 class _States(Listener):
     def __init__(self) -> None:
         self.entered: list[tuple[str, float]] = []
+        self.taken: list[tuple[str, float]] = []  # events as the chart takes them
         self.changed = threading.Condition()
+
+    def on_event(self, event: Any) -> None:
+        with self.changed:
+            self.taken.append((event.name, time.time()))
 
     def on_entry(self, state: Any) -> None:
         with self.changed:
@@ -68,7 +75,7 @@ class SeegRun:
 
     workdir: Path = field(default_factory=lambda: Path(tempfile.mkdtemp(prefix="fw-bench-")))
     deployment: Deployment | None = None
-    samples: list[Sample] = field(default_factory=list)
+    samples: dict[str, list[Sample]] = field(default_factory=dict)
     _states: _States = field(default_factory=_States)
     _lock: threading.Lock = field(default_factory=threading.Lock)
     _subscriptions: list[Any] = field(default_factory=list)
@@ -104,9 +111,22 @@ class SeegRun:
             now = time.time()
             message, _, _ = decode(bytes(sample.payload.to_bytes()), kind)
             with self._lock:
-                self.samples.append(Sample(key, message, now))
+                self.samples.setdefault(key, []).append(Sample(key, message, now))
 
         return receive
+
+    def watch(self, key: str, kind: type) -> Any:
+        """Also keep the samples of `key` (until `unwatch`): for high-rate keys that only
+        one experiment needs, so they do not load the others."""
+        assert self.deployment is not None and self.deployment.hub is not None
+        subscription = self.deployment.hub.subscribe(key, self._receiver(key, kind), history=False)
+        self._subscriptions.append(subscription)
+        return subscription
+
+    def unwatch(self, subscription: Any) -> None:
+        """Stop keeping the samples of a `watch`."""
+        subscription.undeclare()
+        self._subscriptions.remove(subscription)
 
     def stop(self) -> None:
         """Shut the deployment down (always call it; `with` does)."""
@@ -155,6 +175,16 @@ class SeegRun:
                     raise BenchError(f"state {name} not reached in {timeout:g} s (last: {now})")
                 self._states.changed.wait(left)
 
+    def entered_after(self, name: str, t: float) -> float | None:
+        """When state `name` was first entered at or after time `t` (None: not yet)."""
+        with self._states.changed:
+            return next((at for s, at in self._states.entered if s == name and at >= t), None)
+
+    def taken_after(self, name: str, t: float) -> float | None:
+        """When the chart first took event `name` at or after time `t` (None: not yet)."""
+        with self._states.changed:
+            return next((at for e, at in self._states.taken if e == name and at >= t), None)
+
     def last_entered(self, names: tuple[str, ...]) -> str:
         """The most recently entered of `names` ("" if none yet)."""
         with self._states.changed:
@@ -166,4 +196,5 @@ class SeegRun:
     def since(self, t: float, key: str) -> list[Sample]:
         """Samples of `key` received after time `t` (in order)."""
         with self._lock:
-            return [s for s in self.samples if s.key == key and s.received >= t]
+            samples = self.samples.get(key, [])
+            return samples[bisect.bisect_left(samples, t, key=lambda s: s.received) :]

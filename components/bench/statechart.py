@@ -1,37 +1,25 @@
-#!/usr/bin/env python3
-"""Benchmark the statechart engine (a benchmark, not a test: it asserts nothing).
+"""Statechart transition latency against depth, beside sismic (thesis Fig. 3.8).
 
-Measures, in one run and on equivalent charts:
+Measured on equivalent charts, in one run:
   * events/s and p50/p99 microseconds per event for a transition whose source
     and target leaves sit at depth 1, 3, 5 and 8 (exit d states, enter d states),
     for fw and for sismic with its outer-first selection (rFSM semantics);
   * load + validate time of a 200-state chart (fw) beside sismic's YAML import.
 
-Prints a table and writes it as markdown and JSON (default: out/bench/).
-Targets from the issue: >= 10x sismic throughput at depth 5, p99 <= 30 us per event
-at depth 5, 200-state load+validate <= 30 ms.
-
-    python tools/bench_statechart.py [--events 20000] [--quick] [--out out/bench]
+The thesis' rFSM needed under 500 us for transitions shallower than depth 5.
+Targets (statechart issue): >= 10x sismic throughput at depth 5, p99 <= 30 us per
+event at depth 5, 200-state load+validate <= 30 ms. `fw bench statechart` runs it.
 """
 
 from __future__ import annotations
 
-import argparse
 import gc
-import platform
 import statistics
-import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 import yaml
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from benchlib import write_report
 
 from framework.clock import SimulatedClock
 from framework.statechart.interpreter import Interpreter
@@ -223,82 +211,3 @@ def bench_load(workdir: Path, repeats: int) -> dict[str, float]:
     except ImportError:
         pass
     return result
-
-
-def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--events", type=int, default=20000, help="events per measurement")
-    parser.add_argument("--quick", action="store_true", help="fewer events (a smoke run)")
-    parser.add_argument("--out", default="out/bench", help="folder for the .md and .json")
-    args = parser.parse_args()
-    events = 2000 if args.quick else args.events
-    rows: list[dict[str, Any]] = []
-    with tempfile.TemporaryDirectory() as tmp:
-        workdir = Path(tmp)
-        for depth in DEPTHS:
-            print(f"depth {depth}: fw ...", end="", flush=True, file=sys.stderr)
-            fw = bench_fw(depth, events, workdir)
-            print(" sismic ...", end="", flush=True, file=sys.stderr)
-            sm = bench_sismic(depth, max(events // 10, 500))
-            print(" done", file=sys.stderr)
-            rows.append(
-                {
-                    "depth": depth,
-                    "fw": fw,
-                    "sismic": sm,
-                    "ratio": fw["events_per_s"] / sm["events_per_s"] if sm else None,
-                }
-            )
-        load = bench_load(workdir, 5 if args.quick else 20)
-
-    d5 = next(r for r in rows if r["depth"] == 5)
-    targets = {
-        "throughput >= 10x sismic at depth 5": d5["ratio"] is not None and d5["ratio"] >= 10,
-        "p99 <= 30 us at depth 5": d5["fw"]["p99_us"] <= 30,
-        "200-state load+validate <= 30 ms": load["fw_ms"] <= 30,
-    }
-    lines = [
-        f"# Statechart benchmark ({time.strftime('%Y-%m-%d %H:%M')}, "
-        f"Python {platform.python_version()}, {platform.machine()})",
-        "",
-        f"Events per measurement: fw {events}, sismic {max(events // 10, 500)} "
-        "(alternating go/back; leaf at depth d to leaf at depth d in the other branch).",
-        "",
-        "| depth | fw events/s | fw p50 µs | fw p99 µs | sismic events/s | sismic p50 µs "
-        "| sismic p99 µs | fw / sismic |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|",
-    ]
-    for r in rows:
-        fw, sm = r["fw"], r["sismic"]
-        sm_cells = (
-            (
-                f"{sm['events_per_s']:,.0f} | {sm['p50_us']:.1f} | {sm['p99_us']:.1f} | "
-                f"{r['ratio']:.1f}x"
-            )
-            if sm
-            else "n/a | n/a | n/a | n/a"
-        )
-        lines.append(
-            f"| {r['depth']} | {fw['events_per_s']:,.0f} | {fw['p50_us']:.1f} | "
-            f"{fw['p99_us']:.1f} | {sm_cells} |"
-        )
-    lines += [
-        "",
-        f"200-state chart ({load['states']} nodes): fw load+schema+build+validate "
-        f"median {load['fw_ms']:.1f} ms"
-        + (
-            f"; sismic import (no validation) {load['sismic_ms']:.1f} ms"
-            if "sismic_ms" in load
-            else ""
-        ),
-    ]
-    write_report(
-        args.out, "statechart", lines, targets, {"events": events, "rows": rows, "load": load}
-    )
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

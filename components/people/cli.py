@@ -255,6 +255,8 @@ def run(
             "corners": len(residuals),
             "residual_mm": {
                 "median": round(median * 1e3, 1),
+                "p25": round(float(np.percentile(residuals, 25)) * 1e3, 1),
+                "p75": round(float(np.percentile(residuals, 75)) * 1e3, 1),
                 "p90": round(float(np.percentile(residuals, 90)) * 1e3, 1),
                 "max": round(float(residuals.max()) * 1e3, 1),
             },

@@ -1,25 +1,52 @@
-"""Spec: `fw bench --quick` runs the latency experiments on the real SEEG deployment
-and writes a report and a JSON summary; stamps are causal (effect after cause)."""
+"""Spec: `fw bench --quick` runs every thesis experiment (latencies on the real SEEG
+deployment, braking on the MuJoCo arm, statechart, people, scale) and writes a
+report, a JSON summary and the figures; stamps are causal (effect after cause)."""
 
 import json
 
 from framework.cli import main
 
 
-def test_quick_bench_measures_swap_and_no_sensor_latencies_on_the_deployment(tmp_path, capsys):
+def test_quick_bench_runs_every_experiment_and_writes_report_summary_and_figures(tmp_path):
     assert main(["bench", "--quick", "--out", str(tmp_path)]) == 0
     summary = json.loads((tmp_path / "summary.json").read_text())
     rows = {(r["experiment"], r["quantity"]): r for r in summary["rows"]}
     assert rows[("swap", "L p50")]["thesis"] == 12.5 and rows[("swap", "L p50")]["n"] == 5
     assert rows[("nosensor", "L p50")]["n"] == 3
+    assert rows[("collision", "L p50")]["thesis"] == 1.1
     assert rows[("zenoh", "hop p50")]["fw"] > 0
-    # the new tracker's first sample arrives after the fault verdict, the stop after it
-    assert all(v > 0 for v in summary["series"]["swap_ms"])
-    assert all(v > 0 for v in summary["series"]["nosensor_ms"])
+    series = summary["series"]
+    # every reaction ends after its cause, and braking begins after the STOP is sent
+    for key in ("swap_ms", "nosensor_ms", "collision_ms"):
+        assert series[key] and all(v > 0 for v in series[key]), key
+    assert all(
+        b >= s for b, s in zip(series["collision_brake_ms"], series["collision_ms"], strict=True)
+    )
+    assert [len(block) for block in series["repeated_ms"]] == [3, 3]
+    assert series["motion"]["swaps"], "the trackers were swapped during the approach"
+    # braking on the MuJoCo arm: slower is shorter, and the arm returns to the STOP point
+    stops = series["braking"]
+    slow = [s["displacement_mm"] for s in stops if s["speed_cm_s"] == 1.0]
+    fast = [s["displacement_mm"] for s in stops if s["speed_cm_s"] == 10.0]
+    assert max(slow) < min(fast)
+    assert rows[("braking", "return to the STOP point: worst actual error")]["met"]
+    assert rows[("people", "accuracy, 1 user")]["fw"] > 0.9
+    assert any(q.startswith("depth 5: fw p50") for _, q in rows)
+    figures = {p.name for p in tmp_path.glob("*.png")}
+    assert {
+        "fig4_1_latencies.png",
+        "fig4_3_repeated.png",
+        "fig4_2_swap_during_motion.png",
+        "fig4_6_4_7_behaviour.png",
+        "fig4_8_braking.png",
+        "fig3_8_statechart.png",
+        "fig4_4_kinect_calibration.png",
+    } <= figures
     report = (tmp_path / "report.md").read_text()
     assert "| swap | L p50 (ms) | 12.5 |" in report and "x Zenoh hop" in report
 
 
 def test_an_unknown_experiment_is_refused_with_the_list(capsys):
     assert main(["bench", "swapp"]) == 2
-    assert "unknown experiment(s) swapp: one of zenoh, swap, nosensor" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "unknown experiment(s) swapp: one of zenoh, swap, nosensor, collision" in err
