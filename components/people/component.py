@@ -128,6 +128,9 @@ class WorkspacePeopleDetector(Component):
         now = time.monotonic()
         frame = self.core.process(users, now, self.robot)
         stamp = time.time()
+        # the safety-relevant values go out first: the Supervisor stops on the distance
+        self.min_distance.write(Scalar(stamp, frame.min_distance))
+        self.users_near.write(Scalar(stamp, float(frame.users_near)))
         self.last = {
             "people": [
                 {
@@ -144,8 +147,6 @@ class WorkspacePeopleDetector(Component):
             "unverified": sorted(set(self.core.cameras) - self.core.verified),
         }
         self.people.write(EventMessage(stamp, "people", self.name, self.last))
-        self.users_near.write(Scalar(stamp, float(frame.users_near)))
-        self.min_distance.write(Scalar(stamp, frame.min_distance))
 
     @operation
     def current(self) -> dict[str, Any]:
