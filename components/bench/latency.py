@@ -23,7 +23,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from components.bench.seeg_run import BenchError, Sample, SeegRun
+import numpy as np
+
+from components.bench.seeg_run import REPO, BenchError, Sample, SeegRun
+from framework.messages import Pose
 
 MOVE_TIMEOUT = 60.0
 
@@ -134,6 +137,7 @@ def sensor_swap(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
 
     def trial() -> Trial:
         keep_moving(run, goal)
+        _back_to(run, "certus")  # after another experiment the Vicra may still be in use
         if _tracker_in_use(run) != "certus":
             raise BenchError("the Certus is not in use")
         t0 = time.time()
@@ -187,32 +191,12 @@ def no_sensor_to_stop(run: SeegRun, trials: int, progress: Any = None) -> list[T
         run.call("certus.occlude", tool="cto")
         try:
             fail = _first(run, "sensor_manager/status", t0, _failed("certus"), "Certus fault")
-            halt = _first(run, "supervisor/halt", t0, lambda m: True, "STOP command")
-            brake = _first(
-                run,
-                "interpolator/status",
-                t0,
-                lambda m: m.name in ("stopping", "stopped"),
-                "interpolator stop",
-            )
+            result = _stop_after(run, t0, fail.message.stamp, "no tracker")
             run.wait_state("No_Tracker", 10.0, since=mark)
         finally:
             run.call("certus.occlude", tool="cto", hidden=False)
         _healthy(run, "certus")
-        t_fail, t_stop, t_brake = fail.message.stamp, halt.message.stamp, brake.message.stamp
-        stages = _stages(
-            t_fail,
-            [
-                ("Supervisor sends the halt (STOP command)", t_stop),
-                ("the braking control cycle", t_brake),
-            ],
-        )
-        return Trial(
-            t_stop - t_fail,
-            t_fail,
-            t_stop,
-            {"brake": t_brake - t_fail, "phase": brake.message.name, "stages": stages},
-        )
+        return result
 
     run.call("vicra_sim.occlude", tool="cto")
     try:
@@ -225,6 +209,40 @@ def no_sensor_to_stop(run: SeegRun, trials: int, progress: Any = None) -> list[T
         )
     finally:
         run.call("vicra_sim.occlude", tool="cto", hidden=False)
+
+
+def _stop_after(run: SeegRun, t0: float, cause: float, reason: str) -> Trial:
+    """The STOP that `cause` (a stamp) led to: the Supervisor's halt whose reason starts
+    with `reason`, and the braking cycle, both seen after `t0`. The trial's latency
+    is to the halt (the thesis' "STOP command sent"); `detail["brake"]` to the cycle."""
+    halt = _first(
+        run,
+        "supervisor/halt",
+        t0,
+        lambda m: str(m.payload.get("reason", "")).startswith(reason),
+        "STOP command",
+    )
+    brake = _first(
+        run,
+        "interpolator/status",
+        t0,
+        lambda m: m.name in ("stopping", "stopped"),
+        "interpolator stop",
+    )
+    t_stop, t_brake = halt.message.stamp, brake.message.stamp
+    stages = _stages(
+        cause,
+        [
+            ("Supervisor sends the halt (STOP command)", t_stop),
+            ("the braking control cycle", t_brake),
+        ],
+    )
+    return Trial(
+        t_stop - cause,
+        cause,
+        t_stop,
+        {"brake": t_brake - cause, "phase": brake.message.name, "stages": stages},
+    )
 
 
 def _event_stamp(run: SeegRun, name: str, after: float) -> float | None:
@@ -302,48 +320,32 @@ def collision_reaction(run: SeegRun, trials: int, progress: Any = None) -> list[
                 lambda m: m.value < limit,
                 "a robot-person distance under the collision distance",
             )
-            halt = _first(
-                run,
-                "supervisor/halt",
-                t0,
-                lambda m: str(m.payload.get("reason", "")).startswith("possible collision"),
-                "STOP command",
-            )
-            brake = _first(
-                run,
-                "interpolator/status",
-                t0,
-                lambda m: m.name in ("stopping", "stopped"),
-                "interpolator stop",
-            )
+            result = _stop_after(run, t0, near.message.stamp, "possible collision")
+            result.detail["distance"] = near.message.value
             run.wait_state("Stopped", 10.0, since=mark)
         finally:
             run.call("people_world.lean", person=COLLIDER, reach=0.0)
-        t_collision, t_stop = near.message.stamp, halt.message.stamp
-        t_brake = brake.message.stamp
-        stages = _stages(
-            t_collision,
-            [
-                ("Supervisor sends the halt (STOP command)", t_stop),
-                ("the braking control cycle", t_brake),
-            ],
-        )
-        return Trial(
-            t_stop - t_collision,
-            t_collision,
-            t_stop,
-            {"brake": t_brake - t_collision, "stages": stages, "distance": near.message.value},
-        )
+        return result
 
     run.call("people_world.place", person=COLLIDER, x=1.25, y=0.0, facing_deg=180.0)
     try:
         return _repeat("collision reaction", trials, trial, progress, lambda: _clear(run, limit))
     finally:
         run.call("people_world.leave", person=COLLIDER)
+        _no_collision(run)
+
+
+def _no_collision(run: SeegRun, timeout: float = 10.0) -> None:
+    """Wait until the Supervisor no longer sees a possible collision (the next
+    experiment must be able to move)."""
+    deadline = time.monotonic() + timeout
+    while run.call("supervisor.report").get("in_collision"):
+        if time.monotonic() > deadline:
+            raise BenchError(f"the Supervisor still sees a collision after {timeout:g} s")
+        time.sleep(0.05)
 
 
 def _collision_distance() -> float:
-    from components.bench.seeg_run import REPO
     from components.supervisor.procedure import load_procedure
 
     return load_procedure(REPO / "procedures" / "seeg.yaml").collision_distance
@@ -384,8 +386,6 @@ def swap_during_motion(run: SeegRun, motions: int, progress: Any = None) -> dict
     fitted with a straight line (the motion is linear) and extrapolated to the swap
     instant; the gap between them is the disagreement of the two trackers'
     calibrations, which is what the robot sees at a swap."""
-    from framework.messages import Pose
-
     subscription = run.watch("sensor_manager/robot_pose", Pose)
     goal = ["target"]
     windows = []
@@ -428,8 +428,6 @@ def swap_during_motion(run: SeegRun, motions: int, progress: Any = None) -> dict
 
 def _jump(poses: list[tuple[float, ...]], at: float, span: float = 0.08) -> float | None:
     """The gap at `at` between straight lines fitted to the poses before and after."""
-    import numpy as np
-
     before = np.array([p for p in poses if at - span <= p[0] < at - 0.001])
     after = np.array([p for p in poses if at - 0.001 <= p[0] <= at + span])
     if len(before) < 5 or len(after) < 5:

@@ -1,0 +1,325 @@
+"""The experiments of `fw bench`: each runs, keeps its series and returns its rows.
+
+`EXPERIMENTS` maps a name to a function `(quick, context) -> rows`; `context` carries
+what experiments share (the running SEEG deployment, the Zenoh hop, the series that
+become `summary.json` and the figures).
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from components.bench.report import Row, stats
+from components.bench.seeg_run import REPO
+
+
+def run_zenoh(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """Raw Zenoh inter-process hop (the baseline every latency is compared with)."""
+    from components.bench.baseline import zenoh_hop
+
+    hops = zenoh_hop(200 if quick else 2000)
+    s = stats([h * 1e3 for h in hops])
+    context["hop_ms"] = s["p50"]
+    return [
+        Row("zenoh", "hop p50", s["p50"], n=len(hops)),
+        Row("zenoh", "hop p99", s["p99"], n=len(hops)),
+    ]
+
+
+def _seeg(context: dict[str, Any]) -> Any:
+    if "seeg" not in context:
+        from components.bench.baseline import zenoh_hop
+        from components.bench.seeg_run import SeegRun
+
+        print("deploying topologies/seeg.yaml on a private bus ...", file=sys.stderr)
+        context["seeg"] = SeegRun().start()
+        hops = zenoh_hop(200 if context.get("quick") else 1000)
+        s = stats([h * 1e3 for h in hops])
+        context.setdefault("extra_rows", []).extend(
+            [
+                Row("zenoh", "hop p50, SEEG deployment running", s["p50"], n=len(hops)),
+                Row("zenoh", "hop p99, SEEG deployment running", s["p99"], n=len(hops)),
+            ]
+        )
+    return context["seeg"]
+
+
+def _progress(name: str) -> Callable[[int, int], None]:
+    def show(done: int, total: int) -> None:
+        print(f"\r{name}: {done}/{total}", end="" if done < total else "\n", file=sys.stderr)
+
+    return show
+
+
+def _stage_rows(experiment: str, trials: list[Any]) -> list[Row]:
+    """p50 of each stage of the reaction chain: where the time goes."""
+    names: list[str] = []
+    for t in trials:
+        names += [n for n in t.detail.get("stages", {}) if n not in names]
+    rows = []
+    for name in names:
+        values = [t.detail["stages"][name] * 1e3 for t in trials if name in t.detail["stages"]]
+        rows.append(
+            Row(experiment, f"stage: {name}, p50", statistics.median(values), n=len(values))
+        )
+    return rows
+
+
+def run_swap(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """Sensor Swap (eq. 3.12, Fig. 4.1): Certus occluded while moving -> Vicra in use."""
+    from components.bench import latency
+
+    trials = latency.sensor_swap(_seeg(context), 5 if quick else 50, _progress("swap"))
+    ms = [t.latency * 1e3 for t in trials]
+    s = stats(ms)
+    context.setdefault("series", {})["swap_ms"] = ms
+    age = statistics.median(t.detail["sample_age"] * 1e3 for t in trials)
+    return [
+        Row("swap", "L p50", s["p50"], thesis=12.5, target=1.0, n=len(ms)),
+        Row("swap", "L IQR", s["iqr"], thesis=5.9, n=len(ms)),
+        Row("swap", "L p99", s["p99"], target=3.0, n=len(ms)),
+        Row("swap", "age of the first Vicra sample p50", age, n=len(ms)),
+        *_stage_rows("swap", trials),
+    ]
+
+
+def run_nosensor(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """No Sensor To Stop (eq. 3.13, Fig. 4.1): the only tracker occluded while moving."""
+    from components.bench import latency
+
+    trials = latency.no_sensor_to_stop(_seeg(context), 3 if quick else 50, _progress("nosensor"))
+    ms = [t.latency * 1e3 for t in trials]
+    s = stats(ms)
+    context.setdefault("series", {})["nosensor_ms"] = ms
+    brake = stats([t.detail["brake"] * 1e3 for t in trials])
+    context["series"]["nosensor_brake_ms"] = [t.detail["brake"] * 1e3 for t in trials]
+    return [
+        Row("nosensor", "L p50", s["p50"], thesis=7.3, target=0.5, n=len(ms)),
+        Row("nosensor", "L IQR", s["iqr"], thesis=2.2, n=len(ms)),
+        Row("nosensor", "L p99", s["p99"], n=len(ms)),
+        Row("nosensor", "to the braking cycle p50", brake["p50"], n=len(ms)),
+        Row("nosensor", "to the braking cycle p99", brake["p99"], n=len(ms)),
+        *_stage_rows("nosensor", trials),
+    ]
+
+
+def run_collision(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """Collision Reaction (eq. 3.18, Fig. 4.5): a surgeon leans over the moving robot."""
+    from components.bench import latency
+
+    trials = latency.collision_reaction(_seeg(context), 3 if quick else 50, _progress("collision"))
+    ms = [t.latency * 1e3 for t in trials]
+    brake = [t.detail["brake"] * 1e3 for t in trials]
+    s, b = stats(ms), stats(brake)
+    context.setdefault("series", {})["collision_ms"] = ms
+    context["series"]["collision_brake_ms"] = brake
+    return [
+        Row("collision", "L p50", s["p50"], thesis=1.1, target=0.3, n=len(ms)),
+        Row("collision", "L IQR", s["iqr"], thesis=0.3, n=len(ms)),
+        Row("collision", "L p99", s["p99"], target=1.0, n=len(ms)),
+        Row("collision", "to the braking cycle p50", b["p50"], n=len(ms)),
+        Row("collision", "to the braking cycle p99", b["p99"], n=len(ms)),
+        *_stage_rows("collision", trials),
+    ]
+
+
+def run_repeated(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """Repeated Sensor Failure (eq. 3.14, Fig. 4.3): repetitions of consecutive swaps."""
+    from components.bench import latency
+
+    repetitions, swaps = (2, 3) if quick else (context.get("repetitions", 30), 50)
+    blocks = latency.repeated_swaps(_seeg(context), repetitions, swaps, _progress("repeated"))
+    ms = [[t.latency * 1e3 for t in block] for block in blocks]
+    context.setdefault("series", {})["repeated_ms"] = ms
+    medians = [statistics.median(b) for b in ms]
+    iqrs = [stats(b)["iqr"] for b in ms]
+    n = sum(len(b) for b in ms)
+    return [
+        Row("repeated", "median of the repetition medians", statistics.median(medians), n=n),
+        Row("repeated", "worst repetition median", max(medians), thesis=14.6, target=1.0, n=n),
+        Row("repeated", "best repetition median", min(medians), thesis=11.1, n=n),
+        Row("repeated", "widest repetition IQR", max(iqrs), thesis=10.55, n=n),
+        Row("repeated", "narrowest repetition IQR", min(iqrs), thesis=1.45, n=n),
+    ]
+
+
+def run_motion(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """Swap during motion (Fig. 4.2): the pose jump at each swap, from calibrations."""
+    from components.bench import latency
+
+    data = latency.swap_during_motion(_seeg(context), 1 if quick else 5, _progress("motion"))
+    context.setdefault("series", {})["motion"] = data
+    jumps = [s["jump_m"] * 1e3 for s in data["swaps"]]
+    if not jumps:
+        return [Row("motion", "swaps seen", 0.0, unit="", n=0)]
+    s = stats(jumps)
+    return [
+        Row("motion", "pose jump at a swap p50", s["p50"], unit="mm", n=len(jumps)),
+        Row("motion", "pose jump at a swap max", s["max"], unit="mm", n=len(jumps)),
+    ]
+
+
+def run_braking(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """Behavioural control on the MuJoCo arm (Fig. 4.6-4.8), on the simulated clock."""
+    from components.bench import braking
+
+    stops = braking.stops(2 if quick else 20)
+    trace = braking.behaviour_trace()
+    series = context.setdefault("series", {})
+    series["braking"] = stops
+    series["behaviour"] = {
+        "t": trace.t[::5],
+        "commanded": trace.commanded[::5],
+        "actual": trace.actual[::5],
+        "speed": trace.speed[::5],
+        "events": trace.events,
+    }
+    thesis_rmse = {1.0: 0.64, 10.0: 5.9}
+    targets = {1.0: 0.3, 10.0: 5.0}
+    rows = []
+    for speed in sorted({s["speed_cm_s"] for s in stops}):
+        mine = [s for s in stops if s["speed_cm_s"] == speed]
+        rows.append(
+            Row(
+                "braking",
+                f"{speed:g} cm/s: actual TCP displacement after STOP p50",
+                statistics.median(s["displacement_mm"] for s in mine),
+                target=targets.get(speed),
+                unit="mm",
+                n=len(mine),
+            )
+        )
+        rows.append(
+            Row(
+                "braking",
+                f"{speed:g} cm/s: RMSE actual vs command, x p50",
+                statistics.median(s["rmse_x_mm"] for s in mine),
+                thesis=thesis_rmse.get(speed),
+                unit="mm",
+                n=len(mine),
+            )
+        )
+    rows.append(
+        Row(
+            "braking",
+            "return to the STOP point: worst actual error",
+            max(s["return_error_mm"] for s in stops),
+            target=0.1,
+            unit="mm",
+            n=len(stops),
+        )
+    )
+    return rows
+
+
+def run_statechart(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """Transition latency against depth, beside sismic (Fig. 3.8)."""
+    import tempfile
+
+    from components.bench import statechart
+
+    events = 2000 if quick else 20000
+    rows, series = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for depth in statechart.DEPTHS:
+            fw = statechart.bench_fw(depth, events, Path(tmp))
+            sm = statechart.bench_sismic(depth, max(events // 10, 500))
+            series.append({"depth": depth, "fw": fw, "sismic": sm})
+            rows.append(
+                Row("statechart", f"depth {depth}: fw p50", fw["p50_us"], unit="us", n=events)
+            )
+            rows.append(
+                Row("statechart", f"depth {depth}: fw p99", fw["p99_us"], unit="us", n=events)
+            )
+            if sm:
+                rows.append(
+                    Row(
+                        "statechart",
+                        f"depth {depth}: sismic p50",
+                        sm["p50_us"],
+                        unit="us",
+                        n=events // 10,
+                    )
+                )
+    context.setdefault("series", {})["statechart"] = series
+    return rows
+
+
+def run_people(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """People detection (Tables 4.1/4.2), frame cost and the Kinect calibration (Fig. 4.4)."""
+    from components.bench import people
+    from components.people.cli import cameras_of
+    from components.people.cli import run as calibrate
+
+    trials = 6 if quick else 30
+    one, two = people.protocol(1, trials), people.protocol(2, trials)
+    crowd = people.crowd(20.0 if quick else 60.0, "hungarian")
+    cost = people.frame_cost(8, 16, 60 if quick else 300, "hungarian")
+    _, report = calibrate(
+        cameras_of(str(REPO / "topologies" / "seeg.yaml")),
+        "kinect_0",
+        4,
+        16,
+        0,
+        0.05,
+        {"center": [0.0, 0.0], "radius": 1.5},
+    )
+    residuals = {n: r["residual_mm"] for n, r in report.items() if n != "robot"}
+    context.setdefault("series", {})["kinect_residuals"] = residuals
+    rows = [
+        Row("people", "accuracy, 1 user", one["accuracy"], thesis=0.923, unit="", n=trials),
+        Row("people", "accuracy, 2 users", two["accuracy"], thesis=0.992, unit="", n=trials),
+        Row("people", "sensitivity, 1 user", one["sensitivity"], unit="", n=trials),
+        Row("people", "specificity, 1 user", one["specificity"], unit="", n=trials),
+        Row("people", "crowd MOTA (6 people, 3 cameras)", crowd["MOTA"], unit="", n=1),
+        Row("people", "frame p99, 8 cameras x 16 people", cost["p99_ms"], target=3.0, n=1),
+    ]
+    for name, r in residuals.items():
+        rows.append(
+            Row("people", f"{name} board residual median", r["median"], thesis=35.0, unit="mm")
+        )
+        rows.append(
+            Row("people", f"{name} board residual IQR", r["p75"] - r["p25"], thesis=20.0, unit="mm")
+        )
+    return rows
+
+
+def run_scale(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """How the per-cycle costs grow: 2-16 trackers, 2-8 cameras x 16 people."""
+    from components.bench import people, scale
+
+    cycles, frames = (2000, 60) if quick else (20000, 300)
+    rows = []
+    for n in (2, 4, 8, 16):
+        c = scale.cycle_times(n, cycles)
+        rows.append(
+            Row(
+                "scale",
+                f"Sensor Manager cycle, {n} trackers, p99",
+                c["p99_us"],
+                unit="us",
+                n=cycles,
+            )
+        )
+    for cams in (2, 4, 8):
+        c = people.frame_cost(cams, 16, frames, "hungarian")
+        rows.append(Row("scale", f"people frame, {cams} cameras x 16, p99", c["p99_ms"], n=frames))
+    return rows
+
+
+EXPERIMENTS: dict[str, Callable[[bool, dict[str, Any]], list[Row]]] = {
+    "zenoh": run_zenoh,
+    "swap": run_swap,
+    "nosensor": run_nosensor,
+    "collision": run_collision,
+    "repeated": run_repeated,
+    "motion": run_motion,
+    "braking": run_braking,
+    "statechart": run_statechart,
+    "people": run_people,
+    "scale": run_scale,
+}
