@@ -38,6 +38,24 @@ Timestamps: docs/bench.md. Figures (PNG) need matplotlib: pip install -e '.[benc
 """
 
 
+def _rounded(value: Any) -> Any:
+    """Floats to 6 significant digits (the series are long; noise is far coarser)."""
+    if isinstance(value, float):
+        return float(f"{value:.6g}")
+    if isinstance(value, dict):
+        return {k: _rounded(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_rounded(v) for v in value]
+    return value
+
+
+def _compact_json(summary: dict[str, Any]) -> str:
+    """The rows one per line (readable diffs), the series compact."""
+    rows = ",\n  ".join(json.dumps(_rounded(r)) for r in summary["rows"])
+    series = json.dumps(_rounded(summary["series"]), separators=(",", ":"))
+    return f'{{"quick": {json.dumps(summary["quick"])},\n "rows": [\n  {rows}\n ],\n "series": {series}}}\n'
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     """Run the chosen experiments and write report.md and summary.json."""
     names = args.names or list(EXPERIMENTS)
@@ -76,7 +94,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         "rows": [{**asdict(r), "ratio": r.ratio, "met": r.met} for r in rows],
         "series": context.get("series", {}),
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=1), encoding="utf-8")
+    (out / "summary.json").write_text(_compact_json(summary), encoding="utf-8")
     try:
         from components.bench.figures import draw
     except ImportError:

@@ -61,6 +61,7 @@ def repeated(series: dict[str, Any], out: Path) -> Path | None:
         return None
     fig, ax = plt.subplots(figsize=(9, 3.6))
     ax.boxplot(blocks, showfliers=True, flierprops={"marker": "*", "markeredgecolor": "tab:red"})
+    ax.set_yscale("log")
     ax.set_xlabel("repetition")
     ax.set_ylabel("Sensor Swap latency (ms)")
     ax.set_title("Repeated sensor failure (median, IQR; stars: outliers)")

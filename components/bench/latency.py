@@ -423,7 +423,11 @@ def swap_during_motion(run: SeegRun, motions: int, progress: Any = None) -> dict
                 if jump is not None:
                     swaps.append({"t": s.message.stamp, "from": best, "to": now, "jump_m": jump})
             best = now
-    return {"trace": trace, "swaps": swaps}
+    origin = windows[0][0] if windows else 0.0  # times relative to the first motion
+    return {
+        "trace": [(t - origin, *xyz) for t, *xyz in trace],
+        "swaps": [{**swap, "t": swap["t"] - origin} for swap in swaps],
+    }
 
 
 def _jump(poses: list[tuple[float, ...]], at: float, span: float = 0.08) -> float | None:

@@ -177,13 +177,18 @@ class SeegRun:
 
     def entered_after(self, name: str, t: float) -> float | None:
         """When state `name` was first entered at or after time `t` (None: not yet)."""
-        with self._states.changed:
-            return next((at for s, at in self._states.entered if s == name and at >= t), None)
+        return self._first_after(self._states.entered, name, t)
 
     def taken_after(self, name: str, t: float) -> float | None:
         """When the chart first took event `name` at or after time `t` (None: not yet)."""
+        return self._first_after(self._states.taken, name, t)
+
+    def _first_after(self, history: list[tuple[str, float]], name: str, t: float) -> float | None:
+        # bisect: the lock is the Coordinator's too, so a long scan here would delay
+        # the very chart being measured
         with self._states.changed:
-            return next((at for e, at in self._states.taken if e == name and at >= t), None)
+            start = bisect.bisect_left(history, t, key=lambda item: item[1])
+            return next((at for s, at in history[start:] if s == name), None)
 
     def last_entered(self, names: tuple[str, ...]) -> str:
         """The most recently entered of `names` ("" if none yet)."""
