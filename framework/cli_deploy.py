@@ -28,6 +28,12 @@ examples:
   fw deploy topologies/demo.yaml                    live status until Ctrl-C
   fw deploy topologies/demo.yaml --headless --duration 10
   fw deploy topologies/demo.yaml --record run.mcap  keep a flight recording
+  fw deploy topologies/seeg.yaml --console-port 8080   the operator console on another port
+
+The operator console (a web page: status, START / RELEASE / Go To, the chart, the
+event log) is served on http://127.0.0.1:8470/ when fw deploy runs in a terminal, or
+whenever --console-port is given; --no-console turns it off. It listens on
+127.0.0.1 only, unless --console-host says otherwise.
 """
 
 EPILOG_SEND = """\
@@ -120,6 +126,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     interactive = sys.stdout.isatty() and not args.headless
     listeners: list[Listener] = [] if interactive else [_Printer()]
     recorder = None
+    console = None
     scenario = None
     if args.scenario:
         from framework.scenario import load_scenario
@@ -183,6 +190,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
             "the chart runs",
             file=sys.stderr,
         )
+        console = _start_console(args, deployment, topology, interactive)
         end = started + args.duration if args.duration else None
         runner = deployment.runner
         while end is None or time.monotonic() < end:
@@ -196,6 +204,9 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print("\nfw: shutting down (robot side first)...", file=sys.stderr)
     finally:
+        if console is not None:
+            console.stop()
+            console.model.stop()
         deployment.stop()
         if recorder is not None:
             recorder.close()
@@ -206,6 +217,28 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     if deployment.runner is not None:
         return _scenario_report(deployment.runner)
     return 0
+
+
+def _start_console(
+    args: argparse.Namespace, deployment: Any, topology: Any, interactive: bool
+) -> Any:
+    """Serve the operator console if asked (or in a terminal); None if not."""
+    if args.no_console or (args.console_port is None and not interactive):
+        return None
+    from framework.console.model import ConsoleModel
+    from framework.console.server import DEFAULT_PORT, ConsoleServer
+
+    chart = deployment.coordinator.chart if deployment.coordinator is not None else None
+    model = ConsoleModel(deployment.hub, topology, chart).start()
+    port = DEFAULT_PORT if args.console_port is None else args.console_port
+    server = ConsoleServer(model, args.console_host, port)
+    try:
+        url = server.start()
+    except FwError:
+        model.stop()
+        raise
+    print(f"fw: operator console on {url}", file=sys.stderr)
+    return server
 
 
 def _scenario_report(runner: Any) -> int:
@@ -479,6 +512,19 @@ def add_commands(sub: Any) -> None:
     )
     p.add_argument("--workdir", metavar="DIR", help="where process logs go (kept)")
     p.add_argument("--keep-logs", action="store_true", help="keep the temporary log folder")
+    p.add_argument(
+        "--console-port",
+        type=int,
+        metavar="PORT",
+        help="serve the operator console on this port (default 8470 in a terminal; 0: any)",
+    )
+    p.add_argument(
+        "--console-host",
+        default="127.0.0.1",
+        metavar="ADDR",
+        help="address the console listens on (default 127.0.0.1: this machine only)",
+    )
+    p.add_argument("--no-console", action="store_true", help="do not serve the console")
     p.set_defaults(func=cmd_deploy)
 
     p = sub.add_parser(

@@ -49,6 +49,7 @@ class _Publisher(Listener):
         )
 
     def on_unhandled(self, event: Event, reason: str) -> None:
+        self.coordinator.unhandled = (event.name, reason)
         self.coordinator.publish("unhandled", {"event": event.name, "reason": reason})
 
     def on_transition(self, transition: Transition, event: Event | None) -> None:
@@ -102,6 +103,7 @@ class Coordinator(Component):
         self._thread: threading.Thread | None = None
         self._chart_lock = threading.RLock()  # not the lifecycle lock: stop() joins the loop
         self.last_events: list[str] = []
+        self.unhandled: tuple[str, str] | None = None  # the last event nothing took, why
 
     # -- lifecycle -----------------------------------------------------------------
     def start_hook(self) -> bool:
@@ -213,6 +215,45 @@ class Coordinator(Component):
             self.interpreter.queue(event, payload)
         self._wake.set()
         return True
+
+    @operation
+    def offer(
+        self, event: str, payload: dict[str, Any] | None = None, origin: str = ""
+    ) -> dict[str, Any]:
+        """Give the chart an operator's command and answer whether it was taken.
+
+        The event is processed at once (not queued behind the loop), so the answer is
+        the chart's: accepted, or refused with the reason (no transition on it in the
+        active states, every guard false, the chart not running). Every command is
+        published on `status` as `command` with its origin, so the flight recorder
+        keeps who asked for what."""
+        with self._chart_lock:
+            interpreter = self.interpreter
+            if interpreter is None or interpreter.finished:
+                answer = {"accepted": False, "reason": "the procedure chart is not running"}
+            elif not interpreter.accepts(event):
+                where = ", ".join(p.rsplit(".", 1)[-1] for p in interpreter.leaves)
+                answer = {"accepted": False, "reason": f"{event} is not taken in {where}"}
+            else:
+                self.unhandled = None
+                interpreter.queue(event, payload)
+                if interpreter.run():
+                    self._publish_configuration()
+                if self.unhandled is not None and self.unhandled[0] == event:
+                    answer = {"accepted": False, "reason": self.unhandled[1]}
+                else:
+                    answer = {"accepted": True, "reason": ""}
+        self.publish("command", {"event": event, "payload": payload, "origin": origin, **answer})
+        return answer
+
+    @operation
+    def takeable(self, events: list[str]) -> list[str]:
+        """Which of `events` the chart would take now (see `Interpreter.accepts`)."""
+        with self._chart_lock:
+            interpreter = self.interpreter
+            if interpreter is None or interpreter.finished:
+                return []
+            return [e for e in events if interpreter.accepts(e)]
 
     @operation
     def active(self) -> dict[str, Any]:

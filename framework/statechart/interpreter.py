@@ -308,6 +308,14 @@ class Interpreter:
             self._by_name[name] = node
         return node.active
 
+    def accepts(self, name: str) -> bool:
+        """True if an active state (or the root) has a transition on event `name` now.
+        Guards are not evaluated: an accepted event may still find every guard false.
+        This is what a console needs to enable a control."""
+        if name in self._root.by_event:
+            return True
+        return any(name in node.by_event for node in self._active_preorder(self._root))
+
     @property
     def configuration(self) -> list[str]:
         """Paths of the active states in document order (the root excluded)."""

@@ -77,6 +77,17 @@ def test_an_unknown_tag_is_answered_with_a_failure(deployed):
     assert not outcome.ok and "unknown configuration 'tracker_9_up'" in outcome.reason
 
 
+def test_an_operator_command_is_answered_accepted_or_refused_with_the_reason(deployed):
+    assert settled_in(deployed, "Use_T1")
+    coordinator = RemoteComponent(deployed.hub, "coordinator")
+    assert coordinator.call("takeable", events=["e_SWAP", "e_BREAK"]) == ["e_SWAP"]
+    refused = coordinator.call("offer", event="e_BREAK", origin="console@test")
+    assert refused == {"accepted": False, "reason": "e_BREAK is not taken in Use_T1"}
+    assert coordinator.call("offer", event="e_SWAP", origin="console@test")["accepted"]
+    assert settled_in(deployed, "Use_T2")
+    assert coordinator.call("takeable", events=["e_SWAP", "e_BREAK"]) == ["e_SWAP", "e_BREAK"]
+
+
 def test_a_process_that_dies_gives_a_clear_deploy_error(toy, tmp_path):
     toy.components["t2"] = dataclasses.replace(
         toy.components["t2"], class_path="components.demo:Broken"
