@@ -329,6 +329,8 @@ def cmd_status(args: argparse.Namespace) -> int:
         found = discover(bus) if bus.peers() else {}
         if not found:
             raise FwError(f"nothing is running in deployment {topology.bus.namespace!r}")
+        if args.watch:
+            return _watch(topology, bus, args.frames)
         try:
             chart = RemoteComponent(bus, "coordinator", 3.0).call("active")
         except RemoteError:
@@ -352,6 +354,29 @@ def cmd_status(args: argparse.Namespace) -> int:
                     state = "NOT RESPONDING"
                 print(f"{name:<20} {container:<16} {state}")
         return 0
+
+
+def _watch(topology: Any, bus: Any, frames: int | None) -> int:
+    """Redraw the console's essentials twice a second until Ctrl-C (or `frames`)."""
+    from framework.console.model import ConsoleModel
+    from framework.console.text import render_text
+    from framework.statechart.loader import load_statechart
+
+    chart = load_statechart(topology.statechart) if topology.statechart else None
+    model = ConsoleModel(bus, topology, chart).start()
+    clear = "\x1b[H\x1b[2J" if sys.stdout.isatty() else ""
+    shown = 0
+    try:
+        while frames is None or shown < frames:
+            time.sleep(0.5)
+            sys.stdout.write(clear + render_text(model.snapshot()) + "\n\n")
+            sys.stdout.flush()
+            shown += 1
+    except KeyboardInterrupt:
+        pass
+    finally:
+        model.stop()
+    return 0
 
 
 def cmd_ls(args: argparse.Namespace) -> int:
@@ -556,9 +581,21 @@ def add_commands(sub: Any) -> None:
     p.add_argument("--chart", metavar="C", help="statechart (default: the recorded one)")
     p.set_defaults(func=cmd_replay)
 
-    p = sub.add_parser("status", help="states of a running deployment")
+    p = sub.add_parser(
+        "status",
+        help="states of a running deployment",
+        description="Component states, the chart's active states and last events; with "
+        "--watch, the operator console's essentials redrawn live (for a terminal, over SSH).",
+        epilog="examples:\n  fw status --topology topologies/seeg.yaml\n"
+        "  fw status --topology topologies/seeg.yaml --watch",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("--topology", required=True, metavar="T")
     p.add_argument("--json", action="store_true")
+    p.add_argument(
+        "--watch", action="store_true", help="operation, area, tracker, people, log: live"
+    )
+    p.add_argument("--frames", type=int, metavar="N", help="with --watch: stop after N screens")
     p.set_defaults(func=cmd_status)
 
     p = sub.add_parser("ls", help="components, ports, keys and connections of a deployment")

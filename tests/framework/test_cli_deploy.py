@@ -91,6 +91,12 @@ def test_deploy_send_status_ls_log_replay(topology, bus_config, tmp_path):
         info = json.loads(status.stdout)
         assert info["chart"]["active"] == ["Use_T2"]
         assert info["containers"]["trackers"] == ["t1", "t2"]
+        watch = fw("status", "--topology", str(topology), "--watch", "--frames", "6")
+        assert watch.returncode == 0, watch.stderr
+        last = watch.stdout.strip().split("\n\n")[-3:]
+        screen = "\n\n".join(last)
+        assert "chart      Use_T2" in screen and "can send   e_SWAP" in screen
+        assert "supervisor" in screen and "Running" in screen
         listing = fw("ls", "--topology", str(topology))
         assert "t2/out" in listing.stdout and "t2.out -> supervisor.inp" in listing.stdout
     finally:

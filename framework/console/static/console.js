@@ -150,5 +150,7 @@ function connect() {
   };
 }
 
+$("details").addEventListener("change", (e) => $("log").classList.toggle("details", e.target.checked));
+
 loadChart();
 connect();
