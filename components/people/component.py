@@ -105,6 +105,7 @@ class WorkspacePeopleDetector(Component):
         self.last: dict[str, Any] = {}
         self.kinematics: Any = None
         self.robot: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._people: list[Any] = []
         return True
 
     def cleanup_hook(self) -> None:
@@ -127,6 +128,7 @@ class WorkspacePeopleDetector(Component):
             self.robot = (capsules.a, capsules.b, capsules.radius)
         now = time.monotonic()
         frame = self.core.process(users, now, self.robot)
+        self._people = list(frame.people)
         stamp = time.time()
         # the safety-relevant values go out first: the Supervisor stops on the distance
         self.min_distance.write(Scalar(stamp, frame.min_distance))
@@ -147,6 +149,26 @@ class WorkspacePeopleDetector(Component):
             "unverified": sorted(set(self.core.cameras) - self.core.verified),
         }
         self.people.write(EventMessage(stamp, "people", self.name, self.last))
+
+    @operation
+    def scene(self) -> dict[str, Any]:
+        """The geometry of the last frame, robot base frame (m): the robot's link capsules
+        and each confirmed person's envelope capsules, each as [ax, ay, az, bx, by, bz,
+        radius]; what the console draws."""
+        from components.people.skeleton import envelope
+
+        def rows(a: Any, b: Any, r: Any) -> list[list[float]]:
+            return [
+                [round(float(v), 4) for v in (*p, *q, radius)]
+                for p, q, radius in zip(a, b, np.broadcast_to(r, (len(a),)), strict=True)
+            ]
+
+        robot = rows(*self.robot) if getattr(self, "robot", None) is not None else []
+        people = []
+        for track in getattr(self, "_people", []):
+            p, q, radius = envelope(track.joints, track.sigma)
+            people.append({"id": track.id, "capsules": rows(p, q, radius)})
+        return {"robot": robot, "people": people}
 
     @operation
     def current(self) -> dict[str, Any]:

@@ -348,6 +348,21 @@ class CartesianInterpolator(Component):
             return self.report()
 
     @operation
+    def define_target(
+        self, x: float, y: float, z: float, roll: float, pitch: float, yaw: float
+    ) -> dict[str, Any]:
+        """A new target pose (m, deg; robot base frame) for `go_to(goal="target")`."""
+        from components.supervisor.procedure import pose_from
+
+        try:
+            pose = pose_from((x, y, z), (roll, pitch, yaw))
+        except ValueError as exc:
+            raise FwError(f"target refused: {exc}") from None
+        with self._core_lock:
+            self.procedure.goals["target"] = pose
+        return {"target": [x, y, z], "rpy_deg": [roll, pitch, yaw]}
+
+    @operation
     def set_limits(self, velocity: float, acceleration: float | None = None) -> dict[str, Any]:
         """Maximum path velocity (m/s) and acceleration (m/s^2), effective at once."""
         with self._core_lock:

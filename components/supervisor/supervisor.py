@@ -310,6 +310,22 @@ class Supervisor(Component):
         return tracker
 
     @operation
+    def define_target(
+        self, x: float, y: float, z: float, roll: float, pitch: float, yaw: float
+    ) -> list[float]:
+        """A new target pose (m, deg; robot base frame): the critical sphere and the
+        arrival check follow it from now on."""
+        from components.supervisor.procedure import pose_from
+
+        try:
+            pose = pose_from((x, y, z), (roll, pitch, yaw))
+        except ValueError as exc:
+            raise FwError(f"target refused: {exc}") from None
+        with self._core_lock:
+            self.core.procedure.goals["target"] = pose
+        return [x, y, z]
+
+    @operation
     def change_movement_parameters(self, speed: str) -> dict[str, float]:
         """Send the interpolator the limits for the tracker in use at `speed` (fast, slow)."""
         with self._core_lock:
@@ -340,4 +356,6 @@ class Supervisor(Component):
             "in_collision": core.in_collision,
             "phase": core.phase,
             "goal": core.goal,
+            "target": [round(float(v), 4) for v in core.procedure.target[:3, 3]],
+            "critical_radius": core.procedure.critical_radius,
         }

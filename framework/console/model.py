@@ -36,7 +36,7 @@ TRACE_SECONDS = 20.0
 TRACE_RATE = 20.0
 SEVERITY = {
     "error": "error",
-    "unhandled": "warning",
+    "unhandled": "debug",  # the chart ignoring an event is normal; refused commands warn
     "command": "info",
     "log": "info",
     "event": "debug",
@@ -82,6 +82,10 @@ class ConsoleModel:
         self._listen("robot/tcp", Pose, self._on_tcp, 1)
         self._listen("people_detector/people", EventMessage, self._on_people, 1)
         self._listen("people_detector/min_distance", Scalar, self._on_distance, 1)
+        self._listen("supervisor/halt", EventMessage, self._on_halt, 16)
+        self._listen("interpolator/status", EventMessage, self._on_motion, 16)
+        self._listen("sensor_manager/status", EventMessage, self._on_tracking, 16)
+        self._listen("supervisor/sources", EventMessage, self._on_source, 16)
         self._thread = threading.Thread(target=self._poll, name="fw-console-poll", daemon=True)
         self._thread.start()
         return self
@@ -184,6 +188,43 @@ class ConsoleModel:
                 self._trace.popleft()
         self._set("tcp", {"position": list(pose.position), "stamp": pose.stamp})
 
+    # reaction latencies, measured live as `fw bench` does (docs/bench.md)
+    def _on_halt(self, message: EventMessage) -> None:
+        self._halt = message.stamp
+
+    def _on_motion(self, message: EventMessage) -> None:
+        halt = getattr(self, "_halt", None)
+        if message.name == "stopping" and halt is not None and 0 <= message.stamp - halt < 1.0:
+            self._latency("STOP sent -> braking", message.stamp - halt)
+            self._halt = None
+
+    def _on_tracking(self, message: EventMessage) -> None:
+        in_use = ((self._get("supervisor") or {}).get("tracker")) or getattr(self, "_in_use", None)
+        health = (message.payload or {}).get("health", {}).get(in_use or "", {})
+        fault = getattr(self, "_fault", None)
+        if fault is not None and message.stamp - fault[1] > 2.0:
+            fault = self._fault = None  # no swap followed (no tracker left, or recovered)
+        if in_use and health.get("ok") is False and fault is None:
+            self._fault = (in_use, message.stamp)
+        self._in_use = in_use
+
+    def _on_source(self, message: EventMessage) -> None:
+        fault = getattr(self, "_fault", None)
+        tracker = (message.payload or {}).get("tracker", "")
+        if fault is not None and tracker and tracker != fault[0]:
+            if 0 <= message.stamp - fault[1] < 2.0:
+                self._latency("sensor swap", message.stamp - fault[1])
+            self._fault = None
+
+    def _latency(self, kind: str, seconds: float) -> None:
+        with self._lock:
+            section = self._sections.setdefault("latencies", _Section(data=[]))
+            section.data = [
+                *section.data[-49:],
+                {"kind": kind, "ms": round(seconds * 1e3, 3), "t": time.time()},
+            ]
+            section.at = time.monotonic()
+
     def _on_people(self, message: EventMessage) -> None:
         self._set("people", message.payload)
 
@@ -202,6 +243,8 @@ class ConsoleModel:
             self._ask("takeable", "coordinator", "takeable", events=self.external_events)
             for name in reports:
                 self._ask(name, name, "report")
+            if "people_detector" in self.topology.components:
+                self._ask("scene", "people_detector", "scene")
             if tick % round(self.poll_rate) == 0:
                 self._health()
             tick += 1

@@ -10,7 +10,8 @@ nothing is built or fetched at run time.
   `rate` times a second, and each new log line as it happens; the page marks the
   view stale when the stream stops;
 * `GET /api/chart`: the procedure chart as SVG plus the SVG-id -> state-path map the
-  page uses to highlight the active states;
+  page uses to highlight the active states, and the operator commands with their
+  payload fields (type, limits, unit) the page builds its forms from;
 * `POST /api/command` `{"event", "payload", "origin"}`: checked here (only the
   topology's `external_events`, payload fields and types as the chart declares
   them), then offered to the Coordinator, whose answer (accepted, or refused with
@@ -98,6 +99,17 @@ class ConsoleServer:
                 self._chart = {"svg": "", "idents": {}, "error": "this deployment has no chart"}
             else:
                 self._chart = _draw(chart)
+                self._chart["commands"] = {
+                    name: {
+                        "doc": chart.events[name].doc,
+                        "payload": {
+                            field: {"type": kind, **chart.events[name].fields.get(field, {})}
+                            for field, kind in chart.events[name].payload.items()
+                        },
+                    }
+                    for name in self.model.external_events
+                    if name in chart.events
+                }
         return self._chart
 
     def command(self, body: dict[str, Any], origin: str) -> dict[str, Any]:
@@ -137,6 +149,12 @@ class ConsoleServer:
                 or (isinstance(value, float) and not math.isfinite(value))
             ):
                 raise CommandError(f"{event}.{name} must be a {fields[name]}")
+            limits = spec.fields.get(name, {}) if spec is not None else {}
+            unit = f" {limits['unit']}" if limits.get("unit") else ""
+            if "min" in limits and value < limits["min"]:
+                raise CommandError(f"{event}.{name} must be at least {limits['min']:g}{unit}")
+            if "max" in limits and value > limits["max"]:
+                raise CommandError(f"{event}.{name} must be at most {limits['max']:g}{unit}")
         missing = [n for n in fields if n not in payload]
         if missing:
             raise CommandError(f"{event} needs {', '.join(missing)}")

@@ -97,11 +97,18 @@ class _Builder:
         for name, spec in (doc.data.get("events") or {}).items():
             loc = doc.location(("events", name))
             if isinstance(spec, dict):
-                event = EventSpec(name, spec.get("doc", ""), dict(spec.get("payload") or {}), loc)
+                types, fields = {}, {}
+                for field_name, field_spec in (spec.get("payload") or {}).items():
+                    if isinstance(field_spec, dict):
+                        types[field_name] = field_spec["type"]
+                        fields[field_name] = {k: v for k, v in field_spec.items() if k != "type"}
+                    else:
+                        types[field_name] = field_spec
+                event = EventSpec(name, spec.get("doc", ""), types, loc, fields)
             else:
                 event = EventSpec(name, spec or "", {}, loc)
             known = self.events.get(name)
-            if known is not None and known.payload != event.payload:
+            if known is not None and (known.payload, known.fields) != (event.payload, event.fields):
                 self.error(
                     "event-conflict",
                     f"event {name!r} declared twice with different "

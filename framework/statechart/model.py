@@ -177,12 +177,14 @@ class State:
 
 @dataclass(eq=False)
 class EventSpec:
-    """A declared event: name, documentation and payload fields with their types."""
+    """A declared event: name, documentation and payload fields with their types;
+    `fields` holds the optional limits (min, max), unit and doc of each field."""
 
     name: str
     doc: str
     payload: dict[str, str]
     location: Location
+    fields: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
 @dataclass(eq=False)

@@ -149,3 +149,25 @@ def test_a_failed_stop_goes_to_fault_and_alerts(seeg):
     )
     assert task(r) == "Fault"
     assert any(o.kind == "send" and o.event == "e_STOP" for o in r.outputs)
+
+
+TARGET = {"x": 0.55, "y": 0.05, "z": 0.15, "roll": 0.0, "pitch": 180.0, "yaw": 10.0}
+
+
+def test_a_target_defined_while_braked_goes_to_the_supervisor_and_the_interpolator(seeg):
+    r = Run(seeg, auto_ack=True)
+    assert task(r) == "Wait_Start"
+    r.send(("e_DEFINE_TARGET", TARGET))
+    calls = [o for o in r.outputs if o.kind == "call"]
+    assert [c.operation for c in calls[-2:]] == [
+        "supervisor.define_target",
+        "interpolator.define_target",
+    ]
+    assert calls[-1].args == TARGET and task(r) == "Wait_Start"
+
+
+def test_a_target_is_not_redefined_while_moving(seeg):
+    r = started(seeg)
+    calls = len([o for o in r.outputs if o.kind == "call"])
+    r.send(("e_DEFINE_TARGET", TARGET))
+    assert len([o for o in r.outputs if o.kind == "call"]) == calls and task(r) == "Moving_Fast"

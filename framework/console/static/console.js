@@ -38,6 +38,9 @@ function render(state) {
     button.disabled = !takeable.includes(button.dataset.event);
   }
   $("release").disabled = !takeable.includes("e_RELEASE");
+  for (const form of document.querySelectorAll("#forms form")) {
+    form.querySelector("button").disabled = !takeable.includes(form.dataset.event);
+  }
   if ($("release").disabled) disarm();
 
   const health = (state.health && state.health.data) || {};
@@ -45,6 +48,9 @@ function render(state) {
     `<tr class="${h.alive ? "" : "dead"}"><td>${name}</td><td>${h.process}</td>` +
     `<td>${h.alive ? (h.state || "?") : "DEAD"}</td></tr>`).join("");
 
+  drawScene(state);
+  drawPlots(state);
+  drawLatencies(state);
   highlight(s.states || [], (state.chart && state.chart.data && state.chart.data.active) || []);
   if (s.setup_failed && !$("setup-failed").open) {
     const last = (state.log || []).filter((l) => l.severity === "error").pop();
@@ -119,10 +125,67 @@ $("release").addEventListener("click", () => {  // two steps: arm, then confirm
 $("release-cancel").addEventListener("click", disarm);
 $("release-confirm").addEventListener("click", () => { disarm(); send("e_RELEASE"); });
 
+const WITH_BUTTONS = ["e_GOTO", "e_STOP"];
+
+function buildForms(commands) {
+  // one form per operator command that carries values, from the chart's declaration
+  const holder = $("forms");
+  holder.innerHTML = "";
+  for (const [event, spec] of Object.entries(commands)) {
+    const fields = Object.entries(spec.payload || {});
+    if (!fields.length || WITH_BUTTONS.includes(event)) continue;
+    const form = document.createElement("form");
+    form.dataset.event = event;
+    form.id = `form-${event}`;
+    form.noValidate = false;
+    form.innerHTML = `<h3>${spec.doc || event}</h3>`;
+    const row = document.createElement("div");
+    row.style.display = "contents";
+    for (const [name, f] of fields) {
+      const label = document.createElement("label");
+      label.textContent = `${name}${f.unit ? ` (${f.unit})` : ""}`;
+      const input = document.createElement("input");
+      input.name = name;
+      input.required = true;
+      input.type = f.type === "number" || f.type === "integer" ? "number" : "text";
+      if (input.type === "number") input.step = f.type === "integer" ? "1" : "any";
+      if (f.min !== undefined) input.min = f.min;
+      if (f.max !== undefined) input.max = f.max;
+      input.title = `${f.doc || name}${f.min !== undefined ? `, ${f.min} to ${f.max} ${f.unit || ""}` : ""}`;
+      label.appendChild(input);
+      row.appendChild(label);
+    }
+    form.appendChild(row);
+    const button = document.createElement("button");
+    button.type = "button";  // a submit button would stop at the browser's own check
+    button.textContent = "Send";
+    button.disabled = true;
+    form.appendChild(button);
+    const submit = (e) => {
+      e.preventDefault();
+      if (!form.checkValidity()) {
+        form.reportValidity();  // refused in the page: the server checks again
+        $("answer").textContent = `${event}: refused: a value is missing or out of range`;
+        $("answer").className = "refused";
+        return;
+      }
+      const payload = {};
+      for (const input of form.querySelectorAll("input")) {
+        payload[input.name] = input.type === "number" ? Number(input.value) : input.value;
+      }
+      send(event, payload);
+    };
+    button.addEventListener("click", submit);
+    form.addEventListener("submit", submit);
+    holder.appendChild(form);
+  }
+}
+
 async function loadChart() {
   try {
     const chart = await (await fetch("/api/chart")).json();
     idents = chart.idents || {};
+    buildForms(chart.commands || {});
     $("chart-svg").innerHTML = chart.svg || `<p>${chart.error || "no chart"}</p>`;
     if (lastState) render({ ...lastState, log: undefined });
   } catch (err) {

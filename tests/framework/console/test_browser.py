@@ -15,7 +15,7 @@ from framework.console.model import ConsoleModel
 from framework.console.server import ConsoleServer
 from framework.deployer import Deployment
 from framework.remote import RemoteComponent
-from tests.conftest import REPO, private_topology
+from tests.conftest import REPO, private_topology, wait_until
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 playwright = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
@@ -61,6 +61,15 @@ def text_is(page, testid, expected):
     )
 
 
+ORANGE_PIXELS = """() => {
+  const c = document.getElementById("scene");
+  const d = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
+  let n = 0;
+  for (let i = 0; i < d.length; i += 4) if (d[i] > 200 && d[i + 1] > 100 && d[i + 1] < 180 && d[i + 2] < 100) n++;
+  return n > 200;
+}"""
+
+
 def test_the_operator_drives_the_procedure_from_the_browser(seeg_console, page):
     server, deployment = seeg_console
     page.goto(server.url)
@@ -69,7 +78,28 @@ def test_the_operator_drives_the_procedure_from_the_browser(seeg_console, page):
     assert page.is_disabled("#release"), "nothing to release while waiting"
     page.wait_for_selector("#start:enabled", timeout=WAIT_MS)
     page.wait_for_selector("#chart-svg g.node.active", timeout=WAIT_MS)
+    # a surgeon at the table appears in the 3D view (orange envelopes)
+    RemoteComponent(deployment.hub, "people_world").call(
+        "place", person=1, x=1.6, y=0.6, facing_deg=200.0
+    )
+    page.wait_for_function(ORANGE_PIXELS, timeout=WAIT_MS)
     shot(page, "wait")
+
+    # the target form: refused in the page, refused again by the server, then taken
+    form = "#form-e_DEFINE_TARGET"
+    page.wait_for_selector(f"{form} button:enabled", timeout=WAIT_MS)
+    for name, value in {"x": 0.58, "y": 0.02, "z": 0.13, "roll": 0, "pitch": 180, "yaw": 0}.items():
+        page.fill(f"{form} input[name={name}]", str(value))
+    page.fill(f"{form} input[name=x]", "5")
+    page.click(f"{form} button")
+    text_is(page, "answer", "e_DEFINE_TARGET: refused: a value is missing or out of range")
+    page.evaluate("send('e_DEFINE_TARGET', {x: 5, y: 0, z: 0.1, roll: 0, pitch: 180, yaw: 0})")
+    text_is(page, "answer", "e_DEFINE_TARGET: refused: e_DEFINE_TARGET.x must be at most 0.8 m")
+    page.fill(f"{form} input[name=x]", "0.58")
+    page.click(f"{form} button")
+    text_is(page, "answer", "e_DEFINE_TARGET: accepted")
+    supervisor = RemoteComponent(deployment.hub, "supervisor")
+    assert wait_until(lambda: supervisor.call("report")["target"] == [0.58, 0.02, 0.13])
 
     page.click("#start")
     text_is(page, "answer", "e_START: accepted")
@@ -81,6 +111,13 @@ def test_the_operator_drives_the_procedure_from_the_browser(seeg_console, page):
     certus.call("occlude", tool="cto")
     text_is(page, "tracker", "vicra")
     certus.call("occlude", tool="cto", hidden=False)
+    assert wait_until(
+        lambda: any(
+            i["kind"] == "sensor swap" and i["ms"] > 0
+            for i in (page.evaluate("lastState.latencies") or {}).get("data") or []
+        ),
+        timeout=20,
+    ), "the swap's latency is measured live"
 
     page.click("#stop")
     text_is(page, "operation", "stopped")

@@ -1,0 +1,139 @@
+// The 3D view and the plots, drawn on 2D canvases: a perspective camera orbiting the
+// table, capsules drawn as thick round-capped lines (depth-sorted), no library.
+"use strict";
+
+const camera = { yaw: 0.4, pitch: 0.35, distance: 3.0, center: [0.6, 0.0, 0.5] };
+
+function project(p, canvas) {
+  const [cx, cy, cz] = camera.center;
+  const x = p[0] - cx, y = p[1] - cy, z = p[2] - cz;
+  const cyw = Math.cos(camera.yaw), syw = Math.sin(camera.yaw);
+  const cp = Math.cos(camera.pitch), sp = Math.sin(camera.pitch);
+  const xr = cyw * x - syw * y;           // turn about the vertical axis
+  const yr = syw * x + cyw * y;
+  const depth = camera.distance + cp * yr + sp * z;  // then tilt
+  const up = cp * z - sp * yr;
+  const f = canvas.height * 1.1 / Math.max(depth, 0.05);
+  return { x: canvas.width / 2 + xr * f, y: canvas.height / 2 - up * f, depth, f };
+}
+
+function capsule(ctx, canvas, c, color) {
+  const a = project(c.slice(0, 3), canvas), b = project(c.slice(3, 6), canvas);
+  ctx.strokeStyle = color;
+  ctx.lineCap = "round";
+  ctx.lineWidth = Math.max(1, 2 * c[6] * (a.f + b.f) / 2);
+  ctx.beginPath();
+  ctx.moveTo(a.x, a.y);
+  ctx.lineTo(b.x, b.y);
+  ctx.stroke();
+}
+
+function drawScene(state) {
+  const canvas = document.getElementById("scene");
+  const ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  ctx.strokeStyle = "#334155";  // the floor, 0.5 m grid
+  ctx.lineWidth = 1;
+  for (let i = -3; i <= 3; i++) {
+    for (const [p, q] of [[[i / 2 + 0.6, -1.5, 0], [i / 2 + 0.6, 1.5, 0]], [[-0.9, i / 2, 0], [2.1, i / 2, 0]]]) {
+      const a = project(p, canvas), b = project(q, canvas);
+      ctx.beginPath(); ctx.moveTo(a.x, a.y); ctx.lineTo(b.x, b.y); ctx.stroke();
+    }
+  }
+  const scene = (state.scene && state.scene.data) || { robot: [], people: [] };
+  const supervisor = (state.supervisor && state.supervisor.data) || {};
+  const items = [];
+  for (const c of scene.robot) items.push([c, state.status.min_distance !== null && state.status.min_distance < 0.1 ? "#ef4444" : "#60a5fa"]);
+  for (const person of scene.people) for (const c of person.capsules) items.push([c, "rgba(251,146,60,0.8)"]);
+  items.sort((u, v) => (project(v[0].slice(0, 3), canvas).depth - project(u[0].slice(0, 3), canvas).depth));
+  for (const [c, color] of items) capsule(ctx, canvas, c, color);
+  if (supervisor.target) {  // the target and its critical sphere
+    const t = project(supervisor.target, canvas);
+    ctx.strokeStyle = "#f87171";
+    ctx.lineWidth = 1.5;
+    ctx.beginPath(); ctx.arc(t.x, t.y, Math.max(2, supervisor.critical_radius * t.f), 0, 2 * Math.PI); ctx.stroke();
+    ctx.fillStyle = "#f87171";
+    ctx.beginPath(); ctx.arc(t.x, t.y, 3, 0, 2 * Math.PI); ctx.fill();
+  }
+  const stale = !state.scene || state.scene.age === null || state.scene.age > 2;
+  ctx.fillStyle = stale ? "#f87171" : "#94a3b8";
+  ctx.font = "12px sans-serif";
+  ctx.fillText(stale ? "no scene from the people detector (stale)" : `${scene.people.length} people`, 10, 18);
+}
+
+function plot(canvasId, series, labels, colors, unit) {
+  const canvas = document.getElementById(canvasId);
+  const ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  const t = series.t;
+  if (t.length < 2) return;
+  const values = series.values.flat().filter(Number.isFinite);
+  let lo = Math.min(...values), hi = Math.max(...values);
+  if (hi - lo < 1e-6) { lo -= 1; hi += 1; }
+  const x = (v) => 40 + (v - t[0]) / (t[t.length - 1] - t[0] || 1) * (canvas.width - 50);
+  const y = (v) => canvas.height - 20 - (v - lo) / (hi - lo) * (canvas.height - 35);
+  ctx.fillStyle = "#94a3b8"; ctx.font = "11px sans-serif";
+  ctx.fillText(`${hi.toFixed(1)} ${unit}`, 2, 12);
+  ctx.fillText(`${lo.toFixed(1)} ${unit}`, 2, canvas.height - 22);
+  ctx.fillText(`last ${(t[t.length - 1] - t[0]).toFixed(0)} s`, canvas.width - 60, canvas.height - 5);
+  series.values.forEach((column, k) => {
+    ctx.strokeStyle = colors[k]; ctx.lineWidth = 1.5; ctx.beginPath();
+    column.forEach((v, i) => (i ? ctx.lineTo(x(t[i]), y(v)) : ctx.moveTo(x(t[i]), y(v))));
+    ctx.stroke();
+    ctx.fillStyle = colors[k]; ctx.fillText(labels[k], 45 + 60 * k, 12);
+  });
+}
+
+function drawPlots(state) {
+  const trace = state.trace || [];
+  const t = trace.map((r) => r[0]);
+  const first = trace[0] || [0, 0, 0, 0];  // positions relative to the window's start
+  plot("plot-position", { t, values: [0, 1, 2].map((i) => trace.map((r) => (r[1 + i] - first[1 + i]) * 1000)) },
+    ["Δx mm", "Δy mm", "Δz mm"], ["#f87171", "#4ade80", "#60a5fa"], "mm");
+  const speed = trace.map((r, i) => i === 0 ? 0 : Math.hypot(r[1] - trace[i - 1][1], r[2] - trace[i - 1][2], r[3] - trace[i - 1][3]) / Math.max(r[0] - trace[i - 1][0], 1e-3) * 100);
+  plot("plot-speed", { t, values: [speed] }, ["TCP speed cm/s"], ["#facc15"], "cm/s");
+}
+
+function drawLatencies(state) {
+  // reaction latencies measured live (STOP sent -> braking, sensor swap), newest right
+  const canvas = document.getElementById("plot-latency");
+  const ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  const items = (state.latencies && state.latencies.data) || [];
+  ctx.fillStyle = "#94a3b8"; ctx.font = "11px sans-serif";
+  if (!items.length) { ctx.fillText("reaction latencies: none yet (a STOP or a tracker swap)", 10, 16); return; }
+  const hi = Math.max(...items.map((i) => i.ms), 1);
+  const colors = { "STOP sent -> braking": "#f87171", "sensor swap": "#4ade80" };
+  ctx.fillText(`${hi.toFixed(1)} ms`, 2, 12);
+  ctx.fillText("0 ms", 2, canvas.height - 5);
+  items.forEach((item, i) => {
+    const x = 45 + i * (canvas.width - 55) / Math.max(items.length - 1, 1);
+    const y = canvas.height - 10 - item.ms / hi * (canvas.height - 25);
+    ctx.fillStyle = colors[item.kind] || "#facc15";
+    ctx.beginPath(); ctx.arc(x, y, 4, 0, 2 * Math.PI); ctx.fill();
+  });
+  Object.entries(colors).forEach(([kind, color], k) => {
+    const last = items.filter((i) => i.kind === kind).pop();
+    ctx.fillStyle = color;
+    ctx.fillText(`${kind}${last ? `: ${last.ms.toFixed(2)} ms` : ""}`, 80 + 200 * k, 12);
+  });
+}
+
+(function orbit() {
+  const canvas = document.getElementById("scene");
+  let drag = null;
+  canvas.addEventListener("mousedown", (e) => { drag = [e.clientX, e.clientY]; });
+  window.addEventListener("mouseup", () => { drag = null; });
+  window.addEventListener("mousemove", (e) => {
+    if (!drag) return;
+    camera.yaw += (e.clientX - drag[0]) * 0.01;
+    camera.pitch = Math.min(1.5, Math.max(-0.2, camera.pitch + (e.clientY - drag[1]) * 0.01));
+    drag = [e.clientX, e.clientY];
+    if (lastState) drawScene(lastState);
+  });
+  canvas.addEventListener("wheel", (e) => {
+    e.preventDefault();
+    camera.distance = Math.min(10, Math.max(1, camera.distance * (e.deltaY > 0 ? 1.1 : 0.9)));
+    if (lastState) drawScene(lastState);
+  });
+})();
