@@ -173,6 +173,9 @@ class ConsoleModel:
         severity = SEVERITY.get(message.name, "debug")
         if message.name == "event" and payload.get("event") in STOP_EVENTS:
             severity = "warning"
+        if message.name == "event" and payload.get("event") == "config.failed":
+            severity = "error"
+            self._set("failure", payload.get("payload") or {})
         if message.name == "command" and not payload.get("accepted"):
             severity = "warning"
         self.note(severity, _describe(message.name, payload), kind=message.name)
@@ -282,7 +285,16 @@ class ConsoleModel:
             "people_near": supervisor.get("users_near"),
             "min_distance": (view.get("min_distance") or {}).get("data"),
             "setup_failed": "Setup_Aborted" in leaves,
+            "failure": _failure((view.get("failure") or {}).get("data")),
         }
+
+
+def _failure(payload: dict[str, Any] | None) -> str:
+    """The last failed configuration, in one line."""
+    if not payload:
+        return ""
+    parts = [payload.get("tag"), payload.get("step"), payload.get("reason")]
+    return ": ".join(str(p) for p in parts if p)
 
 
 def _operation(leaves: list[str], goal: str) -> str:

@@ -27,7 +27,7 @@ def render_text(snapshot: dict[str, Any], width: int = 78) -> str:
         "can send   " + (", ".join(takeable) or "-"),
     ]
     if s.get("setup_failed"):
-        lines.append("SETUP FAILED: the robot will not move; see the log")
+        lines.append(f"SETUP FAILED ({s.get('failure') or 'see the log'}): the robot will not move")
     health = ((snapshot.get("health") or {}).get("data")) or {}
     if health:
         lines.append("")

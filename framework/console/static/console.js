@@ -53,8 +53,7 @@ function render(state) {
   drawLatencies(state);
   highlight(s.states || [], (state.chart && state.chart.data && state.chart.data.active) || []);
   if (s.setup_failed && !$("setup-failed").open) {
-    const last = (state.log || []).filter((l) => l.severity === "error").pop();
-    $("setup-reason").textContent = last ? last.text : "a setup configuration failed";
+    $("setup-reason").textContent = s.failure || "a setup configuration failed";
     $("setup-failed").showModal();
   }
   if (resetLog && state.log) {

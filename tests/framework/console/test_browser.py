@@ -142,3 +142,40 @@ def test_a_lost_connection_is_shown_and_the_data_marked_stale(seeg_console, page
     server.stop()
     text_is(page, "link", "connection lost")
     assert "stale" in page.get_attribute("main", "class")
+
+
+def test_a_second_console_sees_every_command_with_its_origin(seeg_console, page):
+    server, _ = seeg_console
+    other = page.context.browser.new_page()
+    for p in (page, other):
+        p.goto(server.url)
+        text_is(p, "link", "live")
+    page.wait_for_selector("#start:enabled", timeout=WAIT_MS)
+    page.click("#start")
+    text_is(page, "answer", "e_START: accepted")
+    other.wait_for_function(
+        "() => [...document.querySelectorAll('#log-lines li')].some(li => "
+        "li.textContent.includes('command e_START from console@127.0.0.1'))",
+        timeout=WAIT_MS,
+    )
+    text_is(other, "operation", "approaching")
+
+
+def test_a_failed_setup_opens_a_dialog_and_the_robot_never_moves(bus_config, tmp_path, page):
+    topology = private_topology(REPO / "topologies" / "seeg.yaml", bus_config, tmp_path)
+    topology.components["people_detector"].properties["cameras_file"] = str(tmp_path / "none.yaml")
+    deployment = Deployment(topology, tmp_path / "logs")
+    deployment.start()
+    model = ConsoleModel(deployment.hub, topology, deployment.coordinator.chart).start()
+    server = ConsoleServer(model, "127.0.0.1", 0)
+    server.start()
+    try:
+        page.goto(server.url)
+        page.wait_for_selector("#setup-failed[open]", timeout=WAIT_MS)
+        assert "people_detector" in page.inner_text("#setup-reason")
+        text_is(page, "operation", "stopped")
+        assert page.is_disabled("#start")
+    finally:
+        server.stop()
+        model.stop()
+        deployment.stop()
