@@ -238,6 +238,12 @@ def _start_console(
         model.stop()
         raise
     print(f"fw: operator console on {url}", file=sys.stderr)
+    if args.console_host not in ("127.0.0.1", "localhost", "::1"):
+        print(
+            f"fw: warning: the console has no login; anyone who reaches {url} can "
+            "command the robot",
+            file=sys.stderr,
+        )
     return server
 
 

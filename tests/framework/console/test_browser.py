@@ -11,11 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from framework.console.model import ConsoleModel
-from framework.console.server import ConsoleServer
-from framework.deployer import Deployment
 from framework.remote import RemoteComponent
 from tests.conftest import REPO, private_topology, wait_until
+from tests.framework.console.conftest import served
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 playwright = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
@@ -26,15 +24,8 @@ WAIT_MS = 20_000  # a bound for slow machines, not a speed requirement
 @pytest.fixture
 def seeg_console(bus_config, tmp_path):
     topology = private_topology(REPO / "topologies" / "seeg.yaml", bus_config, tmp_path)
-    deployment = Deployment(topology, tmp_path / "logs")
-    deployment.start()
-    model = ConsoleModel(deployment.hub, topology, deployment.coordinator.chart).start()
-    server = ConsoleServer(model, "127.0.0.1", 0)
-    server.start()
-    yield server, deployment
-    server.stop()
-    model.stop()
-    deployment.stop()
+    with served(topology, tmp_path / "logs") as running:
+        yield running
 
 
 @pytest.fixture
@@ -164,18 +155,9 @@ def test_a_second_console_sees_every_command_with_its_origin(seeg_console, page)
 def test_a_failed_setup_opens_a_dialog_and_the_robot_never_moves(bus_config, tmp_path, page):
     topology = private_topology(REPO / "topologies" / "seeg.yaml", bus_config, tmp_path)
     topology.components["people_detector"].properties["cameras_file"] = str(tmp_path / "none.yaml")
-    deployment = Deployment(topology, tmp_path / "logs")
-    deployment.start()
-    model = ConsoleModel(deployment.hub, topology, deployment.coordinator.chart).start()
-    server = ConsoleServer(model, "127.0.0.1", 0)
-    server.start()
-    try:
+    with served(topology, tmp_path / "logs") as (server, _):
         page.goto(server.url)
         page.wait_for_selector("#setup-failed[open]", timeout=WAIT_MS)
         assert "people_detector" in page.inner_text("#setup-reason")
         text_is(page, "operation", "stopped")
         assert page.is_disabled("#start")
-    finally:
-        server.stop()
-        model.stop()
-        deployment.stop()

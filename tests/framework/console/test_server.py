@@ -8,23 +8,14 @@ import urllib.request
 
 import pytest
 
-from framework.console.model import ConsoleModel
-from framework.console.server import ConsoleServer
-from framework.deployer import Deployment
 from tests.conftest import wait_until
+from tests.framework.console.conftest import served
 
 
 @pytest.fixture
 def console(toy, tmp_path):
-    deployment = Deployment(toy, tmp_path)
-    deployment.start()
-    model = ConsoleModel(deployment.hub, toy, deployment.coordinator.chart).start()
-    server = ConsoleServer(model, "127.0.0.1", 0)
-    server.start()
-    yield server, deployment
-    server.stop()
-    model.stop()
-    deployment.stop()
+    with served(toy, tmp_path) as running:
+        yield running
 
 
 def get(server, path):
