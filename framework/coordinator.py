@@ -236,6 +236,7 @@ class Coordinator(Component):
                 answer = {"accepted": False, "reason": f"{event} is not taken in {where}"}
             else:
                 self.unhandled = None
+                self.last_events = [*self.last_events[-19:], event]
                 interpreter.queue(event, payload)
                 if interpreter.run():
                     self._publish_configuration()

@@ -73,6 +73,8 @@ class ConsoleModel:
     _last_trace: float = 0.0
     _subscriptions: list[Any] = field(default_factory=list)
     _stop: threading.Event = field(default_factory=threading.Event)
+    _changed: threading.Condition = field(default_factory=threading.Condition)
+    _generation: int = 0
     _thread: threading.Thread | None = None
 
     # -- lifecycle -----------------------------------------------------------------
@@ -119,6 +121,18 @@ class ConsoleModel:
         out["status"] = self._status(out)
         return out
 
+    def wait_change(self, generation: int, timeout: float) -> int:
+        """Block until the chart or the log changed after `generation` (or `timeout`);
+        the current generation. Streams use it to push changes at once."""
+        with self._changed:
+            self._changed.wait_for(lambda: self._generation != generation, timeout)
+            return self._generation
+
+    def _touch(self) -> None:
+        with self._changed:
+            self._generation += 1
+            self._changed.notify_all()
+
     def log_since(self, seq: int) -> list[dict[str, Any]]:
         """Log entries newer than `seq`."""
         with self._lock:
@@ -137,6 +151,7 @@ class ConsoleModel:
                     **extra,
                 }
             )
+        self._touch()
 
     def _set(self, name: str, data: Any) -> None:
         with self._lock:
@@ -169,6 +184,7 @@ class ConsoleModel:
         payload = message.payload or {}
         if message.name == "configuration":
             self._set("chart", payload)
+            self._touch()
             return
         severity = SEVERITY.get(message.name, "debug")
         if message.name == "event" and payload.get("event") in STOP_EVENTS:

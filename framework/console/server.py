@@ -6,9 +6,9 @@ nothing is built or fetched at run time.
 
 * `GET /` and `/static/<file>`: the page (HTML, JS, CSS from `framework/console/static`);
 * `GET /api/state`: the whole picture (`ConsoleModel.snapshot`) as JSON;
-* `GET /api/stream`: Server-Sent Events: the whole picture at once, then again
-  `rate` times a second, and each new log line as it happens; the page marks the
-  view stale when the stream stops;
+* `GET /api/stream`: Server-Sent Events: the whole picture at once, then again at
+  every change of the chart or the log (at least `rate` times a second), with each
+  new log line; the page marks the view stale when the stream stops;
 * `GET /api/chart`: the procedure chart as SVG plus the SVG-id -> state-path map the
   page uses to highlight the active states, and the operator commands with their
   payload fields (type, limits, unit) the page builds its forms from;
@@ -24,7 +24,6 @@ import json
 import math
 import mimetypes
 import threading
-import time
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
@@ -37,6 +36,7 @@ from framework.remote import RemoteComponent, RemoteError
 STATIC = Path(__file__).resolve().parent / "static"
 DEFAULT_PORT = 8470
 MAX_BODY = 16 * 1024
+COALESCE = 0.02  # s: changes closer than this go out in one picture
 TYPES = {"string": str, "number": (int, float), "integer": int, "boolean": bool}
 
 
@@ -240,6 +240,7 @@ class _Handler(BaseHTTPRequestHandler):
         console, model = self.console, self.console.model
         first = True
         seq = 0
+        generation = -1
         try:
             while not console.stopping.is_set():
                 snapshot = model.snapshot(log=first)
@@ -247,12 +248,13 @@ class _Handler(BaseHTTPRequestHandler):
                     seq = snapshot["log_seq"]
                     first = False
                 self._event("state", snapshot)
-                deadline = time.monotonic() + 1.0 / console.rate
-                while time.monotonic() < deadline and not console.stopping.is_set():
-                    for entry in model.log_since(seq):
-                        self._event("log", entry)
-                        seq = entry["seq"]
-                    time.sleep(0.05)
+                # the next picture: at once when the chart or the log changes, else
+                # after 1/rate s (the polled parts refresh at that pace anyway)
+                generation = model.wait_change(generation, 1.0 / console.rate)
+                console.stopping.wait(COALESCE)  # one picture for a burst of chart steps
+                for entry in model.log_since(seq):
+                    self._event("log", entry)
+                    seq = entry["seq"]
         except (BrokenPipeError, ConnectionResetError):
             return  # the page went away
 

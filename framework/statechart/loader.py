@@ -93,6 +93,22 @@ class _Builder:
         self.declare_vocabulary(doc)
         return doc
 
+    def check_limits(self, event: str, name: str, spec: dict[str, Any], loc: Location) -> None:
+        """Limits only on numbers, and the lower one first."""
+        low, high = spec.get("min"), spec.get("max")
+        if (low is not None or high is not None) and spec["type"] not in ("number", "integer"):
+            self.error(
+                "payload-limits",
+                f"payload field {event}.{name} is a {spec['type']}: min/max apply to numbers",
+                loc,
+            )
+        elif low is not None and high is not None and low > high:
+            self.error(
+                "payload-limits",
+                f"payload field {event}.{name}: min {low:g} is above max {high:g}",
+                loc,
+            )
+
     def declare_vocabulary(self, doc: Document) -> None:
         for name, spec in (doc.data.get("events") or {}).items():
             loc = doc.location(("events", name))
@@ -102,6 +118,7 @@ class _Builder:
                     if isinstance(field_spec, dict):
                         types[field_name] = field_spec["type"]
                         fields[field_name] = {k: v for k, v in field_spec.items() if k != "type"}
+                        self.check_limits(name, field_name, field_spec, loc)
                     else:
                         types[field_name] = field_spec
                 event = EventSpec(name, spec.get("doc", ""), types, loc, fields)

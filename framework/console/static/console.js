@@ -44,6 +44,7 @@ function render(state) {
   if ($("release").disabled) disarm();
 
   const health = (state.health && state.health.data) || {};
+  $("health").classList.toggle("stale", !state.health || state.health.age === null || state.health.age > 3);
   $("health-rows").innerHTML = Object.entries(health).map(([name, h]) =>
     `<tr class="${h.alive ? "" : "dead"}"><td>${name}</td><td>${h.process}</td>` +
     `<td>${h.alive ? (h.state || "?") : "DEAD"}</td></tr>`).join("");

@@ -96,6 +96,11 @@ def test_the_operator_drives_the_procedure_from_the_browser(seeg_console, page):
     text_is(page, "answer", "e_START: accepted")
     text_is(page, "operation", "approaching target")
     text_is(page, "tracker", "certus")
+    moved = (
+        "() => { const t = lastState.trace; return t.length > 2 && Math.hypot("
+        "t[t.length-1][1]-t[0][1], t[t.length-1][2]-t[0][2], t[t.length-1][3]-t[0][3]) > 0.005; }"
+    )
+    page.wait_for_function(moved, timeout=WAIT_MS)  # the TCP the page plots has moved 5 mm
     shot(page, "moving")
 
     certus = RemoteComponent(deployment.hub, "certus")

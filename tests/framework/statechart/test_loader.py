@@ -229,3 +229,42 @@ def test_odd_files_get_one_plain_line(write, text, expected):
     assert "\n" not in findings[0].one_line()
     if "'on'" in expected:
         assert "write `event:`" in findings[0].hint
+
+
+def test_payload_fields_may_carry_limits_units_and_docs(chart):
+    loaded = chart(
+        """
+statechart: limits
+events:
+  e_MOVE:
+    payload:
+      x: {type: number, min: 0.3, max: 0.8, unit: m, doc: base frame}
+      label: string
+initial: A
+states: [{name: A, transitions: [{event: e_MOVE, target: A}]}]
+"""
+    )
+    spec = loaded.events["e_MOVE"]
+    assert spec.payload == {"x": "number", "label": "string"}
+    assert spec.fields == {"x": {"min": 0.3, "max": 0.8, "unit": "m", "doc": "base frame"}}
+
+
+@pytest.mark.parametrize(
+    "field, message",
+    [
+        ("{type: string, min: 1}", "payload field e_MOVE.x is a string: min/max apply to numbers"),
+        ("{type: number, min: 2, max: 1}", "payload field e_MOVE.x: min 2 is above max 1"),
+    ],
+)
+def test_impossible_payload_limits_are_errors(write, field, message):
+    findings = findings_of(
+        write,
+        f"""
+statechart: limits
+events:
+  e_MOVE: {{payload: {{x: {field}}}}}
+initial: A
+states: [{{name: A}}]
+""",
+    )
+    assert any(f.code == "payload-limits" and f.message == message for f in findings), findings
