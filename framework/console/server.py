@@ -178,6 +178,21 @@ def _draw(chart: Any) -> dict[str, Any]:
     return {"svg": svg, "idents": idents}
 
 
+def _finite(value: Any) -> Any:
+    """NaN and infinities become null: browsers' JSON.parse refuses them."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
+def _dumps(data: Any) -> str:
+    return json.dumps(_finite(data), default=str, allow_nan=False)
+
+
 class _Handler(BaseHTTPRequestHandler):
     console: ConsoleServer
     server_version = "fw-console"
@@ -194,7 +209,7 @@ class _Handler(BaseHTTPRequestHandler):
         self.wfile.write(body)
 
     def _json(self, data: Any, status: int = HTTPStatus.OK) -> None:
-        self._send(status, json.dumps(data, default=str).encode(), "application/json")
+        self._send(status, _dumps(data).encode(), "application/json")
 
     def do_GET(self) -> None:
         path = self.path.split("?", 1)[0]
@@ -259,5 +274,5 @@ class _Handler(BaseHTTPRequestHandler):
             return  # the page went away
 
     def _event(self, name: str, data: Any) -> None:
-        self.wfile.write(f"event: {name}\ndata: {json.dumps(data, default=str)}\n\n".encode())
+        self.wfile.write(f"event: {name}\ndata: {_dumps(data)}\n\n".encode())
         self.wfile.flush()

@@ -115,3 +115,12 @@ def test_the_chart_drawing_comes_with_the_map_from_svg_ids_to_states(console):
     if chart.get("error"):
         pytest.skip(chart["error"])  # no Graphviz here
     assert "<svg" in chart["svg"] and "s_Use_T1" in chart["svg"]
+
+
+def test_non_finite_numbers_reach_the_page_as_null():
+    from framework.console.server import _dumps
+
+    assert json.loads(_dumps({"a": float("nan"), "b": [1.5, float("inf")]})) == {
+        "a": None,
+        "b": [1.5, None],
+    }
