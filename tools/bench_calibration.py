@@ -10,7 +10,6 @@ truth. Target: X within 0.6 mm and 0.05 deg with 8 poses.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -20,7 +19,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from benchlib import write_report
+from benchlib import bench_parser, write_report
 
 from components.tracking.calibration import hand_eye, protocol_poses
 from components.tracking.geometry import rotation_angle
@@ -48,11 +47,8 @@ def trial(rig, poses: int, seed: int) -> tuple[float, float, float, float, float
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = bench_parser(__doc__, quick=None)
     parser.add_argument("--trials", type=int, default=100)
-    parser.add_argument("--out", default="out/bench")
     args = parser.parse_args()
     rig = standard_rigs()[1]
     rows = {}

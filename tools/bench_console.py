@@ -11,7 +11,6 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
 import sys
@@ -23,7 +22,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from benchlib import percentiles, write_report
+from benchlib import bench_parser, percentiles, write_report
 
 from framework.bus import BusConfig, free_port
 from tests.conftest import REPO, private_topology
@@ -94,11 +93,7 @@ def to_page(url: str, n: int) -> list[float] | None:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--out", default="out/bench")
+    parser = bench_parser(__doc__)
     args = parser.parse_args()
     n = 20 if args.quick else 200
     config = BusConfig(namespace=f"fw_bench_console_{time.time_ns()}", hub_port=free_port())

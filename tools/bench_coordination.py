@@ -14,7 +14,6 @@ and, as the baseline of the same run, one remote request round trip.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import os
 import platform
@@ -28,7 +27,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from benchlib import percentiles, write_report
+from benchlib import bench_parser, percentiles, write_report
 
 from framework.bus import free_port
 from framework.deployer import Deployment
@@ -66,12 +65,8 @@ class Timing(Listener):
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = bench_parser(__doc__, quick="30 swaps")
     parser.add_argument("--swaps", type=int, default=200)
-    parser.add_argument("--quick", action="store_true", help="30 swaps")
-    parser.add_argument("--out", default="out/bench")
     args = parser.parse_args()
     swaps = 30 if args.quick else args.swaps
     topology = load_topology(TOY)

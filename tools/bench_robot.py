@@ -14,7 +14,6 @@ Budget: both cycles together well under 1 ms, so the robot process keeps real ti
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -24,7 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from benchlib import percentiles, write_report
+from benchlib import bench_parser, percentiles, write_report
 
 from components.robot.arm import SimulatedArm
 from components.robot.interpolator import InterpolatorCore, Phase
@@ -56,11 +55,7 @@ def loop_cycles(cycles: int) -> dict[str, dict[str, float]]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--out", default="out/bench")
+    parser = bench_parser(__doc__)
     args = parser.parse_args()
     cycles = loop_cycles(2000 if args.quick else 20000)
     total_p99 = cycles["interpolator"]["p99_us"] + cycles["arm"]["p99_us"]

@@ -18,7 +18,6 @@ Prints median/p99 and writes out/bench/runtime.md and runtime.json.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import platform
@@ -33,7 +32,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from benchlib import percentiles, write_report
+from benchlib import bench_parser, percentiles, write_report
 
 from framework import keys
 from framework.bus import Bus, BusConfig, free_port
@@ -234,11 +233,7 @@ def liveliness(bus: Bus, config: BusConfig, count: int) -> list[float]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--quick", action="store_true", help="fewer samples (a smoke run)")
-    parser.add_argument("--out", default="out/bench", help="folder for the .md and .json")
+    parser = bench_parser(__doc__)
     args = parser.parse_args()
     n = 300 if args.quick else 2000
     config = BusConfig(namespace=f"bench_{os.getpid()}", hub_port=free_port())

@@ -13,7 +13,6 @@
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import math
 import os
@@ -28,7 +27,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from benchlib import write_report
+from benchlib import bench_parser, write_report
 
 from components.bench.scale import cycle_times
 from components.tracking.sensor_manager import SensorManagerCore
@@ -111,11 +110,7 @@ def false_alarms(seconds: float) -> tuple[int, int]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--quick", action="store_true", help="fewer cycles, one minute")
-    parser.add_argument("--out", default="out/bench")
+    parser = bench_parser(__doc__, quick="fewer cycles, one minute")
     parser.add_argument(
         "--hours",
         type=float,

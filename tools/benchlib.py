@@ -2,10 +2,25 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import statistics
 from pathlib import Path
 from typing import Any
+
+
+def bench_parser(
+    doc: str | None, quick: str | None = "fewer samples (a smoke run)"
+) -> argparse.ArgumentParser:
+    """The command line every benchmark shares: its docstring as help, `--out`, and
+    `--quick` unless `quick` is None; scripts add their own options."""
+    out = argparse.ArgumentParser(
+        description=doc, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    if quick is not None:
+        out.add_argument("--quick", action="store_true", help=quick)
+    out.add_argument("--out", default="out/bench", help="folder for the .md and .json")
+    return out
 
 
 def percentiles(samples: list[float]) -> dict[str, float]:
