@@ -266,6 +266,13 @@ class Component:
     def _run_hook(self, hook: str) -> tuple[bool, str]:
         """(True, '') if the hook succeeded; (False, why) if it returned False; raises on error."""
         self.last_error = ""
+        if hook == "configure_hook":
+            empty = [n for n, d in self.declared_properties.items() if d.missing(self._values[n])]
+            if empty:
+                return False, "required " + ", ".join(
+                    f"property {n} is empty ({self.declared_properties[n].doc or 'no doc'})"
+                    for n in empty
+                )
         result = getattr(self, hook)()
         if result is False:  # keep the reason the hook gave, if it set one
             return False, self.last_error or f"{hook} returned False"

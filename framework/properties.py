@@ -40,6 +40,11 @@ class Property:
     max: float | None = None
     choices: tuple[Any, ...] | None = None
     name: str = ""
+    required: bool = False
+
+    def missing(self, value: Any) -> bool:
+        """True if a required property still holds nothing (empty or None)."""
+        return self.required and (value is None or value in ("", [], {}))
 
     def validate(self, value: Any, owner: str = "") -> Any:
         """The value, converted where lossless (int -> float), or `PropertyError`."""
@@ -88,6 +93,7 @@ class Property:
             "min": self.min,
             "max": self.max,
             "choices": list(self.choices) if self.choices else None,
+            "required": self.required,
         }
 
 
@@ -100,11 +106,20 @@ def prop(
     min: float | None = None,
     max: float | None = None,
     choices: list[Any] | tuple[Any, ...] | None = None,
+    required: bool = False,
 ) -> Property:
-    """Declare a property on a Component class: `rate = prop(float, 100.0, unit="Hz")`."""
+    """Declare a property on a Component class: `rate = prop(float, 100.0, unit="Hz")`.
+    `required`: configure fails, naming the property, while it is empty."""
     kind = _TYPES[kind] if isinstance(kind, str) else kind
     declared = Property(
-        kind, default, unit, doc, min, max, tuple(choices) if choices is not None else None
+        kind,
+        default,
+        unit,
+        doc,
+        min,
+        max,
+        tuple(choices) if choices is not None else None,
+        required=required,
     )
     declared.validate(default, "(default)")
     return declared

@@ -245,6 +245,13 @@ class _Loader:
                         values[prop] = declared.validate(value, name)
                     except PropertyError as exc:
                         self.error("property-value", str(exc), (*here, "properties", prop))
+                for prop, declared in info.properties.items():
+                    if declared.missing(values.get(prop, declared.default)):
+                        self.error(
+                            "missing-property",
+                            f"{name!r} needs property {prop!r} ({declared.doc or 'no doc'})",
+                            here,
+                        )
                 for port in spec.get("outputs") or {}:
                     if port not in info.outputs:
                         self.error(

@@ -84,7 +84,7 @@ def load_cameras(path: str) -> tuple[DetectorConfig, dict[str, str]]:
 class WorkspacePeopleDetector(Component):
     """Feeds `PeopleDetectorCore` from the cameras' ports and publishes people."""
 
-    cameras_file = prop(str, "", doc="cameras YAML (keys, calibration, area)")
+    cameras_file = prop(str, "", doc="cameras YAML (keys, calibration, area)", required=True)
     people = Out(EventMessage, doc="tracks: id, confirmed, cameras, torso position")
     users_near = Out(Scalar, doc="confirmed people inside the area around the table")
     min_distance = Out(Scalar, doc="closest robot-person distance (m; inf without a robot)")
@@ -92,8 +92,6 @@ class WorkspacePeopleDetector(Component):
 
     def configure_hook(self) -> bool:
         try:
-            if not self.cameras_file:
-                raise CameraConfigError("property cameras_file is empty")
             config, keys = load_cameras(self.cameras_file)
         except FwError as exc:
             self.last_error = str(exc)

@@ -249,7 +249,7 @@ class CartesianInterpolator(Component):
     writes a setpoint every cycle once started, so the robot's watchdog only fires if
     this component dies. `sync` re-reads the measured joints (after the brakes)."""
 
-    procedure_file = prop(str, "", doc="procedure YAML (goals, accelerations)")
+    procedure_file = prop(str, "", doc="procedure YAML (goals, accelerations)", required=True)
     max_lag = prop(
         float, 0.05, unit="rad", min=0.001, max=1.0, doc="command-to-arm gap that stops a motion"
     )
@@ -264,8 +264,6 @@ class CartesianInterpolator(Component):
         from components.supervisor.procedure import load_procedure
 
         try:
-            if not self.procedure_file:
-                raise FwError("property procedure_file is empty")
             self.procedure = load_procedure(self.procedure_file)
         except FwError as exc:
             self.last_error = str(exc)

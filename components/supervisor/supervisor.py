@@ -205,7 +205,7 @@ class Supervisor(Component):
         "e_TFAULT",
         "e_TARGET",
     )
-    procedure_file = prop(str, "", doc="procedure YAML (target, areas, speeds)")
+    procedure_file = prop(str, "", doc="procedure YAML (target, areas, speeds)", required=True)
     tracking = In(EventMessage, doc="Sensor Manager decisions (best tracker, health)")
     tcp = In(Pose, doc="robot TCP in the base frame")
     users_near = In(Scalar, doc="confirmed people near the table")
@@ -228,8 +228,6 @@ class Supervisor(Component):
 
     def configure_hook(self) -> bool:
         try:
-            if not self.procedure_file:
-                raise FwError("property procedure_file is empty")
             self.core = SupervisorCore(load_procedure(self.procedure_file))
         except FwError as exc:
             self.last_error = str(exc)

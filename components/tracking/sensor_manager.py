@@ -421,7 +421,9 @@ class SensorManagerCore:
 class SensorManager(Component):
     """Feeds `SensorManagerCore` from the trackers' ports and publishes its decisions."""
 
-    sensors_file = prop(str, "", doc="sensors YAML (priorities, keys, calibration, limits)")
+    sensors_file = prop(
+        str, "", doc="sensors YAML (priorities, keys, calibration, limits)", required=True
+    )
     rate = prop(float, 1000.0, unit="Hz", min=1.0, max=5000.0, doc="evaluation rate")
     ee_pose = In(Pose, doc="end-effector in the robot base frame, from joints (optional)")
     robot_pose = Out(Pose, doc="end-effector in the master frame (eq. 3.5), best sensor")
@@ -429,8 +431,6 @@ class SensorManager(Component):
 
     def configure_hook(self) -> bool:
         try:
-            if not self.sensors_file:
-                raise SensorConfigError("property sensors_file is empty")
             config = load_sensors(self.sensors_file)
         except FwError as exc:
             self.last_error = str(exc)

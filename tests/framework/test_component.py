@@ -103,6 +103,25 @@ def test_properties_are_validated_with_clear_errors():
         prop(float, -1.0, min=0.0)
 
 
+def test_a_required_property_left_empty_fails_configure_naming_it():
+    from framework.component import Component
+
+    class Reader(Component):
+        source = prop(str, "", doc="what to read", required=True)
+
+        def configure_hook(self) -> bool:
+            self.opened = self.source
+            return True
+
+    r = Reader("r")
+    assert not r.configure() and r.state is S.PRE_OPERATIONAL
+    assert r.last_error == "required property source is empty (what to read)"
+    assert not hasattr(r, "opened"), "the hook does not run without it"
+    r.source = "file.yaml"
+    assert r.configure() and r.opened == "file.yaml"
+    assert r.describe()["properties"][0]["required"] is True
+
+
 def test_set_properties_is_all_or_nothing():
     d = Doubler("d")
     with pytest.raises(PropertyError):

@@ -96,3 +96,22 @@ def test_load_raises_with_every_error(write):
     with pytest.raises(FindingsError) as err:
         load_topology(write(bad, "bad.yaml"))
     assert {f.code for f in err.value.findings} >= {"property-value", "unknown-operation"}
+
+
+def test_a_required_property_left_out_is_named_before_anything_starts(tmp_path):
+    text = (REPO / "topologies" / "seeg.yaml").read_text()
+    text = text.replace("../statecharts/seeg.yaml", str(REPO / "statecharts" / "seeg.yaml"))
+    supervisor = (
+        "    properties: {procedure_file: procedures/seeg.yaml}\n    outputs: {events: fw/events}"
+    )
+    assert supervisor in text
+    text = text.replace(supervisor, "    outputs: {events: fw/events}")
+    path = tmp_path / "seeg.yaml"
+    path.write_text(text)
+    with pytest.raises(FindingsError) as err:
+        load_topology(path)
+    missing = [f for f in err.value.findings if f.code == "missing-property"]
+    assert [f.message for f in missing] == [
+        "'supervisor' needs property 'procedure_file' (procedure YAML (target, areas, speeds))"
+    ]
+    assert missing[0].location.line > 0
