@@ -172,6 +172,6 @@ def protocol_poses(count: int, seed: int = 0, half: float = 0.075) -> list[np.nd
         corner = np.array([(k >> i) & 1 for i in range(3)], dtype=float) - 0.5
         position = np.array([0.55, 0.0, 0.45]) + 2 * half * corner + rng.normal(0, 0.02, 3)
         tilt = rng.uniform(-0.45, 0.45, 3)
-        tilt[1] += np.pi / 2  # the tool points down at the table
+        tilt[1] += np.pi  # the tool points down at the table (as at the target)
         poses.append(rigid(tuple(position), tuple(tilt)))
     return poses

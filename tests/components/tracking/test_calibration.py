@@ -104,3 +104,16 @@ def test_fw_calibrate_writes_a_loadable_sensors_file(tmp_path, capsys):
     c = config.sensors[1].master_from_sensor
     assert np.linalg.norm(c[:3, 3] - truth[:3, 3]) < 0.002
     assert "certus" in capsys.readouterr().out
+
+
+def test_the_default_protocol_poses_are_reachable_by_the_arm_from_home():
+    """`fw calibrate` does not drive the arm yet; when it does, every pose it asks for
+    must be one the LWR reaches (the tool points down at the table, as at the target)."""
+    from components.robot.ik import DifferentialIK
+    from components.robot.lwr4 import HOME
+
+    ik = DifferentialIK()
+    for pose in protocol_poses(8):
+        error = ik.error(ik.solve(np.array(HOME), pose, 3000), pose)
+        assert np.linalg.norm(error[:3]) < 1e-3 and np.linalg.norm(error[3:]) < 1e-2
+        assert pose[2, 2] < -0.5, "the tool points down"
