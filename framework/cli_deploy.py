@@ -71,13 +71,14 @@ class _Printer(Listener):
         self.line(f"error      {message}")
 
 
-def _screen(deployment: Any, started: float) -> str:
+def _screen(deployment: Any, started: float, console: str = "") -> str:
     """The one-screen live status."""
     from framework.remote import RemoteComponent, RemoteError
 
     lines = [
         f"fw deploy {deployment.topology.name}   up {time.monotonic() - started:6.1f} s"
         "   (Ctrl-C to stop)",
+        f"operator console: {console}" if console else "",
         "",
     ]
     if deployment.coordinator is not None:
@@ -198,7 +199,11 @@ def cmd_deploy(args: argparse.Namespace) -> int:
                 time.sleep(0.5)  # let the last reactions land in the recording
                 break
             if interactive:
-                sys.stdout.write("\x1b[H\x1b[2J" + _screen(deployment, started) + "\n")
+                sys.stdout.write(
+                    "\x1b[H\x1b[2J"
+                    + _screen(deployment, started, console.url if console else "")
+                    + "\n"
+                )
                 sys.stdout.flush()
             time.sleep(0.5 if end is None else min(0.5, max(0.0, end - time.monotonic())))
     except KeyboardInterrupt:
