@@ -3,7 +3,8 @@
 Each experiment returns a row per measured quantity: the thesis's value, fw's, and
 their ratio; latencies also as multiples of the Zenoh hop measured in the same run.
 The report is written as markdown (`report.md`), JSON (`summary.json`) and PNG
-figures in --out. The experiments: `experiments.py`; the table: `report.py`.
+figures in --out. A full run takes about 6 minutes; where each timestamp is taken
+and what every experiment does: docs/bench.md.
 """
 
 from __future__ import annotations
@@ -124,6 +125,6 @@ def add_commands(sub: Any) -> None:
         type=int,
         default=30,
         metavar="N",
-        help="repetitions of 50 swaps in `repeated` (thesis: 30; each takes ~2 min)",
+        help="repetitions of 50 swaps in `repeated` (thesis: 30; ~4 s each here)",
     )
     p.set_defaults(func=cmd_bench)
