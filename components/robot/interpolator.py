@@ -350,14 +350,8 @@ class CartesianInterpolator(Component):
         self, x: float, y: float, z: float, roll: float, pitch: float, yaw: float
     ) -> dict[str, Any]:
         """A new target pose (m, deg; robot base frame) for `go_to(goal="target")`."""
-        from components.supervisor.procedure import pose_from
-
-        try:
-            pose = pose_from((x, y, z), (roll, pitch, yaw))
-        except ValueError as exc:
-            raise FwError(f"target refused: {exc}") from None
         with self._core_lock:
-            self.procedure.goals["target"] = pose
+            self.procedure.define_target((x, y, z), (roll, pitch, yaw))
         return {"target": [x, y, z], "rpy_deg": [roll, pitch, yaw]}
 
     @operation

@@ -49,6 +49,14 @@ class Procedure:
         """The target pose (4x4)."""
         return self.goals["target"]
 
+    def define_target(self, position: Any, rpy_deg: Any) -> np.ndarray:
+        """Replace the target (m, deg; base frame); `FwError` for a pose that is not one."""
+        try:
+            self.goals["target"] = pose_from(position, rpy_deg)
+        except ValueError as exc:
+            raise FwError(f"target refused: {exc}") from None
+        return self.goals["target"]
+
 
 def pose_from(position: Any, rpy_deg: Any) -> np.ndarray:
     """A 4x4 pose from a position (m) and roll-pitch-yaw angles (deg)."""

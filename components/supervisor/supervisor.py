@@ -313,14 +313,8 @@ class Supervisor(Component):
     ) -> list[float]:
         """A new target pose (m, deg; robot base frame): the critical sphere and the
         arrival check follow it from now on."""
-        from components.supervisor.procedure import pose_from
-
-        try:
-            pose = pose_from((x, y, z), (roll, pitch, yaw))
-        except ValueError as exc:
-            raise FwError(f"target refused: {exc}") from None
         with self._core_lock:
-            self.core.procedure.goals["target"] = pose
+            self.core.procedure.define_target((x, y, z), (roll, pitch, yaw))
         return [x, y, z]
 
     @operation

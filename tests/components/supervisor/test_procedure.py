@@ -48,3 +48,14 @@ def test_bad_procedures_are_refused_with_a_located_reason(write, text, line, mes
     with pytest.raises(ProcedureError) as err:
         load_procedure(path)
     assert f"{path}:{line}:" in str(err.value) and message in str(err.value)
+
+
+def test_a_defined_target_replaces_the_goal_and_a_bad_one_is_refused():
+    from framework.errors import FwError
+
+    procedure = load_procedure(REPO / "procedures" / "seeg.yaml")
+    pose = procedure.define_target((0.58, 0.02, 0.13), (0, 180, 0))
+    assert procedure.target is pose and np.allclose(pose[:3, 3], [0.58, 0.02, 0.13])
+    with pytest.raises(FwError, match="target refused: a pose needs 3 finite"):
+        procedure.define_target((float("nan"), 0.0, 0.1), (0, 180, 0))
+    assert np.allclose(procedure.target[:3, 3], [0.58, 0.02, 0.13]), "the old target stays"
