@@ -37,7 +37,6 @@ STATIC = Path(__file__).resolve().parent / "static"
 DEFAULT_PORT = 8470
 MAX_BODY = 16 * 1024
 COALESCE = 0.02  # s: changes closer than this go out in one picture
-TYPES = {"string": str, "number": (int, float), "integer": int, "boolean": bool}
 
 
 class ConsoleError(FwError):
@@ -138,26 +137,12 @@ class ConsoleServer:
             raise CommandError("payload must be an object")
         chart = self.model.chart
         spec = chart.events.get(event) if chart is not None else None
-        fields = dict(spec.payload) if spec is not None else {}
-        for name, value in payload.items():
-            if name not in fields:
-                raise CommandError(f"{event} has no payload field {name!r}")
-            kind = TYPES.get(fields[name])
-            if kind is not None and (
-                not isinstance(value, kind)
-                or isinstance(value, bool) != (fields[name] == "boolean")
-                or (isinstance(value, float) and not math.isfinite(value))
-            ):
-                raise CommandError(f"{event}.{name} must be a {fields[name]}")
-            limits = spec.fields.get(name, {}) if spec is not None else {}
-            unit = f" {limits['unit']}" if limits.get("unit") else ""
-            if "min" in limits and value < limits["min"]:
-                raise CommandError(f"{event}.{name} must be at least {limits['min']:g}{unit}")
-            if "max" in limits and value > limits["max"]:
-                raise CommandError(f"{event}.{name} must be at most {limits['max']:g}{unit}")
-        missing = [n for n in fields if n not in payload]
-        if missing:
-            raise CommandError(f"{event} needs {', '.join(missing)}")
+        if spec is not None:
+            problem = spec.problem(payload)
+        else:
+            problem = f"{event} has no payload field {next(iter(payload))!r}" if payload else ""
+        if problem:
+            raise CommandError(problem)
 
 
 def _draw(chart: Any) -> dict[str, Any]:

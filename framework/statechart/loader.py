@@ -17,6 +17,7 @@ from framework import schema
 from framework.errors import Finding, FindingsError, FwError, Location
 from framework.statechart.expressions import ExpressionError, compile_expression
 from framework.statechart.model import (
+    VALUE_TYPES,
     Action,
     ConfigureRequest,
     EventSpec,
@@ -26,12 +27,12 @@ from framework.statechart.model import (
     Transition,
     Value,
     VariableSpec,
+    has_type,
 )
 from framework.yamlio import Document, PathKey, load_yaml, load_yaml_text
 
 _DURATION = re.compile(r"^\s*([0-9]+(?:\.[0-9]*)?)\s*(ms|s|min|h)?\s*$")
 _UNIT = {"ms": 1e-3, "s": 1.0, "min": 60.0, "h": 3600.0, None: 1.0}
-_TYPES = {"number": (int, float), "integer": (int,), "boolean": (bool,), "string": (str,)}
 
 
 def parse_duration(value: Any) -> float:
@@ -141,7 +142,7 @@ class _Builder:
             else:
                 initial, vtype, doc_text = spec, None, ""
             vtype = vtype or _infer_type(initial)
-            if vtype in _TYPES and not _is_type(initial, vtype):
+            if vtype in VALUE_TYPES and not has_type(initial, vtype):
                 self.error(
                     "variable-type",
                     f"initial value {initial!r} of {name!r} is not of type {vtype}",
@@ -448,14 +449,6 @@ def _infer_type(value: Any) -> str:
     if isinstance(value, float):
         return "number"
     return "string"
-
-
-def _is_type(value: Any, vtype: str) -> bool:
-    if vtype == "any":
-        return True
-    if isinstance(value, bool) and vtype != "boolean":
-        return False
-    return isinstance(value, _TYPES[vtype])
 
 
 def build_statechart(

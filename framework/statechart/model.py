@@ -8,6 +8,7 @@ separate tools.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any
@@ -175,6 +176,24 @@ class State:
         return out
 
 
+VALUE_TYPES: dict[str, tuple[type, ...]] = {
+    "number": (int, float),
+    "integer": (int,),
+    "boolean": (bool,),
+    "string": (str,),
+}
+"""Python types of the value types a chart declares (`any` accepts everything)."""
+
+
+def has_type(value: Any, vtype: str) -> bool:
+    """True if `value` is of the chart value type `vtype` (a bool is not a number)."""
+    if vtype == "any":
+        return True
+    if isinstance(value, bool) and vtype != "boolean":
+        return False
+    return isinstance(value, VALUE_TYPES[vtype])
+
+
 @dataclass(eq=False)
 class EventSpec:
     """A declared event: name, documentation and payload fields with their types;
@@ -185,6 +204,26 @@ class EventSpec:
     payload: dict[str, str]
     location: Location
     fields: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def problem(self, payload: dict[str, Any]) -> str:
+        """Why `payload` does not fit this declaration ("" if it does): an unknown or
+        missing field, a wrong type, a number not finite or out of its limits."""
+        for name, value in payload.items():
+            vtype = self.payload.get(name)
+            if vtype is None:
+                return f"{self.name} has no payload field {name!r}"
+            if vtype in VALUE_TYPES and not has_type(value, vtype):
+                return f"{self.name}.{name} must be a {vtype}"
+            if isinstance(value, float) and not math.isfinite(value):
+                return f"{self.name}.{name} must be a finite {vtype}"
+            limits = self.fields.get(name, {})
+            unit = f" {limits['unit']}" if limits.get("unit") else ""
+            if "min" in limits and value < limits["min"]:
+                return f"{self.name}.{name} must be at least {limits['min']:g}{unit}"
+            if "max" in limits and value > limits["max"]:
+                return f"{self.name}.{name} must be at most {limits['max']:g}{unit}"
+        missing = [n for n in self.payload if n not in payload]
+        return f"{self.name} needs {', '.join(missing)}" if missing else ""
 
 
 @dataclass(eq=False)

@@ -268,3 +268,22 @@ states: [{{name: A}}]
 """,
     )
     assert any(f.code == "payload-limits" and f.message == message for f in findings), findings
+
+
+def test_an_event_declaration_says_why_a_payload_does_not_fit(chart):
+    spec = chart(
+        """
+statechart: limits
+events:
+  e_MOVE: {payload: {x: {type: number, min: 0.3, max: 0.8, unit: m}, where: string}}
+initial: A
+states: [{name: A, transitions: [{event: e_MOVE, target: A}]}]
+"""
+    ).events["e_MOVE"]
+    assert spec.problem({"x": 0.5, "where": "home"}) == ""
+    assert spec.problem({"x": 0.5}) == "e_MOVE needs where"
+    assert spec.problem({"x": 0.5, "where": "home", "y": 1}) == "e_MOVE has no payload field 'y'"
+    assert spec.problem({"x": True, "where": "home"}) == "e_MOVE.x must be a number"
+    assert spec.problem({"x": float("nan"), "where": "a"}) == "e_MOVE.x must be a finite number"
+    assert spec.problem({"x": 0.9, "where": "a"}) == "e_MOVE.x must be at most 0.8 m"
+    assert spec.problem({"x": 0.1, "where": "a"}) == "e_MOVE.x must be at least 0.3 m"
