@@ -186,26 +186,22 @@ def run_braking(quick: bool, context: dict[str, Any]) -> list[Row]:
     rows = []
     for speed in sorted({s["speed_cm_s"] for s in stops}):
         mine = [s for s in stops if s["speed_cm_s"] == speed]
-        rows.append(
-            Row(
-                "braking",
-                f"{speed:g} cm/s: actual TCP displacement after STOP p50",
-                statistics.median(s["displacement_mm"] for s in mine),
-                target=targets.get(speed),
-                unit="mm",
-                n=len(mine),
+        for key, quantity, thesis, target in (
+            ("displacement_mm", "actual TCP displacement after STOP", None, targets.get(speed)),
+            ("rmse_x_mm", "RMSE actual vs command, x", thesis_rmse.get(speed), None),
+        ):
+            median = statistics.median(s[key] for s in mine)
+            rows.append(
+                Row(
+                    "braking",
+                    f"{speed:g} cm/s: {quantity} p50",
+                    median,
+                    thesis=thesis,
+                    target=target,
+                    unit="mm",
+                    n=len(mine),
+                )
             )
-        )
-        rows.append(
-            Row(
-                "braking",
-                f"{speed:g} cm/s: RMSE actual vs command, x p50",
-                statistics.median(s["rmse_x_mm"] for s in mine),
-                thesis=thesis_rmse.get(speed),
-                unit="mm",
-                n=len(mine),
-            )
-        )
     rows.append(
         Row(
             "braking",
@@ -248,7 +244,17 @@ def run_statechart(quick: bool, context: dict[str, Any]) -> list[Row]:
                         n=events // 10,
                     )
                 )
+        load = statechart.bench_load(Path(tmp), 5 if quick else 20)
     context.setdefault("series", {})["statechart"] = series
+    rows.append(
+        Row(
+            "statechart",
+            f"{load['states']}-state chart: load + validate",
+            load["fw_ms"],
+            target=30.0,
+            n=5 if quick else 20,
+        )
+    )
     return rows
 
 

@@ -32,6 +32,7 @@ def test_quick_bench_runs_every_experiment_and_writes_report_summary_and_figures
     assert rows[("braking", "return to the STOP point: worst actual error")]["met"]
     assert rows[("people", "accuracy, 1 user")]["fw"] > 0.9
     assert any(q.startswith("depth 5: fw p50") for _, q in rows)
+    assert any(q.endswith("-state chart: load + validate") for _, q in rows)
     figures = {p.name for p in tmp_path.glob("*.png")}
     assert {
         "fig4_1_latencies.png",
