@@ -75,6 +75,9 @@ class ConsoleModel:
     _stop: threading.Event = field(default_factory=threading.Event)
     _changed: threading.Condition = field(default_factory=threading.Condition)
     _generation: int = 0
+    _halt: float | None = None  # the last halt not yet matched by a braking cycle
+    _fault: tuple[str, float] | None = None  # (tracker in use, verdict stamp) until a swap
+    _in_use: str | None = None
     _thread: threading.Thread | None = None
 
     # -- lifecycle -----------------------------------------------------------------
@@ -212,15 +215,15 @@ class ConsoleModel:
         self._halt = message.stamp
 
     def _on_motion(self, message: EventMessage) -> None:
-        halt = getattr(self, "_halt", None)
+        halt = self._halt
         if message.name == "stopping" and halt is not None and 0 <= message.stamp - halt < 1.0:
             self._latency("STOP sent -> braking", message.stamp - halt)
             self._halt = None
 
     def _on_tracking(self, message: EventMessage) -> None:
-        in_use = ((self._get("supervisor") or {}).get("tracker")) or getattr(self, "_in_use", None)
+        in_use = ((self._get("supervisor") or {}).get("tracker")) or self._in_use
         health = (message.payload or {}).get("health", {}).get(in_use or "", {})
-        fault = getattr(self, "_fault", None)
+        fault = self._fault
         if fault is not None and message.stamp - fault[1] > 2.0:
             fault = self._fault = None  # no swap followed (no tracker left, or recovered)
         if in_use and health.get("ok") is False and fault is None:
@@ -228,7 +231,7 @@ class ConsoleModel:
         self._in_use = in_use
 
     def _on_source(self, message: EventMessage) -> None:
-        fault = getattr(self, "_fault", None)
+        fault = self._fault
         tracker = (message.payload or {}).get("tracker", "")
         if fault is not None and tracker and tracker != fault[0]:
             if 0 <= message.stamp - fault[1] < 2.0:
