@@ -1,7 +1,8 @@
 """Activities decide when a component's `update()` runs; executors make it happen.
 
 * `periodic` at a rate (Hz), `event` when new data arrives on chosen input
-  ports, `after` another component of the same process (in its thread, right
+  ports (with `idle`, the component's `idle_hook` also runs whenever no data came
+  for that long: a watchdog that must act when its input falls silent), `after` another component of the same process (in its thread, right
   after each of its updates: OROCOS's slave activity, for a controller that must
   answer its robot every cycle without a thread hand-over), or `passive` (only
   operations and lifecycle calls).
@@ -21,7 +22,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from framework.clock import SimulatedClock
+from framework.clock import MonotonicClock, SimulatedClock
 from framework.component import Component
 from framework.errors import FwError
 
@@ -38,6 +39,8 @@ class Activity:
     rate: float = 0.0
     ports: tuple[str, ...] = ()
     master: str = ""
+    idle: float = 0.0
+    """Event-driven only: run `idle_hook` after this long without data (s; 0: never)."""
 
     @classmethod
     def periodic(cls, rate: float) -> Activity:
@@ -47,17 +50,30 @@ class Activity:
         return cls("periodic", float(rate))
 
     @classmethod
-    def event(cls, *ports: str) -> Activity:
-        """Update when any of these input ports receives a sample."""
+    def event(cls, *ports: str, idle: float = 0.0) -> Activity:
+        """Update when any of these input ports receives a sample (and run `idle_hook`
+        after `idle` seconds without one, if given)."""
         if not ports:
             raise ActivityError("an event-driven activity needs at least one input port")
-        return cls("event", 0.0, tuple(ports))
+        if not (isinstance(idle, int | float) and 0.0 <= idle <= 10.0):
+            raise ActivityError(f"idle must be a duration up to 10 s, got {idle!r}")
+        return cls("event", 0.0, tuple(ports), idle=float(idle))
 
     @classmethod
     def from_spec(cls, spec: Any) -> Activity:
-        """From YAML: `passive`, `{periodic: 100}`, `{event: [port, ...]}` or `{after: name}`."""
+        """From YAML: `passive`, `{periodic: 100}`, `{event: [port, ...]}` (optionally with
+        `idle: 5ms`) or `{after: name}`."""
         if spec in (None, "passive"):
             return cls()
+        if isinstance(spec, dict) and set(spec) == {"event", "idle"}:
+            from framework.durations import parse_duration
+
+            arg = spec["event"]
+            try:
+                idle = parse_duration(spec["idle"])
+            except ValueError as exc:
+                raise ActivityError(f"idle: {exc}") from None
+            return cls.event(*([arg] if isinstance(arg, str) else arg), idle=idle)
         if isinstance(spec, dict) and len(spec) == 1:
             ((kind, arg),) = spec.items()
             if kind == "periodic":
@@ -67,8 +83,8 @@ class Activity:
             if kind == "after" and isinstance(arg, str) and arg.isidentifier():
                 return cls("after", master=arg)
         raise ActivityError(
-            "activity must be 'passive', {periodic: HZ}, {event: [PORTS]} or "
-            f"{{after: COMPONENT}}, not {spec!r}"
+            "activity must be 'passive', {periodic: HZ}, {event: [PORTS]} (optionally with "
+            f"idle: DURATION) or {{after: COMPONENT}}, not {spec!r}"
         )
 
     def check(self, component: Component) -> None:
@@ -86,6 +102,8 @@ class Activity:
         if self.kind == "periodic":
             return {"periodic": self.rate}
         if self.kind == "event":
+            if self.idle:
+                return {"event": list(self.ports), "idle": self.idle}
             return {"event": list(self.ports)}
         if self.kind == "after":
             return {"after": self.master}
@@ -93,16 +111,27 @@ class Activity:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data for introspection."""
-        out = {"kind": self.kind, "rate": self.rate, "ports": list(self.ports)}
+        out: dict[str, Any] = {"kind": self.kind, "rate": self.rate, "ports": list(self.ports)}
         if self.master:
             out["after"] = self.master
+        if self.idle:
+            out["idle"] = self.idle
         return out
+
+
+def _idle_period(component: Component, activity: Activity) -> float:
+    """How long an event-driven component waits for data before an idle tick (s)."""
+    periods = [0.1, *([activity.idle] if activity.idle else [])]
+    if component.heartbeat is not None:
+        periods.append(component.heartbeat.period)
+    return min(periods)
 
 
 class RealTimeExecutor:
     """One thread per active component, on monotonic time."""
 
     def __init__(self) -> None:
+        self.clock = MonotonicClock()
         self._entries: list[tuple[Component, Activity]] = []
         self._threads: list[threading.Thread] = []
         self._stop = threading.Event()
@@ -157,8 +186,10 @@ class RealTimeExecutor:
     def _event(self, component: Component, activity: Activity) -> None:
         wake = self._wake[component.name]
         ports = [component.inputs[name] for name in activity.ports]
+        idle = _idle_period(component, activity)
         while not self._stop.is_set():
-            if not wake.wait(0.1):
+            if not wake.wait(idle):
+                component.idle()
                 continue
             wake.clear()
             while any(p.pending() for p in ports) and not self._stop.is_set():
@@ -200,6 +231,12 @@ class SteppedExecutor:
             )
         elif activity.kind == "event":
             self._event.append((component, activity.ports))
+            if component.heartbeat is not None or activity.idle:  # idle ticks, as in real time
+                self._order += 1
+                period = _idle_period(component, activity)
+                heapq.heappush(
+                    self._periodic, (self.clock.now() + period, self._order, component, -period)
+                )
         elif activity.kind == "after":
             self._followers.setdefault(activity.master, []).append(component)
 
@@ -234,7 +271,11 @@ class SteppedExecutor:
         while self._periodic and self._periodic[0][0] <= end + 1e-12:
             deadline, order, component, period = heapq.heappop(self._periodic)
             self.clock.set(max(deadline, self.clock.now()))
-            updates += self._update(component) + self.run_pending()
-            heapq.heappush(self._periodic, (deadline + period, order, component, period))
+            if period < 0:  # an event-driven component's idle beat (see `add`)
+                component.idle()
+                updates += self.run_pending()
+            else:
+                updates += self._update(component) + self.run_pending()
+            heapq.heappush(self._periodic, (deadline + abs(period), order, component, period))
         self.clock.set(max(end, self.clock.now()))  # a deadline within rounding of `end` ran
         return updates

@@ -176,7 +176,7 @@ class _Printer(Listener):
 
 
 def _parse_token(token: str) -> tuple[str, Any]:
-    from framework.statechart.loader import parse_duration
+    from framework.durations import parse_duration
 
     token = token.strip()
     if token.startswith("+"):

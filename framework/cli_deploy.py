@@ -100,13 +100,21 @@ def _screen(deployment: Any, started: float, console: str = "") -> str:
         mark = "ok  " if outcome.ok else "FAIL"
         extra = "" if outcome.ok else f"  {outcome.step}: {outcome.reason}"
         lines.append(f"  {mark} {outcome.tag:<24} {outcome.seconds * 1e3:7.2f} ms{extra}")
+    watch = deployment.watch
+    lost = deployment.coordinator.lost if deployment.coordinator is not None else {}
+    lost_processes = watch.lost if watch is not None else {}
     lines += ["", f"{'component':<20} {'process':<16} state"]
     for spec in deployment.topology.components.values():
-        try:
-            state = RemoteComponent(deployment.hub, spec.name, 0.3).state()
-        except RemoteError:
-            state = "NOT RESPONDING"
+        if spec.name in lost or spec.process in lost_processes:
+            state = f"LOST ({lost_processes.get(spec.process, 'no liveliness')})"
+        else:
+            try:
+                state = RemoteComponent(deployment.hub, spec.name, 0.3).state()
+            except RemoteError:
+                state = "NOT RESPONDING"
         lines.append(f"{spec.name:<20} {spec.process:<16} {state}")
+    if watch is not None and watch.incidents:
+        lines += ["", *watch.incidents[-5:]]
     return "\n".join(lines)
 
 
@@ -145,7 +153,8 @@ def cmd_deploy(args: argparse.Namespace) -> int:
             if c.info
             for op in c.info.operations
         }
-        scenario = load_scenario(args.scenario, events, operations, states)
+        processes = {c.process for c in topology.components.values()}
+        scenario = load_scenario(args.scenario, events, operations, states, processes)
         if not args.record:  # a scenario run always leaves its flight recording
             args.record = str(Path("out") / "scenarios" / f"{scenario.name}.mcap")
             Path(args.record).parent.mkdir(parents=True, exist_ok=True)
@@ -170,6 +179,11 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     started = time.monotonic()
+    if topology.safety is not None:  # the Coordinator's process is watched too
+        from framework.container import raise_priority
+        from framework.deployer import SAFETY_NICE
+
+        raise_priority(SAFETY_NICE, "control")
     try:
         deployment.start(run_chart=False)
         if args.record:
@@ -346,8 +360,10 @@ def cmd_status(args: argparse.Namespace) -> int:
             chart = RemoteComponent(bus, "coordinator", 3.0).call("active")
         except RemoteError:
             chart = None
+        alive = {k.rsplit("/", 1)[-1] for k in bus.alive(keys.ALL_ALIVE, 1.0)}
+        lost = {n: c.process for n, c in topology.components.items() if n not in alive}
         if args.json:
-            print(json.dumps({"containers": found, "chart": chart}, indent=2))
+            print(json.dumps({"containers": found, "chart": chart, "lost": lost}, indent=2))
             return 0
         if chart is not None:
             print(
@@ -364,6 +380,8 @@ def cmd_status(args: argparse.Namespace) -> int:
                 except RemoteError:
                     state = "NOT RESPONDING"
                 print(f"{name:<20} {container:<16} {state}")
+        for name, process in lost.items():
+            print(f"{name:<20} {process:<16} LOST (no liveliness: its process died or hangs)")
         return 0
 
 

@@ -49,3 +49,18 @@ class SimulatedClock:
         if t < self._now:
             raise ValueError(f"a clock cannot go backwards ({t} < {self._now})")
         self._now = float(t)
+
+
+def late(deadline: float | None, now: float | None = None) -> str:
+    """'' if a request with this wall-clock deadline (s; None or 0: none) may still run,
+    else the reason to refuse it. Deadlines compare wall clocks, so every host of a
+    deployment needs its clock synchronised (NTP, PTP) to well under the deadlines."""
+    if not deadline:
+        return ""
+    overdue = (time.time() if now is None else now) - float(deadline)
+    if overdue <= 0:
+        return ""
+    return (
+        f"refused, not run: its deadline passed {overdue * 1e3:.0f} ms ago "
+        "(the process was busy or hung; the requester has given up on it)"
+    )

@@ -26,6 +26,7 @@ state listener (the container publishes it on the bus): never swallowed.
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import threading
 import time
@@ -35,6 +36,7 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Any
 
+from framework.clock import Clock, MonotonicClock, late
 from framework.errors import FwError
 from framework.ports import ConnPolicy, InputPort, OutputPort
 from framework.properties import Property, PropertyError
@@ -98,14 +100,43 @@ class Out:
         self.type, self.doc = type, doc
 
 
-def operation(fn: Callable[..., Any] | None = None, *, doc: str = "") -> Any:
-    """Mark a method as an operation, callable locally and from other processes."""
+def operation(
+    fn: Callable[..., Any] | None = None, *, doc: str = "", exclusive: bool = True
+) -> Any:
+    """Mark a method as an operation, callable locally and from other processes.
+
+    An operation runs holding the component's lock (never beside an update or another
+    operation); `exclusive=False` is for one that only waits for, or reads,
+    thread-safe state, so waiting does not stall the component's own activity."""
 
     def mark(method: Callable[..., Any]) -> Callable[..., Any]:
         method.__fw_operation__ = doc or (inspect.getdoc(method) or "").split("\n")[0]
+        method.__fw_exclusive__ = exclusive
         return method
 
     return mark(fn) if fn is not None else mark
+
+
+class Heartbeat:
+    """A watched component's proof of life (see framework/safety.py): a sample on its
+    heartbeat key at most once per `period`, written from the component's own activity
+    thread and only while it is Running, so a hung thread, a dead process or a component
+    that left Running all fall silent."""
+
+    def __init__(self, port: OutputPort[Any], period: float, clock: Clock):
+        self.port, self.period, self.clock = port, period, clock
+        self.count = 0
+        self._last = -float("inf")
+
+    def beat(self) -> None:
+        """Publish if a period has passed since the last beat."""
+        now = self.clock.now()
+        if now - self._last >= self.period:
+            from framework.messages import Scalar
+
+            self._last = now
+            self.count += 1
+            self.port.write(Scalar(time.time(), float(self.count)))
 
 
 class Component:
@@ -113,6 +144,9 @@ class Component:
 
     needs_configuration = True
     """If False, the component starts in Stopped (RTT: initial state Stopped)."""
+    hosts_safety_monitor = False
+    """True if the component runs a `SafetyMonitor` in its control loop (see
+    framework/safety.py): a topology may then name it as its `safety: monitor:`."""
 
     def __init__(self, name: str):
         if not name.isidentifier():
@@ -129,6 +163,13 @@ class Component:
         self.operations: dict[str, Callable[..., Any]] = {}
         self.bus: Any = None
         """The bus of the hosting container (set when a container adds the component)."""
+        self.clock: Clock = MonotonicClock()
+        """The time of the hosting executor: monotonic, or a test's simulated clock."""
+        self.heartbeat: Heartbeat | None = None
+        """Set by the container when the topology watches this component."""
+        self.safety: Any = None
+        """The `SafetyMonitor` the container attaches if the topology names this component
+        as its safety monitor (only when `hosts_safety_monitor`)."""
         for attr, _ in declarations(type(self)):
             if attr in _RESERVED:
                 raise FwError(
@@ -213,6 +254,13 @@ class Component:
     # -- operations ----------------------------------------------------------------
     def call(self, operation_name: str, /, **kwargs: Any) -> Any:
         """Call an operation by name with keyword arguments (checked against its signature)."""
+        return self.invoke(operation_name, kwargs)
+
+    def invoke(
+        self, operation_name: str, kwargs: dict[str, Any], deadline: float | None = None
+    ) -> Any:
+        """`call` for a request with a wall-clock `deadline`: refused, not run, if the
+        deadline has passed by the time the component's lock is free."""
         method = self.operations.get(operation_name)
         if method is None:
             known = ", ".join(sorted(self.operations)) or "none"
@@ -223,7 +271,11 @@ class Component:
             inspect.signature(method).bind(**kwargs)
         except TypeError as exc:
             raise OperationError(f"{self.name}.{operation_name}: {exc}") from None
-        with self._lifecycle_lock:
+        lock = self._lifecycle_lock if getattr(method, "__fw_exclusive__", True) else None
+        with lock or contextlib.nullcontext():
+            overdue = late(deadline)
+            if overdue:
+                raise OperationError(f"{self.name}.{operation_name}: {overdue}")
             try:
                 return method(**kwargs)
             except FwError:
@@ -366,6 +418,24 @@ class Component:
                 getattr(self, hook)()
             except Exception as exc:
                 self.exception(f"{hook} raised {type(exc).__name__}: {exc}")
+                return
+            if self.heartbeat is not None and self._state is State.RUNNING:
+                self.heartbeat.beat()
+
+    def idle(self) -> None:
+        """Called by an event-driven activity when no data came for a while: `idle_hook`
+        runs, and a watched component still proves it runs (its thread is alive and it
+        is not blocked)."""
+        with self._lifecycle_lock:
+            if self._state is not State.RUNNING:
+                return
+            try:
+                self.idle_hook()
+            except Exception as exc:
+                self.exception(f"idle_hook raised {type(exc).__name__}: {exc}")
+                return
+            if self.heartbeat is not None:
+                self.heartbeat.beat()
 
     # -- hooks (override) -----------------------------------------------------------
     def configure_hook(self) -> bool | None:
@@ -381,6 +451,9 @@ class Component:
 
     def error_hook(self) -> None:
         """Runs instead of update_hook while in RunTimeError."""
+
+    def idle_hook(self) -> None:
+        """An event-driven activity's input was silent for its `idle` period."""
 
     def stop_hook(self) -> None:
         """Stopping: make outputs safe."""
@@ -438,7 +511,9 @@ class Component:
 def _reserved_names() -> frozenset[str]:
     names = {n for n in vars(Component) if not n.startswith("__")}
     return frozenset(
-        names | {"name", "inputs", "outputs", "operations", "last_error", "declared_properties"}
+        names
+        | {"name", "inputs", "outputs", "operations", "last_error", "declared_properties"}
+        | {"bus", "clock", "heartbeat", "safety"}
     )
 
 

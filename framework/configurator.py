@@ -13,7 +13,9 @@ states, the `do` actions (disconnect, connect, set, call, write), then the
 timeout (or its own). On failure the Configurator stops, undoes the
 connection and property changes this application made (newest first,
 best effort) and reports the failure; lifecycle changes stay as they are,
-and the statechart's `config.failed` transition decides what is safe.
+and the statechart's `config.failed` transition decides what is safe. A request
+carries the chart's deadline (its configuration timeout): one that comes too late is
+refused, and no step starts after it, so nothing the chart has given up on runs late.
 Re-applying a configuration is harmless: connections already in place and
 components already in their target state are left alone (operations are
 called again, so they should be idempotent).
@@ -28,6 +30,7 @@ from typing import Any
 
 from framework import messages
 from framework.bus import Bus
+from framework.clock import late
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError
 from framework.messages import ConfigAck, ConfigRequest
@@ -99,13 +102,19 @@ class Configurator(Component):
             )
 
     def _serve(self, request: ConfigRequest) -> Outcome:
+        overdue = late(request.deadline)
+        if overdue:  # the chart gave up on it already: never apply it late
+            outcome = Outcome(request.tag, False, "deadline", overdue)
+            self.history.append(outcome)
+            return outcome
+        deadline = request.deadline or None
         if request.tag == CALL_TAG:
-            return self._single(request, "call")
+            return self._single(request, "call", deadline)
         if request.tag == WRITE_TAG:
-            return self._single(request, "write")
-        return self.apply(request.tag)
+            return self._single(request, "write", deadline)
+        return self.apply(request.tag, deadline)
 
-    def _single(self, request: ConfigRequest, kind: str) -> Outcome:
+    def _single(self, request: ConfigRequest, kind: str, deadline: float | None = None) -> Outcome:
         """A chart's `call`/`write` action, run as a one-step configuration."""
         args = request.args
         comp, _, target = str(args.get("target", "")).partition(".")
@@ -117,7 +126,7 @@ class Configurator(Component):
             value=args.get("value"),
             timeout=float(args.get("timeout", 2.0)),
         )
-        return self._run(f"{request.tag} {args.get('target')}", [step])
+        return self._run(f"{request.tag} {args.get('target')}", [step], deadline)
 
     # -- applying ------------------------------------------------------------------
     @operation
@@ -125,8 +134,9 @@ class Configurator(Component):
         """Apply configuration `tag` now (after any running one); the outcome as data."""
         return dict(self.apply(tag).__dict__)
 
-    def apply(self, tag: str) -> Outcome:
-        """Apply configuration `tag` now (queued behind any running one)."""
+    def apply(self, tag: str, deadline: float | None = None) -> Outcome:
+        """Apply configuration `tag` now (queued behind any running one); no step starts
+        after `deadline` (wall clock, s), and every step's request carries it."""
         configuration = self.topology.configurations.get(tag)
         if configuration is None:
             known = ", ".join(sorted(self.topology.configurations)) or "none"
@@ -135,15 +145,42 @@ class Configurator(Component):
             )
             self.history.append(outcome)
             return outcome
-        return self._run(tag, configuration.steps)
+        return self._run(tag, configuration.steps, deadline)
 
-    def _run(self, tag: str, steps: list[Step]) -> Outcome:
+    def run_steps(self, label: str, steps: list[Step]) -> Outcome:
+        """Apply steps that are not a named configuration (the deployer's initial states,
+        a restarted process's restore), in turn with configurations, every step sent
+        even where the wiring already says so."""
+        return self._run(label, steps, force=True)
+
+    def restore_steps(self, components: set[str]) -> list[Step]:
+        """The connections of `components` that configurations changed since the
+        topology's initial wiring (a restarted process starts with that one)."""
+        initial = {(s.component, s.target): (s.key, s.policy) for s in self.topology.connections}
+        steps = [
+            Step("connect", comp, port, key=key, policy=policy)
+            for (comp, port), (key, policy) in self.wiring.items()
+            if comp in components and initial.get((comp, port)) != (key, policy)
+        ]
+        steps += [
+            Step("disconnect", comp, port)
+            for (comp, port) in initial
+            if comp in components and (comp, port) not in self.wiring
+        ]
+        return steps
+
+    def _run(
+        self, tag: str, steps: list[Step], deadline: float | None = None, force: bool = False
+    ) -> Outcome:
         with self._apply_lock:
             start = time.perf_counter()
             undo: list[Step] = []
             try:
-                for batch in self._batches(steps):
-                    self._send(batch, undo)
+                for batch in self._batches(steps, force):
+                    overdue = late(deadline)
+                    if overdue:
+                        raise StepFailed(batch[0].describe(), overdue)
+                    self._send(batch, undo, deadline)
             except StepFailed as exc:
                 rolled = self._roll_back(undo)
                 outcome = Outcome(
@@ -154,13 +191,14 @@ class Configurator(Component):
             self.history.append(outcome)
             return outcome
 
-    def _batches(self, steps: list[Step]) -> list[list[Step]]:
+    def _batches(self, steps: list[Step], force: bool = False) -> list[list[Step]]:
         """Consecutive steps on one component travel together (one round trip each)."""
         batches: list[list[Step]] = []
         for step in steps:
-            if step.kind == "connect" and self.wiring.get((step.component, step.target)) == (
-                step.key,
-                step.policy,
+            if (
+                not force
+                and step.kind == "connect"
+                and self.wiring.get((step.component, step.target)) == (step.key, step.policy)
             ):
                 continue  # already so: re-applying is harmless
             if (
@@ -186,14 +224,16 @@ class Configurator(Component):
             return {"op": "exchange", "property": step.target, "value": step.value}
         return {"op": "call", "operation": step.target, "args": step.args}
 
-    def _send(self, batch: list[Step], undo: list[Step]) -> None:
+    def _send(self, batch: list[Step], undo: list[Step], deadline: float | None = None) -> None:
         first = batch[0]
         if first.kind == "write":
             self._write(first)
             return
         remote = RemoteComponent(self.bus, first.component, sum(s.timeout for s in batch))
         try:
-            answer = remote.request("batch", steps=[self._request(s) for s in batch])
+            answer = remote.request(
+                "batch", deadline=deadline, steps=[self._request(s) for s in batch]
+            )
         except RemoteError as exc:
             raise StepFailed(first.describe(), str(exc)) from None
         done = batch if answer["failed"] is None else batch[: answer["failed"]]

@@ -29,10 +29,12 @@ from typing import Any
 from framework import keys, messages
 from framework.activity import Activity, RealTimeExecutor, SteppedExecutor
 from framework.bus import Bus, BusConfig, BusError
-from framework.component import Component, LifecycleError, StateChange
+from framework.clock import late
+from framework.component import Component, Heartbeat, LifecycleError, StateChange
 from framework.errors import FwError
-from framework.messages import EventMessage
-from framework.ports import ConnPolicy, InputPort, PortError
+from framework.messages import EventMessage, Scalar
+from framework.ports import ConnPolicy, InputPort, OutputPort, PortError
+from framework.safety import ProcessHeartbeat, SafetyMonitor, SafetySpec
 
 log = logging.getLogger("fw.container")
 
@@ -41,15 +43,26 @@ class ContainerError(FwError):
     """A container request or specification is wrong."""
 
 
+class LateRequest(ContainerError):
+    """A request whose deadline passed before it could run: refused, never run late."""
+
+
 class Container:
     """Hosts components in this process and serves their remote interface."""
 
     def __init__(
-        self, name: str, bus: Bus, executor: RealTimeExecutor | SteppedExecutor | None = None
+        self,
+        name: str,
+        bus: Bus,
+        executor: RealTimeExecutor | SteppedExecutor | None = None,
+        beat: float | None = None,
     ):
+        """With `beat` (s), the process proves it is scheduled on its heartbeat key (the
+        safety monitor's hang detection, see framework/safety.py)."""
         self.name = name
         self.bus = bus
         self.executor = executor or RealTimeExecutor()
+        self.beat = ProcessHeartbeat(bus, name, beat) if beat else None
         self.components: dict[str, Component] = {}
         self.activities: dict[str, Activity] = {}
         self._declared: list[Any] = []
@@ -67,9 +80,12 @@ class Container:
         activity: Activity | None = None,
         properties: dict[str, Any] | None = None,
         outputs: dict[str, str] | None = None,
+        heartbeat: float | None = None,
+        safety: SafetySpec | None = None,
     ) -> Component:
         """Host a component: attach its ports, publish outputs on their default keys,
-        declare its control queryable and liveliness token."""
+        declare its control queryable and liveliness token; with `heartbeat` (s), it
+        proves it runs on its heartbeat key; with `safety`, it hosts the safety monitor."""
         name = component.name
         if name in self.components:
             raise ContainerError(f"container {self.name!r} already hosts {name!r}")
@@ -78,6 +94,20 @@ class Container:
         if properties:
             component.set_properties(properties)
         component.bus = self.bus
+        component.clock = self.executor.clock
+        if heartbeat:
+            port: OutputPort[Any] = OutputPort("heartbeat", Scalar, "proof of life")
+            port.owner, port.bus = name, self.bus
+            port.connect(keys.heartbeat(name))
+            component.heartbeat = Heartbeat(port, heartbeat, component.clock)
+        if safety is not None:
+            if not component.hosts_safety_monitor:
+                raise ContainerError(
+                    f"{name} ({type(component).__name__}) cannot host the safety monitor"
+                )
+            component.safety = SafetyMonitor(safety, component.clock, self.name).attach(
+                self.bus, name
+            )
         for port in (*component.inputs.values(), *component.outputs.values()):
             port.bus = self.bus
         for port in component.outputs.values():
@@ -97,8 +127,10 @@ class Container:
         return component
 
     def start(self) -> None:
-        """Start the executor (components still need configure/start)."""
+        """Start the executor (components still need configure/start) and the beat."""
         self.executor.start()
+        if self.beat is not None:
+            self.beat.start()
 
     def _publish_state(self, change: StateChange) -> None:
         publisher = self._state_publishers.get(change.component)
@@ -193,16 +225,25 @@ class Container:
 
     # -- remote requests -------------------------------------------------------------
     def handle(self, component: Component, request: dict[str, Any]) -> Any:
-        """Execute one control request (the body of the control queryable)."""
+        """Execute one control request (the body of the control queryable). A request
+        whose `deadline` (wall clock) has passed is refused with `LateRequest`, unrun."""
         op = request.get("op")
         name = component.name
+        deadline = request.get("deadline")
+
+        def check() -> None:
+            why = late(deadline)
+            if why:
+                raise LateRequest(f"{name}: {op}: {why}")
+
+        check()
         if op in ("configure", "start", "stop", "cleanup", "recover"):
             ok = getattr(component, op)()
             return {"ok": ok, "state": component.state.value, "reason": component.last_error}
         if op == "state":
             return {"state": component.state.value, "reason": component.last_error}
         if op == "bring":
-            return bring(component, request["target"])
+            return bring(component, request["target"], check)
         if op == "exchange":
             old = component.get_property(request["property"])
             return {
@@ -210,7 +251,7 @@ class Container:
                 "value": component.set_property(request["property"], request["value"]),
             }
         if op == "batch":
-            return self._batch(component, request["steps"])
+            return self._batch(component, request["steps"], deadline)
         if op == "describe":
             info = component.describe()
             info["activity"] = self.activities[name].to_dict()
@@ -230,16 +271,19 @@ class Container:
             component.set_properties(request["values"])
             return {k: component.get_property(k) for k in request["values"]}
         if op == "call":
-            return component.call(request["operation"], **request.get("args", {}))
+            return component.invoke(request["operation"], request.get("args", {}), deadline)
         raise ContainerError(f"unknown request {op!r}")
 
-    def _batch(self, component: Component, steps: list[dict[str, Any]]) -> dict[str, Any]:
+    def _batch(
+        self, component: Component, steps: list[dict[str, Any]], deadline: float | None = None
+    ) -> dict[str, Any]:
         """Run several requests on one component in one round trip; stop at the first
-        failure and say which one failed and why."""
+        failure (a step that would start after the batch's deadline is one) and say
+        which one failed and why."""
         results: list[Any] = []
         for index, step in enumerate(steps):
             try:
-                result = self.handle(component, step)
+                result = self.handle(component, {**step, "deadline": deadline})
             except (FwError, KeyError, TypeError, ValueError) as exc:
                 reason = f"missing field {exc}" if isinstance(exc, KeyError) else str(exc)
                 return {"results": results, "failed": index, "error": reason}
@@ -290,6 +334,8 @@ class Container:
             if self._closed:
                 return
             self._closed = True
+        if self.beat is not None:
+            self.beat.stop()
         for component in reversed(list(self.components.values())):
             with contextlib.suppress(LifecycleError):
                 component.stop()
@@ -303,6 +349,12 @@ class Container:
             for port in component.outputs.values():
                 with contextlib.suppress(Exception):
                     port.disconnect()
+            if component.heartbeat is not None:
+                with contextlib.suppress(Exception):
+                    component.heartbeat.port.disconnect()
+            if component.safety is not None:
+                with contextlib.suppress(Exception):
+                    component.safety.close()
         for entity in [
             *self._declared,
             *self._type_queryables.values(),
@@ -331,9 +383,12 @@ LIFECYCLE_PATHS: dict[tuple[str, str], list[str]] = {
 TARGET_STATES = {"running": "Running", "stopped": "Stopped", "preoperational": "PreOperational"}
 
 
-def bring(component: Component, target: str) -> dict[str, Any]:
+def bring(
+    component: Component, target: str, check: Callable[[], None] | None = None
+) -> dict[str, Any]:
     """Drive a component to `running`, `stopped` or `preoperational` by the shortest
-    path of lifecycle operations; ok False with the reason if a hook refuses."""
+    path of lifecycle operations; ok False with the reason if a hook refuses. `check`
+    runs before each operation (a request's deadline) and may raise to stop there."""
     if target not in TARGET_STATES:
         raise ContainerError(f"unknown target state {target!r} (known: {', '.join(TARGET_STATES)})")
     start = component.state.value
@@ -349,6 +404,8 @@ def bring(component: Component, target: str) -> dict[str, Any]:
             f"{TARGET_STATES[target]}",
         }
     for op in path:
+        if check is not None:
+            check()
         if not getattr(component, op)():
             return {
                 "ok": False,
@@ -377,15 +434,18 @@ def load_class(path: str) -> type[Component]:
 
 def build(spec: dict[str, Any], bus: Bus) -> Container:
     """A container with the components of `spec` added (configured/started if asked)."""
-    container = Container(spec["name"], bus)
+    container = Container(spec["name"], bus, beat=spec.get("beat"))
     for item in spec.get("components", []):
         cls = load_class(item["class"])
         component = cls(item["name"])
+        safety = item.get("safety")
         container.add(
             component,
             Activity.from_spec(item.get("activity")),
             item.get("properties"),
             item.get("outputs"),
+            item.get("heartbeat"),
+            SafetySpec.from_dict(safety) if safety else None,
         )
         for port, conn in (item.get("connections") or {}).items():
             container.connect(component.name, port, conn["key"], conn.get("policy"))
@@ -400,6 +460,26 @@ def build(spec: dict[str, Any], bus: Bus) -> Container:
     return container
 
 
+def raise_priority(nice: int, process: str) -> bool:
+    """Run this process at `nice` (negative: ahead of the host's other programs), so
+    a busy host does not starve the robot side or the safety producers past their
+    deadlines; needs root or CAP_SYS_NICE, otherwise a warning and False."""
+    try:
+        current = os.getpriority(os.PRIO_PROCESS, 0)
+        if current > nice:
+            os.setpriority(os.PRIO_PROCESS, 0, nice)
+        return True
+    except OSError as exc:
+        log.warning(
+            "process %s: cannot raise its priority to nice %d (%s): on a busy host a "
+            "safety deadline may be missed and stop the robot",
+            process,
+            nice,
+            exc.strerror,
+        )
+        return False
+
+
 def serve(spec: dict[str, Any], ready: Callable[[], None] | None = None) -> int:
     """Run a container process until SIGTERM/SIGINT or a shutdown request."""
     done = threading.Event()
@@ -412,6 +492,8 @@ def serve(spec: dict[str, Any], ready: Callable[[], None] | None = None) -> int:
 
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, on_signal)
+    if spec.get("nice"):
+        raise_priority(int(spec["nice"]), spec["name"])
     bus = Bus(BusConfig.from_dict(spec["bus"]), hub=spec.get("hub", False))
     try:
         container = build(spec, bus)

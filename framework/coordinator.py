@@ -10,6 +10,11 @@ is the only part that touches components); its `send` actions are published
 on `sent`. Every step is published on `status`: the event, the transitions, and
 the active configuration afterwards.
 
+Given the deployment's components (`watch`), it also follows their liveliness for the
+whole run: a component whose process dies or can no longer be reached becomes the
+chart's builtin event `component.lost {component, process}` (and `component.back`
+when it returns), so a lost process is a chart event, never silence.
+
 The chart runs on its own thread, on monotonic time; tests can drive the same
 chart deterministically with the interpreter and a `SimulatedClock`.
 """
@@ -22,19 +27,30 @@ import threading
 import time
 from typing import Any
 
+from framework import keys
 from framework.component import Component, In, Out, operation
 from framework.configurator import CALL_TAG, WRITE_TAG
 from framework.messages import ConfigAck, ConfigRequest, EventMessage
 from framework.ports import ReadStatus
 from framework.statechart.events import Event, Listener, Output
 from framework.statechart.interpreter import Interpreter
-from framework.statechart.model import CONFIG_DONE, CONFIG_FAILED, State, Statechart, Transition
+from framework.statechart.model import (
+    COMPONENT_BACK,
+    COMPONENT_LOST,
+    CONFIG_DONE,
+    CONFIG_FAILED,
+    State,
+    Statechart,
+    Transition,
+)
 
 EVENTS_KEY = "fw/events"
 REQUESTS_KEY = "fw/config/request"
 ACKS_KEY = "fw/config/ack"
 STATUS_KEY = "fw/coordinator/status"
 SENT_KEY = "fw/coordinator/sent"
+ACTION_TIMEOUT = 2.0
+"""Seconds a chart's `call` or `write` action may take (a configuration has its own)."""
 
 
 class _Publisher(Listener):
@@ -91,9 +107,22 @@ class Coordinator(Component):
     status = Out(EventMessage, doc="events, transitions and the active configuration")
     sent = Out(EventMessage, doc="events the chart sends to the outside world")
 
-    def __init__(self, name: str, chart: Statechart, listeners: list[Listener] | None = None):
+    def __init__(
+        self,
+        name: str,
+        chart: Statechart,
+        listeners: list[Listener] | None = None,
+        watch: dict[str, str] | None = None,
+    ):
+        """`watch` maps every component of the deployment to its process: their losses
+        become `component.lost` events."""
         super().__init__(name)
         self.chart = chart
+        self.watch = dict(watch or {})
+        self.lost: dict[str, str] = {}
+        """Components lost now -> their process."""
+        self._alive: set[str] = set()
+        self._tokens: Any = None
         self.extra_listeners = list(listeners or [])
         self.interpreter: Interpreter | None = None
         self._ids = itertools.count(1)
@@ -116,9 +145,30 @@ class Coordinator(Component):
         self._stop.clear()
         self._thread = threading.Thread(target=self._loop, name=f"fw-{self.name}", daemon=True)
         self._thread.start()
+        if self.watch and self.bus is not None and self._tokens is None:
+            self._tokens = self.bus.watch(keys.ALL_ALIVE, self._on_token)
         return True
 
+    def _on_token(self, key: str, alive: bool) -> None:
+        """A liveliness token appeared or vanished (the bus's thread)."""
+        component = key.rsplit("/", 1)[-1]
+        process = self.watch.get(component)
+        if process is None:
+            return
+        payload = {"component": component, "process": process}
+        if alive:
+            self._alive.add(component)
+            if self.lost.pop(component, None) is not None:
+                self.inject(COMPONENT_BACK, payload)
+        elif component in self._alive:
+            self._alive.discard(component)
+            self.lost[component] = process
+            self.inject(COMPONENT_LOST, payload)
+
     def stop_hook(self) -> None:
+        if self._tokens is not None:
+            self._tokens.undeclare()
+            self._tokens = None
         self._stop.set()
         self._wake.set()
         if self._thread is not None and self._thread is not threading.current_thread():
@@ -172,7 +222,7 @@ class Coordinator(Component):
 
     def _on_output(self, output: Output) -> None:
         if output.kind == "configure":
-            self._request(output.tag, {})
+            self._request(output.tag, {}, output.timeout)
         elif output.kind == "call":
             self._request(CALL_TAG, {"target": output.operation, "args": output.args})
         elif output.kind == "write":
@@ -182,11 +232,15 @@ class Coordinator(Component):
         else:
             self.publish("log", {"state": output.state, "message": output.message})
 
-    def _request(self, tag: str, args: dict[str, Any]) -> None:
+    def _request(self, tag: str, args: dict[str, Any], timeout: float = ACTION_TIMEOUT) -> None:
+        """One request for the Configurator, with the deadline after which the chart has
+        given up on it (its configuration timeout): the Configurator refuses it then."""
         request_id = next(self._ids)
         self._pending[request_id] = tag
+        now = time.time()
+        deadline = now + (timeout if timeout > 0 else ACTION_TIMEOUT)
         self.publish("request", {"tag": tag, "request_id": request_id, **args})
-        self.requests.write(ConfigRequest(time.time(), request_id, tag, args))
+        self.requests.write(ConfigRequest(now, request_id, tag, args, deadline))
 
     # -- status ----------------------------------------------------------------------
     def publish(self, kind: str, payload: dict[str, Any]) -> None:
@@ -261,11 +315,18 @@ class Coordinator(Component):
         """Active states, pending configurations and the last events."""
         interpreter = self.interpreter
         if interpreter is None:
-            return {"active": [], "pending": {}, "finished": False, "last_events": []}
+            return {
+                "active": [],
+                "pending": {},
+                "finished": False,
+                "last_events": [],
+                "lost": dict(self.lost),
+            }
         with self._chart_lock:
             return {
                 "active": interpreter.leaves,
                 "pending": interpreter.pending_configurations,
                 "finished": interpreter.finished,
                 "last_events": list(self.last_events),
+                "lost": dict(self.lost),
             }

@@ -14,8 +14,10 @@ stopped and waited for before the others, the control components last.
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import subprocess
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,7 +39,8 @@ from framework.coordinator import (
 from framework.errors import FwError
 from framework.statechart.events import Listener
 from framework.statechart.loader import load_statechart
-from framework.topology import Step, Topology, load_topology
+from framework.topology import CONTROL_PROCESS, Step, Topology, load_topology
+from framework.watchdog import ProcessWatch
 
 
 class DeployError(FwError):
@@ -63,6 +66,17 @@ class Process:
 
 
 LOCAL = "local"
+SAFETY_NICE = -10
+"""With a safety monitor, every process of the deployment runs at this nice level (if
+the user may raise priorities): the host's other programs must not starve them past
+their deadlines."""
+
+
+def _resume(popen: subprocess.Popen[bytes]) -> None:
+    """SIGCONT, unless the process is gone meanwhile."""
+    if popen.poll() is None:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(popen.pid, signal.SIGCONT)
 
 
 def host_of(topology: Topology, process: str) -> str:
@@ -84,18 +98,28 @@ def container_spec(topology: Topology, process: str) -> dict[str, Any]:
             for ref, keys_ in topology.prepare.items()
             if ref.split(".", 1)[0] == spec.name
         }
-        components.append(
-            {
-                "name": spec.name,
-                "class": spec.class_path,
-                "activity": spec.activity.to_spec(),
-                "properties": spec.properties,
-                "outputs": spec.outputs,
-                "connections": connections,
-                "prepare": prepare,
-            }
-        )
-    return {"name": process, "bus": topology.bus.to_dict(), "components": components}
+        item = {
+            "name": spec.name,
+            "class": spec.class_path,
+            "activity": spec.activity.to_spec(),
+            "properties": spec.properties,
+            "outputs": spec.outputs,
+            "connections": connections,
+            "prepare": prepare,
+            "heartbeat": topology.heartbeats().get(spec.name),
+        }
+        if topology.safety is not None and topology.safety.monitor == spec.name:
+            item["safety"] = topology.safety.to_dict()
+        components.append(item)
+    spec: dict[str, Any] = {
+        "name": process,
+        "bus": topology.bus.to_dict(),
+        "components": components,
+    }
+    if topology.safety is not None:
+        spec["beat"] = topology.safety.process_beat
+        spec["nice"] = SAFETY_NICE
+    return spec
 
 
 @dataclass
@@ -116,6 +140,8 @@ class Deployment:
     control: Container | None = None
     configurator: Configurator | None = None
     coordinator: Coordinator | None = None
+    watch: ProcessWatch | None = None
+    """Watches the processes for the whole run (losses, restarts)."""
 
     @classmethod
     def from_file(cls, path: str | Path, workdir: str | Path, **options: Any) -> Deployment:
@@ -159,9 +185,12 @@ class Deployment:
         self._wait_for_liveliness(
             None if control else [c for p in self.processes for c in p.components]
         )
-        if not control:
-            return  # another host runs the Coordinator and the Configurator
-        self.control = Container("control", self.hub)
+        self.watch = ProcessWatch(self)
+        if not control:  # another host runs the Coordinator and the Configurator
+            self.watch.start()
+            return
+        beat = topo.safety.process_beat if topo.safety is not None else None
+        self.control = Container(CONTROL_PROCESS, self.hub, beat=beat)
         self.configurator = self.control.add(
             Configurator("configurator", topo, self.hub),
             Activity.event("requests"),
@@ -174,8 +203,9 @@ class Deployment:
             {"type": "buffer", "size": 64, "overflow": "drop_newest"},
         )
         if chart is not None:
+            watch = {c.name: c.process for c in topo.components.values()}
             self.coordinator = self.control.add(
-                Coordinator("coordinator", chart, self.listeners),
+                Coordinator("coordinator", chart, self.listeners, watch),
                 None,
                 outputs={"requests": REQUESTS_KEY, "status": STATUS_KEY, "sent": SENT_KEY},
             )
@@ -185,7 +215,7 @@ class Deployment:
         self.configurator.start()
         for spec in topo.components.values():
             if spec.initial not in ("preoperational", "ignore"):
-                outcome = self.configurator._run(
+                outcome = self.configurator.run_steps(
                     f"initial state of {spec.name}",
                     [Step("state", spec.name, spec.initial, timeout=5.0)],
                 )
@@ -193,6 +223,7 @@ class Deployment:
                     raise DeployError(f"{outcome.step}: {outcome.reason}")
         if run_chart:
             self.run_chart()
+        self.watch.start()
 
     def run_chart(self) -> None:
         """Start the Coordinator (the chart begins with its setup configurations) and the
@@ -207,12 +238,20 @@ class Deployment:
                     return RemoteComponent(self.hub, component).call(op, **args)  # type: ignore[arg-type]
 
                 self.runner = ScenarioRunner(
-                    self.scenario, self.send, call, self.report or (lambda text: None)
+                    self.scenario,
+                    self.send,
+                    call,
+                    self.report or (lambda text: None),
+                    self.inject_fault,
                 )
                 self.coordinator.extra_listeners.append(self.runner)
             self.coordinator.start()
             if self.runner is not None:
                 self.runner.start()
+
+    def wait_alive(self, components: list[str]) -> None:
+        """Wait until these components' liveliness tokens are up (a restarted process)."""
+        self._wait_for_liveliness(components)
 
     def _wait_for_liveliness(self, components: list[str] | None = None) -> None:
         assert self.hub is not None
@@ -223,7 +262,12 @@ class Deployment:
             alive = set(self.hub.alive(keys.ALL_ALIVE, 0.5))
             if expected <= alive:
                 return
-            dead = [p for p in self.processes if p.popen is not None and p.popen.poll() is not None]
+            mine = {c for c in (components or self.topology.components)}
+            dead = [
+                p
+                for p in self.processes
+                if p.popen is not None and p.popen.poll() is not None and mine & set(p.components)
+            ]
             if dead:
                 what = "; ".join(
                     f"process {p.name!r} exited with code {p.popen.returncode}: "
@@ -237,6 +281,21 @@ class Deployment:
         detail = ", ".join(f"{c} (process {by_process.get(c, '?')})" for c in missing)
         raise DeployError(f"components not alive after {self.liveliness_timeout:g} s: {detail}")
 
+    def inject_fault(self, fault: Any) -> None:
+        """Signal one of this deployment's processes (a scenario's `fault` step, `fw bench
+        chaos`): KILL, TERM, INT, or STOP followed by SIGCONT after `fault.hold` s."""
+        process = next((p for p in self.processes if p.name == fault.process), None)
+        if process is None or process.popen is None or process.popen.poll() is not None:
+            raise DeployError(f"no running process {fault.process!r} in this deployment")
+        pid = process.popen.pid
+        if self.watch is not None:
+            self.watch.note("fault_injected", fault.process, fault.describe())
+        os.kill(pid, getattr(signal, f"SIG{fault.signal}"))
+        if fault.signal == "STOP":
+            resume = threading.Timer(fault.hold, _resume, args=(process.popen,))
+            resume.daemon = True
+            resume.start()
+
     def send(self, event: str, payload: dict[str, Any] | None = None) -> None:
         """Give the chart an event (as `fw send` does)."""
         if self.coordinator is None:
@@ -245,6 +304,8 @@ class Deployment:
 
     def stop(self) -> None:
         """Shut down in order: `shutdown: first` processes, then the others, then control."""
+        if self.watch is not None:
+            self.watch.stop()  # what exits from here on is the shutdown, not a loss
         if self.runner is not None:
             self.runner.stop()
         if self.coordinator is not None:

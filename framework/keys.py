@@ -32,6 +32,16 @@ def container(name: str) -> str:
     return f"fw/container/{name}"
 
 
+def heartbeat(component: str) -> str:
+    """Where a watched component proves, from its own activity thread, that it runs."""
+    return f"fw/heartbeat/{component}"
+
+
+def process_heartbeat(process: str) -> str:
+    """Where a process proves it is scheduled (a hung process falls silent)."""
+    return f"fw/process/{process}/heartbeat"
+
+
 def default_output(component: str, port: str) -> str:
     """The key an output port publishes on unless told otherwise."""
     return f"{component}/{port}"

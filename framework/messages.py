@@ -65,6 +65,28 @@ class JointState:
 
 
 @dataclass(frozen=True, slots=True)
+class ArmState:
+    """What an arm's own controller reports every cycle (as FRI's measured state does):
+    joints, the flange-tool pose (x y z, qw qx qy qz), brakes, the controller's latch, and
+    how many requests (brake, release, reset, mode) it has served so far."""
+
+    LAYOUT: ClassVar[str] = (
+        "stamp:f64 cycle:i64 served:i64 position:f64[] velocity:f64[] effort:f64[] tcp:f64[7] "
+        "braked:bool latched:bool reason:str"
+    )
+    stamp: float = 0.0
+    cycle: int = 0
+    served: int = 0
+    position: tuple[float, ...] = ()
+    velocity: tuple[float, ...] = ()
+    effort: tuple[float, ...] = ()
+    tcp: tuple[float, ...] = (0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+    braked: bool = True
+    latched: bool = False
+    reason: str = ""
+
+
+@dataclass(frozen=True, slots=True)
 class Skeleton:
     """One user's skeleton as seen by one camera: joints as flat x, y, z triples (m)."""
 
@@ -99,11 +121,14 @@ class EventMessage:
 class ConfigRequest:
     """The Coordinator asks the Configurator to apply a named configuration."""
 
-    LAYOUT: ClassVar[str] = "stamp:f64 request_id:i64 tag:str args:json"
+    LAYOUT: ClassVar[str] = "stamp:f64 request_id:i64 tag:str args:json deadline:f64"
     stamp: float = 0.0
     request_id: int = 0
     tag: str = ""
     args: dict[str, Any] = field(default_factory=dict)
+    deadline: float = 0.0
+    """Wall-clock time (s) after which it must not start (0: none): a request the
+    requester has given up on is refused, never applied late."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -133,6 +158,7 @@ CATALOG: dict[str, type] = {
     for cls in (
         Pose,
         JointState,
+        ArmState,
         Skeleton,
         Skeletons,
         EventMessage,

@@ -369,6 +369,14 @@ class InputPort(Port[T]):
                 return ReadStatus.OLD, self._latest
             return ReadStatus.NO_DATA, None
 
+    def latest(self) -> T | None:
+        """The newest sample received, without reading it (NEW stays NEW); None before
+        any. For an operation that waits on what the component's loop also reads."""
+        with self._lock:
+            if self.policy.type == "buffer" and self._queue:
+                return self._queue[-1]
+            return self._latest if self._ever else None
+
     def pending(self) -> int:
         """Unread samples (0 or 1 for a data port)."""
         with self._lock:

@@ -3,8 +3,12 @@ and component state change, timestamped, in an MCAP file.
 
 It only listens on the bus (like any other process could), so it records what
 really travelled. Messages are JSON with JSON Schemas, so Foxglove and any MCAP
-reader can open the file; chunks are small (64 KiB) so a crash loses at most
-the last chunk. Port samples can be recorded too, by key.
+reader can open the file. It survives a crash of the process that records: messages
+are written as plain records (no chunks to fill) and flushed to the operating system
+at least every `FLUSH_PERIOD`, so a SIGKILL loses at most that much; `read_recording`
+reads a file cut anywhere (no summary, a torn last record) up to its last whole
+record. (A power loss can still lose what the OS had not written to disk yet.) Port
+samples can be recorded too, by key.
 
     fw deploy topologies/demo.yaml --record run.mcap
     fw log run.mcap                   # the timeline
@@ -14,6 +18,7 @@ the last chunk. Port samples can be recorded too, by key.
 from __future__ import annotations
 
 import json
+import struct
 import threading
 import time
 from collections.abc import Iterator
@@ -28,7 +33,8 @@ from framework.errors import FwError
 from framework.messages import ConfigAck, ConfigRequest, EventMessage
 from framework.ports import ConnPolicy, InputPort, ReadStatus
 
-CHUNK_SIZE = 64 * 1024
+FLUSH_PERIOD = 0.05
+"""Seconds at most between a message and its flush to the operating system."""
 
 _SCHEMAS: dict[str, dict[str, Any]] = {
     "fw.ChartStatus": {
@@ -112,7 +118,7 @@ class FlightRecorder:
             self._file = self.path.open("wb")
         except OSError as exc:
             raise RecorderError(f"cannot write {self.path}: {exc}") from None
-        self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.NONE)
+        self._writer = Writer(self._file, compression=CompressionType.NONE, use_chunking=False)
         self._writer.start(profile="", library="fw")
         self._writer.add_metadata(name="fw", data={k: str(v) for k, v in (metadata or {}).items()})
         self._lock = threading.Lock()
@@ -126,6 +132,11 @@ class FlightRecorder:
         self._ports: list[InputPort[Any]] = []
         self.count = 0
         self._closed = False
+        self._file.flush()
+        self._dirty = False
+        self._stop = threading.Event()
+        self._flusher = threading.Thread(target=self._flush_loop, name="fw-recorder", daemon=True)
+        self._flusher.start()
         self._listen(
             bus,
             STATUS_KEY,
@@ -165,6 +176,18 @@ class FlightRecorder:
                 self._channel(topic, schema), log_time=max(log_time, 0), data=body, publish_time=now
             )
             self.count += 1
+            self._dirty = True
+
+    def _flush_loop(self) -> None:
+        """Hand what was written to the operating system every `FLUSH_PERIOD`: a killed
+        recorder then loses at most that much."""
+        while not self._stop.wait(FLUSH_PERIOD):
+            with self._lock:
+                if self._closed:
+                    return
+                if self._dirty:
+                    self._file.flush()
+                    self._dirty = False
 
     def _listen(
         self, bus: Bus, key: str, kind: type, topic: str, schema: str, convert: Any
@@ -200,6 +223,7 @@ class FlightRecorder:
         for port in self._ports:
             port.close()
         self._state_sub.undeclare()
+        self._stop.set()
         with self._lock:
             if self._closed:
                 return
@@ -208,33 +232,49 @@ class FlightRecorder:
             self._file.close()
 
 
-def read_recording(path: str | Path) -> Iterator[tuple[str, float, dict[str, Any]]]:
-    """(topic, time in seconds, message) of every recorded message, in time order."""
+def _records(path: str | Path) -> Iterator[Any]:
+    """Every whole record of an MCAP file, in file order, stopping quietly at a torn
+    end (a recorder killed mid-write): what was written before is kept."""
     from mcap.exceptions import McapError
-    from mcap.reader import make_reader
+    from mcap.stream_reader import StreamReader
 
-    try:
-        with Path(path).open("rb") as handle:
-            reader = make_reader(handle)
-            for _, channel, message in reader.iter_messages(log_time_order=True):
-                yield channel.topic, message.log_time / 1e9, json.loads(message.data)
-    except FileNotFoundError:
-        raise RecorderError(f"{path}: no such recording") from None
-    except (McapError, ValueError, json.JSONDecodeError) as exc:
-        raise RecorderError(f"{path}: not a readable fw recording ({exc})") from None
+    if not Path(path).is_file():
+        raise RecorderError(f"{path}: no such recording")
+    with Path(path).open("rb") as handle:
+        try:
+            yield from StreamReader(handle).records
+        except (McapError, EOFError, ValueError, struct.error) as exc:
+            if handle.tell() <= 8:
+                raise RecorderError(f"{path}: not a readable fw recording ({exc})") from None
+            return  # a torn last record: everything before it was read
+
+
+def read_recording(path: str | Path) -> Iterator[tuple[str, float, dict[str, Any]]]:
+    """(topic, time in seconds, message) of every recorded message, in time order; also
+    for a recording cut short by a crash (no summary, a torn last record)."""
+    from mcap.records import Channel, Message
+
+    topics: dict[int, str] = {}
+    found: list[tuple[int, str, bytes]] = []
+    for record in _records(path):
+        if isinstance(record, Channel):
+            topics[record.id] = record.topic
+        elif isinstance(record, Message):
+            found.append((record.log_time, topics.get(record.channel_id, "?"), record.data))
+    found.sort(key=lambda item: item[0])
+    for log_time, topic, data in found:
+        try:
+            body = json.loads(data)
+        except json.JSONDecodeError:
+            continue  # one corrupt message does not hide the rest
+        yield topic, log_time / 1e9, body
 
 
 def recording_metadata(path: str | Path) -> dict[str, str]:
     """The `fw` metadata record of a recording (empty if there is none)."""
-    from mcap.reader import make_reader
+    from mcap.records import Metadata
 
-    try:
-        with Path(path).open("rb") as handle:
-            for record in make_reader(handle).iter_metadata():
-                if record.name == "fw":
-                    return dict(record.metadata)
-    except FileNotFoundError:
-        raise RecorderError(f"{path}: no such recording") from None
-    except Exception as exc:
-        raise RecorderError(f"{path}: not a readable fw recording ({exc})") from None
+    for record in _records(path):
+        if isinstance(record, Metadata) and record.name == "fw":
+            return dict(record.metadata)
     return {}

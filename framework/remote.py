@@ -13,6 +13,7 @@ state, unknown port, bad value), or an operation that raised.
 from __future__ import annotations
 
 import json
+import time
 from typing import Any
 
 from framework import keys
@@ -34,13 +35,19 @@ class RemoteComponent:
     def __init__(self, bus: Bus, name: str, timeout: float = 2.0):
         self.bus, self.name, self.timeout = bus, name, timeout
 
-    def request(self, op: str, timeout: float | None = None, **fields: Any) -> Any:
-        """Send one control request and return its result."""
+    def request(
+        self, op: str, timeout: float | None = None, deadline: float | None = None, **fields: Any
+    ) -> Any:
+        """Send one control request and return its result. It carries its deadline (wall
+        clock, s: now + timeout unless given): the container refuses it, unrun, if it
+        arrives or would start later (a process that was busy or hung)."""
         wait = self.timeout if timeout is None else timeout
+        now = time.time()
+        deadline = now + wait if deadline is None else min(deadline, now + wait)
+        wait = max(deadline - now, 0.001)
+        body = json.dumps({"op": op, **fields, "deadline": deadline}).encode()
         try:
-            replies = self.bus.query(
-                keys.control(self.name), json.dumps({"op": op, **fields}).encode(), wait
-            )
+            replies = self.bus.query(keys.control(self.name), body, wait)
         except BusError as exc:
             try:
                 info = json.loads(str(exc))

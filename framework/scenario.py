@@ -11,6 +11,8 @@ runs, then reports PASS or FAIL for every expectation (exit code 1 on FAIL).
       - {when: Moving_Fast, after: 2s, call: certus.occlude, args: {tool: cto}}
       - {when: No_Tracker, after: 1s, check: robot.report, expect: {braked: true}}
       - {at: 20s, send: e_RELEASE}
+      - {when: Moving_Fast, after: 1s, fault: {process: supervision, signal: KILL}}
+      - {when: Moving_Fast, after: 1s, fault: {process: robot, signal: STOP, for: 2s}}
     expect:
       - {state: Target_Reached, within: 45s}   # entered at least once (in time)
       - {event: e_NOTRACKER}                   # seen at least once
@@ -29,7 +31,9 @@ suffix of it (`Stopped`, `Task.Stopped`). `check` calls an operation and
 compares the given fields of its result (a failed check is a FAIL, the scenario
 goes on); with `wait: 30s` it asks again until they match or the wait is over,
 for outcomes whose timing depends on the host (a simulated arm slows down, it
-does not skip, when the machine is busy).
+does not skip, when the machine is busy). `fault` injects a fault into one of the
+deployment's processes: `KILL` (a crash), `STOP` (a hang: SIGSTOP, then SIGCONT
+after `for`), `TERM` or `INT`; every procedure can so prove how it fails safe.
 """
 
 from __future__ import annotations
@@ -42,9 +46,9 @@ from pathlib import Path
 from typing import Any
 
 from framework import schema
+from framework.durations import parse_duration
 from framework.errors import Finding, FindingsError, Location
 from framework.statechart.events import Event, Listener
-from framework.statechart.loader import parse_duration
 from framework.yamlio import load_yaml
 
 
@@ -53,7 +57,8 @@ class ScenarioStep:
     """One step: wait for its time or state, then send, call or check."""
 
     at: float | None = None
-    when: str = ""
+    when: str | tuple[str, ...] = ""
+    """A state (or several: whichever is entered first) to wait for."""
     after: float = 0.0
     send: str = ""
     call: str = ""
@@ -61,21 +66,38 @@ class ScenarioStep:
     payload: dict[str, Any] = field(default_factory=dict)
     expect: dict[str, Any] = field(default_factory=dict)
     wait: float = 0.0
+    fault: Fault | None = None
     location: Location = field(default_factory=Location)
 
     def describe(self) -> str:
         """How the step reads in a report."""
-        trigger = f"{self.at:g}s" if self.at is not None else f"on {self.when}"
+        when = self.when if isinstance(self.when, str) else " or ".join(self.when)
+        trigger = f"{self.at:g}s" if self.at is not None else f"on {when}"
         if self.after:
             trigger += f" +{self.after:g}s"
-        action = (
-            f"send {self.send}"
-            if self.send
-            else f"call {self.call}"
-            if self.call
-            else f"check {self.check}"
-        )
+        if self.send:
+            action = f"send {self.send}"
+        elif self.call:
+            action = f"call {self.call}"
+        elif self.fault is not None:
+            action = self.fault.describe()
+        else:
+            action = f"check {self.check}"
         return f"{trigger}: {action}"
+
+
+@dataclass(frozen=True)
+class Fault:
+    """A fault to inject into one process: a signal, and for STOP how long it hangs."""
+
+    process: str
+    signal: str
+    hold: float = 0.0
+
+    def describe(self) -> str:
+        """How the fault reads in a report."""
+        hold = f" for {self.hold:g}s" if self.signal == "STOP" else ""
+        return f"fault {self.process} {self.signal}{hold}"
 
 
 @dataclass
@@ -83,13 +105,19 @@ class Expectation:
     """One thing the run must (or must never) show."""
 
     kind: str  # state, event, never_state, never_event
-    name: str
+    name: str | tuple[str, ...]
+    """One name, or (`state` only) several: any one of them counts."""
     within: float | None = None
     location: Location = field(default_factory=Location)
 
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The name(s) as a tuple."""
+        return (self.name,) if isinstance(self.name, str) else self.name
+
     def describe(self) -> str:
         """How the expectation reads in a report."""
-        text = f"{self.kind.replace('_', ' ')} {self.name}"
+        text = f"{self.kind.replace('_', ' ')} {' or '.join(self.names)}"
         return text + (f" within {self.within:g}s" if self.within is not None else "")
 
 
@@ -143,9 +171,11 @@ def load_scenario(
     events: set[str] | None = None,
     operations: set[str] | None = None,
     states: set[str] | None = None,
+    processes: set[str] | None = None,
 ) -> Scenario:
-    """Load and check a scenario; `events`, `operations` and `states` (full paths), when
-    given, are the names it may use. Every problem is a located finding."""
+    """Load and check a scenario; `events`, `operations`, `states` (full paths) and
+    `processes`, when given, are the names it may use. Every problem is a located
+    finding."""
     doc = load_yaml(path)
     problems = schema.check(doc, "scenario")
     if problems:
@@ -164,7 +194,9 @@ def load_scenario(
         where = doc.location(("steps", i))
         step = ScenarioStep(
             at=parse_duration(spec["at"]) if "at" in spec else None,
-            when=spec.get("when", ""),
+            when=tuple(spec["when"])
+            if isinstance(spec.get("when"), list)
+            else spec.get("when", ""),
             after=parse_duration(spec.get("after", 0)),
             send=spec.get("send", ""),
             call=spec.get("call", ""),
@@ -174,8 +206,38 @@ def load_scenario(
             wait=parse_duration(spec.get("wait", 0)),
             location=where,
         )
-        if step.when:
-            known_state(step.when, where)
+        if "fault" in spec:
+            fault = spec["fault"]
+            if "for" in fault and fault["signal"] != "STOP":
+                findings.append(
+                    Finding("error", "fault", "`for` is how long a STOP hangs: STOP only", where)
+                )
+            if fault["signal"] == "STOP" and "for" not in fault:
+                findings.append(
+                    Finding(
+                        "error",
+                        "fault",
+                        "a STOP needs `for`: how long the process stays hung",
+                        where,
+                        "e.g. {process: robot, signal: STOP, for: 2s}",
+                    )
+                )
+            if processes is not None and fault["process"] not in processes:
+                findings.append(
+                    Finding(
+                        "error",
+                        "unknown-process",
+                        f"the topology has no process {fault['process']!r}",
+                        where,
+                        f"known: {', '.join(sorted(processes))}",
+                    )
+                )
+            step.fault = Fault(
+                fault["process"], fault["signal"], parse_duration(fault.get("for", 0))
+            )
+        for state in (step.when,) if isinstance(step.when, str) else step.when:
+            if state:
+                known_state(state, where)
         if step.send and events is not None and step.send not in events:
             findings.append(
                 Finding(
@@ -199,8 +261,11 @@ def load_scenario(
         where = doc.location(("expect", i))
         ((kind, name),) = ((k, v) for k, v in spec.items() if k != "within")
         within = parse_duration(spec["within"]) if "within" in spec else None
+        if isinstance(name, list):
+            name = tuple(name)
         if kind.endswith("state"):
-            known_state(name, where)
+            for one in (name,) if isinstance(name, str) else name:
+                known_state(one, where)
         elif events is not None and name not in events:
             findings.append(
                 Finding("error", "unknown-event", f"the chart has no event {name!r}", where)
@@ -268,8 +333,11 @@ class ScenarioRunner(Listener):
         send: Callable[[str, dict[str, Any]], None],
         call: Callable[[str, dict[str, Any]], Any],
         report: Callable[[str], None] = lambda text: None,
+        fault: Callable[[Fault], None] | None = None,
     ):
+        """`fault` injects a `Fault` into the deployment (the deployer's processes)."""
         self.scenario, self._send, self._call, self._report = scenario, send, call, report
+        self._fault = fault
         self._stop = threading.Event()
         self.finished = threading.Event()
         self._thread: threading.Thread | None = None
@@ -394,15 +462,19 @@ class ScenarioRunner(Listener):
         if step.when and not share:
             mark = self._mark
 
+            names = (step.when,) if isinstance(step.when, str) else step.when
+
             def entered() -> bool:
                 for t, path in self.entries:
-                    if t >= mark and _matches(path, step.when):
+                    if t >= mark and any(_matches(path, n) for n in names):
                         self._mark = t
                         return True
                 return False
 
             if not self._wait(entered):
-                self.outcomes.append(Outcome(False, step.describe(), f"{step.when} never entered"))
+                self.outcomes.append(
+                    Outcome(False, step.describe(), f"{' or '.join(names)} never entered")
+                )
                 return False
         if step.at is not None:
             self._wait(lambda: False, self._zero + step.at)
@@ -418,10 +490,20 @@ class ScenarioRunner(Listener):
                 self._send(step.send, step.payload)
             elif step.call:
                 self._call(step.call, step.payload)
+            elif step.fault is not None:
+                if self._fault is None:
+                    raise RuntimeError("this run cannot inject faults (no deployer)")
+                self._fault(step.fault)
             else:
                 until = time.monotonic() + step.wait
                 while True:  # with `wait`, poll until the result matches (a hang bound)
-                    result = self._call(step.check, step.payload)
+                    try:
+                        result = self._call(step.check, step.payload)
+                    except Exception:
+                        if time.monotonic() >= until:  # no answer at all: a FAIL below
+                            raise
+                        self._stop.wait(0.05)
+                        continue
                     wrong = {
                         k: result.get(k) if isinstance(result, dict) else result
                         for k, v in step.expect.items()
@@ -450,9 +532,9 @@ class ScenarioRunner(Listener):
         zero = self._zero if self._zero is not None else self._started
         limit = None if e.within is None else zero + e.within
         if e.kind in ("state", "never_state"):
-            times = [t for t, p in self.entries if _matches(p, e.name)]
+            times = [t for t, p in self.entries if any(_matches(p, n) for n in e.names)]
         else:
-            times = [t for t, n in self.events if n == e.name]
+            times = [t for t, n in self.events if n in e.names]
         if e.kind.startswith("never"):
             return (not times, f"at {times[0] - zero:.3f}s" if times else "")
         hits = [t for t in times if limit is None or t <= limit]

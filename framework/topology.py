@@ -21,14 +21,21 @@ from framework import keys, schema
 from framework.activity import Activity, ActivityError
 from framework.bus import BusConfig
 from framework.component import Component, In, Out, declarations
+from framework.durations import parse_duration
 from framework.errors import Finding, FindingsError, FwError, Location
 from framework.messages import type_name
 from framework.ports import ConnPolicy, PortError
 from framework.properties import Property, PropertyError, load_property_file
-from framework.statechart.loader import parse_duration
+from framework.safety import DEFAULT_PROCESS_DEADLINE, SafetySpec, Watch
 from framework.yamlio import Document, load_yaml
 
 LIFECYCLE = ("running", "stopped", "preoperational", "ignore")
+CONTROL_PROCESS = "control"
+"""The process `fw deploy` itself runs in (the Coordinator and the Configurator)."""
+CONTROL_SLACK = 4.0
+"""Its heartbeat deadline, in process deadlines: the chart is not on the robot's fast path
+(the Supervisor's reflex and the robot side stop without it), and the process that hosts
+it also hosts the console and, in tests and tools, the caller's own work."""
 DEFAULT_STEP_TIMEOUT = 2.0
 
 
@@ -119,6 +126,24 @@ class Topology:
     procedure: Path | None
     external_events: list[str]
     description: str = ""
+    safety: SafetySpec | None = None
+    """What the robot-side monitor watches (None: the topology declares no monitor)."""
+
+    def heartbeats(self) -> dict[str, float]:
+        """Watched components and how often each proves it runs (s)."""
+        from framework.safety import heartbeat_period
+
+        if self.safety is None:
+            return {}
+        return {
+            w.producer: heartbeat_period(w.deadline)
+            for w in self.safety.watches
+            if w.key == keys.heartbeat(w.producer)
+        }
+
+    def on_loss(self, process: str) -> str:
+        """What losing `process` means: 'stop' (default) or 'restart'."""
+        return str(self.processes.get(process, {}).get("on_loss", "stop"))
 
     def components_in(self, process: str) -> list[ComponentSpec]:
         """Components hosted by one process, in topology order."""
@@ -476,6 +501,81 @@ class _Loader:
             )
         return out
 
+    def safety(self, topo: Topology, data: dict[str, Any]) -> SafetySpec | None:
+        """The `safety:` section: a monitor that can host one, watches that exist and
+        have a producer that can keep their deadline."""
+        spec = data.get("safety")
+        if not spec:
+            return None
+        monitor = self.component(topo, spec["monitor"], ("safety", "monitor"))
+        info = monitor.info if monitor is not None else None
+        if info is not None and not info.cls.hosts_safety_monitor:
+            self.error(
+                "safety-monitor",
+                f"{spec['monitor']!r} ({info.cls.__name__}) cannot host the safety monitor: "
+                "it must brake in its own control loop",
+                ("safety", "monitor"),
+                "name the robot interface (its class sets hosts_safety_monitor = True)",
+            )
+        watches = []
+        for name, value in (spec.get("watch") or {}).items():
+            where = ("safety", "watch", name)
+            try:
+                deadline = parse_duration(value)
+            except ValueError as exc:
+                self.error("safety-watch", str(exc), where)
+                continue
+            if "." in name:
+                comp, port, kind = self.port(topo, name, where, "out")
+                if comp is None:
+                    continue
+                watches.append(Watch(name, comp.output_key(port), deadline, comp.name, kind))
+                continue
+            comp = self.component(topo, name, where)
+            if comp is None:
+                continue
+            activity = comp.activity
+            if activity.kind not in ("periodic", "event"):
+                self.error(
+                    "safety-watch",
+                    f"{name!r} is watched by its heartbeat, but its activity is "
+                    f"{activity.kind}: only a periodic or event-driven component beats",
+                    where,
+                    "watch one of its output ports instead, or give it an activity",
+                )
+                continue
+            if activity.kind == "periodic" and deadline < 2.0 / activity.rate:
+                self.error(
+                    "safety-watch",
+                    f"deadline {deadline * 1e3:g} ms for {name!r} is shorter than two of its "
+                    f"periods ({2e3 / activity.rate:g} ms): it would trip on every late update",
+                    where,
+                )
+                continue
+            watches.append(Watch(name, keys.heartbeat(name), deadline, name, "Scalar"))
+        try:
+            process_deadline = parse_duration(
+                spec.get("process_deadline", DEFAULT_PROCESS_DEADLINE)
+            )
+        except ValueError as exc:
+            self.error("safety-watch", str(exc), ("safety", "process_deadline"))
+            process_deadline = DEFAULT_PROCESS_DEADLINE
+        processes = sorted({c.process for c in topo.components.values()} | {CONTROL_PROCESS})
+        watches += [
+            Watch(
+                f"process {p}",
+                keys.process_heartbeat(p),
+                process_deadline * (CONTROL_SLACK if p == CONTROL_PROCESS else 1.0),
+                "",
+                "Scalar",
+            )
+            for p in processes
+        ]
+        control = ["configurator", *(["coordinator"] if topo.statechart is not None else [])]
+        return SafetySpec(
+            spec["monitor"], tuple(watches), tuple([*topo.components, *control]), process_deadline
+        )
+
     def chart(self, topo: Topology, data: dict[str, Any]) -> None:
         if topo.statechart is None:
             return
@@ -557,6 +657,7 @@ def check_topology(path: str | Path) -> tuple[Topology | None, list[Finding]]:
         if comp is not None:
             topo.prepare[ref] = list(candidates)
     topo.configurations = loader.configurations(topo, data)
+    topo.safety = loader.safety(topo, data)
     if topo.procedure is not None and not topo.procedure.exists():
         loader.error(
             "procedure", f"procedure folder {str(topo.procedure)!r} does not exist", ("procedure",)

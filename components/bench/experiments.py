@@ -320,6 +320,76 @@ def run_scale(quick: bool, context: dict[str, Any]) -> list[Row]:
     return rows
 
 
+def run_chaos(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """Every process crashed or hung while moving (docs/safety.md); a fresh deployment
+    per case. Fails the run (exit 1) if any case ends unbraked or moves before RELEASE."""
+    from components.bench import chaos
+
+    repetitions = 1 if quick else context.get("chaos_repetitions", 6)
+    cases = chaos.chaos(repetitions, _progress("chaos"))
+    context.setdefault("series", {})["chaos"] = [
+        {**c.__dict__, "name": c.name, "ok": c.ok} for c in cases
+    ]
+    bad = [c for c in cases if not c.ok]
+    if bad:
+        context["failed"] = [
+            f"chaos: {c.process} {c.name}: {c.detail or 'not braked'}" for c in bad
+        ]
+    rows = []
+    for kind, target in (("KILL", 20.0), ("STOP", 60.0)):
+        times = [
+            c.to_braking_ms
+            for c in cases
+            if c.signal == kind and c.to_braking_ms is not None and c.process != "arm"
+        ]
+        if times:
+            s = stats(times)
+            label = "crash" if kind == "KILL" else "hang"
+            rows += [
+                Row("chaos", f"{label} -> first braking cycle p50", s["p50"], n=len(times)),
+                Row(
+                    "chaos",
+                    f"{label} -> first braking cycle p99",
+                    s["p99"],
+                    target=target,
+                    n=len(times),
+                ),
+            ]
+    for process in chaos.PROCESSES:
+        for name in ("KILL", "STOP 2s", "STOP 0.3s"):
+            mine = [c for c in cases if c.process == process and c.name == name]
+            times = [c.to_braking_ms for c in mine if c.to_braking_ms is not None]
+            if times:
+                rows.append(
+                    Row("chaos", f"{process} {name}: to braking, max", max(times), n=len(mine))
+                )
+    moved = sum(c.moved_without_release for c in cases)
+    rows.append(
+        Row(
+            "chaos",
+            "motions after a fault without RELEASE",
+            moved,
+            target=0.0,
+            unit="",
+            n=len(cases),
+        )
+    )
+    rows.append(
+        Row(
+            "chaos",
+            "cases ending unbraked",
+            sum(not c.ended_braked for c in cases),
+            target=0.0,
+            unit="",
+            n=len(cases),
+        )
+    )
+    return rows
+
+
+OPT_IN = ("chaos",)
+"""Experiments run only when named (long and destructive: a deployment per case)."""
+
 EXPERIMENTS: dict[str, Callable[[bool, dict[str, Any]], list[Row]]] = {
     "zenoh": run_zenoh,
     "swap": run_swap,
@@ -331,4 +401,5 @@ EXPERIMENTS: dict[str, Callable[[bool, dict[str, Any]], list[Row]]] = {
     "statechart": run_statechart,
     "people": run_people,
     "scale": run_scale,
+    "chaos": run_chaos,
 }

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from components.tracking.calibration import HandEyeResult, hand_eye
+from components.tracking.calibration import CalibrationError, HandEyeResult, hand_eye
 
 SQUARES = (5, 6)
 BOARD = (0.64, 0.56)  # m
@@ -23,7 +23,15 @@ def rigid_fit(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.nd
     keep = ~(np.isnan(source).any(axis=1) | np.isnan(target).any(axis=1))
     src, dst = source[keep], target[keep]
     if len(src) < 3:
-        raise ValueError("a rigid fit needs at least 3 points seen by both cameras")
+        raise CalibrationError("a rigid fit needs at least 3 points seen by both cameras")
+    if not (np.all(np.isfinite(src)) and np.all(np.isfinite(dst))):
+        raise CalibrationError("a corner position is infinite")
+    spread = np.linalg.svd(src - src.mean(axis=0), compute_uv=False)
+    if spread[1] < 1e-3 * spread[0]:
+        raise CalibrationError(
+            "the points seen by both cameras lie on one line: the rotation about it is "
+            "unobservable; show the board in more poses (or more of it)"
+        )
     cs, cd = src.mean(axis=0), dst.mean(axis=0)
     u, _, vt = np.linalg.svd((src - cs).T @ (dst - cd))
     d = np.sign(np.linalg.det(vt.T @ u.T))

@@ -1,39 +1,49 @@
-"""The robot interface (the FRI role): the only component that moves the arm.
+"""The robot interface (the FRI role): the only component that commands the arm, and
+where the robot-side safety monitor runs.
 
-In simulation it steps the MuJoCo LWR 4+ one millisecond per update (at 1 kHz in
-real time, or on the stepped clock in tests); a real FRI driver would be another
-component with the same ports and operations, swapped in the topology. Safety
-lives here too, below everything else: brakes at power on, a watchdog on the
-setpoint stream, and a guard against setpoint jumps (see `arm.py`).
+It is the client of the arm's own controller (`controller.py`, a machine of its own
+in simulation): each measured `ArmState` (1 kHz) is answered on `command` with the
+interpolator's latest joint setpoint, and joints and TCP go out to everyone. A real
+FRI driver is another component with the same ports and operations, swapped in the
+topology.
 
-While it is being commanded, each cycle waits up to `lockstep_ms` (wall time) for
-the controller's setpoint before stepping, like FRI's synchronous mode: on a
-loaded host the simulated arm then runs slower than real time instead of
-missing setpoints, and only a controller silent for `watchdog_cycles` such
-waits (a dead one) makes the watchdog brake.
+Safety, fastest first (docs/safety.md):
+
+* every cycle the **safety monitor** (framework/safety.py) checks the deadlines of
+  the inputs the topology declares safety-relevant and the liveliness of every
+  component. A trip, a silent interpolator (`setpoint_cycles`) or the controller
+  braking by itself **latches**: the interface stops the arm itself at full
+  deceleration along its path (`SafeStop`), then asks the controller for its brakes,
+  latched;
+* the latch opens only through `acknowledge` (the operator's RELEASE, applied by the
+  chart's `release` configuration) with every watched input healthy; `release` and
+  every setpoint are refused while latched, so nothing but RELEASE restarts motion;
+* if this process dies or hangs, the arm's controller brakes by itself.
+
+`brake` and `release` are the procedure's brakes (waiting for START, holding at a
+goal): they do not latch.
 """
 
 from __future__ import annotations
 
-import threading
 import time
+from collections import deque
 from typing import Any
 
 import numpy as np
 
-from components.robot.arm import MODES, SimulatedArm
-from components.robot.lwr4 import HOME
+from components.robot.safe_stop import SafeStop
 from components.tracking.geometry import matrix_to_quat
 from framework.component import Component, In, Out, operation
-from framework.messages import EventMessage, JointState, Pose
+from framework.errors import FwError
+from framework.messages import ArmState, EventMessage, JointState, Pose
 from framework.ports import ReadStatus
 from framework.properties import prop
 
-SELF_BRAKES = ("watchdog", "setpoint")
-"""Brake reasons of the arm's own safety (not asked for by the procedure)."""
+CYCLE = 0.001  # s: the controller's cycle
 STILL_RAD_S = 2e-3
 STILL_CYCLES = 50
-STILL_TIMEOUT = 2.0  # s
+STILL_TIMEOUT_CYCLES = 2000
 
 
 def tcp_message(tcp: np.ndarray, stamp: float, frame: str = "base") -> Pose:
@@ -51,107 +61,238 @@ def tcp_message(tcp: np.ndarray, stamp: float, frame: str = "base") -> Pose:
 
 
 class RobotInterface(Component):
-    """Steps the simulated LWR 4+, takes joint setpoints, publishes joints and TCP."""
+    """Commands the arm's controller, hosts the safety monitor (module docstring)."""
 
-    watchdog_cycles = prop(int, 5, min=1, max=1000, doc="cycles without setpoint before braking")
-    mode = prop(str, "position", choices=list(MODES), doc="joint servo mode")
-    lockstep_ms = prop(
-        float, 20.0, unit="ms", min=0.0, max=1000.0, doc="wait for each setpoint (0: never)"
+    hosts_safety_monitor = True
+    setpoint_cycles = prop(
+        int, 5, min=1, max=1000, doc="cycles without a setpoint, while commanding, that trip"
     )
-    setpoint = In(JointState, doc="joint position setpoints (rad), one per cycle")
+    stop_deceleration = prop(
+        float,
+        8.0,
+        unit="rad/s^2",
+        min=0.5,
+        max=100.0,
+        doc="joint deceleration of a protective stop",
+    )
+    measured = In(ArmState, doc="the controller's measured state, every cycle")
+    setpoint = In(JointState, doc="joint position setpoints (rad) from the interpolator")
+    command = Out(JointState, doc="joint setpoints for the controller, one per cycle")
+    arm_request = Out(EventMessage, doc="brake {reason, latch}, release, reset, mode {mode}")
     joints = Out(JointState, doc="measured joints, every cycle")
     tcp = Out(Pose, doc="measured TCP in the robot base frame, every cycle")
-    status = Out(EventMessage, doc="brakes, reason, mode (on change and at 2 Hz)")
+    status = Out(EventMessage, doc="brakes, latch and reason, mode (on change and at 2 Hz)")
 
     def configure_hook(self) -> bool:
-        self.arm = SimulatedArm(HOME, watchdog_cycles=self.watchdog_cycles, mode=self.mode)
-        self._reported: tuple[bool, str, str] | None = None
-        self._last_status = -1.0
-        self._brake_when_still: tuple[str, float] | None = None  # (reason, deadline)
+        self.latched = ""
+        self.mode = "position"
+        self._arm: ArmState | None = None
+        self._stop: SafeStop | None = None
+        self._sent: deque[np.ndarray] = deque(maxlen=2)
+        self._commanding = False
+        self._since_setpoint = 0
+        self._requests = 0
+        self._brake_when_still: tuple[str, int] | None = None
         self._still_cycles = 0
-        self._arrived = threading.Event()
+        self._reported: tuple[Any, ...] | None = None
+        self._last_status = -1.0
         return True
-
-    def start_hook(self) -> bool:
-        self.setpoint.on_data = lambda _port: self._arrived.set()
-        return True
-
-    def update_hook(self) -> None:
-        arm = self.arm
-        if arm.commanded and self.lockstep_ms > 0 and not self.setpoint.pending():
-            self._arrived.clear()
-            if not self.setpoint.pending():
-                self._arrived.wait(self.lockstep_ms / 1000.0)
-        status, sample = self.setpoint.read()
-        if status is ReadStatus.NEW and not arm.braked:
-            arm.command(np.asarray(sample.position))
-        arm.step()
-        if self._brake_when_still is not None:
-            self._brake_once_still()
-        stamp = time.time()
-        self.joints.write(
-            JointState(
-                stamp,
-                tuple(arm.data.qpos[:7].tolist()),
-                tuple(arm.data.qvel[:7].tolist()),
-                tuple(arm.data.actuator_force[:7].tolist()),
-            )
-        )
-        self.tcp.write(tcp_message(arm.tcp(), stamp))
-        state = (arm.braked, arm.reason, arm.mode)
-        now = time.monotonic()
-        if state != self._reported or now - self._last_status > 0.5:
-            self._reported, self._last_status = state, now
-            self.status.write(EventMessage(stamp, "robot", self.name, self.report()))
-
-    def _brake_once_still(self) -> None:
-        assert self._brake_when_still is not None
-        reason, deadline = self._brake_when_still
-        still = float(np.max(np.abs(self.arm.data.qvel[:7]))) < STILL_RAD_S
-        self._still_cycles = self._still_cycles + 1 if still else 0
-        if self._still_cycles >= STILL_CYCLES or self.arm.time >= deadline:
-            self.arm.brake(reason)
-            self._brake_when_still = None
 
     def stop_hook(self) -> None:
-        if hasattr(self, "arm"):
-            self.arm.brake("robot interface stopped")
+        self._request("brake", reason="robot interface stopped", latch=True)
 
+    # -- the cycle -----------------------------------------------------------------------
+    def update_hook(self) -> None:
+        status, state = self.measured.read()
+        if status is not ReadStatus.NEW or state is None:
+            return
+        self._arm = state
+        if state.braked:
+            self._commanding = False
+            self._sent.clear()
+        self._guard(state)
+        if self._stop is not None:
+            self._send(self._stop.step())
+            if self._stop.done:
+                self._stop = None
+                self._request("brake", reason=self.latched, latch=True)
+        elif not self.latched and not state.braked:
+            status, setpoint = self.setpoint.read()
+            if status is ReadStatus.NEW and setpoint is not None:
+                self._send(np.asarray(setpoint.position, dtype=float))
+                self._since_setpoint = 0
+            elif self._commanding:
+                self._since_setpoint += 1
+        if self._brake_when_still is not None:
+            self._brake_once_still(state)
+        self._publish(state)
+
+    def idle_hook(self) -> None:
+        """No measured state for the activity's `idle` period (the arm's controller is
+        silent or slow): the monitor still checks every input, the controller's own
+        state among them if the topology watches it, and a trip asks for the brakes."""
+        state = self._arm
+        if state is None or self.latched:
+            return
+        self._guard(state)
+        if self._stop is not None:  # no cycles to decelerate with: brake at once
+            self._stop = None
+            self._request("brake", reason=self.latched, latch=True)
+        self._publish_status(state)
+
+    def _guard(self, state: ArmState) -> None:
+        """Latch on a monitor trip, on the controller's own brake, on a silent planner."""
+        if self.latched:
+            return
+        released = not state.braked or self._commanding
+        reason = self.safety.check(released) if self.safety is not None else ""
+        if not reason and state.latched and state.served >= self._requests:
+            reason = f"the arm braked by itself: {state.reason}"
+        if not reason and self._commanding and self._since_setpoint >= self.setpoint_cycles:
+            reason = f"no setpoint for {self._since_setpoint} cycles (the interpolator stopped)"
+        if reason:
+            self._trip(reason, state)
+
+    def _trip(self, reason: str, state: ArmState) -> None:
+        self.latched = reason
+        if self.safety is not None:
+            self.safety.trip(reason)
+        self._brake_when_still = None
+        if self._commanding and not state.braked and self._sent:
+            last = self._sent[-1]
+            velocity = (
+                (last - self._sent[0]) / CYCLE
+                if len(self._sent) == 2
+                else np.asarray(state.velocity, dtype=float)
+            )
+            self._stop = SafeStop(last, velocity, np.full(7, self.stop_deceleration), CYCLE)
+        else:
+            self._request("brake", reason=reason, latch=True)
+        self._commanding = False
+
+    def _send(self, q: np.ndarray) -> None:
+        self.command.write(JointState(time.time(), tuple(q.tolist())))
+        self._sent.append(q)
+        self._commanding = True
+
+    def _request(self, name: str, **payload: Any) -> None:
+        self._requests += 1
+        self.arm_request.write(EventMessage(time.time(), name, self.name, payload))
+
+    def _brake_once_still(self, state: ArmState) -> None:
+        assert self._brake_when_still is not None
+        reason, deadline = self._brake_when_still
+        still = max((abs(v) for v in state.velocity), default=0.0) < STILL_RAD_S
+        self._still_cycles = self._still_cycles + 1 if still else 0
+        if state.braked:
+            self._brake_when_still = None
+        elif self._still_cycles >= STILL_CYCLES or state.cycle >= deadline:
+            self._brake_when_still = None
+            self._request("brake", reason=reason, latch=False)
+
+    def _publish(self, state: ArmState) -> None:
+        stamp = time.time()
+        self.joints.write(JointState(stamp, state.position, state.velocity, state.effort))
+        x, y, z, qw, qx, qy, qz = state.tcp
+        self.tcp.write(Pose((x, y, z), (qw, qx, qy, qz), stamp, 0.0, 0, True, "base", "tcp"))
+        self._publish_status(state)
+
+    def _publish_status(self, state: ArmState) -> None:
+        """On every change of brakes, latch or mode, and at 2 Hz."""
+        seen = (state.braked, self.latched, state.reason, self.mode)
+        now = time.monotonic()
+        if seen != self._reported or now - self._last_status > 0.5:
+            self._reported, self._last_status = seen, now
+            self.status.write(EventMessage(time.time(), "robot", self.name, self.report()))
+
+    # -- operations ------------------------------------------------------------------------
     @operation
     def brake(self, reason: str = "operator", when_still: bool = False) -> dict[str, Any]:
-        """Engage the brakes now, or once the arm stands still (at most `STILL_TIMEOUT`
-        later): the interpolator's own STOP brakes along the path first."""
-        if when_still and not self.arm.braked:
-            self._brake_when_still = (reason, self.arm.time + STILL_TIMEOUT)
+        """Engage the brakes now, or once the arm stands still (at most 2 s later): the
+        interpolator's own STOP brakes along the path first."""
+        state = self._arm
+        if when_still and state is not None and not state.braked:
+            self._brake_when_still = (reason, state.cycle + STILL_TIMEOUT_CYCLES)
             self._still_cycles = 0
         else:
-            self.arm.brake(reason)
+            self._request("brake", reason=reason, latch=False)
         return self.report()
 
     @operation
     def release(self) -> dict[str, Any]:
-        """Release the brakes; the arm holds its pose until setpoints arrive."""
+        """Release the brakes (the arm holds its pose until setpoints arrive); refused
+        while a safety stop is latched or a watched input is not healthy."""
+        if self.latched:
+            raise FwError(
+                f"safety stop latched ({self.latched}): only the operator's RELEASE clears it"
+            )
+        if self.safety is not None:
+            why = self.safety.ready()
+            if why:
+                raise FwError(why)
         self._brake_when_still = None
-        self.arm.release()
+        self._request("release")
         return self.report()
+
+    @operation
+    def acknowledge(self) -> dict[str, Any]:
+        """The operator's RELEASE: clear the latched safety stop, here and in the arm's
+        controller, if every watched input is healthy now (the brakes stay on)."""
+        if self._stop is not None:
+            raise FwError("the protective stop is still under way")
+        if self.safety is not None:
+            why = self.safety.acknowledge()
+            if why:
+                raise FwError(why)
+        self.latched = ""
+        self._since_setpoint = 0
+        self._request("reset")
+        return self.report()
+
+    @operation(exclusive=False)
+    def await_ready(self, timeout: float = 5.0) -> dict[str, Any]:
+        """Wait (at most `timeout` s) until every watched safety input is healthy and
+        the arm's controller answers, so the procedure starts only once the robot side
+        sees everything it depends on; an error naming what is missing otherwise."""
+        end = time.monotonic() + timeout
+        while True:
+            why = "no state from the arm's controller yet" if self._arm is None else ""
+            if not why and self.safety is not None:
+                why = self.safety.ready()
+            if not why:
+                return self.report()
+            if time.monotonic() >= end:
+                raise FwError(f"not ready after {timeout:g} s: {why}")
+            time.sleep(0.01)
 
     @operation
     def set_mode(self, mode: str) -> dict[str, Any]:
         """Switch the joint servos to 'position' or 'impedance'."""
-        self.arm.set_mode(mode)
+        if mode not in ("position", "impedance"):
+            raise FwError(f"unknown mode {mode!r}: position or impedance")
+        self.mode = mode
+        self._request("mode", mode=mode)
         return self.report()
 
     @operation
     def report(self) -> dict[str, Any]:
-        """Brakes, why they engaged, servo mode, simulated time, joints."""
-        arm = getattr(self, "arm", None)
-        if arm is None:
-            return {"braked": True, "reason": "not configured", "mode": self.mode}
-        return {
-            "braked": arm.braked,
-            "reason": arm.reason,
-            "fault": arm.braked and arm.reason.startswith(SELF_BRAKES),
-            "mode": arm.mode,
-            "time": round(arm.time, 4),
-            "q": [round(v, 5) for v in arm.q.tolist()],
+        """Brakes, latch and why, servo mode, the controller's time, joints, the monitor."""
+        state = getattr(self, "_arm", None)
+        if state is None:
+            return {"braked": True, "latched": False, "fault": False, "reason": "no arm state"}
+        problems = self.safety.problems() if self.safety is not None else []
+        out = {
+            "braked": state.braked,
+            "latched": bool(self.latched),
+            "fault": bool(self.latched),
+            "reason": self.latched or state.reason,
+            "ready": not problems,  # every safety input healthy: RELEASE would be taken
+            "problems": problems,
+            "stopping": self._stop is not None,
+            "mode": self.mode,
+            "time": round(state.cycle * CYCLE, 4),
+            "q": [round(v, 5) for v in state.position],
         }
+        if self.safety is not None:
+            out["safety"] = self.safety.report()
+        return out

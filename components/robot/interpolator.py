@@ -117,6 +117,7 @@ class InterpolatorCore:
     def sync(self, q: np.ndarray) -> None:
         """Take the measured joints as the commanded ones, at rest (after brakes)."""
         self.q = np.asarray(q, dtype=float).copy()
+        self._settled = False
         self.pose = self.ik.kin.tcp(self.q)
         self._start_path(self.pose, self.pose)
         self.phase = Phase.IDLE
@@ -173,7 +174,12 @@ class InterpolatorCore:
             elif result not in (Result.Working,):
                 raise RuntimeError(f"ruckig failed: {result}")
             self.pose = self._pose_at(self.s)
-        self.q = self.ik.step(self.q, self.pose)
+            self._settled = False
+        elif self._settled:  # at rest and converged: the same setpoint, no IK to solve
+            return self.q
+        q = self.ik.step(self.q, self.pose)
+        self._settled = not self.moving and float(np.max(np.abs(q - self.q))) < 1e-10
+        self.q = q
         return self.q
 
     # --- internals ---------------------------------------------------------------------
@@ -257,7 +263,7 @@ class CartesianInterpolator(Component):
     limits = In(EventMessage, doc="new limits: payload {velocity, acceleration} (m/s, m/s^2)")
     halt = In(EventMessage, doc="STOP now (the Supervisor's reflex): any sample brakes")
     setpoint = Out(JointState, doc="joint setpoints for the robot interface, every cycle")
-    command = Out(Pose, doc="commanded TCP in the robot base frame")
+    command = Out(Pose, doc="commanded TCP in the robot base frame (every cycle unless idle)")
     status = Out(EventMessage, doc="phase (idle, moving, reached, stopping, returning, stopped)")
 
     def configure_hook(self) -> bool:
@@ -310,7 +316,8 @@ class CartesianInterpolator(Component):
             phase = core.phase
         stamp = time.time()
         self.setpoint.write(JointState(stamp, tuple(q.tolist())))
-        self.command.write(tcp_message(core.pose, stamp))
+        if phase is not Phase.IDLE or self._phase is not phase:  # not 1 kHz of the same pose
+            self.command.write(tcp_message(core.pose, stamp))
         if phase is not self._phase:
             self._phase = phase
             self.status.write(EventMessage(stamp, phase.value, self.name, self.report()))
@@ -370,12 +377,15 @@ class CartesianInterpolator(Component):
             return self.report()
 
     @operation
-    def sync(self) -> dict[str, Any]:
-        """Restart from the measured joints, at rest (after the brakes were released).
-        While moving this does nothing: a sync must never cut a motion short."""
+    def sync(self, force: bool = False) -> dict[str, Any]:
+        """Restart from the measured joints, at rest. While moving this does nothing (a
+        tracker swap re-applies the goto configuration: it must not cut the motion
+        short) unless `force`: after a stop the robot side imposed, whatever motion the
+        interpolator was still playing is void, and its next setpoint must be where the
+        arm stands, or the arm's setpoint guard brakes again at once."""
         with self._core_lock:
             core = self._core()
-            if not core.moving:
+            if force or not core.moving:
                 status, measured = self.joints.read()
                 if status is not ReadStatus.NO_DATA:
                     core.sync(np.asarray(measured.position))

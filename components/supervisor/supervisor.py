@@ -15,8 +15,9 @@ interpolator, and raises the events the SEEG chart reacts to:
   in `e_TOK`), so the chart swaps without asking; `e_NOTRACKER` if none is left;
 * `e_TARGET {goal}`: the interpolator reached the goal and the measured TCP is
   within `target_tolerance` of it;
-* `e_STOP {reason}` also when the arm braked by itself (watchdog, setpoint
-  guard): the chart must know the robot no longer follows.
+* `e_STOP {reason}` also when the robot side latched a safety stop by itself (its
+  safety monitor tripped, the arm's controller braked): the chart must know the robot
+  no longer follows.
 
 Every `e_STOP` and `e_NOTRACKER` is preceded by a message on `halt`, wired straight
 to the interpolator: braking starts one hop after the verdict instead of after the
@@ -114,8 +115,10 @@ class SupervisorCore:
         return self._arrival()
 
     def robot(self, braked: bool, fault: bool, reason: str) -> list[Event]:
-        """The robot interface's status: a brake the arm applied by itself stops the task."""
-        if not (braked and fault):
+        """The robot interface's status: a safety stop the robot side latched by itself
+        (monitor trip, the arm's own brakes) stops the task, once per fault, whether the
+        brakes are on yet or the protective stop is still decelerating."""
+        if not fault:
             self.robot_fault = ""
             return []
         if reason == self.robot_fault:
@@ -235,6 +238,11 @@ class Supervisor(Component):
         self._core_lock = threading.Lock()
         self._source: str | None = None  # the tracker whose samples `tracked` last carried
         return True
+
+    def idle_hook(self) -> None:
+        """No event for the activity's `idle` period: the TCP (read, not waited for: it
+        comes at 1 kHz) still moves the area and arrival checks along."""
+        self.update_hook()
 
     def update_hook(self) -> None:
         events: list[Event] = []

@@ -7,6 +7,13 @@ Y = ee_Y_CTO. X comes first in closed form from pose pairs (A_j A_k^-1) X =
 X (B_j B_k^-1) (Park & Martin for the rotation, linear least squares for the
 translation), Y from the average of B_k^-1 X^-1 A_k; then scipy's least squares
 refines both over all rotation and translation residuals.
+
+A calibration that cannot be trusted is refused, never returned: first the pose set
+must make X and Y observable (`observability`: rotations between poses about at least
+two well-separated axes, a well-conditioned translation system); then, given the
+measurement noise, the residuals must be consistent with it (a reference tool that
+moved during the protocol, a tracker that lied). Each refusal is a `CalibrationError`
+naming what is missing.
 """
 
 from __future__ import annotations
@@ -20,8 +27,23 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from components.tracking.geometry import invert
+from framework.errors import FwError
 
 ROTATION_SCALE = 0.1  # metres per radian when rotation and translation residuals are mixed
+MIN_ROTATION = np.radians(5.0)
+"""A pose pair rotating less than this says nothing about the rotation of X."""
+MIN_AXIS_SPREAD = 0.25
+"""Second over first singular value of the pairs' rotation axes: below, the axes are
+(nearly) one, and X's rotation about it and Y's translation along it are unobservable."""
+MAX_CONDITION = 1e3
+"""Condition number of the translation system above which X's translation is refused."""
+RESIDUAL_FACTOR = 4.0
+"""Residuals above this many times the stated noise (plus `RESIDUAL_FLOOR`) are refused."""
+RESIDUAL_FLOOR = 2e-4  # m: the robot's own kinematic error
+
+
+class CalibrationError(FwError, ValueError):
+    """A calibration that cannot be trusted (the message says what is missing)."""
 
 
 @dataclass
@@ -65,6 +87,43 @@ def _average_rotation(rotations: list[np.ndarray]) -> np.ndarray:
     return r
 
 
+def observability(b: list[np.ndarray]) -> str:
+    """'' if robot poses `b` (base frame) make X and Y of A = X B Y observable, else what
+    is missing: enough rotation between poses, about at least two separated axes, and
+    a well-conditioned translation system."""
+    if len(b) < 3:
+        return f"{len(b)} poses: hand-eye calibration needs at least 3 (8 recommended)"
+    axes, blocks = [], []
+    for j, k in combinations(range(len(b)), 2):
+        rotation = (b[j] @ invert(b[k]))[:3, :3]
+        vector = _log(rotation)
+        if not np.all(np.isfinite(vector)):
+            return "a robot pose is not a finite rigid transform"
+        if np.linalg.norm(vector) >= MIN_ROTATION:
+            axes.append(vector / np.linalg.norm(vector))
+            blocks.append(rotation - np.eye(3))
+    if len(axes) < 2:
+        return (
+            "the robot poses rotate less than 5 deg from one another: the rotation of X is "
+            "unobservable; tilt the tool between poses (about two axes at least)"
+        )
+    singular = np.linalg.svd(np.array(axes), compute_uv=False)
+    if singular[1] < MIN_AXIS_SPREAD * singular[0]:
+        axis = np.linalg.svd(np.array(axes))[2][0]
+        return (
+            "every rotation between the robot poses is about one axis "
+            f"(~[{axis[0]:.2f}, {axis[1]:.2f}, {axis[2]:.2f}] in the base frame): X and Y "
+            "are unobservable along it; add poses tilted about a second axis"
+        )
+    condition = np.linalg.cond(np.vstack(blocks))
+    if not np.isfinite(condition) or condition > MAX_CONDITION:
+        return (
+            f"the translation of X is ill-conditioned (condition number {condition:.3g}): "
+            "spread the rotations between poses more"
+        )
+    return ""
+
+
 def hand_eye_closed_form(a: list[np.ndarray], b: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Initial X, Y for A_k = X B_k Y from pose pairs (see the module docstring)."""
     alphas, betas, pairs = [], [], []
@@ -78,7 +137,7 @@ def hand_eye_closed_form(a: list[np.ndarray], b: list[np.ndarray]) -> tuple[np.n
         betas.append(beta)
         pairs.append((aa, bb))
     if len(pairs) < 2:
-        raise ValueError("the robot poses need rotations about at least two axes")
+        raise CalibrationError("the robot poses need rotations about at least two axes")
     m = sum(np.outer(beta, alpha) for alpha, beta in zip(alphas, betas, strict=True))
     rx = np.real(sqrtm(np.linalg.inv(m.T @ m))) @ m.T
     u, _, vt = np.linalg.svd(rx)
@@ -132,10 +191,19 @@ def residuals(
     return np.array(trans), np.array(rot)
 
 
-def hand_eye(a: list[np.ndarray], b: list[np.ndarray]) -> HandEyeResult:
-    """Solve A_k = X B_k Y: closed form, then least squares over all residuals."""
+def hand_eye(a: list[np.ndarray], b: list[np.ndarray], noise: float | None = None) -> HandEyeResult:
+    """Solve A_k = X B_k Y: closed form, then least squares over all residuals.
+
+    Refused with `CalibrationError` if the poses do not make X and Y observable, and,
+    when the measurement `noise` (3-D RMS of A's translation, m) is given, if the
+    residuals are inconsistent with it."""
     if len(a) != len(b) or len(a) < 3:
-        raise ValueError("hand-eye calibration needs at least 3 matching pose pairs")
+        raise CalibrationError("hand-eye calibration needs at least 3 matching pose pairs")
+    if not all(np.all(np.isfinite(t)) for t in (*a, *b)):
+        raise CalibrationError("a measured or robot pose is not finite (NaN or infinite)")
+    problem = observability(b)
+    if problem:
+        raise CalibrationError(problem)
     x0, y0 = hand_eye_closed_form(a, b)
 
     def cost(params: np.ndarray) -> np.ndarray:
@@ -146,6 +214,15 @@ def hand_eye(a: list[np.ndarray], b: list[np.ndarray]) -> HandEyeResult:
     fit = least_squares(cost, _pack(x0, y0), method="lm")
     x, y = _unpack(fit.x)
     trans, rot = residuals(x, y, a, b)
+    if noise is not None:
+        rms = float(np.sqrt(np.mean(np.sum(trans**2, axis=1))))
+        limit = RESIDUAL_FACTOR * noise + RESIDUAL_FLOOR
+        if not rms <= limit:
+            raise CalibrationError(
+                f"residuals of {rms * 1e3:.2f} mm RMS are inconsistent with the stated "
+                f"{noise * 1e3:.2f} mm noise (limit {limit * 1e3:.2f} mm): did the reference "
+                "tool or the camera move during the protocol? Repeat it"
+            )
     return HandEyeResult(
         x,
         y,

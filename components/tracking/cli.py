@@ -46,7 +46,7 @@ def run(poses: int, seed: int) -> dict[str, Any]:
         for pose in robot:
             cto, rto = rig.observe(pose, rng)
             a.append(invert(pose_matrix(rto)) @ pose_matrix(cto))
-        results[rig.name] = hand_eye(a, robot)
+        results[rig.name] = hand_eye(a, robot, noise=math.sqrt(2.0) * rig.noise)
     master = rigs[0]
     sensors: dict[str, Any] = {}
     report: dict[str, Any] = {}

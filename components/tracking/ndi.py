@@ -258,6 +258,43 @@ def decode_tx(text: str) -> tuple[list[ToolFrame], int]:
     return tools, system
 
 
+VICRA_NEAR_MM, VICRA_FAR_MM = 557.0, 1336.0
+VICRA_HALF_X, VICRA_HALF_Y = math.radians(26.0), math.radians(23.0)
+
+
+def in_vicra_volume(translation_mm: tuple[float, ...], margin_mm: float = 0.0) -> bool:
+    """True if a point (sensor frame, mm, z along the optical axis) is inside the Polaris
+    Vicra's pyramid measurement volume (557-1336 mm, +-26 deg by +-23 deg), grown by
+    `margin_mm`: a pose outside it cannot be a real measurement."""
+    x, y, z = translation_mm
+    if not all(math.isfinite(v) for v in (x, y, z)):
+        return False
+    near, far = VICRA_NEAR_MM - margin_mm, VICRA_FAR_MM + margin_mm
+    return (
+        near <= z <= far
+        and abs(x) <= z * math.tan(VICRA_HALF_X) + margin_mm
+        and abs(y) <= z * math.tan(VICRA_HALF_Y) + margin_mm
+    )
+
+
+def frame_problem(tool: ToolFrame, margin_mm: float | None = 50.0) -> str:
+    """'' if a frame the device marks valid is a plausible measurement, else why not:
+    a value that is NaN or infinite, a non-unit rotation, a position outside the
+    Vicra's measurement volume (grown by `margin_mm`; None: no volume check), a
+    negative error."""
+    values = (*tool.translation, *tool.quaternion, tool.error)
+    if not all(math.isfinite(v) for v in values):
+        return "a value is NaN or infinite"
+    if not quaternion_is_unit(tool.quaternion):
+        return "the rotation is not a unit quaternion"
+    if margin_mm is not None and not in_vicra_volume(tool.translation, margin_mm):
+        where = ", ".join(f"{v:.6g}" for v in tool.translation)
+        return f"the position ({where}) mm is outside the measurement volume"
+    if tool.error < 0:
+        return "the RMS error is negative"
+    return ""
+
+
 def quaternion_is_unit(q: tuple[float, ...], tolerance: float = 1e-3) -> bool:
     """True for a finite unit quaternion (a corrupt frame often is not)."""
     norm = math.sqrt(sum(v * v for v in q))

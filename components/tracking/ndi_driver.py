@@ -5,9 +5,13 @@ then both switch), and for each tool PHRQ, PVWR (tool definition in 64-byte
 chunks), PINIT, PENA. start: TSTART. Each update: BX (or TX), one Pose per
 tool on its output port (`cto`, `rto`; metres, quaternion w-x-y-z, RMS error,
 frame number, validity). MISSING and DISABLED tools are published as invalid
-poses. Garbage bytes and CRC errors are counted and skipped; after
-`reconnect_after` failed cycles in a row the driver reopens the port and
-initialises the device again (a cable loss and re-plug).
+poses, and so is a frame the device marks valid whose values cannot be a
+measurement (NaN, infinite, a non-unit rotation, outside the measurement volume):
+a broken device never moves the robot. Garbage bytes and CRC errors are counted
+and skipped; after `reconnect_after` failed cycles in a row the driver reopens the
+port and initialises the device again (a cable loss and re-plug). The driver says
+itself what is wrong: `health` carries its fault state (link lost, no replies,
+corrupt replies, impossible values) on every change, not only through silence.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ from components.tracking import ndi
 from components.tracking.vicra_sim import make_rom
 from framework.component import Component, Out, operation
 from framework.errors import FwError
-from framework.messages import Pose
+from framework.messages import EventMessage, Pose
 from framework.properties import prop
 from framework.yamlio import load_yaml
 
@@ -96,8 +100,12 @@ class NdiTracker(Component):
     timeout = prop(float, 0.25, unit="s", min=0.01, max=5.0, doc="reply timeout")
     reconnect_after = prop(int, 3, min=1, max=100, doc="failed cycles before reconnecting")
     frame = prop(str, "vicra", doc="frame name written in every pose")
+    volume = prop(
+        str, "vicra", choices=["vicra", "none"], doc="measurement volume poses must lie in"
+    )
     cto = Out(Pose, doc="calibration tool optical (on the end-effector)")
     rto = Out(Pose, doc="reference tool optical (on the table)")
+    health = Out(EventMessage, doc="the driver's own fault state {ok, fault} on every change")
 
     def __init__(self, name: str):
         super().__init__(name)
@@ -110,7 +118,10 @@ class NdiTracker(Component):
             "device_errors": 0,
             "reconnects": 0,
             "failed_cycles": 0,
+            "invalid_values": 0,
         }
+        self.fault = "not connected"
+        self._reported_fault: str | None = None
         self.tools: list[ToolSpec] = []
 
     # -- lifecycle -------------------------------------------------------------------
@@ -158,11 +169,19 @@ class NdiTracker(Component):
         self.counters["failed_cycles"] = 0
         self.counters["frames"] += 1
         stamp = time.time()
+        impossible = []
+        margin = 50.0 if self.volume == "vicra" else None
         for tool in tools:
             name = self.handles.get(tool.handle)
             if name is None:
                 continue
-            valid = tool.status == ndi.VALID and ndi.quaternion_is_unit(tool.quaternion)
+            valid = tool.status == ndi.VALID
+            if valid:
+                problem = ndi.frame_problem(tool, margin)
+                if problem:
+                    valid = False
+                    impossible.append(f"{name}: {problem}")
+                    self.counters["invalid_values"] += 1
             position = tuple(v / 1000.0 for v in tool.translation) if valid else (0.0, 0.0, 0.0)
             pose = Pose(
                 position,
@@ -175,6 +194,15 @@ class NdiTracker(Component):
                 name,
             )
             self.outputs[name].write(pose)
+        self._report_fault(f"impossible values ({'; '.join(impossible)})" if impossible else "")
+
+    def _report_fault(self, fault: str) -> None:
+        """Publish the driver's fault state when it changes ('' when healthy)."""
+        self.fault = fault
+        if fault != self._reported_fault:
+            self._reported_fault = fault
+            message = {"ok": not fault, "fault": fault, **self.counters}
+            self.health.write(EventMessage(time.time(), "health", self.name, message))
 
     # -- the device ------------------------------------------------------------------
     def _open(self, baud: int) -> None:
@@ -272,6 +300,7 @@ class NdiTracker(Component):
     def _failed(self, reason: str) -> None:
         self.counters["failed_cycles"] += 1
         self.last_error = reason
+        self._report_fault(reason)
         if self.counters["failed_cycles"] >= self.reconnect_after:
             self._close()
 
@@ -281,6 +310,7 @@ class NdiTracker(Component):
             self._command("TSTART")
         except (DriverError, TimeoutError, ndi.NdiError, *_LINK_ERRORS) as exc:
             self.last_error = f"reconnecting: {exc}"
+            self._report_fault(f"device lost, reconnecting: {exc}")
             self._close()
             return
         self.counters["reconnects"] += 1
@@ -292,6 +322,8 @@ class NdiTracker(Component):
         """Connected or not, counters, tool handles, last error."""
         return {
             "connected": self.serial is not None,
+            "ok": not self.fault,
+            "fault": self.fault,
             **self.counters,
             "handles": {f"{h:02X}": n for h, n in self.handles.items()},
             "last_error": self.last_error,

@@ -7,7 +7,8 @@ INIT, COMM, VER, BEEP, PHSR, PHRQ, PVWR, PINIT, PENA, PDIS, PHF, TSTART, TSTOP, 
 and TX, with and without CRC (upper- or lower-case hex), at 20 Hz with 0.25 mm
 RMS noise, inside the Vicra's pyramid field of view; tools can be occluded, and
 faults injected: `silent` (stops answering), `bad_crc` (replies with a wrong
-CRC), `garbage` (random bytes before each reply).
+CRC), `garbage` (random bytes before each reply), and values a broken device marks
+valid: `nan`, `inf`, `huge` (3e35 mm) positions.
 
 The field of view is an approximation of the Vicra pyramid (557-1336 mm from the
 sensor, +-26 deg horizontally, +-23 deg vertically), enough to put a tool in or out.
@@ -35,17 +36,14 @@ from framework.messages import Pose
 from framework.ports import ReadStatus
 from framework.properties import prop
 
-NEAR_MM, FAR_MM = 557.0, 1336.0
-HALF_X, HALF_Y = math.radians(26.0), math.radians(23.0)
 ROM_MAGIC = b"FWROM1"
+CORRUPT_VALUES = {"nan": math.nan, "inf": math.inf, "huge": 3e35}
+"""Value faults: the device marks the frame valid but sends this as a position (mm)."""
 
 
 def in_field_of_view(translation_mm: tuple[float, float, float]) -> bool:
     """True if a point (sensor frame, mm, z along the optical axis) is in the pyramid."""
-    x, y, z = translation_mm
-    return (
-        NEAR_MM <= z <= FAR_MM and abs(x) <= z * math.tan(HALF_X) and abs(y) <= z * math.tan(HALF_Y)
-    )
+    return ndi.in_vicra_volume(translation_mm)
 
 
 def make_rom(markers_mm: list[list[float]], name: str = "") -> bytes:
@@ -328,6 +326,8 @@ class VicraDevice:
                 continue
             noise = self._noise.get(handle, (0.0, 0.0, 0.0))
             position = tuple(p + n for p, n in zip(pose.translation, noise, strict=True))
+            if self.fault in CORRUPT_VALUES:  # a broken device, marking garbage valid
+                position = (CORRUPT_VALUES[self.fault], position[1], position[2])
             out.append(
                 ndi.ToolFrame(
                     handle, ndi.VALID, pose.quaternion, position, self.noise_mm, 0x31, frame
@@ -425,9 +425,11 @@ class VicraSimulator(Component):
 
     @operation
     def inject(self, fault: str = "") -> None:
-        """'' (none), 'silent', 'bad_crc' or 'garbage'."""
-        if fault not in ("", "silent", "bad_crc", "garbage"):
-            raise ValueError(f"unknown fault {fault!r} (silent, bad_crc, garbage)")
+        """'' (none), 'silent', 'bad_crc', 'garbage', or a value marked valid: 'nan',
+        'inf', 'huge' (3e35 mm)."""
+        known = ("", "silent", "bad_crc", "garbage", *CORRUPT_VALUES)
+        if fault not in known:
+            raise ValueError(f"unknown fault {fault!r} ({', '.join(known[1:])})")
         self.device.fault = fault
 
     @operation

@@ -32,7 +32,7 @@ def render_text(snapshot: dict[str, Any], width: int = 78) -> str:
     if health:
         lines.append("")
         for name, h in health.items():
-            state = (h.get("state") or "?") if h.get("alive") else "DEAD"
+            state = (h.get("state") or "?") if h.get("alive") else "LOST"
             lines.append(f"  {name:<20} {h.get('process', ''):<16} {state}")
     log = [entry for entry in snapshot.get("log", []) if entry["severity"] != "debug"]
     if log:

@@ -9,11 +9,11 @@ them, so a user fixes a file in one pass instead of one error per run.
 from __future__ import annotations
 
 import difflib
-import re
 from pathlib import Path
 from typing import Any
 
 from framework import schema
+from framework.durations import parse_duration
 from framework.errors import Finding, FindingsError, FwError, Location
 from framework.statechart.expressions import ExpressionError, compile_expression
 from framework.statechart.model import (
@@ -30,21 +30,6 @@ from framework.statechart.model import (
     has_type,
 )
 from framework.yamlio import Document, PathKey, load_yaml, load_yaml_text
-
-_DURATION = re.compile(r"^\s*([0-9]+(?:\.[0-9]*)?)\s*(ms|s|min|h)?\s*$")
-_UNIT = {"ms": 1e-3, "s": 1.0, "min": 60.0, "h": 3600.0, None: 1.0}
-
-
-def parse_duration(value: Any) -> float:
-    """Seconds from a number or a string like '2s', '500 ms', '1.5min'; ValueError otherwise."""
-    if isinstance(value, bool):
-        raise ValueError(f"not a duration: {value!r}")
-    if isinstance(value, (int, float)):
-        return float(value)
-    match = _DURATION.match(str(value))
-    if not match:
-        raise ValueError(f"not a duration: {value!r} (write e.g. '2s', '500ms', '1.5min')")
-    return float(match.group(1)) * _UNIT[match.group(2)]
 
 
 class _Builder:

@@ -36,9 +36,15 @@ class Kind(Enum):
 
 CONFIG_DONE = "config.done"
 CONFIG_FAILED = "config.failed"
+COMPONENT_LOST = "component.lost"
+COMPONENT_BACK = "component.back"
 BUILTIN_EVENTS = {
     CONFIG_DONE: "The Configurator applied a requested configuration (payload: tag).",
     CONFIG_FAILED: "A requested configuration failed or timed out (payload: tag, reason).",
+    COMPONENT_LOST: "A component of the deployment is gone: its process died or cannot be "
+    "reached (payload: component, process).",
+    COMPONENT_BACK: "A lost component is alive again, e.g. after a restart (payload: "
+    "component, process). Nothing restarts motion by itself: RELEASE still decides.",
 }
 
 

@@ -16,6 +16,8 @@ from framework.statechart.expressions import Expression, provably_exclusive
 from framework.statechart.loader import build_statechart
 from framework.statechart.model import (
     BUILTIN_EVENTS,
+    COMPONENT_BACK,
+    COMPONENT_LOST,
     CONFIG_DONE,
     CONFIG_FAILED,
     Action,
@@ -25,7 +27,12 @@ from framework.statechart.model import (
     Transition,
 )
 
-_BUILTIN_FIELDS = {CONFIG_DONE: {"tag", "state"}, CONFIG_FAILED: {"tag", "state", "reason", "step"}}
+_BUILTIN_FIELDS = {
+    CONFIG_DONE: {"tag", "state"},
+    CONFIG_FAILED: {"tag", "state", "reason", "step"},
+    COMPONENT_LOST: {"component", "process"},
+    COMPONENT_BACK: {"component", "process"},
+}
 _TIMER_FIELDS = {"state", "delay"}
 
 
@@ -56,6 +63,7 @@ class _Checker:
         self.connector_cycles()
         self.livelocks()
         self.configuration_tags()
+        self.losses()
         return self.findings
 
     # -- structure -------------------------------------------------------------
@@ -136,6 +144,21 @@ class _Checker:
                     s.configure.location,
                     f"add a transition on `{CONFIG_FAILED}` to a safe state",
                 )
+
+    def losses(self) -> None:
+        """A chart that configures a deployment's components should say what a lost one
+        means (checked with a topology only)."""
+        if self.tags is None:  # the chart alone (fw run): no deployment, no processes to lose
+            return
+        configures = any(s.configure is not None for s in self.states)
+        if configures and not any(COMPONENT_LOST in t.events for t in self.transitions):
+            self.warn(
+                "unhandled-loss",
+                f"no transition handles '{COMPONENT_LOST}': when a process dies the chart "
+                "stays where it is (the robot side still stops by itself)",
+                self.chart.root.location,
+                f"add a transition on `{COMPONENT_LOST}` to a fault state",
+            )
 
     def junction(self, s: State) -> None:
         if not s.transitions:

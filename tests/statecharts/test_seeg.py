@@ -5,7 +5,7 @@ import pytest
 from framework.statechart.loader import load_statechart
 from tests.conftest import REPO, Run
 
-SETUP = ["setup_components", "setup_tracking", "setup_people", "setup_robot"]
+SETUP = ["setup_components", "setup_tracking", "setup_people", "setup_robot", "setup_safety"]
 
 
 @pytest.fixture
@@ -148,7 +148,52 @@ def test_a_failed_stop_goes_to_fault_and_alerts(seeg):
         ("config.failed", {"tag": "stop", "reason": "no answer"}),
     )
     assert task(r) == "Fault"
-    assert any(o.kind == "send" and o.event == "e_STOP" for o in r.outputs)
+    alert = [o for o in r.outputs if o.kind == "send" and o.event == "e_FAULT"]
+    assert alert and alert[0].payload == {"reason": "stop configuration failed"}
+
+
+LOST = ("component.lost", {"component": "supervisor", "process": "supervision"})
+
+
+@pytest.mark.parametrize("where", ["Wait_Start", "Moving_Fast", "Stopped", "Target_Reached"])
+def test_a_lost_component_is_a_fault_from_any_state_and_says_which(seeg, where):
+    r = Run(seeg, auto_ack=True)
+    to = {
+        "Wait_Start": [],
+        "Moving_Fast": ["e_START", ("e_TOK", {"tracker": "certus"})],
+        "Stopped": ["e_START", ("e_TOK", {"tracker": "certus"}), ("e_STOP", {"reason": "x"})],
+        "Target_Reached": ["e_START", ("e_TOK", {"tracker": "certus"}), "e_TARGET"],
+    }[where]
+    r.send(*to)
+    assert task(r) == where
+    r.send(LOST)
+    assert task(r) == "Fault"
+    assert [o.tag for o in r.outputs if o.kind == "configure"][-1] == "fault"
+    alert = [o for o in r.outputs if o.kind == "send" and o.event == "e_FAULT"]
+    assert alert[-1].payload == {"reason": "supervisor lost"}
+
+
+def test_in_fault_only_release_leads_out_and_a_failed_fault_configuration_stays(seeg):
+    r = Run(seeg, auto_ack=True)
+    r.send("e_START", ("e_TOK", {"tracker": "certus"}))
+    r.auto_ack = False
+    r.send(LOST, ("config.failed", {"tag": "fault", "reason": "robot: no answer"}))
+    assert task(r) == "Fault", "the fault configuration failing is expected here"
+    r.send(("e_STOP", {"reason": "robot braked"}), LOST, "e_START", "e_GOTO")
+    assert task(r) == "Fault", "a stop, a second loss or a START do not leave Fault"
+    r.send("e_RELEASE")
+    assert task(r) == "Releasing"
+    r.send(("config.failed", {"tag": "release", "reason": "robot: safety inputs not healthy"}))
+    assert task(r) == "Stopped", "a refused RELEASE: braked, try again"
+
+
+def test_a_lost_component_during_setup_aborts_it(seeg):
+    r = Run(seeg)
+    r.send(ok("setup_components"), LOST)
+    assert r.leaves == ["Setup_Aborted"]
+    sent = [o for o in r.outputs if o.kind == "send"]
+    assert sent[0].event == "e_SETUP_FAILED"
+    assert sent[0].payload == {"tag": "supervision", "reason": "supervisor lost"}
 
 
 TARGET = {"x": 0.55, "y": 0.05, "z": 0.15, "roll": 0.0, "pitch": 180.0, "yaw": 10.0}

@@ -47,7 +47,7 @@ function render(state) {
   $("health").classList.toggle("stale", !state.health || state.health.age === null || state.health.age > 3);
   $("health-rows").innerHTML = Object.entries(health).map(([name, h]) =>
     `<tr class="${h.alive ? "" : "dead"}"><td>${name}</td><td>${h.process}</td>` +
-    `<td>${h.alive ? (h.state || "?") : "DEAD"}</td></tr>`).join("");
+    `<td>${h.alive ? (h.state || "?") : "LOST"}</td></tr>`).join("");
 
   drawScene(state);
   drawPlots(state);

@@ -51,3 +51,11 @@ def test_the_master_kinect_to_robot_reuses_the_hand_eye_solver():
     poses = protocol_poses(8, 1)
     fit = kinect_to_robot([x_true @ b @ y_true for b in poses], poses)
     assert np.allclose(fit.x, x_true, atol=1e-6)
+
+
+def test_corners_on_one_line_are_refused_not_solved():
+    from components.tracking.calibration import CalibrationError
+
+    line = np.array([[0.1 * k, 0.0, 2.0] for k in range(6)])
+    with pytest.raises(CalibrationError, match="lie on one line"):
+        rigid_fit(line, line + 0.01)

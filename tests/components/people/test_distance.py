@@ -66,3 +66,12 @@ def test_all_pairs_at_once_and_the_closest_pair():
     value, row, col = closest_pair(matrix)
     assert value == matrix.min() and matrix[row, col] == value
     assert closest_pair(np.zeros((0, 3)))[0] == float("inf")
+
+
+def test_short_segments_that_touch_are_at_distance_zero_whatever_their_size():
+    """Found by the property test: two perpendicular segments of 61 um sharing an end
+    were 61 um apart, and 16 mm in the other argument order."""
+    for scale in (1e-5, 6.103515625e-05, 1e-3, 1.0):
+        assert one((0, 0, scale), (0, 0, 0), (0, scale, 0), (0, 0, 0)) == 0.0
+        assert one((0, 0, 0), (0, 0, scale), (0, 0.015625, 0), (0, 0, 0)) == 0.0
+        assert one((0, 0.015625, 0), (0, 0, 0), (0, 0, 0), (0, 0, scale)) == 0.0

@@ -1,9 +1,11 @@
-"""Spec: the robot interface and the interpolator as components, on a stepped clock: one
-millisecond of physics per update, setpoints through real ports, deterministic runs."""
+"""Spec: the arm's controller, the robot interface and the interpolator as components, on
+a stepped clock: one millisecond of physics per update, setpoints and measured states
+through real ports, deterministic runs."""
 
 import numpy as np
 import pytest
 
+from components.robot.controller import ArmController
 from components.robot.interface import RobotInterface
 from components.robot.interpolator import CartesianInterpolator
 from components.supervisor.procedure import load_procedure
@@ -17,29 +19,44 @@ PROCEDURE = REPO / "procedures" / "seeg.yaml"
 
 
 class Cell:
-    """Robot interface and interpolator in one container, stepped 1 ms at a time."""
+    """The arm (its controller), the robot interface and the interpolator in one
+    container, stepped 1 ms at a time, wired as topologies/seeg.yaml wires them."""
 
-    def __init__(self, bus):
+    def __init__(self, bus, safety=None):
         self.clock = SimulatedClock()
         self.executor = SteppedExecutor(self.clock)
         self.container = Container("cell", bus, self.executor)
-        self.robot = self.container.add(RobotInterface("robot"), Activity.periodic(1000))
+        self.arm = self.container.add(ArmController("arm"), Activity.periodic(1000))
+        self.robot = self.container.add(
+            RobotInterface("robot"), Activity.event("measured"), safety=safety
+        )
         self.interp = self.container.add(
-            CartesianInterpolator("interpolator"), Activity.event("joints")
+            CartesianInterpolator("interpolator"), Activity("after", master="robot")
+        )
+        self.container.connect("robot", "measured", "arm/measured")
+        self.container.connect("arm", "command", "robot/command")
+        self.container.connect(
+            "arm", "request", "robot/arm_request", {"type": "buffer", "size": 16}
         )
         self.container.connect("interpolator", "joints", "robot/joints")
         self.container.connect("robot", "setpoint", "interpolator/setpoint")
         self.interp.set_property("procedure_file", str(PROCEDURE))
         self.container.start()
-        for component in (self.robot, self.interp):
+        for component in (self.arm, self.robot, self.interp):
             assert component.configure() and component.start(), component.last_error
         self.run(0.01)  # the interpolator learns the joints
 
     def run(self, seconds: float) -> None:
         self.executor.advance(seconds)
 
+    def release(self) -> None:
+        """What the goto configurations do before a motion."""
+        self.robot.call("release")
+        self.run(0.003)  # the controller serves the request at its next cycle
+        self.interp.call("sync")
+
     def tcp(self) -> np.ndarray:
-        return self.robot.arm.tcp()[:3, 3]
+        return self.arm.arm.tcp()[:3, 3]
 
     def close(self) -> None:
         self.container.shutdown()
@@ -61,8 +78,7 @@ def test_the_arm_powers_up_braked_and_a_goal_needs_the_brakes_released(cell):
 
 def test_released_the_arm_reaches_the_target_through_the_ports(cell):
     target = load_procedure(PROCEDURE).target[:3, 3]
-    cell.robot.call("release")
-    cell.interp.call("sync")
+    cell.release()
     cell.interp.call("go_to", goal="target")
     cell.run(6.0)
     assert cell.interp.call("report")["phase"] == "reached"
@@ -71,8 +87,7 @@ def test_released_the_arm_reaches_the_target_through_the_ports(cell):
 
 
 def test_stop_brakes_along_the_path_returns_and_the_brakes_engage_when_still(cell):
-    cell.robot.call("release")
-    cell.interp.call("sync")
+    cell.release()
     cell.interp.call("go_to", goal="target")
     cell.run(2.0)
     asserted = np.array(cell.interp.call("report")["tcp"])
@@ -103,8 +118,7 @@ def test_the_supervisors_halt_brakes_the_motion_without_the_chart(hub):
         distance.owner, distance.bus = "test", hub
         distance.connect("test/min_distance")
 
-        cell.robot.call("release")
-        cell.interp.call("sync")
+        cell.release()
         cell.interp.call("go_to", goal="target")
         cell.run(1.0)
         assert cell.interp.call("report")["phase"] == "moving"
@@ -117,15 +131,50 @@ def test_the_supervisors_halt_brakes_the_motion_without_the_chart(hub):
         cell.close()
 
 
-def test_a_dead_interpolator_makes_the_watchdog_brake(cell):
-    cell.robot.call("release")
-    cell.interp.call("sync")
+def test_a_dead_interpolator_trips_a_protective_stop_that_latches(cell):
+    cell.release()
     cell.interp.call("go_to", goal="target")
     cell.run(1.0)
     cell.interp.stop()  # the interpolator dies: no more setpoints
-    cell.run(0.05)
+    cell.run(0.1)
     report = cell.robot.call("report")
-    assert report["braked"] and report["reason"].startswith("watchdog")
+    assert report["braked"] and report["latched"]
+    assert report["reason"].startswith("no setpoint for 5 cycles")
+    with pytest.raises(FwError, match="safety stop latched"):
+        cell.robot.call("release")
+
+
+def test_the_arms_controller_brakes_by_itself_when_commands_stop(cell):
+    """The interface's process hangs (here: its command link is cut): the controller's
+    own watchdog brakes and latches; the interface then latches too."""
+    cell.release()
+    cell.interp.call("go_to", goal="target")
+    cell.run(1.0)
+    cell.container.disconnect("arm", "command")
+    cell.run(0.1)
+    arm = cell.arm.call("report")
+    assert arm["braked"] and arm["latched"] and arm["reason"].startswith("watchdog")
+    robot = cell.robot.call("report")
+    assert robot["latched"] and "the arm braked by itself: watchdog" in robot["reason"]
+
+
+def test_a_latched_stop_opens_only_with_acknowledge_then_release(cell):
+    cell.release()
+    cell.interp.call("go_to", goal="target")
+    cell.run(1.0)
+    cell.container.disconnect("arm", "command")
+    cell.run(0.1)
+    cell.container.connect("arm", "command", "robot/command")  # the link is back
+    cell.run(0.5)
+    assert cell.arm.call("report")["braked"], "a link that comes back restarts nothing"
+    cell.robot.call("acknowledge")
+    cell.run(0.003)
+    assert cell.arm.call("report")["braked"], "acknowledge clears the latch, not the brakes"
+    assert not cell.arm.call("report")["latched"]
+    cell.release()
+    cell.interp.call("go_to", goal="target")
+    cell.run(8.0)
+    assert cell.interp.call("report")["phase"] == "reached"
 
 
 def test_unknown_goals_and_bad_limits_are_refused_with_reasons(cell):
@@ -142,8 +191,7 @@ def test_stepped_runs_are_repeatable(bus_config):
         bus = Bus(bus_config, hub=True)
         cell = Cell(bus)
         try:
-            cell.robot.call("release")
-            cell.interp.call("sync")
+            cell.release()
             cell.interp.call("go_to", goal="target")
             points = []
             for _ in range(20):
@@ -158,8 +206,7 @@ def test_stepped_runs_are_repeatable(bus_config):
 
 
 def test_an_arm_that_stops_following_stops_the_commanded_motion(cell):
-    cell.robot.call("release")
-    cell.interp.call("sync")
+    cell.release()
     cell.interp.call("go_to", goal="target")
     cell.run(1.0)
     cell.robot.call("brake", reason="operator")  # the arm stops; nobody told the interpolator
@@ -168,3 +215,70 @@ def test_an_arm_that_stops_following_stops_the_commanded_motion(cell):
     assert report["phase"] == "stopped", report
     assert "lags the command" in cell.interp.last_error
     assert np.allclose(report["tcp"], cell.tcp(), atol=1e-3), "the command is back at the arm"
+
+
+def test_a_monitor_trip_stops_the_arm_on_its_path_then_brakes_latched(hub):
+    """A watched input falls silent while the arm moves: the interface itself decelerates
+    the arm along its path (no reversal, a short stop), then the brakes latch."""
+    from framework.messages import Scalar
+    from framework.ports import OutputPort
+    from framework.safety import SafetySpec, Watch
+
+    token = hub.token("fw/alive/tester")
+    spec = SafetySpec("robot", (Watch("tester", "test/beat", 0.02, "tester"),), ("tester",))
+    cell = Cell(hub, safety=spec)
+    beat = OutputPort("beat", Scalar)
+    beat.owner, beat.bus = "tester", hub
+    beat.connect("test/beat")
+    try:
+        with pytest.raises(FwError, match="tester: no data yet"):
+            cell.robot.call("release")  # not before every watched input is there
+        for i in range(3):
+            beat.write(Scalar(0.0, float(i)))
+            cell.run(0.005)
+        cell.release()
+        cell.interp.call("go_to", goal="target")
+        for i in range(300):  # 1.5 s of motion with a heartbeat every 5 ms
+            beat.write(Scalar(0.0, float(i)))
+            cell.run(0.005)
+        assert cell.robot.call("report")["safety"]["armed"]
+        before = cell.tcp().copy()
+        path = []
+        for _ in range(100):  # the heartbeat stops
+            cell.run(0.001)
+            path.append(cell.tcp().copy())
+        report = cell.robot.call("report")
+        assert report["latched"] and report["braked"]
+        assert report["reason"].startswith("tester: no data for")
+        moved = np.linalg.norm(np.array(path) - before, axis=1)
+        assert moved[-1] < 0.003, "stopped within a few millimetres"
+        direction = np.array(path[5]) - before
+        along = (np.array(path) - before) @ (direction / np.linalg.norm(direction))
+        assert np.all(np.diff(along) > -1e-5), "decelerates along the path, never back"
+        with pytest.raises(FwError, match="safety stop latched"):
+            cell.robot.call("release")
+        with pytest.raises(FwError, match="not healthy"):
+            cell.robot.call("acknowledge")
+        for i in range(10):  # it comes back; the operator acknowledges
+            beat.write(Scalar(0.0, float(i)))
+            cell.run(0.005)
+        cell.robot.call("acknowledge")
+        cell.run(0.005)
+        assert cell.arm.call("report")["braked"], "acknowledge alone moves nothing"
+    finally:
+        cell.close()
+        token.undeclare()
+
+
+def test_a_forced_sync_drops_the_motion_a_plain_one_keeps(cell):
+    """A tracker swap re-applies `sync`: it must not cut the approach short; after a
+    stop the robot side imposed, RELEASE forces it, so the next setpoint is the arm's."""
+    cell.release()
+    cell.interp.call("go_to", goal="target")
+    cell.run(0.5)
+    assert cell.interp.call("sync")["phase"] == "moving"
+    report = cell.interp.call("sync", force=True)
+    assert report["phase"] == "idle" and report["speed"] == 0.0
+    cell.run(0.1)
+    measured = np.array(cell.arm.call("report")["q"])
+    assert np.allclose(cell.interp.core.q, measured, atol=2e-3)

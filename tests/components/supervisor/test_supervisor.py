@@ -88,13 +88,16 @@ def test_the_goal_is_reached_when_the_interpolator_is_done_and_the_tcp_is_there(
     assert not [e for e in c.observe(tcp=TARGET) if e[0] == "e_TARGET"], "reported once"
 
 
-def test_an_arm_that_brakes_by_itself_stops_the_task_once():
+def test_a_safety_stop_the_robot_latched_by_itself_stops_the_task_once():
     c = core()
     assert c.robot(braked=True, fault=False, reason="stop") == [], "asked for: no event"
-    events = c.robot(braked=True, fault=True, reason="watchdog: no setpoint for 6 cycles")
-    assert names(events) == ["e_STOP"] and "watchdog" in events[0][1]["reason"]
-    assert c.robot(braked=True, fault=True, reason="watchdog: no setpoint for 6 cycles") == []
+    events = c.robot(braked=False, fault=True, reason="supervisor: no data for 61 ms")
+    assert names(events) == ["e_STOP"], "already while the protective stop decelerates"
+    assert "supervisor: no data" in events[0][1]["reason"]
+    assert c.robot(braked=True, fault=True, reason="supervisor: no data for 61 ms") == []
     assert c.robot(braked=False, fault=False, reason="") == []
+    again = c.robot(braked=True, fault=True, reason="the arm braked by itself: watchdog")
+    assert names(again) == ["e_STOP"], "a new fault after the first was cleared"
 
 
 def test_limits_follow_the_tracker_in_use_and_the_area():

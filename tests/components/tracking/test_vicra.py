@@ -191,3 +191,27 @@ def test_bad_configuration_is_explained(tmp_path):
         d.tools_file = str(bad)
         assert not d.configure()
         assert message in d.last_error and str(bad) in d.last_error
+
+
+@pytest.mark.parametrize("fault", ["nan", "inf", "huge"])
+def test_impossible_values_marked_valid_by_the_device_are_never_valid(driver, vicra, fault):
+    """A broken device sends NaN, infinite or 3e35 mm positions and calls them valid:
+    the driver publishes them invalid, counts them, and says so itself."""
+    started(driver)
+    driver.update()
+    assert driver.cto.last.valid and driver.status()["ok"]
+    vicra.call("inject", fault=fault)
+    published = []
+    for _ in range(10):
+        driver.update()
+        published.append(driver.cto.last)
+    assert published and not any(p.valid for p in published)
+    assert all(p.is_finite() for p in published), "nothing non-finite leaves the driver"
+    status = driver.status()
+    assert not status["ok"] and "impossible values" in status["fault"]
+    assert status["invalid_values"] >= 10
+    health = driver.health.last
+    assert health.payload["ok"] is False and "cto" in health.payload["fault"]
+    vicra.call("inject", fault="")
+    driver.update()
+    assert driver.cto.last.valid and driver.status()["ok"] and driver.health.last.payload["ok"]

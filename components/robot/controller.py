@@ -1,0 +1,193 @@
+"""The simulated KUKA LWR 4+ as a machine of its own: MuJoCo physics and its controller.
+
+A real LWR 4+ has its own controller (the KRC): the robot interface commands it
+over FRI, and the controller brakes by itself when the commands stop. `ArmController`
+is that machine in simulation, hosted in a process of its own (topology process
+`arm`), so that killing or hanging the robot interface's process brakes the arm as
+pulling the FRI cable would:
+
+* every cycle (1 kHz) it steps `SimulatedArm` and publishes its `measured` state (joints, the
+  flange tool pose, brakes, latch) and, at `truth_rate`, the ground-truth `tcp` that
+  the simulated OR's trackers observe;
+* joint setpoints arrive on `command`; brake, release, reset and mode requests on
+  `request` (the FRI commands that switch the controller's mode);
+* **command watchdog**: released and being commanded, no setpoint for
+  `watchdog_cycles` of its own cycles (a hung interface) engages the brakes;
+* **link watch**: the liveliness token of its `commander` vanishes (the interface's
+  process died and its link closed): brakes at the next cycle;
+* brakes the controller applies by itself (watchdog, link, the setpoint guard of
+  `SimulatedArm`) and brakes the interface asks for as a safety stop **latch**:
+  `release` is refused until a `reset`, which the interface sends only on the
+  operator's RELEASE.
+
+Its cycles count its own time: if the whole host stalls, the arm stalls with it and
+no cycle passes without the interface having had the chance to answer.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from components.robot.arm import MODES, SimulatedArm
+from components.robot.lwr4 import HOME
+from components.tracking.geometry import matrix_to_quat
+from framework import keys
+from framework.component import Component, In, Out, operation
+from framework.messages import ArmState, EventMessage, JointState, Pose
+from framework.ports import ReadStatus
+from framework.properties import prop
+
+SELF_BRAKES = ("watchdog", "setpoint", "link")
+"""Brake reasons of the controller's own safety: they latch."""
+
+
+class ArmController(Component):
+    """The simulated LWR 4+ and its controller-side safety (see the module docstring)."""
+
+    watchdog_cycles = prop(
+        int, 40, min=1, max=10000, doc="own cycles without a setpoint, while commanded, that brake"
+    )
+    mode = prop(str, "position", choices=list(MODES), doc="joint servo mode at power on")
+    commander = prop(str, "", doc="component whose lost link brakes the arm ('' for none)")
+    lockstep_ms = prop(
+        float, 2.0, unit="ms", min=0.0, max=100.0, doc="wait for a late setpoint (0: never)"
+    )
+    truth_rate = prop(
+        float, 200.0, unit="Hz", min=1.0, max=1000.0, doc="how often the ground-truth tcp goes out"
+    )
+    command = In(JointState, doc="joint position setpoints (rad), one per cycle")
+    request = In(
+        EventMessage,
+        doc="brake {reason, latch}, release, reset, mode {mode}",
+        policy={"type": "buffer", "size": 16},
+    )
+    measured = Out(ArmState, doc="joints, flange tool pose, brakes and latch, every cycle")
+    tcp = Out(Pose, doc="ground-truth tool pose in the base frame (what trackers see)")
+
+    def configure_hook(self) -> bool:
+        self.arm = SimulatedArm(HOME, watchdog_cycles=self.watchdog_cycles, mode=self.mode)
+        self.latched = ""
+        self.releases = 0
+        self.refused = ""
+        self.cycle = 0
+        self.served = 0
+        self._link_lost = ""
+        self._commander_seen = False
+        self._arrived = threading.Event()
+        self._link: Any = None
+        return True
+
+    def start_hook(self) -> bool:
+        self.command.on_data = lambda _port: self._arrived.set()
+        if self.commander and self.bus is not None and self._link is None:
+            self._link = self.bus.watch(keys.alive(self.commander), self._on_link)
+        return True
+
+    def stop_hook(self) -> None:
+        self._brake("controller stopped", latch=True)
+
+    def cleanup_hook(self) -> None:
+        if self._link is not None:
+            self._link.undeclare()
+            self._link = None
+
+    def _on_link(self, _key: str, alive: bool) -> None:
+        if alive:
+            self._commander_seen = True
+        elif self._commander_seen:
+            self._link_lost = f"link to {self.commander} lost"
+
+    def _brake(self, reason: str, latch: bool) -> None:
+        self.arm.brake(reason)
+        if latch and not self.latched:
+            self.latched = reason
+
+    # -- the cycle -----------------------------------------------------------------------
+    def update_hook(self) -> None:
+        arm = self.arm
+        if arm.commanded and self.lockstep_ms > 0 and not self.command.pending():
+            self._arrived.clear()
+            if not self.command.pending():
+                self._arrived.wait(self.lockstep_ms / 1000.0)
+        while True:
+            status, request = self.request.read()
+            if status is not ReadStatus.NEW:
+                break
+            self._serve(request)
+            self.served += 1
+        was_braked = arm.braked
+        status, sample = self.command.read()
+        if status is ReadStatus.NEW and not arm.braked:
+            arm.command(np.asarray(sample.position))  # the setpoint guard may brake
+        if self._link_lost:
+            reason, self._link_lost = self._link_lost, ""
+            self._brake(reason, latch=True)
+        arm.step()  # the command watchdog may brake
+        if arm.braked and not was_braked and arm.reason.startswith(SELF_BRAKES):
+            self.latched = self.latched or arm.reason
+        self.cycle += 1
+        self._publish()
+
+    def _serve(self, request: EventMessage) -> None:
+        payload = request.payload or {}
+        if request.name == "brake":
+            self._brake(str(payload.get("reason", "interface")), bool(payload.get("latch")))
+        elif request.name == "release":
+            if self.latched:
+                self.refused = f"release refused: latched ({self.latched}); reset first"
+            elif self.arm.braked:
+                self.arm.release()
+                self.releases += 1
+                self.refused = ""
+        elif request.name == "reset":
+            self.latched = ""
+        elif request.name == "mode":
+            try:
+                self.arm.set_mode(str(payload.get("mode")))
+            except ValueError as exc:
+                self.refused = str(exc)
+
+    def _publish(self) -> None:
+        arm, stamp = self.arm, time.time()
+        tcp = arm.tcp()
+        position = tuple(float(v) for v in tcp[:3, 3])
+        quaternion = matrix_to_quat(tcp[:3, :3])
+        data = arm.data
+        self.measured.write(
+            ArmState(
+                stamp,
+                self.cycle,
+                self.served,
+                tuple(data.qpos[:7].tolist()),
+                tuple(data.qvel[:7].tolist()),
+                tuple(data.actuator_force[:7].tolist()),
+                (*position, *quaternion),
+                arm.braked,
+                bool(self.latched),
+                self.latched or arm.reason,
+            )
+        )
+        if self.cycle % max(1, round(1000.0 / self.truth_rate)) == 0:  # trackers sample slower
+            self.tcp.write(Pose(position, quaternion, stamp, 0.0, self.cycle, True, "base", "tcp"))  # type: ignore[arg-type]
+
+    @operation
+    def report(self) -> dict[str, Any]:
+        """Brakes, latch, why, releases so far, servo mode, simulated time, joints."""
+        arm = getattr(self, "arm", None)
+        if arm is None:
+            return {"braked": True, "latched": False, "reason": "not configured"}
+        return {
+            "braked": arm.braked,
+            "latched": bool(self.latched),
+            "reason": self.latched or arm.reason,
+            "releases": self.releases,
+            "refused": self.refused,
+            "mode": arm.mode,
+            "cycle": self.cycle,
+            "time": round(arm.time, 4),
+            "q": [round(v, 5) for v in arm.q.tolist()],
+        }

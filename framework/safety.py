@@ -1,0 +1,330 @@
+"""The robot-side safety monitor: deadlines on what the topology declares safety-relevant,
+the liveliness of every component, and a latch only an operator's RELEASE opens.
+
+A topology says what the robot depends on:
+
+    safety:
+      monitor: robot                         # the component that brakes, in its control loop
+      watch:
+        supervisor: 50ms                     # a component: its heartbeat (it runs)
+        people_detector.min_distance: 100ms  # an output port: its samples
+
+A watched *component* publishes a heartbeat from its own activity thread while it is
+Running (`Component.heartbeat`); a watched *port* is watched by its samples. Besides
+the watches, every process of the deployment beats from a thread of its own
+(`ProcessHeartbeat`, deadline `process_deadline`, 50 ms by default), so a hung process
+is a trip, and the liveliness token of every component (and of the Coordinator and
+the Configurator) is watched, so a dead process is a trip at once, whether or not
+anything of it is watched by name.
+
+`SafetyMonitor.check()` runs once per control cycle of the hosting component. It
+*arms* the first time every watch is healthy; once armed, the first problem trips
+it and the trip **latches**: `check()` keeps returning the first reason until
+`acknowledge()` is called (by the operator's RELEASE, through the chart) *and* every
+watch is healthy again. A process that comes back therefore never restarts motion by
+itself. Time is the hosting executor's clock, so stepped tests repeat exactly.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from framework import keys, messages
+from framework.clock import Clock, MonotonicClock
+from framework.messages import Scalar
+from framework.ports import ConnPolicy, InputPort, OutputPort
+
+DEFAULT_PROCESS_DEADLINE = 0.05
+"""Seconds a process may go without beating before the monitor trips."""
+STARVED = 0.01
+"""A gap between two checks longer than this means the monitor's own thread starved."""
+
+
+@dataclass(frozen=True)
+class Watch:
+    """One safety-relevant input: a component's heartbeat or an output port's samples."""
+
+    name: str
+    """As the topology names it: `supervisor` or `people_detector.min_distance`."""
+    key: str
+    deadline: float
+    """Seconds without a sample before the input counts as lost."""
+    producer: str
+    """The component that writes it (its liveliness is watched too; '' for a process's
+    own heartbeat)."""
+    type_name: str = "Scalar"
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data, for a container specification."""
+        return dict(self.__dict__)
+
+
+@dataclass(frozen=True)
+class SafetySpec:
+    """What one monitor watches: the deadlines and every component whose loss trips it."""
+
+    monitor: str
+    watches: tuple[Watch, ...] = ()
+    components: tuple[str, ...] = ()
+    process_deadline: float = DEFAULT_PROCESS_DEADLINE
+    """How long a process may go without beating (its beat period is a quarter of it)."""
+
+    @property
+    def process_beat(self) -> float:
+        """How often every process of the deployment beats (s)."""
+        return heartbeat_period(self.process_deadline)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data, for a container specification."""
+        return {
+            "monitor": self.monitor,
+            "watches": [w.to_dict() for w in self.watches],
+            "components": list(self.components),
+            "process_deadline": self.process_deadline,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> SafetySpec:
+        """Inverse of `to_dict`."""
+        return cls(
+            data["monitor"],
+            tuple(Watch(**w) for w in data.get("watches", [])),
+            tuple(data.get("components", [])),
+            float(data.get("process_deadline", DEFAULT_PROCESS_DEADLINE)),
+        )
+
+
+class ProcessHeartbeat:
+    """A process's proof that it is scheduled: a sample every `period` from a thread of
+    its own (SIGSTOP, a frozen VM or a starved process all fall silent)."""
+
+    def __init__(self, bus: Any, process: str, period: float):
+        self.period = period
+        self.port: OutputPort[Scalar] = OutputPort("heartbeat", Scalar, "process heartbeat")
+        self.port.owner, self.port.bus = process, bus
+        self.port.connect(keys.process_heartbeat(process))
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"fw-beat-{process}", daemon=True)
+
+    def start(self) -> ProcessHeartbeat:
+        """Begin beating."""
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        count = 0
+        while not self._stop.wait(self.period):
+            count += 1
+            try:
+                self.port.write(Scalar(time.time(), float(count)))
+            except Exception:  # the session is closing: nothing left to prove
+                return
+
+    def stop(self) -> None:
+        """Stop beating (before the bus closes)."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(1.0)
+        self.port.disconnect()
+
+
+def heartbeat_period(deadline: float) -> float:
+    """How often a component watched with `deadline` beats: four beats per deadline,
+    so one late beat is not yet a trip."""
+    return max(deadline / 4.0, 0.002)
+
+
+class SafetyMonitor:
+    """Deadlines and liveliness with a latch (see the module docstring)."""
+
+    def __init__(self, spec: SafetySpec, clock: Clock | None = None, process: str = ""):
+        """`process`: the one hosting the monitor; its own heartbeat is the reference
+        against which the others are late."""
+        self.spec = spec
+        own = keys.process_heartbeat(process) if process else None
+        self._own = next((i for i, w in enumerate(spec.watches) if w.key == own), None)
+        self.clock = clock or MonotonicClock()
+        self._lock = threading.Lock()
+        n = len(spec.watches)
+        self._arrived = [-float("inf")] * n
+        self._samples = [0] * n
+        self._worst = [0.0] * n  # the longest silence seen per watch (s): the margin left
+        self._alive: dict[str, bool] = {c: False for c in spec.components}
+        for watch in spec.watches:
+            if watch.producer:  # a process heartbeat has no component behind it
+                self._alive.setdefault(watch.producer, False)
+        self._ports: list[InputPort[Any]] = []
+        self._token_watch: Any = None
+        self._last_check: float | None = None
+        self.armed = False
+        """True once every watch was healthy at the same time (after start-up)."""
+        self.latched = ""
+        """The reason of the trip that latched ('' while not tripped)."""
+        self.trips = 0
+
+    # -- wiring ---------------------------------------------------------------------
+    def attach(self, bus: Any, owner: str = "safety") -> SafetyMonitor:
+        """Subscribe to every watched key and to the components' liveliness tokens."""
+        for index, watch in enumerate(self.spec.watches):
+            kind = messages.resolve_type(watch.type_name)
+            port: InputPort[Any] = InputPort(f"watch_{index}", kind, policy=ConnPolicy())
+            port.owner, port.bus = owner, bus
+            port.on_data = lambda _port, i=index: self.arrived(i)
+            port.connect(watch.key)
+            self._ports.append(port)
+        self._token_watch = bus.watch(keys.ALL_ALIVE, self._on_token)
+        return self
+
+    def close(self) -> None:
+        """Drop every subscription."""
+        for port in self._ports:
+            port.close()
+        self._ports.clear()
+        if self._token_watch is not None:
+            self._token_watch.undeclare()
+            self._token_watch = None
+
+    def _on_token(self, key: str, alive: bool) -> None:
+        self.set_alive(key.rsplit("/", 1)[-1], alive)
+
+    # -- inputs (any thread) ----------------------------------------------------------
+    def arrived(self, index: int) -> None:
+        """A sample of watch `index` arrived now."""
+        with self._lock:
+            self._arrived[index] = self.clock.now()
+            self._samples[index] += 1
+
+    def set_alive(self, component: str, alive: bool) -> None:
+        """A component's liveliness token appeared or vanished."""
+        with self._lock:
+            if component in self._alive:
+                self._alive[component] = alive
+
+    # -- the control cycle --------------------------------------------------------------
+    def _own_stall(self, now: float, arrived: list[float], samples: list[int]) -> float:
+        """How long the monitor's own process has not been running (s): its own process
+        heartbeat, written and delivered inside this process, is the reference clock.
+        What this process could not see while it stood still is not evidence that the
+        producers stopped."""
+        index = self._own
+        if index is None or samples[index] < 2:
+            return 0.0
+        period = heartbeat_period(self.spec.watches[index].deadline)
+        return max(0.0, now - arrived[index] - 2.0 * period)
+
+    def problems(self) -> list[str]:
+        """Every input that is not healthy now, in words (not latched): lost components
+        first, then late inputs. Ages are counted in the time the monitor's own process
+        was running (see `_own_stall`)."""
+        lost, late = self._problems()
+        return lost + late
+
+    def _problems(self) -> tuple[list[str], list[str]]:
+        now = self.clock.now()
+        out: list[str] = []
+        with self._lock:
+            lost = [c for c, alive in self._alive.items() if not alive]
+            arrived, samples = list(self._arrived), list(self._samples)
+        gone = [f"{c} lost (its process died or cannot be reached)" for c in lost]
+        stall = self._own_stall(now, arrived, samples)
+        worst = self._worst
+        for index, (watch, at, count) in enumerate(
+            zip(self.spec.watches, arrived, samples, strict=True)
+        ):
+            if watch.producer in lost or index == self._own:
+                continue  # the monitor's own process hanging is the arm's watchdog's job
+            if count < 2:  # the first sample may be a cached one from before a loss
+                out.append(f"{watch.name}: no data yet")
+                continue
+            age = now - at - stall
+            if age > worst[index] and self.armed:  # start-up gaps are not the margin
+                worst[index] = age
+            if age > watch.deadline:
+                out.append(
+                    f"{watch.name}: no data for {age * 1e3:.0f} ms "
+                    f"(deadline {watch.deadline * 1e3:.0f} ms)"
+                )
+        return gone, out
+
+    def check(self, released: bool = True) -> str:
+        """Once per control cycle: the latched trip reason, or '' if the robot may move.
+
+        A lost component always trips. A late input trips while the robot is `released`
+        (it could move); while it stands braked, a late input only keeps it from being
+        released (`ready`): a busy host that delays a heartbeat while nothing moves is
+        not yet a fault, and the robot is released only with every input on time.
+
+        A check that comes late (this thread itself was not scheduled for a while) only
+        records the time: the samples that arrived meanwhile may still be queued in the
+        bus's threads, and a starved monitor must not read its own starvation as a
+        silent producer. The next check, one cycle later, decides."""
+        if self.latched:
+            return self.latched
+        now = self.clock.now()
+        late = self._last_check is not None and now - self._last_check > STARVED
+        self._last_check = now
+        if late:
+            return ""
+        lost, late_inputs = self._problems()
+        if not lost and not late_inputs:
+            self.armed = True
+            return ""
+        if not self.armed:
+            return ""  # start-up: not every input has appeared yet (see `ready`)
+        if lost:
+            self.trip(lost[0])
+        elif released:
+            self.trip(late_inputs[0])
+        return self.latched
+
+    def trip(self, reason: str) -> None:
+        """Latch a trip (the first reason is kept)."""
+        if not self.latched:
+            self.latched = reason
+            self.trips += 1
+
+    def ready(self) -> str:
+        """'' if the robot may be released now, else why not."""
+        if self.latched:
+            return f"safety stop latched: {self.latched}"
+        problems = self.problems()
+        if problems:
+            return "safety inputs not healthy: " + "; ".join(problems)
+        return ""
+
+    def acknowledge(self) -> str:
+        """The operator's RELEASE: clear the latch if every input is healthy now; '' if
+        cleared, else why it stays latched."""
+        problems = self.problems()
+        if problems:
+            return "safety inputs not healthy: " + "; ".join(problems)
+        self.latched = ""
+        self.armed = True
+        return ""
+
+    def report(self) -> dict[str, Any]:
+        """Latch, arming and each watch's age (ms) and state, for status and `report`."""
+        now = self.clock.now()
+        with self._lock:
+            ages = [
+                None if n == 0 else round((now - at) * 1e3, 1)
+                for at, n in zip(self._arrived, self._samples, strict=True)
+            ]
+            lost = sorted(c for c, alive in self._alive.items() if not alive)
+        return {
+            "latched": self.latched,
+            "armed": self.armed,
+            "trips": self.trips,
+            "lost": lost,
+            "watches": {
+                w.name: {
+                    "age_ms": age,
+                    "worst_ms": round(worst * 1e3, 1),
+                    "deadline_ms": round(w.deadline * 1e3, 1),
+                }
+                for w, age, worst in zip(self.spec.watches, ages, self._worst, strict=True)
+            },
+        }

@@ -1,0 +1,152 @@
+"""The deployer's eye on its processes, for the whole run.
+
+A process that exits while the deployment runs is a loss: it is reported at once
+(an event on `fw/deployer/events`, which the flight recorder keeps; the live screen;
+`fw status`), and the Coordinator's chart gets `component.lost` for each of its
+components from their liveliness. What happens next is the topology's choice, per
+process:
+
+    processes:
+      cameras: {on_loss: restart}   # start it again, as it was (states, wiring)
+      robot: {}                     # on_loss: stop (default): it stays lost
+
+A restarted process gets its components back to the lifecycle states they had and
+the connections the configurations had made (not only the topology's initial ones).
+Motion never restarts by itself: the robot side latched its stop when the process
+was lost, and only the operator's RELEASE, through the chart, opens the latch.
+A process that keeps dying is restarted at most `MAX_RESTARTS` times.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import subprocess
+import threading
+import time
+from typing import TYPE_CHECKING, Any
+
+from framework import keys, messages
+from framework.container import spawn_container
+from framework.messages import EventMessage
+from framework.topology import Step
+
+if TYPE_CHECKING:
+    from framework.deployer import Deployment, Process
+
+EVENTS_KEY = "fw/deployer/events"
+MAX_RESTARTS = 3
+POLL = 0.05  # s between looks at the processes
+TARGETS = {"Running": "running", "Stopped": "stopped"}
+"""Lifecycle states a restarted component is brought back to (others stay as spawned)."""
+
+
+class ProcessWatch:
+    """Watches a deployment's processes until `stop` (see the module docstring)."""
+
+    def __init__(self, deployment: Deployment):
+        self.deployment = deployment
+        self.states: dict[str, str] = {}
+        """The last lifecycle state each component published."""
+        self.lost: dict[str, str] = {}
+        """Processes lost now -> what happened."""
+        self.incidents: list[str] = []
+        """Every loss and restart, in order, in words (for the live screen)."""
+        self.restarts: dict[str, int] = {}
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        hub = deployment.hub
+        assert hub is not None
+        self._states_sub = hub.subscribe(keys.ALL_STATES, self._on_state)
+        self._events = hub.publisher(EVENTS_KEY, cache=False)
+
+    def _on_state(self, sample: Any) -> None:
+        try:
+            message, _, _ = messages.decode(sample.payload.to_bytes(), EventMessage)
+        except messages.CodecError:
+            return
+        self.states[message.source] = str(message.payload.get("new", ""))
+
+    def start(self) -> ProcessWatch:
+        """Begin watching (after every process is up)."""
+        self._thread = threading.Thread(target=self._run, name="fw-process-watch", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop watching (before the deployment shuts its processes down)."""
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(5.0)
+        with contextlib.suppress(Exception):
+            self._states_sub.undeclare()
+            self._events.undeclare()
+
+    def _run(self) -> None:
+        while not self._stop.wait(POLL):
+            for process in list(self.deployment.processes):
+                popen = process.popen
+                if popen is None or process.name in self.lost or popen.poll() is None:
+                    continue
+                self._lose(process, popen.returncode)
+
+    def note(self, kind: str, process: str, detail: str) -> None:
+        """Record something that happened to a process (a fault injected on purpose)."""
+        self._report(kind, process, detail)
+
+    def _report(self, kind: str, process: str, detail: str) -> None:
+        text = f"process {process} {kind.replace('_', ' ')}: {detail}"
+        self.incidents = [*self.incidents[-49:], f"{time.strftime('%H:%M:%S')} {text}"]
+        message = EventMessage(
+            time.time(), kind, "deployer", {"process": process, "detail": detail}
+        )
+        with contextlib.suppress(Exception):
+            self._events.put(messages.encode(message, EventMessage))
+        if self.deployment.report is not None:
+            self.deployment.report(f"deployer   {text}")
+
+    def _lose(self, process: Process, code: int) -> None:
+        how = f"killed by signal {-code}" if code < 0 else f"exited with code {code}"
+        tail = process.tail(3)
+        detail = how + (f" ({tail})" if tail else "")
+        self.lost[process.name] = detail
+        self._report("process_lost", process.name, detail)
+        policy = self.deployment.topology.on_loss(process.name)
+        if policy != "restart":
+            return
+        if self.restarts.get(process.name, 0) >= MAX_RESTARTS:
+            self._report("restart_refused", process.name, f"lost {MAX_RESTARTS + 1} times")
+            return
+        self.restarts[process.name] = self.restarts.get(process.name, 0) + 1
+        wanted = {c: self.states.get(c, "") for c in process.components}
+        try:
+            self._restart(process, wanted)
+        except Exception as exc:  # reported; the process stays lost
+            self._report("restart_failed", process.name, str(exc))
+            return
+        del self.lost[process.name]
+        self._report("process_restarted", process.name, "back as it was; RELEASE resumes")
+
+    def _restart(self, process: Process, wanted: dict[str, str]) -> None:
+        from framework.deployer import container_spec
+
+        deployment = self.deployment
+        assert process.stderr is not None
+        with process.stderr.open("ab") as err:
+            process.popen = spawn_container(
+                container_spec(deployment.topology, process.name),
+                stdout=subprocess.DEVNULL,
+                stderr=err,
+            )
+        deployment.wait_alive(process.components)
+        configurator = deployment.configurator
+        if configurator is None:
+            return
+        steps = configurator.restore_steps(set(process.components))
+        steps += [
+            Step("state", name, TARGETS[state], timeout=5.0)
+            for name, state in wanted.items()
+            if state in TARGETS
+        ]
+        outcome = configurator.run_steps(f"restart {process.name}", steps)
+        if not outcome.ok:
+            raise RuntimeError(f"{outcome.step}: {outcome.reason}")

@@ -1,0 +1,51 @@
+"""Spec: the SEEG deployment fails safe on real processes. A crash (SIGKILL) or a hang
+(SIGSTOP, then SIGCONT) of the robot, supervision or cameras process while the arm
+approaches the target ends braked with the fault latched; nothing moves before the
+surgeon's RELEASE (the arm's controller counts its releases), and then the approach
+resumes where the process can come back. One scenario per process and fault kind lives
+in procedures/seeg/scenarios/faults/; these six run in the suite, every one of them in
+`fw bench chaos`."""
+
+import pytest
+
+from framework.deployer import Deployment
+from framework.scenario import load_scenario
+from framework.statechart.loader import load_statechart
+from framework.statechart.model import BUILTIN_EVENTS
+from framework.topology import load_topology
+from tests.conftest import REPO, private_topology
+
+FAULTS = REPO / "procedures" / "seeg" / "scenarios" / "faults"
+IN_SUITE = [f"{p}_{kind}" for p in ("robot", "supervision", "cameras") for kind in ("kill", "hang")]
+
+
+def test_there_is_a_scenario_per_process_and_fault_kind_and_each_checks():
+    topology = load_topology(REPO / "topologies" / "seeg.yaml")
+    chart = load_statechart(topology.statechart)
+    processes = {c.process for c in topology.components.values()}
+    names = {p.stem for p in FAULTS.glob("*.yaml")}
+    assert {f"{p}_{k}" for p in processes for k in ("kill", "hang")} <= names
+    operations = {f"{n}.{op}" for n, c in topology.components.items() for op in c.info.operations}
+    for path in sorted(FAULTS.glob("*.yaml")):
+        scenario = load_scenario(
+            path,
+            set(chart.events) | set(BUILTIN_EVENTS),
+            operations,
+            {s.path for s in chart.states.values()},
+            processes,
+        )
+        assert any(s.fault is not None for s in scenario.steps), path.name
+
+
+@pytest.mark.parametrize("name", IN_SUITE)
+def test_a_fault_ends_braked_latched_and_nothing_moves_before_release(name, bus_config, tmp_path):
+    topology = private_topology(REPO / "topologies" / "seeg.yaml", bus_config, tmp_path)
+    scenario = load_scenario(FAULTS / f"{name}.yaml")
+    deployment = Deployment(topology, tmp_path / "logs", scenario=scenario)
+    deployment.start()
+    try:
+        assert deployment.runner.finished.wait(scenario.timeout + 30), "scenario never finished"
+    finally:
+        deployment.stop()
+    failed = [o for o in deployment.runner.report() if not o.ok]
+    assert not failed, failed
