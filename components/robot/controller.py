@@ -75,6 +75,7 @@ class ArmController(Component):
         self.refused = ""
         self.cycle = 0
         self.served = 0
+        self._on_time = True
         self._link_lost = ""
         self._commander_seen = False
         self._arrived = threading.Event()
@@ -109,10 +110,13 @@ class ArmController(Component):
     # -- the cycle -----------------------------------------------------------------------
     def update_hook(self) -> None:
         arm = self.arm
-        if arm.commanded and self.lockstep_ms > 0 and not self.command.pending():
+        # wait for a late setpoint, but only while the commander keeps up: once it has
+        # missed a cycle, waiting would only stretch the watchdog's cycles
+        if arm.commanded and self.lockstep_ms > 0 and self._on_time and not self.command.pending():
             self._arrived.clear()
             if not self.command.pending():
                 self._arrived.wait(self.lockstep_ms / 1000.0)
+        self._on_time = self.command.pending() > 0
         while True:
             status, request = self.request.read()
             if status is not ReadStatus.NEW:

@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from framework.errors import FwError
 from framework.yamlio import load_yaml
@@ -65,9 +64,25 @@ def pose_from(position: Any, rpy_deg: Any) -> np.ndarray:
     if len(p) != 3 or len(r) != 3 or not all(math.isfinite(v) for v in p + r):
         raise ValueError("a pose needs 3 finite position values and 3 finite angles")
     out = np.eye(4)
-    out[:3, :3] = Rotation.from_euler("xyz", r, degrees=True).as_matrix()
+    out[:3, :3] = rpy_matrix(*(math.radians(v) for v in r))
     out[:3, 3] = p
     return out
+
+
+def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """Rotation of fixed-axis roll, pitch, yaw (rad): Rz(yaw) Ry(pitch) Rx(roll). (In
+    numpy, not scipy: the supervision process then does not load scipy at all, which
+    keeps it small, and a small process dies, and is seen dead, faster.)"""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
 
 
 def load_procedure(path: str | Path) -> Procedure:

@@ -165,3 +165,60 @@ def test_a_bad_spec_fails_the_process_with_a_clear_message(bus_config):
     assert proc.wait(30) == 1
     err = proc.stderr.read().decode()
     assert "is not a Component class" in err and "Traceback" not in err
+
+
+def test_a_request_that_comes_after_its_deadline_is_refused_not_run(process, hub):
+    """The process hangs (SIGSTOP) while a request waits for it: after SIGCONT the
+    request is delivered, past its deadline, and refused; the property never changes.
+    (Without deadlines, requests queued during a hang ran after it.)"""
+    proc = process("c1", [counter("cnt", step=1.0, run=False)])
+    remote = RemoteComponent(hub, "cnt")
+    assert remote.get("step") == 1.0
+    os.kill(proc.pid, signal.SIGSTOP)
+    try:
+        with pytest.raises(RemoteError, match=r"no answer|timed out"):
+            remote.request("set", timeout=0.3, property="step", value=7.0)
+    finally:
+        os.kill(proc.pid, signal.SIGCONT)
+    assert wait_until(lambda: remote.get("step") is not None)
+    assert remote.get("step") == 1.0, "the late request did not run"
+    with pytest.raises(RemoteError, match="refused, not run: its deadline passed"):
+        remote.request("set", deadline=1.0, property="step", value=7.0)  # 1970: long past
+    assert remote.get("step") == 1.0
+
+
+def test_a_batch_stops_at_the_first_step_that_would_start_late(hub):
+    """Steps on one component run in turn; the first that would start after the batch's
+    deadline is refused with its reason, and the rest are not run."""
+    import time
+
+    from framework.component import Component, operation
+    from framework.properties import prop
+
+    class Slow(Component):
+        needs_configuration = False
+        mark = prop(float, 0.0)
+
+        @operation
+        def nap(self, seconds: float) -> None:
+            time.sleep(seconds)
+
+    container = Container("local", hub)
+    component = container.add(Slow("slow"))
+    container.start()
+    try:
+        answer = container.handle(
+            component,
+            {
+                "op": "batch",
+                "deadline": time.time() + 0.1,
+                "steps": [
+                    {"op": "call", "operation": "nap", "args": {"seconds": 0.2}},
+                    {"op": "set", "property": "mark", "value": 9.0},
+                ],
+            },
+        )
+        assert answer["failed"] == 1 and "deadline passed" in answer["error"]
+        assert component.get_property("mark") == 0.0, "the late step did not run"
+    finally:
+        container.shutdown()

@@ -185,6 +185,28 @@ def test_a_bad_scenario_is_refused_with_located_errors(write):
         load_scenario(bad)
 
 
+def test_a_fault_step_names_a_known_process_and_a_hang_says_how_long(write):
+    from framework.errors import FindingsError
+    from framework.scenario import load_scenario
+
+    path = write(
+        "scenario: s\nsteps:\n"
+        "  - {at: 1s, fault: {process: trackrs, signal: KILL}}\n"
+        "  - {at: 2s, fault: {process: trackers, signal: STOP}}\n"
+        "  - {at: 3s, fault: {process: trackers, signal: KILL, for: 1s}}\n",
+        "faults.yaml",
+    )
+    with pytest.raises(FindingsError) as err:
+        load_scenario(path, processes={"trackers", "control_side"})
+    lines = [f.one_line() for f in err.value.findings]
+    assert "error[unknown-process]: the topology has no process 'trackrs'" in lines[0]
+    assert "a STOP needs `for`" in lines[1] and ":4:" in lines[1]
+    assert "`for` is how long a STOP hangs" in lines[2]
+    bad = write("scenario: s\nsteps:\n  - {at: 1s, fault: {process: x, signal: HUP}}\n", "b.yaml")
+    with pytest.raises(FindingsError, match="schema"):
+        load_scenario(bad)
+
+
 def test_processes_placed_on_another_host_are_started_by_that_hosts_deploy(toy, tmp_path):
     import threading
 
@@ -244,3 +266,65 @@ def test_scenario_invariants_are_sampled_and_a_violation_fails(toy, tmp_path, wr
     assert ok.ok and "samples" in ok.detail
     assert not violated.ok and "violated at" in violated.detail and "received=" in violated.detail
     assert unexercised.ok and "not exercised" in unexercised.detail
+
+
+def test_a_configuration_that_comes_after_its_deadline_is_refused_unapplied(deployed):
+    """The chart gave up on it already (its configuration timeout passed): applying it
+    late could undo what the chart did since, so the Configurator refuses it."""
+    import time
+
+    from framework.messages import ConfigRequest
+
+    assert settled_in(deployed, "Use_T1")
+    before = dict(deployed.configurator.wiring)
+    outcome = deployed.configurator._serve(
+        ConfigRequest(time.time() - 3.0, 99, "tracker_2_up", {}, time.time() - 1.0)
+    )
+    assert not outcome.ok and outcome.step == "deadline"
+    assert "refused, not run" in outcome.reason
+    assert deployed.configurator.wiring == before
+    assert all(v > 0 for v in received(deployed)), "still tracker 1"
+
+
+def test_a_lost_process_is_a_chart_event_and_a_deployer_incident(deployed):
+    import os
+    import signal
+
+    assert settled_in(deployed, "Use_T1")
+    trackers = next(p for p in deployed.processes if p.name == "trackers")
+    os.kill(trackers.popen.pid, signal.SIGKILL)
+    assert wait_until(lambda: set(deployed.coordinator.lost) == {"t1", "t2"}, timeout=10)
+    assert deployed.coordinator.lost == {"t1": "trackers", "t2": "trackers"}
+    assert wait_until(lambda: "trackers" in deployed.watch.lost, timeout=10)
+    assert "killed by signal 9" in deployed.watch.lost["trackers"]
+    assert any("process trackers process lost" in i for i in deployed.watch.incidents)
+    assert "trackers" not in [p.name for p in deployed.processes if p.popen.poll() is None]
+
+
+def test_a_process_marked_restart_comes_back_as_it_was(toy, tmp_path):
+    """on_loss: restart: the process is started again, its components brought back to
+    their states and to the wiring the configurations had made (here the supervisor
+    reads tracker 2 after a swap, which is not the topology's initial wiring)."""
+    import os
+    import signal
+
+    toy.processes["control_side"]["on_loss"] = "restart"
+    deployment = Deployment(toy, tmp_path)
+    deployment.start()
+    try:
+        assert settled_in(deployment, "Use_T1")
+        deployment.send("e_SWAP")
+        assert settled_in(deployment, "Use_T2")
+        side = next(p for p in deployment.processes if p.name == "control_side")
+        os.kill(side.popen.pid, signal.SIGKILL)
+        assert wait_until(
+            lambda: any("restarted" in i for i in deployment.watch.incidents), timeout=30
+        ), deployment.watch.incidents
+        assert "control_side" not in deployment.watch.lost
+        assert wait_until(lambda: "supervisor" not in deployment.coordinator.lost)
+        supervisor = RemoteComponent(deployment.hub, "supervisor")
+        assert supervisor.state() == "Running"
+        assert wait_until(lambda: len(received(deployment)) >= 3)
+        assert all(v < 0 for v in received(deployment)), "tracker 2, as before the loss"
+    finally:
+        deployment.stop()

@@ -115,3 +115,58 @@ def test_a_required_property_left_out_is_named_before_anything_starts(tmp_path):
         "'supervisor' needs property 'procedure_file' (procedure YAML (target, areas, speeds))"
     ]
     assert missing[0].location.line > 0
+
+
+SAFE = TOY.replace(
+    "prepare:",
+    "safety:\n  monitor: supervisor\n  watch: {t1: 100ms, t2.out: 50ms}\nprepare:",
+)
+
+
+def test_a_safety_section_names_a_monitor_that_can_host_one(write):
+    found = [f for f in findings(write, SAFE) if f.code == "safety-monitor"]
+    assert found and "cannot host the safety monitor" in found[0].message
+    assert found[0].location.line == TOY.split("\n").index("prepare:") + 2
+
+
+def test_safety_watches_must_exist_beat_and_keep_their_deadline(write):
+    text = SAFE.replace("{t1: 100ms, t2.out: 50ms}", "{t1: 30ms, t2.nope: 50ms, supervisor: 1s}")
+    found = {f.code: f.message for f in findings(write, text)}
+    assert "unknown-port" in found and "'nope'" in found["unknown-port"]
+    watches = [f.message for f in findings(write, text) if f.code == "safety-watch"]
+    assert any("shorter than two of its periods" in m for m in watches), "t1 runs at 50 Hz"
+    text = SAFE.replace("activity: {event: inp}", "activity: passive").replace(
+        "{t1: 100ms, t2.out: 50ms}", "{supervisor: 100ms}"
+    )
+    watches = [f.message for f in findings(write, text) if f.code == "safety-watch"]
+    assert watches and "only a periodic or event-driven component beats" in watches[0]
+
+
+def test_the_safety_spec_watches_heartbeats_ports_processes_and_every_component(write):
+    from framework.safety import heartbeat_period
+
+    robot = (
+        "  robot:\n    class: components.robot.interface:RobotInterface\n"
+        "    process: control_side\n    activity: {event: [measured]}\n"
+    )
+    text = SAFE.replace("monitor: supervisor", "monitor: robot").replace(
+        "safety:", robot + "safety:"
+    )
+    found = findings(write, text)
+    assert not [f for f in found if f.severity == "error"], found
+    topology, _ = check_topology(write(text, "topo.yaml"))
+    spec = topology.safety
+    names = {w.name: (w.key, w.deadline, w.producer) for w in spec.watches}
+    assert names["t1"] == ("fw/heartbeat/t1", 0.1, "t1")
+    assert names["t2.out"] == ("t2/out", 0.05, "t2")
+    assert names["process trackers"][0] == "fw/process/trackers/heartbeat"
+    assert names["process control"][1] == 4 * spec.process_deadline, "the chart is slower"
+    assert set(spec.components) == {
+        "t1",
+        "t2",
+        "supervisor",
+        "robot",
+        "configurator",
+        "coordinator",
+    }
+    assert topology.heartbeats() == {"t1": heartbeat_period(0.1)}

@@ -2,8 +2,11 @@
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
 
-from components.supervisor.procedure import ProcedureError, load_procedure
+from components.supervisor.procedure import ProcedureError, load_procedure, pose_from
 from tests.conftest import REPO
 
 
@@ -59,3 +62,9 @@ def test_a_defined_target_replaces_the_goal_and_a_bad_one_is_refused():
     with pytest.raises(FwError, match="target refused: a pose needs 3 finite"):
         procedure.define_target((float("nan"), 0.0, 0.1), (0, 180, 0))
     assert np.allclose(procedure.target[:3, 3], [0.58, 0.02, 0.13]), "the old target stays"
+
+
+@given(st.tuples(*[st.floats(-180, 180)] * 3))
+def test_roll_pitch_yaw_is_scipys_fixed_axis_xyz(rpy):
+    expected = Rotation.from_euler("xyz", rpy, degrees=True).as_matrix()
+    assert np.allclose(pose_from((0, 0, 0), rpy)[:3, :3], expected, atol=1e-12)
