@@ -47,5 +47,7 @@ def default_output(component: str, port: str) -> str:
     return f"{component}/{port}"
 
 
+DEPLOYER_EVENTS = "fw/deployer/events"
+"""Where fw deploy reports what happens to its processes (lost, restarted)."""
 ALL_ALIVE = "fw/alive/*"
 ALL_STATES = "fw/state/*"

@@ -33,7 +33,7 @@ from framework.topology import Step
 if TYPE_CHECKING:
     from framework.deployer import Deployment, Process
 
-EVENTS_KEY = "fw/deployer/events"
+EVENTS_KEY = keys.DEPLOYER_EVENTS
 MAX_RESTARTS = 3
 POLL = 0.05  # s between looks at the processes
 TARGETS = {"Running": "running", "Stopped": "stopped"}

@@ -16,13 +16,14 @@ for any topology.
 from __future__ import annotations
 
 import collections
+import contextlib
 import math
 import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from framework import keys
+from framework import keys, messages
 from framework.bus import Bus
 from framework.coordinator import STATUS_KEY
 from framework.messages import EventMessage, Pose, Scalar
@@ -43,7 +44,7 @@ SEVERITY = {
     "entry": "debug",
 }
 """Log severity by Coordinator status kind (anything else is `debug`)."""
-STOP_EVENTS = ("e_STOP", "e_NOTRACKER", "e_TFAULT", "e_SETUP_FAILED")
+STOP_EVENTS = ("e_STOP", "e_NOTRACKER", "e_TFAULT", "e_SETUP_FAILED", "component.lost")
 
 
 @dataclass
@@ -72,6 +73,7 @@ class ConsoleModel:
     _trace: collections.deque = field(default_factory=collections.deque)
     _last_trace: float = 0.0
     _subscriptions: list[Any] = field(default_factory=list)
+    _incidents: Any = None
     _stop: threading.Event = field(default_factory=threading.Event)
     _changed: threading.Condition = field(default_factory=threading.Condition)
     _generation: int = 0
@@ -91,6 +93,8 @@ class ConsoleModel:
         self._listen("interpolator/status", EventMessage, self._on_motion, 16)
         self._listen("sensor_manager/status", EventMessage, self._on_tracking, 16)
         self._listen("supervisor/sources", EventMessage, self._on_source, 16)
+        # fw deploy publishes these from its own session, which may be this one
+        self._incidents = self.bus.subscribe(keys.DEPLOYER_EVENTS, self._on_incident, False)
         self._thread = threading.Thread(target=self._poll, name="fw-console-poll", daemon=True)
         self._thread.start()
         return self
@@ -103,6 +107,10 @@ class ConsoleModel:
         for port in self._subscriptions:
             port.close()
         self._subscriptions.clear()
+        if self._incidents is not None:
+            with contextlib.suppress(Exception):
+                self._incidents.undeclare()
+            self._incidents = None
 
     # -- the picture -----------------------------------------------------------------
     @property
@@ -198,6 +206,20 @@ class ConsoleModel:
         if message.name == "command" and not payload.get("accepted"):
             severity = "warning"
         self.note(severity, _describe(message.name, payload), kind=message.name)
+
+    def _on_incident(self, sample: Any) -> None:
+        """fw deploy lost, restarted or gave up on a process: kept in the log, as the
+        health table shows only the present."""
+        try:
+            message, _, _ = messages.decode(sample.payload.to_bytes(), EventMessage)
+        except messages.CodecError:
+            return
+        payload = message.payload or {}
+        severity = "info" if message.name == "process_restarted" else "error"
+        what = message.name.replace("_", " ")
+        self.note(
+            severity, f"{payload.get('process')}: {what}: {payload.get('detail')}", kind="incident"
+        )
 
     def _on_tcp(self, pose: Pose) -> None:
         now = time.monotonic()
@@ -296,7 +318,9 @@ class ConsoleModel:
         chart = (view.get("chart") or {}).get("data") or {}
         leaves = [p.rsplit(".", 1)[-1] for p in chart.get("active", [])]
         supervisor = (view.get("supervisor") or {}).get("data") or {}
+        robot = (view.get("robot") or {}).get("data") or {}
         return {
+            "robot": _robot(robot),
             "states": leaves,
             "operation": _operation(leaves, supervisor.get("goal") or ""),
             "area": supervisor.get("area") or ("critical" if "Critical" in leaves else None),
@@ -306,6 +330,20 @@ class ConsoleModel:
             "setup_failed": "Setup_Aborted" in leaves,
             "failure": _failure((view.get("failure") or {}).get("data")),
         }
+
+
+def _robot(report: dict[str, Any]) -> str:
+    """The robot side in one line: moving, braked (why), or a latched safety stop and
+    whether a RELEASE would be taken now (every safety input healthy)."""
+    if not report:
+        return "-"
+    if report.get("latched"):
+        problems = report.get("problems") or []
+        release = "RELEASE possible" if not problems else "not yet: " + "; ".join(problems[:2])
+        return f"SAFETY STOP: {report.get('reason')} ({release})"
+    if report.get("braked"):
+        return f"braked ({report.get('reason') or 'power on'})"
+    return "released"
 
 
 def _failure(payload: dict[str, Any] | None) -> str:

@@ -20,6 +20,7 @@ def render_text(snapshot: dict[str, Any], width: int = 78) -> str:
         f"operation  {s['operation'].upper()}",
         f"area       {s.get('area') or '-'}",
         f"tracker    {s['tracker']}",
+        f"robot      {s.get('robot') or '-'}"[:width],
         f"people     {s.get('people_near') if s.get('people_near') is not None else '-'} near,"
         f" closest {closest}",
         "",

@@ -29,6 +29,7 @@ function render(state) {
   show("tracker", s.tracker, s.tracker === "No Sensor Available" ? "bad" : "ok");
   const distance = s.min_distance === null || s.min_distance === undefined ? "–" : (s.min_distance * 100).toFixed(0) + " cm";
   show("people", `${s.people_near ?? "–"} / ${distance}`, "");
+  show("robot", s.robot || "–", (s.robot || "").startsWith("SAFETY STOP") ? "bad" : s.robot === "released" ? "ok" : "");
   $("people-tile").classList.toggle("stale", !fresh(state.people));
   $("tracker-tile").classList.toggle("stale", !fresh(state.supervisor));
   $("area-tile").classList.toggle("stale", !fresh(state.supervisor));

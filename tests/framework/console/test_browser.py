@@ -44,12 +44,29 @@ def shot(page, name):
 
 
 def text_is(page, testid, expected):
-    page.wait_for_function(
-        "([id, text]) => document.querySelector(`[data-testid=${id}]`).textContent"
-        ".startsWith(text)",
-        arg=[testid, expected],
-        timeout=WAIT_MS,
-    )
+    try:
+        page.wait_for_function(
+            "([id, text]) => document.querySelector(`[data-testid=${id}]`).textContent"
+            ".startsWith(text)",
+            arg=[testid, expected],
+            timeout=WAIT_MS,
+        )
+    except playwright.Error:
+        shown = page.inner_text(f"[data-testid={testid}]")
+        pytest.fail(f"{testid} shows {shown!r}, expected it to start with {expected!r}")
+
+
+def log_has(page, text):
+    try:
+        page.wait_for_function(
+            "(text) => [...document.querySelectorAll('#log-lines li')].some(li => "
+            "li.textContent.includes(text))",
+            arg=text,
+            timeout=WAIT_MS,
+        )
+    except playwright.Error:
+        shown = page.inner_text("#log-lines")
+        pytest.fail(f"no log line has {text!r}; the log shows:\n{shown}")
 
 
 ORANGE_PIXELS = """() => {
@@ -115,8 +132,10 @@ def test_the_operator_drives_the_procedure_from_the_browser(seeg_console, page):
         timeout=20,
     ), "the swap's latency is measured live"
 
+    text_is(page, "robot", "released")
     page.click("#stop")
     text_is(page, "operation", "stopped")
+    text_is(page, "robot", "braked (stop)")
     page.wait_for_selector("#release:enabled", timeout=WAIT_MS)
     shot(page, "stopped")
     page.click("#release")
@@ -166,3 +185,26 @@ def test_a_failed_setup_opens_a_dialog_and_the_robot_never_moves(bus_config, tmp
         assert "people_detector" in page.inner_text("#setup-reason")
         text_is(page, "operation", "stopped")
         assert page.is_disabled("#start")
+
+
+def test_a_lost_process_shows_a_latched_safety_stop_and_what_keeps_release_refused(
+    seeg_console, page
+):
+    """The cameras' process dies: the robot tile says SAFETY STOP with the reason, the
+    log keeps the loss and the restart; once it is back, RELEASE is possible."""
+    import os
+    import signal
+
+    server, deployment = seeg_console
+    page.goto(server.url)
+    text_is(page, "operation", "wait")
+    cameras = next(p for p in deployment.processes if p.name == "cameras")
+    os.kill(cameras.popen.pid, signal.SIGKILL)
+    text_is(page, "robot", "SAFETY STOP: ")
+    text_is(page, "operation", "stopped")
+    log_has(page, "cameras: process lost: killed by signal 9")
+    log_has(page, "cameras: process restarted")
+    page.wait_for_function(
+        "() => document.querySelector('[data-testid=robot]').textContent.endsWith('(RELEASE possible)')",
+        timeout=60_000,
+    )

@@ -1,0 +1,30 @@
+"""Spec: the console's robot line tells the operator why the robot stopped and whether
+a RELEASE would be taken now."""
+
+from framework.console.model import _robot
+
+
+def test_a_latched_safety_stop_says_why_and_what_keeps_release_refused():
+    line = _robot(
+        {
+            "braked": True,
+            "latched": True,
+            "reason": "people_world lost (its process died or cannot be reached)",
+            "problems": ["people_world lost (its process died or cannot be reached)"],
+        }
+    )
+    assert line.startswith("SAFETY STOP: people_world lost")
+    assert "not yet: people_world lost" in line
+
+
+def test_once_everything_is_healthy_the_line_says_release_is_possible():
+    line = _robot(
+        {"braked": True, "latched": True, "reason": "supervisor: no data", "problems": []}
+    )
+    assert line.endswith("(RELEASE possible)")
+
+
+def test_plain_brakes_and_motion():
+    assert _robot({"braked": True, "latched": False, "reason": "stop"}) == "braked (stop)"
+    assert _robot({"braked": False, "latched": False, "reason": ""}) == "released"
+    assert _robot({}) == "-"
