@@ -12,8 +12,11 @@ how long a *hung* peer goes unnoticed (seen at ~0.8 x lease); a killed
 process is seen in milliseconds because its socket closes. Leases under
 500 ms gave false alarms under CPU load on the project's 2-core machines.
 
-Hardening (TLS, user/password, ACL) is passed through `BusConfig.extra`,
-a mapping of Zenoh config paths to JSON values, so it needs no code change.
+Security: with `keys` (a keystore, `framework/keystore.py`) every link is mutual TLS
+against the deployment's own CA, and each session presents its subject's
+certificate; `access` adds the deployment's access rules (`framework/access.py`).
+`fw deploy` always sets both. Other Zenoh settings can be passed through
+`BusConfig.extra`, a mapping of Zenoh config paths to JSON values.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import zenoh
@@ -52,11 +56,22 @@ class BusConfig:
     lease_ms: int = 2000
     keep_alive: int = 4
     extra: dict[str, Any] = field(default_factory=dict)
+    secure: bool = False
+    """Links must be mutual TLS (a keystore is required to open a session)."""
+    keys: str = ""
+    """The deployment's keystore directory: mutual TLS on every link (empty: plain TCP)."""
+    access: dict[str, Any] = field(default_factory=dict)
+    """Zenoh `access_control` settings every session enforces on its links."""
+
+    @property
+    def protocol(self) -> str:
+        """`tls` with a keystore, else `tcp`."""
+        return "tls" if self.keys else "tcp"
 
     @property
     def hub_endpoint(self) -> str:
         """The endpoint every process connects to (the hub listens on it)."""
-        return f"tcp/{self.host}:{self.hub_port}"
+        return f"{self.protocol}/{self.host}:{self.hub_port}"
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data, to pass to a spawned process."""
@@ -67,6 +82,9 @@ class BusConfig:
             "lease_ms": self.lease_ms,
             "keep_alive": self.keep_alive,
             "extra": dict(self.extra),
+            "secure": self.secure,
+            "keys": self.keys,
+            "access": dict(self.access),
         }
 
     @classmethod
@@ -82,13 +100,14 @@ def free_port(host: str = "127.0.0.1") -> int:
         return int(sock.getsockname()[1])
 
 
-def zenoh_config(bus: BusConfig, hub: bool = False) -> zenoh.Config:
+def zenoh_config(bus: BusConfig, hub: bool = False, subject: str = "") -> zenoh.Config:
     """The Zenoh configuration of one process of the deployment (`hub` listens on the
-    deployment's fixed port; everyone else listens on an ephemeral loopback port)."""
+    deployment's fixed port; everyone else listens on an ephemeral loopback port;
+    `subject`: whose certificate it presents when the bus has a keystore)."""
     settings: dict[str, Any] = {
         "mode": "peer",
         "scouting/multicast/enabled": False,
-        "listen/endpoints": [bus.hub_endpoint if hub else f"tcp/{bus.host}:0"],
+        "listen/endpoints": [bus.hub_endpoint if hub else f"{bus.protocol}/{bus.host}:0"],
         "connect/endpoints": [] if hub else [bus.hub_endpoint],
         "scouting/gossip/enabled": True,
         "scouting/gossip/autoconnect_strategy": {
@@ -99,6 +118,15 @@ def zenoh_config(bus: BusConfig, hub: bool = False) -> zenoh.Config:
         "transport/link/tx/lease": bus.lease_ms,
         "transport/link/tx/keep_alive": bus.keep_alive,
     }
+    if bus.secure and not bus.keys:
+        raise BusError(
+            f"deployment {bus.namespace!r} admits only sessions with its credentials, "
+            "and none were given (fw deploy creates them; see docs/security.md)"
+        )
+    if bus.keys:
+        settings.update(_tls_settings(bus, subject))
+    if bus.access:
+        settings["access_control"] = bus.access
     settings.update(bus.extra)
     config = zenoh.Config()
     for key, value in settings.items():
@@ -107,6 +135,25 @@ def zenoh_config(bus: BusConfig, hub: bool = False) -> zenoh.Config:
         except Exception as exc:  # zenoh raises its own error type
             raise BusError(f"invalid Zenoh setting {key}={value!r}: {exc}") from None
     return config
+
+
+def _tls_settings(bus: BusConfig, subject: str) -> dict[str, Any]:
+    """Mutual TLS with `subject`'s certificate, trusting only the deployment's CA."""
+    from framework.keystore import Keystore
+
+    store = Keystore(Path(bus.keys))
+    if not subject:
+        raise BusError("a bus with a keystore needs the subject whose certificate to use")
+    store.check(subject)
+    cert, key = str(store.certificate(subject)), str(store.private_key(subject))
+    return {
+        "transport/link/tls/root_ca_certificate": str(store.ca),
+        "transport/link/tls/enable_mtls": True,
+        "transport/link/tls/listen_certificate": cert,
+        "transport/link/tls/listen_private_key": key,
+        "transport/link/tls/connect_certificate": cert,
+        "transport/link/tls/connect_private_key": key,
+    }
 
 
 def _route_zenoh_logs() -> None:
@@ -121,12 +168,15 @@ def _route_zenoh_logs() -> None:
 class Bus:
     """One open Zenoh session of a deployment, with the handful of calls fw needs."""
 
-    def __init__(self, config: BusConfig, hub: bool = False):
+    def __init__(self, config: BusConfig, hub: bool = False, subject: str = ""):
         _route_zenoh_logs()
         self.config = config
         self.hub = hub
+        self.subject = subject
         try:
-            self.session = zenoh.open(zenoh_config(config, hub))
+            self.session = zenoh.open(zenoh_config(config, hub, subject))
+        except FwError:
+            raise
         except Exception as exc:
             where = config.hub_endpoint
             raise BusError(

@@ -67,6 +67,9 @@ class _Printer(Listener):
         if state.configure is not None:
             self.line(f"configure  {state.configure.tag} (for {state.path})")
 
+    def on_refused(self, event: str, source: str, reason: str) -> None:
+        self.line(f"refused    {event} from {source or '?'}: {reason}")
+
     def on_error(self, message: str, event: Event | None) -> None:
         self.line(f"error      {message}")
 
@@ -290,10 +293,11 @@ def _joined(topology_path: str) -> Iterator[tuple[Any, Any]]:
 
 def _join(topology_path: str) -> tuple[Any, Any]:
     from framework.bus import Bus
+    from framework.keystore import OPERATOR, client_config
     from framework.topology import load_topology
 
     topology = load_topology(topology_path)
-    bus = Bus(topology.bus)
+    bus = Bus(client_config(topology.bus), subject=OPERATOR)
     processes = len({c.process for c in topology.components.values()}) + 1  # + the deployer
     if not bus.wait_for_peers(processes, timeout=2.0) and bus.peers() == 0:
         return topology, bus  # nobody at all: nothing to wait for
@@ -307,12 +311,10 @@ def _join(topology_path: str) -> tuple[Any, Any]:
 
 
 def cmd_send(args: argparse.Namespace) -> int:
-    """Publish one event for the chart of a running deployment."""
-    from framework import messages
-    from framework.coordinator import EVENTS_KEY
-    from framework.messages import EventMessage
-    from framework.statechart.loader import load_statechart
-    from framework.statechart.model import BUILTIN_EVENTS
+    """Offer one operator event to the chart of a running deployment; print its answer."""
+    import getpass
+
+    from framework.remote import RemoteComponent, RemoteError
 
     try:
         payload = json.loads(args.payload) if args.payload else {}
@@ -321,28 +323,21 @@ def cmd_send(args: argparse.Namespace) -> int:
     if not isinstance(payload, dict):
         raise FwError("--payload must be a JSON object")
     with _joined(args.topology) as (topology, bus):
-        if topology.statechart is not None:
-            chart = load_statechart(topology.statechart)
-            vocabulary = sorted(set(chart.events) | set(BUILTIN_EVENTS))
-            if args.event not in vocabulary:
-                raise FwError(
-                    f"unknown event {args.event!r}; the chart's events are: {', '.join(vocabulary)}"
-                )
-        publisher = bus.publisher(EVENTS_KEY, cache=False)
-        deadline = time.monotonic() + args.timeout
-        while not publisher.matching_status.matching and time.monotonic() < deadline:
-            time.sleep(0.01)
-        if not publisher.matching_status.matching:
-            raise FwError(
-                f"no Coordinator is listening on {topology.bus.namespace}/"
-                f"{EVENTS_KEY} (is the deployment running?)"
+        try:
+            answer = RemoteComponent(bus, "coordinator", timeout=args.timeout).call(
+                "offer", event=args.event, payload=payload, origin=f"fw send@{getpass.getuser()}"
             )
-        message = EventMessage(time.time(), args.event, "fw send", payload)
-        publisher.put(messages.encode(message, EventMessage))
-        time.sleep(0.05)  # let the sample leave before the session closes
-        publisher.undeclare()
-        print(f"sent {args.event}" + (f" {json.dumps(payload)}" if payload else ""))
-        return 0
+        except RemoteError as exc:
+            raise FwError(
+                f"no answer from the Coordinator of {topology.bus.namespace!r} "
+                f"(is the deployment running?): {exc}"
+            ) from None
+    shown = args.event + (f" {json.dumps(payload)}" if payload else "")
+    if not answer.get("accepted"):
+        print(f"refused {shown}: {answer.get('reason')}", file=sys.stderr)
+        return 1
+    print(f"accepted {shown}")
+    return 0
 
 
 def cmd_status(args: argparse.Namespace) -> int:
@@ -583,7 +578,7 @@ def add_commands(sub: Any) -> None:
 
     p = sub.add_parser(
         "send",
-        help="send an event to a running deployment's chart",
+        help="offer an operator event to a running deployment's chart; prints its answer",
         epilog=EPILOG_SEND,
         formatter_class=raw,
     )

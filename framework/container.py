@@ -494,7 +494,7 @@ def serve(spec: dict[str, Any], ready: Callable[[], None] | None = None) -> int:
         signal.signal(sig, on_signal)
     if spec.get("nice"):
         raise_priority(int(spec["nice"]), spec["name"])
-    bus = Bus(BusConfig.from_dict(spec["bus"]), hub=spec.get("hub", False))
+    bus = Bus(BusConfig.from_dict(spec["bus"]), hub=spec.get("hub", False), subject=spec["name"])
     try:
         container = build(spec, bus)
     except BaseException:

@@ -25,6 +25,7 @@ import contextlib
 import itertools
 import threading
 import time
+from dataclasses import dataclass
 from typing import Any
 
 from framework import keys
@@ -35,6 +36,7 @@ from framework.ports import ReadStatus
 from framework.statechart.events import Event, Listener, Output
 from framework.statechart.interpreter import Interpreter
 from framework.statechart.model import (
+    BUILTIN_EVENTS,
     COMPONENT_BACK,
     COMPONENT_LOST,
     CONFIG_DONE,
@@ -51,6 +53,39 @@ STATUS_KEY = "fw/coordinator/status"
 SENT_KEY = "fw/coordinator/sent"
 ACTION_TIMEOUT = 2.0
 """Seconds a chart's `call` or `write` action may take (a configuration has its own)."""
+
+
+@dataclass(frozen=True)
+class Admission:
+    """Who may give the chart which event, from the topology: the operator's events
+    (`external_events`, through `offer`: the console, `fw send`) and, per component,
+    the events its class declares it emits (put on the events port). `None` for a
+    part means anything goes (a Coordinator outside a deployment, in tests). Builtin
+    events (`config.*`, `component.*`) only ever come from the Coordinator itself."""
+
+    external: frozenset[str] | None = None
+    emitters: dict[str, frozenset[str]] | None = None
+
+    def refuse_sample(self, source: str, event: str) -> str:
+        """Why an event put on the events port by `source` is refused ("" if taken)."""
+        if event in BUILTIN_EVENTS:
+            return f"{event} is the Coordinator's own event; nobody may send it"
+        if self.emitters is None:
+            return ""
+        if source not in self.emitters:
+            return f"{source or 'an unnamed sender'} is not a component of this deployment"
+        if event not in self.emitters[source]:
+            return f"{source} does not declare that it emits {event}"
+        return ""
+
+    def refuse_command(self, event: str) -> str:
+        """Why an operator's command is refused before the chart sees it ("" if not)."""
+        if event in BUILTIN_EVENTS:
+            return f"{event} is the Coordinator's own event; nobody may send it"
+        if self.external is not None and event not in self.external:
+            allowed = ", ".join(sorted(self.external)) or "none"
+            return f"{event} is not an operator event of this topology (those are: {allowed})"
+        return ""
 
 
 class _Publisher(Listener):
@@ -113,11 +148,16 @@ class Coordinator(Component):
         chart: Statechart,
         listeners: list[Listener] | None = None,
         watch: dict[str, str] | None = None,
+        admission: Admission | None = None,
     ):
         """`watch` maps every component of the deployment to its process: their losses
-        become `component.lost` events."""
+        become `component.lost` events; `admission` says who may send what (every
+        event's payload is checked against the chart's declaration in any case)."""
         super().__init__(name)
         self.chart = chart
+        self.admission = admission or Admission()
+        self.refused = 0
+        """Events refused where they entered (each is also a `refused` status)."""
         self.watch = dict(watch or {})
         self.lost: dict[str, str] = {}
         """Components lost now -> their process."""
@@ -217,8 +257,28 @@ class Coordinator(Component):
             status, message = self.events.read()
             if status is not ReadStatus.NEW:
                 break
+            reason = self.admission.refuse_sample(message.source, message.name)
+            reason = reason or self._payload_problem(message.name, message.payload)
+            if reason:
+                self._refuse(message.name, message.source, reason)
+                continue
             self.last_events = [*self.last_events[-19:], message.name]
             interpreter.queue(message.name, message.payload or None)
+
+    def _payload_problem(self, event: str, payload: Any) -> str:
+        """Why `payload` does not fit the chart's declaration of `event` ("" if it does
+        or the chart declares nothing about it)."""
+        if payload is not None and not isinstance(payload, dict):
+            return f"{event}: a payload must be a mapping of fields"
+        spec = self.chart.events.get(event)
+        return spec.problem(payload or {}) if spec is not None else ""
+
+    def _refuse(self, event: str, source: str, reason: str) -> None:
+        self.refused += 1
+        self.publish("refused", {"event": event, "source": source, "reason": reason})
+        for listener in self.extra_listeners:
+            with contextlib.suppress(Exception):
+                listener.on_refused(event, source, reason)
 
     def _on_output(self, output: Output) -> None:
         if output.kind == "configure":
@@ -260,9 +320,9 @@ class Coordinator(Component):
                 },
             )
 
-    @operation
     def inject(self, event: str, payload: dict[str, Any] | None = None) -> bool:
-        """Queue an event for the chart (what `fw send` does through the bus)."""
+        """Queue an event for the chart, unchecked: for this process only (liveliness,
+        scenarios). Not a remote operation: from outside, events go through `offer`."""
         with self._chart_lock:
             if self.interpreter is None:
                 return False
@@ -281,9 +341,13 @@ class Coordinator(Component):
         active states, every guard false, the chart not running). Every command is
         published on `status` as `command` with its origin, so the flight recorder
         keeps who asked for what."""
+        refusal = self.admission.refuse_command(event) or self._payload_problem(event, payload)
         with self._chart_lock:
             interpreter = self.interpreter
-            if interpreter is None or interpreter.finished:
+            if refusal:
+                answer = {"accepted": False, "reason": refusal}
+                self._refuse(event, origin or "operator", refusal)
+            elif interpreter is None or interpreter.finished:
                 answer = {"accepted": False, "reason": "the procedure chart is not running"}
             elif not interpreter.accepts(event):
                 where = ", ".join(p.rsplit(".", 1)[-1] for p in interpreter.leaves)

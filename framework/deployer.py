@@ -14,6 +14,7 @@ stopped and waited for before the others, the control components last.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import signal
 import subprocess
@@ -25,7 +26,7 @@ from typing import Any
 
 from framework import keys
 from framework.activity import Activity
-from framework.bus import Bus
+from framework.bus import Bus, BusConfig
 from framework.configurator import Configurator
 from framework.container import Container, spawn_container
 from framework.coordinator import (
@@ -34,9 +35,11 @@ from framework.coordinator import (
     REQUESTS_KEY,
     SENT_KEY,
     STATUS_KEY,
+    Admission,
     Coordinator,
 )
 from framework.errors import FwError
+from framework.keystore import OPERATOR, Keystore, create_keystore, keystore_for
 from framework.statechart.events import Listener
 from framework.statechart.loader import load_statechart
 from framework.topology import CONTROL_PROCESS, Step, Topology, load_topology
@@ -122,6 +125,18 @@ def container_spec(topology: Topology, process: str) -> dict[str, Any]:
     return spec
 
 
+def admission(topology: Topology) -> Admission:
+    """Who may give the chart which event: the operator the topology's external events,
+    each component the events its class declares it emits."""
+    return Admission(
+        external=frozenset(topology.external_events),
+        emitters={
+            name: frozenset(spec.info.emits if spec.info is not None else ())
+            for name, spec in topology.components.items()
+        },
+    )
+
+
 @dataclass
 class Deployment:
     """A running topology (see the module docstring)."""
@@ -142,6 +157,9 @@ class Deployment:
     coordinator: Coordinator | None = None
     watch: ProcessWatch | None = None
     """Watches the processes for the whole run (losses, restarts)."""
+    keys: Path | None = None
+    """A keystore made beforehand (`fw keys`); default: a fresh one per run."""
+    _own_keys: Keystore | None = None
 
     @classmethod
     def from_file(cls, path: str | Path, workdir: str | Path, **options: Any) -> Deployment:
@@ -161,7 +179,9 @@ class Deployment:
         chart = load_statechart(topo.statechart) if topo.statechart is not None else None
         self.workdir.mkdir(parents=True, exist_ok=True)
         control = self.host in (None, LOCAL)
-        self.hub = Bus(topo.bus, hub=control)
+        if topo.bus.secure:
+            topo.bus = self._credentials(control)
+        self.hub = Bus(topo.bus, hub=control, subject=CONTROL_PROCESS if control else OPERATOR)
         mine = LOCAL if self.host is None else self.host
         names = sorted(
             {c.process for c in topo.components.values() if host_of(topo, c.process) == mine}
@@ -205,7 +225,7 @@ class Deployment:
         if chart is not None:
             watch = {c.name: c.process for c in topo.components.values()}
             self.coordinator = self.control.add(
-                Coordinator("coordinator", chart, self.listeners, watch),
+                Coordinator("coordinator", chart, self.listeners, watch, admission(topo)),
                 None,
                 outputs={"requests": REQUESTS_KEY, "status": STATUS_KEY, "sent": SENT_KEY},
             )
@@ -224,6 +244,25 @@ class Deployment:
         if run_chart:
             self.run_chart()
         self.watch.start()
+
+    def _credentials(self, control: bool) -> BusConfig:
+        """The bus with the deployment's keystore: the one given (`keys`, shared by
+        several hosts), else a fresh one per run, removed when the run ends."""
+        topo = self.topology
+        if self.keys is not None:
+            store = Keystore(Path(self.keys))
+        elif topo.bus.keys:
+            store = Keystore(Path(topo.bus.keys))
+        elif not control:
+            raise DeployError(
+                "a host without the Coordinator needs the deployment's keystore: make one "
+                "with `fw keys TOPOLOGY -o DIR`, copy it to every host, and pass --keys DIR"
+            )
+        else:
+            processes = {c.process for c in topo.components.values()}
+            store = create_keystore(keystore_for(topo.bus.namespace).root, sorted(processes))
+            self._own_keys = store
+        return dataclasses.replace(topo.bus, keys=str(store.root))
 
     def run_chart(self) -> None:
         """Start the Coordinator (the chart begins with its setup configurations) and the
@@ -300,7 +339,7 @@ class Deployment:
         """Give the chart an event (as `fw send` does)."""
         if self.coordinator is None:
             raise DeployError("this deployment runs no statechart")
-        self.coordinator.inject(event, payload)
+        self.coordinator.offer(event, payload, origin="scenario")
 
     def stop(self) -> None:
         """Shut down in order: `shutdown: first` processes, then the others, then control."""
@@ -332,3 +371,7 @@ class Deployment:
         if self.hub is not None:
             self.hub.close()
             self.hub = None
+        if self._own_keys is not None:
+            self._own_keys.remove()
+            self._own_keys = None
+            self.topology.bus = dataclasses.replace(self.topology.bus, keys="")

@@ -31,6 +31,8 @@ from framework.yamlio import Document, load_yaml
 
 LIFECYCLE = ("running", "stopped", "preoperational", "ignore")
 CONTROL_PROCESS = "control"
+RESERVED_PROCESSES = (CONTROL_PROCESS, "operator")
+"""Process names fw uses itself (and as certificate subjects, framework/keystore.py)."""
 """The process `fw deploy` itself runs in (the Coordinator and the Configurator)."""
 CONTROL_SLACK = 4.0
 """Its heartbeat deadline, in process deadlines: the chart is not on the robot's fast path
@@ -208,7 +210,14 @@ class _Loader:
         for name, spec in data["components"].items():
             here = ("components", name)
             process = spec.get("process", "main")
-            if processes and process not in processes and process != "main":
+            if process in RESERVED_PROCESSES:
+                self.error(
+                    "process",
+                    f"process name {process!r} is reserved (fw deploy's own process and "
+                    "its clients use it)",
+                    (*here, "process"),
+                )
+            elif processes and process not in processes and process != "main":
                 self.error(
                     "process",
                     f"component {name!r} names unknown process {process!r}",
@@ -632,6 +641,7 @@ def check_topology(path: str | Path) -> tuple[Topology | None, list[Finding]]:
         hub_port=bus_spec.get("hub_port", 7447),
         lease_ms=bus_spec.get("lease_ms", 2000),
         extra=bus_spec.get("extra", {}),
+        secure=bus_spec.get("security", "mtls") == "mtls",
     )
     topo = Topology(
         name=data["topology"],

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import atexit
+import os
+import shutil
+import tempfile
 import textwrap
 from collections.abc import Callable
 from pathlib import Path
@@ -15,6 +19,11 @@ from framework.statechart.loader import load_statechart
 from framework.statechart.model import Statechart
 
 REPO = Path(__file__).resolve().parents[1]
+# Deployments started by tests keep their credentials here, not in the user's own place
+# (subprocesses inherit it: `fw deploy` run by a test, and its clients, agree).
+if "FW_KEYS" not in os.environ:
+    os.environ["FW_KEYS"] = tempfile.mkdtemp(prefix="fw-test-keys-")
+    atexit.register(shutil.rmtree, os.environ["FW_KEYS"], True)
 
 
 @pytest.fixture
@@ -109,6 +118,20 @@ def peer(bus_config, hub):
     bus = Bus(bus_config)
     yield bus
     bus.close()
+
+
+def join_deployment(bus_config, timeout: float = 30.0):
+    """A session on the bus of an `fw deploy` started by the test (as the operator, with
+    the credentials that deployment creates; waits for them to exist)."""
+    import dataclasses
+
+    from framework.bus import Bus
+    from framework.keystore import OPERATOR, client_config, keystore_for
+
+    store = keystore_for(bus_config.namespace)
+    assert wait_until(lambda: store.private_key(OPERATOR).is_file(), timeout), "no keystore"
+    secured = dataclasses.replace(bus_config, secure=True)
+    return Bus(client_config(secured), subject=OPERATOR)
 
 
 def wait_until(predicate, timeout: float = 5.0, interval: float = 0.005) -> bool:

@@ -2,24 +2,32 @@
 
 A child process echoes every ping; half the round trip is one hop. Every latency of
 `fw bench` is also reported as a multiple of this hop, because on a shared machine
-ratios hold where absolute times drift.
+ratios hold where absolute times drift. With `secure`, the same hop over mutual TLS
+with a deployment keystore, as `fw deploy` runs it: the price of authentication.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
+import tempfile
 import threading
 import time
+from pathlib import Path
 
 from framework.bus import Bus, BusConfig, free_port
+from framework.keystore import CONTROL, create_keystore
 
 PING, PONG = "bench/ping", "bench/pong"
 
 
-def echo(namespace: str, port: int) -> None:
+ECHO = "echo"
+
+
+def echo(namespace: str, port: int, keys: str = "") -> None:
     """The child: answer every ping with the same bytes until stdin closes."""
-    bus = Bus(BusConfig(namespace=namespace, hub_port=port))
+    bus = Bus(BusConfig(namespace=namespace, hub_port=port, keys=keys), subject=ECHO)
     publisher = bus.publisher(PONG, cache=False)
     bus.subscribe(PING, lambda sample: publisher.put(sample.payload.to_bytes()), history=False)
     print("ready", flush=True)
@@ -27,12 +35,19 @@ def echo(namespace: str, port: int) -> None:
     bus.close()
 
 
-def zenoh_hop(count: int) -> list[float]:
+def zenoh_hop(count: int, secure: bool = False) -> list[float]:
     """`count` one-way hop latencies (s): half of each measured round trip."""
+    with tempfile.TemporaryDirectory(prefix="fw-bench-keys-") as keys:
+        return _hop(count, str(create_keystore(Path(keys) / "ks", [ECHO]).root) if secure else "")
+
+
+def _hop(count: int, keys: str) -> list[float]:
     config = BusConfig(namespace=f"fw_bench_hop_{time.time_ns()}", hub_port=free_port())
-    hub = Bus(config, hub=True)
+    config = dataclasses.replace(config, keys=keys)
+    hub = Bus(config, hub=True, subject=CONTROL)
+    argv = [config.namespace, str(config.hub_port), keys]
     child = subprocess.Popen(
-        [sys.executable, "-m", "components.bench.baseline", config.namespace, str(config.hub_port)],
+        [sys.executable, "-m", "components.bench.baseline", *argv],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         text=True,
@@ -62,4 +77,4 @@ def zenoh_hop(count: int) -> list[float]:
 
 
 if __name__ == "__main__":
-    echo(sys.argv[1], int(sys.argv[2]))
+    echo(sys.argv[1], int(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else "")

@@ -24,9 +24,13 @@ def run_zenoh(quick: bool, context: dict[str, Any]) -> list[Row]:
     hops = zenoh_hop(200 if quick else 2000)
     s = stats([h * 1e3 for h in hops])
     context["hop_ms"] = s["p50"]
+    tls = zenoh_hop(200 if quick else 2000, secure=True)
+    t = stats([h * 1e3 for h in tls])
     return [
         Row("zenoh", "hop p50", s["p50"], n=len(hops)),
         Row("zenoh", "hop p99", s["p99"], n=len(hops)),
+        Row("zenoh", "hop p50, mutual TLS (as fw deploy runs)", t["p50"], n=len(tls)),
+        Row("zenoh", "hop p99, mutual TLS (as fw deploy runs)", t["p99"], n=len(tls)),
     ]
 
 

@@ -100,6 +100,19 @@ def rotation_angle(r: np.ndarray) -> np.ndarray:
     return np.arccos(np.clip(cos, -1.0, 1.0))
 
 
+def rotvec_matrix(rotvec: object) -> np.ndarray:
+    """The rotation matrix of a rotation vector (axis times angle, rad): Rodrigues'
+    formula in numpy, so a process that needs only this does not load scipy (every
+    shared library a process maps delays the moment its death is seen, docs/safety.md)."""
+    v = np.asarray(rotvec, dtype=float)
+    angle = float(np.linalg.norm(v))
+    if angle < 1e-12:
+        return np.eye(3)
+    x, y, z = v / angle
+    k = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
+
+
 def as_matrix(value: object) -> np.ndarray:
     """A 4x4 transform from YAML data: a 4x4 list, or {position: [..], quaternion: [..]}."""
     if isinstance(value, dict):

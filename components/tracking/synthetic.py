@@ -9,9 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from components.tracking.geometry import invert, matrix_to_quat
+from components.tracking.geometry import invert, matrix_to_quat, rotvec_matrix
 from components.tracking.sensor_manager import SensorConfig, SensorsConfig
 from framework.messages import Pose
 
@@ -21,7 +20,7 @@ def rigid(
 ) -> np.ndarray:
     """A 4x4 transform from a translation (m) and a rotation vector (rad)."""
     out = np.eye(4)
-    out[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
+    out[:3, :3] = rotvec_matrix(rotvec)
     out[:3, 3] = translation
     return out
 

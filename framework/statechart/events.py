@@ -77,6 +77,10 @@ class Listener:
     def on_error(self, message: str, event: Event | None) -> None:
         """A guard or action failed at run time; the chart went on safely."""
 
+    def on_refused(self, event: str, source: str, reason: str) -> None:
+        """An event was refused where it entered (the Coordinator's admission or the
+        chart's payload declaration): the chart never saw it."""
+
 
 class Trace(Listener):
     """Records every interpreter callback as a tuple; used by `fw run` and tests."""
