@@ -67,12 +67,12 @@ class Sink(Component):
                 return
             self.seen.append(sample.value)
 
-    @operation
+    @operation(readonly=True)
     def received(self) -> list[float]:
         """Every value read since start."""
         return list(getattr(self, "seen", []))
 
-    @operation
+    @operation(readonly=True)
     def stats(self) -> dict[str, Any]:
         """Counters of the input port."""
         return self.inp.stats.to_dict()

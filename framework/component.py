@@ -101,17 +101,25 @@ class Out:
 
 
 def operation(
-    fn: Callable[..., Any] | None = None, *, doc: str = "", exclusive: bool = True
+    fn: Callable[..., Any] | None = None,
+    *,
+    doc: str = "",
+    exclusive: bool = True,
+    readonly: bool = False,
 ) -> Any:
     """Mark a method as an operation, callable locally and from other processes.
 
     An operation runs holding the component's lock (never beside an update or another
     operation); `exclusive=False` is for one that only waits for, or reads,
-    thread-safe state, so waiting does not stall the component's own activity."""
+    thread-safe state, so waiting does not stall the component's own activity.
+    `readonly=True` declares that it changes nothing (a report, a query): the bus's
+    access rules let an operator's tools call it (framework/access.py); only the
+    deployment's control may call the others."""
 
     def mark(method: Callable[..., Any]) -> Callable[..., Any]:
         method.__fw_operation__ = doc or (inspect.getdoc(method) or "").split("\n")[0]
         method.__fw_exclusive__ = exclusive
+        method.__fw_readonly__ = readonly
         return method
 
     return mark(fn) if fn is not None else mark

@@ -120,7 +120,9 @@ class Container:
         self.activities[name] = activity
         self.executor.add(component, activity)
         self._declared.append(
-            self.bus.queryable(keys.control(name), lambda q, c=component: self._on_query(c, q))
+            self.bus.queryable(
+                f"{keys.control(name)}/**", lambda q, c=component: self._on_query(c, q)
+            )
         )
         self._declared.append(self.bus.token(keys.alive(name)))
         self._publish_state(StateChange(name, component.state, component.state, "", time.time()))
@@ -298,6 +300,12 @@ class Container:
             request = json.loads(bytes(payload.to_bytes())) if payload is not None else {}
             if not isinstance(request, dict):
                 raise ContainerError("a request must be a JSON object")
+            op = str(request.get("op", ""))
+            expected = keys.control_request(component.name, op, str(request.get("operation", "")))
+            if str(query.key_expr) != expected:  # the access rules judged it by its key
+                raise ContainerError(
+                    f"a {op!r} request must be sent on {expected}, not {query.key_expr}"
+                )
             result = self.handle(component, request)
             query.reply(query.key_expr, json.dumps({"result": result}))
         except (FwError, KeyError, TypeError, ValueError) as exc:
@@ -317,10 +325,7 @@ class Container:
             op = json.loads(body or b"{}").get("op", "list")
             if op == "list":
                 result: Any = {n: c.state.value for n, c in self.components.items()}
-            elif op == "shutdown":
-                threading.Thread(target=self.shutdown, daemon=True).start()
-                result = "shutting down"
-            else:
+            else:  # a container is stopped by its deployer's signal, never by a request
                 raise ContainerError(f"unknown container request {op!r}")
             query.reply(keys.container(self.name), json.dumps({"result": result}))
         except Exception as exc:

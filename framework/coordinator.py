@@ -365,7 +365,7 @@ class Coordinator(Component):
         self.publish("command", {"event": event, "payload": payload, "origin": origin, **answer})
         return answer
 
-    @operation
+    @operation(readonly=True)
     def takeable(self, events: list[str]) -> list[str]:
         """Which of `events` the chart would take now (see `Interpreter.accepts`)."""
         with self._chart_lock:
@@ -374,7 +374,7 @@ class Coordinator(Component):
                 return []
             return [e for e in events if interpreter.accepts(e)]
 
-    @operation
+    @operation(readonly=True)
     def active(self) -> dict[str, Any]:
         """Active states, pending configurations and the last events."""
         interpreter = self.interpreter

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from framework import keys
+from framework.access import access_control
 from framework.activity import Activity
 from framework.bus import Bus, BusConfig
 from framework.configurator import Configurator
@@ -262,7 +263,7 @@ class Deployment:
             processes = {c.process for c in topo.components.values()}
             store = create_keystore(keystore_for(topo.bus.namespace).root, sorted(processes))
             self._own_keys = store
-        return dataclasses.replace(topo.bus, keys=str(store.root))
+        return dataclasses.replace(topo.bus, keys=str(store.root), access=access_control(topo))
 
     def run_chart(self) -> None:
         """Start the Coordinator (the chart begins with its setup configurations) and the
@@ -374,4 +375,4 @@ class Deployment:
         if self._own_keys is not None:
             self._own_keys.remove()
             self._own_keys = None
-            self.topology.bus = dataclasses.replace(self.topology.bus, keys="")
+            self.topology.bus = dataclasses.replace(self.topology.bus, keys="", access={})

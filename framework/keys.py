@@ -13,8 +13,16 @@ def alive(component: str) -> str:
 
 
 def control(component: str) -> str:
-    """Queryable answering lifecycle, connection, property and operation requests."""
+    """Where a component answers lifecycle, connection, property and operation requests
+    (its queryable is `control(c)/**`: each request has a key of its own, below)."""
     return f"fw/ctl/{component}"
+
+
+def control_request(component: str, op: str, operation: str = "") -> str:
+    """The key of one kind of request (`state`, `configure`, `batch`...; an operation
+    call is `call/<operation>`), so the bus's access rules can tell a read from a
+    command (framework/access.py)."""
+    return f"fw/ctl/{component}/{op}" + (f"/{operation}" if op == "call" else "")
 
 
 def state(component: str) -> str:

@@ -47,7 +47,8 @@ class RemoteComponent:
         wait = max(deadline - now, 0.001)
         body = json.dumps({"op": op, **fields, "deadline": deadline}).encode()
         try:
-            replies = self.bus.query(keys.control(self.name), body, wait)
+            key = keys.control_request(self.name, op, str(fields.get("operation", "")))
+            replies = self.bus.query(key, body, wait)
         except BusError as exc:
             try:
                 info = json.loads(str(exc))

@@ -51,6 +51,8 @@ class ClassInfo:
     properties: dict[str, Property]
     operations: dict[str, inspect.Signature]
     emits: tuple[str, ...]
+    readonly: frozenset[str] = frozenset()
+    """Operations that change nothing (`@operation(readonly=True)`)."""
 
 
 @dataclass
@@ -166,6 +168,7 @@ class Topology:
 def class_info(cls: type[Component]) -> ClassInfo:
     """Ports, properties and operations a Component class declares."""
     inputs, outputs, props, ops = {}, {}, {}, {}
+    readonly = set()
     for attr, decl in declarations(cls):
         if isinstance(decl, In):
             inputs[attr] = type_name(decl.type)
@@ -177,7 +180,10 @@ def class_info(cls: type[Component]) -> ClassInfo:
             signature = inspect.signature(decl)
             params = list(signature.parameters.values())[1:]  # drop self
             ops[attr] = signature.replace(parameters=params)
-    return ClassInfo(cls, inputs, outputs, props, ops, tuple(getattr(cls, "emits", ())))
+            if getattr(decl, "__fw_readonly__", False):
+                readonly.add(attr)
+    emits = tuple(getattr(cls, "emits", ()))
+    return ClassInfo(cls, inputs, outputs, props, ops, emits, frozenset(readonly))
 
 
 class _Loader:

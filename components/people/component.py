@@ -148,7 +148,7 @@ class WorkspacePeopleDetector(Component):
         }
         self.people.write(EventMessage(stamp, "people", self.name, self.last))
 
-    @operation
+    @operation(readonly=True)
     def scene(self) -> dict[str, Any]:
         """The geometry of the last frame, robot base frame (m): the robot's link capsules
         and each confirmed person's envelope capsules, each as [ax, ay, az, bx, by, bz,
@@ -168,7 +168,7 @@ class WorkspacePeopleDetector(Component):
             people.append({"id": track.id, "capsules": rows(p, q, radius)})
         return {"robot": robot, "people": people}
 
-    @operation
+    @operation(readonly=True)
     def current(self) -> dict[str, Any]:
         """The latest frame: confirmed people, tentative count, users near, disagreements."""
         return dict(

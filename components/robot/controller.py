@@ -178,7 +178,7 @@ class ArmController(Component):
         if self.cycle % max(1, round(1000.0 / self.truth_rate)) == 0:  # trackers sample slower
             self.tcp.write(Pose(position, quaternion, stamp, 0.0, self.cycle, True, "base", "tcp"))  # type: ignore[arg-type]
 
-    @operation
+    @operation(readonly=True)
     def report(self) -> dict[str, Any]:
         """Brakes, latch, why, releases so far, servo mode, simulated time, joints."""
         arm = getattr(self, "arm", None)

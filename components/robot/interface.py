@@ -274,7 +274,7 @@ class RobotInterface(Component):
         self._request("mode", mode=mode)
         return self.report()
 
-    @operation
+    @operation(readonly=True)
     def report(self) -> dict[str, Any]:
         """Brakes, latch and why, servo mode, the controller's time, joints, the monitor."""
         state = getattr(self, "_arm", None)

@@ -392,7 +392,7 @@ class CartesianInterpolator(Component):
                     self._goal_name = ""
             return self.report()
 
-    @operation
+    @operation(readonly=True)
     def report(self) -> dict[str, Any]:
         """Phase, goal, path progress and speed, limits."""
         core = getattr(self, "core", None)

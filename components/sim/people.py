@@ -125,7 +125,7 @@ class PeopleWorld(Component):
         """The person leaves the room."""
         self.crowd.pop(person, None)
 
-    @operation
+    @operation(readonly=True)
     def where(self) -> dict[str, Any]:
         """Everyone's floor position, facing and lean."""
         return {

@@ -333,7 +333,7 @@ class Supervisor(Component):
         self.limits.write(EventMessage(time.time(), "limits", self.name, limits))
         return limits
 
-    @operation
+    @operation(readonly=True)
     def report(self) -> dict[str, Any]:
         """Tracker in use, best tracker, area, people, distance, motion, tracked tool."""
         core = self.core

@@ -317,7 +317,7 @@ class NdiTracker(Component):
         self.counters["failed_cycles"] = 0
         self.last_error = ""
 
-    @operation
+    @operation(readonly=True)
     def status(self) -> dict[str, Any]:
         """Connected or not, counters, tool handles, last error."""
         return {

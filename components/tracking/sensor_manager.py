@@ -495,7 +495,7 @@ class SensorManager(Component):
             },
         }
 
-    @operation
+    @operation(readonly=True)
     def current(self) -> dict[str, Any]:
         """The latest decision (best sensor, limits, health of every sensor)."""
         core = getattr(self, "core", None)

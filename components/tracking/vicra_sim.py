@@ -403,7 +403,7 @@ class VicraSimulator(Component):
     def cleanup_hook(self) -> None:
         self.device.unplug()
 
-    @operation
+    @operation(readonly=True)
     def device_path(self) -> str:
         """Where the driver should open the port."""
         return str(self.device.link)
@@ -442,7 +442,7 @@ class VicraSimulator(Component):
         """Plug the cable back (the device restarts, uninitialised)."""
         return self.device.plug()
 
-    @operation
+    @operation(readonly=True)
     def device_state(self) -> dict[str, Any]:
         """What the device believes: initialised, tracking, baud, tools."""
         return {

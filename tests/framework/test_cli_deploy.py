@@ -2,6 +2,7 @@
 the flight recording read back with `fw log` / `fw replay` matches what happened."""
 
 import json
+import signal
 import subprocess
 import sys
 
@@ -65,7 +66,7 @@ def test_deploy_send_status_ls_log_replay(topology, bus_config, tmp_path):
             str(topology),
             "--headless",
             "--duration",
-            "12",
+            "120",  # a bound: the test stops it with Ctrl-C (SIGINT) when done
             "--record",
             str(record),
             "--record-samples",
@@ -107,6 +108,7 @@ def test_deploy_send_status_ls_log_replay(topology, bus_config, tmp_path):
         assert "t2/out" in listing.stdout and "t2.out -> supervisor.inp" in listing.stdout
     finally:
         bus.close()
+        deploy.send_signal(signal.SIGINT)
     out, err = deploy.communicate(timeout=60)
     assert deploy.returncode == 0, err
     assert "transition Use_T1 -> Use_T2" in out and "fw: stopped" in err

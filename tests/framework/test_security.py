@@ -90,11 +90,12 @@ def test_a_secured_bus_cannot_be_joined_without_a_keystore(deployed):
 
 
 def test_events_from_inside_are_checked_where_they_enter(deployed):
-    """A session with the credentials of a process of the deployment forges what no
-    component declares: the chart never sees it, and each refusal is published."""
+    """Even a sender the bus lets put on the events key (here with the deployment's
+    control certificate) is checked by the Coordinator: what no component declares it
+    emits never reaches the chart, and each refusal is published."""
     assert wait_until(lambda: "Use_T1" in leaves(deployed), timeout=10)
     refusals = []
-    inside = Bus(deployed.topology.bus, subject="control_side")
+    inside = Bus(deployed.topology.bus, subject="control")
     assert inside.wait_for_peers(3)
     sub = inside.subscribe(
         STATUS_KEY,
@@ -145,3 +146,52 @@ def test_an_out_of_range_target_is_refused_by_the_coordinator_itself():
     assert answer["reason"] == "e_DEFINE_TARGET.roll must be at most 180 deg"
     answer = coordinator.offer("e_DEFINE_TARGET", {"x": float("nan")})
     assert answer["reason"] == "e_DEFINE_TARGET.x must be a finite number"
+
+
+def test_a_process_may_publish_only_on_its_own_outputs(deployed):
+    """The access rules from the topology: neither `trackers` (t1, t2) nor `control_side`
+    (the sink) has an output on the events key, so neither may put there; and
+    control_side may not put on t1's output."""
+    assert wait_until(lambda: "Use_T1" in leaves(deployed), timeout=10)
+    heard = {"t1/out": 0, EVENTS_KEY: 0}
+    observer = Bus(deployed.topology.bus, subject=OPERATOR)
+    forgers = [Bus(deployed.topology.bus, subject=s) for s in ("trackers", "control_side")]
+    try:
+        for key in heard:
+            observer.subscribe(key, lambda _s, k=key: heard.__setitem__(k, heard[k] + 1), False)
+        assert all(f.wait_for_peers(3) for f in (observer, *forgers))
+        baseline = heard["t1/out"]
+        forged = EventMessage(time.time(), "e_SWAP", "t1", None)
+        for forger in forgers:
+            forger.session.put(EVENTS_KEY, messages.encode(forged, EventMessage))
+        forgers[1].session.put("t1/out", b"not a sample")
+        time.sleep(0.5)
+        assert heard[EVENTS_KEY] == 0, "nobody here may put on the events key"
+        assert deployed.coordinator.refused == 0, "it never even reached the Coordinator"
+        assert heard["t1/out"] > baseline, "the real t1 keeps publishing"
+    finally:
+        for bus in (observer, *forgers):
+            bus.close()
+    assert leaves(deployed) == ["Use_T1"]
+
+
+def test_operations_only_from_control_and_reads_from_the_operator(deployed):
+    from framework.remote import RemoteComponent, RemoteError
+
+    assert wait_until(lambda: "Use_T1" in leaves(deployed), timeout=10)
+    with Bus(deployed.topology.bus, subject=OPERATOR) as operator:
+        assert operator.wait_for_peers(3)
+        supervisor = RemoteComponent(operator, "supervisor", timeout=1.0)
+        assert supervisor.state() == "Running"
+        assert isinstance(supervisor.call("received"), list), "a read-only operation"
+        with pytest.raises(RemoteError, match="no answer"):
+            supervisor.call("fail")
+        with pytest.raises(RemoteError, match="no answer"):
+            supervisor.stop()
+        coordinator = RemoteComponent(operator, "coordinator", timeout=1.0)
+        assert coordinator.call("offer", event="e_SWAP", origin="test")["accepted"]
+    with Bus(deployed.topology.bus, subject="trackers") as process:
+        assert process.wait_for_peers(3)
+        with pytest.raises(RemoteError, match="no answer"):
+            RemoteComponent(process, "supervisor", timeout=1.0).state()
+    assert wait_until(lambda: leaves(deployed) == ["Use_T2"])

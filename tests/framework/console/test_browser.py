@@ -145,8 +145,8 @@ def test_the_operator_drives_the_procedure_from_the_browser(seeg_console, page):
     text_is(page, "operation", "approaching")
 
     # a command the chart cannot take now is answered with the reason
-    page.evaluate("send('e_RELEASE')")
-    text_is(page, "answer", "e_RELEASE: refused: e_RELEASE is not taken in")
+    page.evaluate("send('e_START')")
+    text_is(page, "answer", "e_START: refused: e_START is not taken in")
     page.wait_for_selector("#log-lines li.warning", timeout=WAIT_MS)
 
 
