@@ -80,6 +80,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         "quick": args.quick,
         "repetitions": args.repetitions,
         "chaos_repetitions": args.chaos_repetitions,
+        "bus": args.bus,
     }
     rows: list[Row] = []
     try:
@@ -143,5 +144,12 @@ def add_commands(sub: Any) -> None:
         default=6,
         metavar="N",
         help="times each process x fault case runs in `chaos` (6: 108 faults, ~25 min)",
+    )
+    p.add_argument(
+        "--bus",
+        choices=("mtls", "plain"),
+        default="mtls",
+        help="the deployment's bus: mutual TLS with access rules, as fw deploy runs it "
+        "(default), or plain TCP, to measure what security costs (docs/security.md)",
     )
     p.set_defaults(func=cmd_bench)

@@ -40,7 +40,7 @@ def _seeg(context: dict[str, Any]) -> Any:
         from components.bench.seeg_run import SeegRun
 
         print("deploying topologies/seeg.yaml on a private bus ...", file=sys.stderr)
-        context["seeg"] = SeegRun().start()
+        context["seeg"] = SeegRun(secure=context.get("bus", "mtls") == "mtls").start()
         hops = zenoh_hop(200 if context.get("quick") else 1000)
         s = stats([h * 1e3 for h in hops])
         context.setdefault("extra_rows", []).extend(

@@ -63,8 +63,13 @@ def report(rows: list[Row], context: dict[str, Any], quick: bool) -> str:
         "",
         f"{time.strftime('%Y-%m-%d %H:%M')}, {platform.node()}, Python "
         f"{platform.python_version()}, {platform.machine()}. Latencies on the real "
-        "multi-process SEEG deployment in real time; where each timestamp is taken: "
-        "`components/bench/latency.py`.",
+        "multi-process SEEG deployment in real time, on a "
+        + (
+            "plain TCP bus (no authentication: a comparison run)"
+            if context.get("bus") == "plain"
+            else "mutual-TLS bus with access rules, as `fw deploy` runs it"
+        )
+        + "; where each timestamp is taken: `components/bench/latency.py`.",
         "",
         "| experiment | quantity | thesis | fw | fw/thesis | x Zenoh hop | target | n |",
         "|---|---|---:|---:|---:|---:|---|---:|",

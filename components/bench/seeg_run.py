@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from framework.bus import free_port
-from framework.deployer import Deployment
+from framework.container import raise_priority
+from framework.deployer import SAFETY_NICE, Deployment
 from framework.errors import FwError
 from framework.messages import EventMessage, Scalar, decode
 from framework.remote import RemoteComponent
@@ -79,16 +80,23 @@ class SeegRun:
     _states: _States = field(default_factory=_States)
     _lock: threading.Lock = field(default_factory=threading.Lock)
     _subscriptions: list[Any] = field(default_factory=list)
+    secure: bool = True
+    """The bus as fw deploy runs it (mutual TLS, access rules); False: plain TCP."""
 
     def start(self) -> SeegRun:
         """Deploy and wait until the robot waits for START (setup done)."""
         topology = load_topology(TOPOLOGY)
         topology.bus = dataclasses.replace(
-            topology.bus, namespace=f"fw_bench_{os.getpid()}", hub_port=free_port()
+            topology.bus,
+            namespace=f"fw_bench_{os.getpid()}",
+            hub_port=free_port(),
+            secure=self.secure,
         )
         link = str(self.workdir / "ttyVICRA")
         topology.components["vicra_sim"].properties["link"] = link
         topology.components["vicra"].properties["device"] = link
+        if topology.safety is not None:  # as fw deploy does: the Coordinator is watched
+            raise_priority(SAFETY_NICE, "control")
         self.deployment = Deployment(topology, self.workdir, listeners=[self._states])
         old = os.getcwd()
         os.chdir(REPO)  # property paths are relative to the repository
