@@ -31,7 +31,7 @@ examples:
   fw deploy topologies/seeg.yaml --console-port 8080   the operator console on another port
 
 The operator console (a web page: status, START / RELEASE / Go To, the chart, the
-event log) is served on http://127.0.0.1:8470/ when fw deploy runs in a terminal, or
+event log) is served on http://127.0.0.1:8470/?token=... when fw deploy runs in a terminal, or
 whenever --console-port is given; --no-console turns it off. It listens on
 127.0.0.1 only, unless --console-host says otherwise.
 """
@@ -259,11 +259,11 @@ def _start_console(
     except FwError:
         model.stop()
         raise
-    print(f"fw: operator console on {url}", file=sys.stderr)
+    print(f"fw: operator console on {url} (the link carries this run's login)", file=sys.stderr)
     if args.console_host not in ("127.0.0.1", "localhost", "::1"):
         print(
-            f"fw: warning: the console has no login; anyone who reaches {url} can "
-            "command the robot",
+            f"fw: warning: the console is served without TLS on {args.console_host}: its "
+            "login token crosses the network in clear",
             file=sys.stderr,
         )
     return server

@@ -20,10 +20,14 @@ nothing is built or fetched at run time.
 
 from __future__ import annotations
 
+import contextlib
+import hmac
 import json
 import math
 import mimetypes
+import secrets
 import threading
+import urllib.parse
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
@@ -36,6 +40,13 @@ from framework.remote import RemoteComponent, RemoteError
 STATIC = Path(__file__).resolve().parent / "static"
 DEFAULT_PORT = 8470
 MAX_BODY = 16 * 1024
+MAX_DEPTH = 8
+"""Nesting a command may have (its payload is one flat object)."""
+MAX_PATH = 512
+TIMEOUT = 10.0
+"""Seconds a connection may take to send its request (slow senders are cut)."""
+MAX_CONNECTIONS = 64
+MAX_STREAMS = 16
 COALESCE = 0.02  # s: changes closer than this go out in one picture
 
 
@@ -50,24 +61,63 @@ class CommandError(FwError):
 class ConsoleServer:
     """Serves the console of one deployment (see the module docstring)."""
 
-    def __init__(self, model: ConsoleModel, host: str = "127.0.0.1", port: int = DEFAULT_PORT):
+    def __init__(
+        self,
+        model: ConsoleModel,
+        host: str = "127.0.0.1",
+        port: int = DEFAULT_PORT,
+        timeout: float = TIMEOUT,
+    ):
         self.model, self.host, self.port = model, host, port
+        self.token = secrets.token_urlsafe(18)
+        """The run's login: in the URL fw deploy prints, then in a cookie."""
         self.rate = 5.0
         self._httpd: ThreadingHTTPServer | None = None
         self._thread: threading.Thread | None = None
         self._chart: dict[str, Any] | None = None
         self.stopping = threading.Event()
+        self.timeout = timeout
+        self.connections = threading.BoundedSemaphore(MAX_CONNECTIONS)
+        self.streams = threading.BoundedSemaphore(MAX_STREAMS)
+
+    def allowed_hosts(self) -> set[str]:
+        """`Host` headers this server answers (anything else is DNS rebinding)."""
+        names = {self.host, "127.0.0.1", "localhost"} if self.host in LOOPBACK else {self.host}
+        return {f"{n}:{self.port}" for n in names} | {f"[::1]:{self.port}"}
+
+    @property
+    def base(self) -> str:
+        """Where the console is served (without the login)."""
+        return f"http://{self.host}:{self.port}/"
 
     @property
     def url(self) -> str:
-        """Where the console is served."""
-        return f"http://{self.host}:{self.port}/"
+        """The URL to open: with the run's token (like a notebook server's)."""
+        return f"{self.base}?token={self.token}"
+
+    @property
+    def cookie(self) -> str:
+        """The cookie that carries the login (per port: two consoles on one host)."""
+        return f"fw_console_{self.port}"
+
+    def authorized(self, headers: Any, query: str) -> bool:
+        """Does this request carry the run's token (cookie, bearer header or URL)?"""
+        given = []
+        for part in (headers.get("Cookie") or "").split(";"):
+            name, _, value = part.strip().partition("=")
+            if name == self.cookie:
+                given.append(value)
+        bearer = headers.get("Authorization") or ""
+        if bearer.startswith("Bearer "):
+            given.append(bearer[len("Bearer ") :])
+        given += urllib.parse.parse_qs(query).get("token", [])
+        return any(hmac.compare_digest(g.encode(), self.token.encode()) for g in given)
 
     def start(self) -> str:
         """Serve in a background thread; returns the URL."""
-        handler = type("Handler", (_Handler,), {"console": self})
+        handler = type("Handler", (_Handler,), {"console": self, "timeout": self.timeout})
         try:
-            self._httpd = ThreadingHTTPServer((self.host, self.port), handler)
+            self._httpd = _Server((self.host, self.port), handler)
         except OSError as exc:
             raise ConsoleError(
                 f"cannot serve the console on {self.host}:{self.port}: {exc.strerror or exc} "
@@ -163,6 +213,15 @@ def _draw(chart: Any) -> dict[str, Any]:
     return {"svg": svg, "idents": idents}
 
 
+def _depth(value: Any) -> int:
+    """How deeply `value` nests (a flat object is 1)."""
+    if isinstance(value, dict):
+        return 1 + max((_depth(v) for v in value.values()), default=0)
+    if isinstance(value, list):
+        return 1 + max((_depth(v) for v in value), default=0)
+    return 0
+
+
 def _finite(value: Any) -> Any:
     """NaN and infinities become null: browsers' JSON.parse refuses them."""
     if isinstance(value, float):
@@ -178,26 +237,82 @@ def _dumps(data: Any) -> str:
     return json.dumps(_finite(data), default=str, allow_nan=False)
 
 
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+LOGIN = "log in with the URL fw deploy printed (it carries this run's token)"
+
+
+class _Server(ThreadingHTTPServer):
+    """A thread per connection, at most MAX_CONNECTIONS of them; nothing a client
+    does ever prints a traceback on the operator's terminal."""
+
+    daemon_threads = True
+
+    def process_request(self, request: Any, client_address: Any) -> None:
+        console = self.RequestHandlerClass.console  # type: ignore[attr-defined]
+        if not console.connections.acquire(blocking=False):
+            with contextlib.suppress(OSError):
+                request.sendall(b"HTTP/1.1 503 Service Unavailable\r\nContent-Length: 0\r\n\r\n")
+            self.shutdown_request(request)
+            return
+        super().process_request(request, client_address)
+
+    def process_request_thread(self, request: Any, client_address: Any) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self.RequestHandlerClass.console.connections.release()  # type: ignore[attr-defined]
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        """A client that went away or sent garbage: not the operator's concern."""
+
+
 class _Handler(BaseHTTPRequestHandler):
     console: ConsoleServer
     server_version = "fw-console"
+    timeout = TIMEOUT
 
     def log_message(self, format: str, *args: Any) -> None:
         """Quiet: the console's own log is the event log."""
 
     def _send(self, status: int, body: bytes, kind: str) -> None:
-        self.send_response(status)
-        self.send_header("Content-Type", kind)
-        self.send_header("Content-Length", str(len(body)))
-        self.send_header("Cache-Control", "no-store")
-        self.end_headers()
-        self.wfile.write(body)
+        try:
+            self.send_response(status)
+            self.send_header("Content-Type", kind)
+            self.send_header("Content-Length", str(len(body)))
+            self.send_header("Cache-Control", "no-store")
+            self.send_header("X-Content-Type-Options", "nosniff")
+            self.send_header("X-Frame-Options", "DENY")
+            self.end_headers()
+            self.wfile.write(body)
+        except OSError:  # the client went away
+            self.close_connection = True
+
+    def _refused(self) -> str:
+        """Why this request is refused before anything else ("" if it is not): a
+        foreign Host (DNS rebinding), a foreign Origin (another site's page), a path
+        longer than any of ours."""
+        host = self.headers.get("Host", "")
+        if host not in self.console.allowed_hosts():
+            return f"this console does not answer for host {host[:80]!r}"
+        origin = self.headers.get("Origin")
+        if origin is not None and origin.split("//", 1)[-1] not in self.console.allowed_hosts():
+            return f"requests from {origin[:80]!r} are refused (another site's page)"
+        if len(self.path) > MAX_PATH:
+            return "path too long"
+        return ""
 
     def _json(self, data: Any, status: int = HTTPStatus.OK) -> None:
         self._send(status, _dumps(data).encode(), "application/json")
 
     def do_GET(self) -> None:
-        path = self.path.split("?", 1)[0]
+        refusal = self._refused()
+        if refusal:
+            return self._json({"error": refusal}, HTTPStatus.FORBIDDEN)
+        path, _, query = self.path.partition("?")
+        if not self.console.authorized(self.headers, query):
+            return self._json({"error": LOGIN}, HTTPStatus.UNAUTHORIZED)
+        if "token=" in query and path in ("/", "/index.html"):
+            return self._login()
         if path in ("/", "/index.html"):
             return self._file("index.html")
         if path.startswith("/static/"):
@@ -211,28 +326,75 @@ class _Handler(BaseHTTPRequestHandler):
         self._json({"error": f"no such page: {path}"}, HTTPStatus.NOT_FOUND)
 
     def do_POST(self) -> None:
+        refusal = self._refused()
+        if refusal:
+            return self._json({"accepted": False, "reason": refusal}, HTTPStatus.FORBIDDEN)
+        if not self.console.authorized(self.headers, ""):
+            return self._json({"accepted": False, "reason": LOGIN}, HTTPStatus.UNAUTHORIZED)
         if self.path != "/api/command":
-            return self._json({"error": f"no such endpoint: {self.path}"}, HTTPStatus.NOT_FOUND)
-        length = int(self.headers.get("Content-Length") or 0)
+            return self._json({"error": f"no such endpoint: {self.path[:80]}"}, 404)
+        kind = self.headers.get("Content-Type", "").split(";", 1)[0].strip().lower()
+        if kind != "application/json":  # a form or text/plain: what another page can send
+            reason = "a command must be sent as application/json"
+            return self._json({"accepted": False, "reason": reason}, 415)
+        text = self.headers.get("Content-Length", "")
+        if not text.isdigit():
+            reason = "a command needs a valid Content-Length"
+            return self._json({"accepted": False, "reason": reason}, 400)
+        length = int(text)
         if length > MAX_BODY:
             return self._json({"accepted": False, "reason": "command too large"}, 413)
         try:
             body = json.loads(self.rfile.read(length) or b"{}")
             if not isinstance(body, dict):
                 raise ValueError("not an object")
-        except ValueError as exc:
-            return self._json({"accepted": False, "reason": f"malformed command: {exc}"}, 400)
+            if _depth(body) > MAX_DEPTH:
+                raise ValueError(f"nested deeper than {MAX_DEPTH}")
+        except (ValueError, RecursionError) as exc:
+            reason = f"malformed command: {str(exc)[:120] or type(exc).__name__}"
+            return self._json({"accepted": False, "reason": reason}, 400)
+        except OSError:  # the client went away or was too slow (TIMEOUT)
+            self.close_connection = True
+            return
         origin = f"{self.client_address[0]}:{self.client_address[1]}"
         self._json(self.console.command(body, origin))
 
+    def _login(self) -> None:
+        """The token from the URL goes into a cookie only this console's own pages send
+        (HttpOnly, SameSite=Strict); the address bar loses it."""
+        try:
+            self.send_response(HTTPStatus.SEE_OTHER)
+            self.send_header(
+                "Set-Cookie",
+                f"{self.console.cookie}={self.console.token}; HttpOnly; SameSite=Strict; Path=/",
+            )
+            self.send_header("Location", "/")
+            self.send_header("Content-Length", "0")
+            self.end_headers()
+        except OSError:
+            self.close_connection = True
+
     def _file(self, name: str) -> None:
-        target = (STATIC / name).resolve()
-        if STATIC not in target.parents or not target.is_file():
+        try:
+            target = (STATIC / name).resolve()
+            found = STATIC in target.parents and target.is_file()
+        except (OSError, ValueError):
+            found = False
+        if not found:
             return self._json({"error": f"no such file: {name}"}, HTTPStatus.NOT_FOUND)
         kind = mimetypes.guess_type(target.name)[0] or "application/octet-stream"
         self._send(HTTPStatus.OK, target.read_bytes(), kind)
 
     def _stream(self) -> None:
+        if not self.console.streams.acquire(blocking=False):
+            return self._json({"error": f"at most {MAX_STREAMS} live views"}, 503)
+        try:
+            self._stream_held()
+        finally:
+            self.console.streams.release()
+
+    def _stream_held(self) -> None:
+        self.connection.settimeout(self.console.timeout)  # a reader that stops is dropped
         self.send_response(HTTPStatus.OK)
         self.send_header("Content-Type", "text/event-stream")
         self.send_header("Cache-Control", "no-store")
@@ -255,8 +417,8 @@ class _Handler(BaseHTTPRequestHandler):
                 for entry in model.log_since(seq):
                     self._event("log", entry)
                     seq = entry["seq"]
-        except (BrokenPipeError, ConnectionResetError):
-            return  # the page went away
+        except OSError:
+            return  # the page went away, or stopped reading
 
     def _event(self, name: str, data: Any) -> None:
         self.wfile.write(f"event: {name}\ndata: {_dumps(data)}\n\n".encode())

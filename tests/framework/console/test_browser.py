@@ -18,7 +18,7 @@ from tests.framework.console.conftest import served
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 playwright = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
 pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed")
-WAIT_MS = 20_000  # a bound for slow machines, not a speed requirement
+WAIT_MS = 40_000  # a bound for slow machines, not a speed requirement
 
 
 @pytest.fixture
@@ -54,6 +54,19 @@ def text_is(page, testid, expected):
     except playwright.Error:
         shown = page.inner_text(f"[data-testid={testid}]")
         pytest.fail(f"{testid} shows {shown!r}, expected it to start with {expected!r}")
+
+
+def text_matches(page, testid, pattern):
+    try:
+        page.wait_for_function(
+            "([id, re]) => new RegExp(re).test("
+            "document.querySelector(`[data-testid=${id}]`).textContent)",
+            arg=[testid, pattern],
+            timeout=WAIT_MS,
+        )
+    except playwright.Error:
+        shown = page.inner_text(f"[data-testid={testid}]")
+        pytest.fail(f"{testid} shows {shown!r}, expected it to match {pattern!r}")
 
 
 def log_has(page, text):
@@ -135,7 +148,8 @@ def test_the_operator_drives_the_procedure_from_the_browser(seeg_console, page):
     text_is(page, "robot", "released")
     page.click("#stop")
     text_is(page, "operation", "stopped")
-    text_is(page, "robot", "braked (stop)")
+    # braked by the STOP, or (on a starved host) by the robot side's own safety stop
+    text_matches(page, "robot", r"^(braked \(stop\)|SAFETY STOP: )")
     page.wait_for_selector("#release:enabled", timeout=WAIT_MS)
     shot(page, "stopped")
     page.click("#release")
@@ -208,3 +222,55 @@ def test_a_lost_process_shows_a_latched_safety_stop_and_what_keeps_release_refus
         "() => document.querySelector('[data-testid=robot]').textContent.endsWith('(RELEASE possible)')",
         timeout=60_000,
     )
+
+
+EVIL_PAGE = """<!doctype html><title>evil</title><script>
+const target = "%s";
+async function attack() {
+  const out = [];
+  for (const [kind, body] of [["text/plain", '{"event": "e_SWAP"}'],
+                              ["application/json", '{"event": "e_SWAP"}']]) {
+    try {
+      const r = await fetch(target + "api/command", {method: "POST", body,
+        headers: {"Content-Type": kind}, credentials: "include"});
+      out.push("command " + r.status);
+    } catch (e) { out.push("command blocked"); }
+  }
+  try {
+    const r = await fetch(target + "api/state", {credentials: "include"});
+    out.push("read " + (await r.text()).slice(0, 20));
+  } catch (e) { out.push("read blocked"); }
+  document.title = out.join(" | ");
+}
+attack();
+</script>"""
+
+
+def test_a_page_of_another_origin_can_neither_command_nor_read_the_console(toy, tmp_path, page):
+    """The operator is logged in; a page from another origin in the same browser tries
+    to send a command (a "simple" text/plain post and a JSON one) and to read the
+    state. Nothing reaches the chart and nothing is read."""
+    import functools
+    import http.server
+    import threading
+
+    from tests.framework.console.conftest import served
+
+    with served(toy, tmp_path) as (server, deployment):
+        page.goto(server.url)  # logs in: the cookie is set
+        text_is(page, "link", "live")
+        evil_dir = tmp_path / "evil"
+        evil_dir.mkdir()
+        (evil_dir / "index.html").write_text(EVIL_PAGE % server.base)
+        handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(evil_dir))
+        handler.log_message = lambda *a: None
+        evil = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+        threading.Thread(target=evil.serve_forever, daemon=True).start()
+        try:
+            page.goto(f"http://127.0.0.1:{evil.server_address[1]}/index.html")
+            page.wait_for_function("() => document.title.includes('read')", timeout=WAIT_MS)
+            outcome = page.title()
+        finally:
+            evil.shutdown()
+        assert "command 200" not in outcome and "read {" not in outcome, outcome
+        assert deployment.coordinator.active()["active"] == ["Use_T1"], outcome

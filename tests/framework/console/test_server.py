@@ -18,15 +18,24 @@ def console(toy, tmp_path):
         yield running
 
 
-def get(server, path):
-    with urllib.request.urlopen(server.url.rstrip("/") + path, timeout=5) as reply:
+def login(server):
+    return {"Authorization": f"Bearer {server.token}"}
+
+
+def get(server, path, headers=None):
+    request = urllib.request.Request(
+        server.base.rstrip("/") + path, headers=login(server) if headers is None else headers
+    )
+    with urllib.request.urlopen(request, timeout=5) as reply:
         return reply.status, reply.headers.get("Content-Type"), reply.read()
 
 
-def post(server, body):
+def post(server, body, headers=None):
     data = body if isinstance(body, bytes) else json.dumps(body).encode()
     request = urllib.request.Request(
-        server.url + "api/command", data, {"Content-Type": "application/json"}
+        server.base + "api/command",
+        data,
+        {"Content-Type": "application/json", **(login(server) if headers is None else headers)},
     )
     try:
         with urllib.request.urlopen(request, timeout=5) as reply:
@@ -101,7 +110,8 @@ def test_only_the_consoles_own_files_are_served(console):
 
 def test_the_stream_starts_with_the_whole_state(console):
     server, _ = console
-    with urllib.request.urlopen(server.url + "api/stream", timeout=5) as stream:
+    request = urllib.request.Request(server.base + "api/stream", headers=login(server))
+    with urllib.request.urlopen(request, timeout=5) as stream:
         assert stream.headers.get("Content-Type") == "text/event-stream"
         assert stream.readline() == b"event: state\n"
         first = json.loads(stream.readline()[len(b"data: ") :])
@@ -124,3 +134,124 @@ def test_non_finite_numbers_reach_the_page_as_null():
         "a": None,
         "b": [1.5, None],
     }
+
+
+def test_nothing_is_served_or_taken_without_this_runs_token(console):
+    """The console's login is the token in the URL fw deploy prints (then a cookie)."""
+    server, _ = console
+    assert wait_until(lambda: leaves(server) == ["Use_T1"], timeout=10)
+    for path in ("/", "/api/state", "/api/stream", "/static/console.js"):
+        with pytest.raises(urllib.error.HTTPError) as caught:
+            get(server, path, headers={})
+        assert caught.value.code == 401
+    with pytest.raises(urllib.error.HTTPError) as caught:
+        get(server, "/api/state", headers={"Authorization": "Bearer wrong"})
+    assert caught.value.code == 401
+    status, answer = post(server, {"event": "e_SWAP"}, headers={})
+    assert status == 401 and not answer["accepted"]
+    assert leaves(server) == ["Use_T1"], "the command never reached the chart"
+
+
+def test_the_printed_url_logs_in_with_a_cookie_only_this_console_sends(console):
+    import http.client
+
+    server, _ = console
+    connection = http.client.HTTPConnection(server.host, server.port, timeout=5)
+    connection.request("GET", "/?token=" + server.token)
+    reply = connection.getresponse()
+    reply.read()
+    assert reply.status == 303 and reply.getheader("Location") == "/"
+    cookie = reply.getheader("Set-Cookie")
+    assert cookie.startswith(f"{server.cookie}={server.token};")
+    assert "HttpOnly" in cookie and "SameSite=Strict" in cookie
+    status, kind, _ = get(server, "/", headers={"Cookie": cookie.split(";", 1)[0]})
+    assert status == 200 and kind.startswith("text/html")
+
+
+def raw(server, request: bytes) -> bytes:
+    """Send bytes as the operator's logged-in browser would (with the login cookie:
+    another site's page in that browser gets it too, 127.0.0.1 ports are one "site"),
+    return the whole reply."""
+    import socket
+
+    head, _, rest = request.partition(b"\r\n")
+    cookie = f"Cookie: {server.cookie}={server.token}\r\n".encode()
+    with socket.create_connection((server.host, server.port), timeout=10) as sock:
+        sock.sendall(head + b"\r\n" + cookie + rest)
+        chunks = []
+        while chunk := sock.recv(65536):
+            chunks.append(chunk)
+    return b"".join(chunks)
+
+
+def status_of(reply: bytes) -> int:
+    return int(reply.split(b" ", 2)[1])
+
+
+def test_other_sites_and_rebinding_hosts_are_refused(console):
+    """A page of another site (Origin) or a rebinding name (Host) can neither command
+    nor read; a form or text/plain post (a "simple request") is not a command."""
+    server, _ = console
+    host = f"{server.host}:{server.port}"
+    body = b'{"event": "e_SWAP"}'
+    evil = raw(
+        server,
+        b"POST /api/command HTTP/1.1\r\nHost: " + host.encode() + b"\r\nOrigin: http://evil.example"
+        b"\r\nContent-Type: application/json\r\nContent-Length: 19\r\nConnection: close\r\n\r\n"
+        + body,
+    )
+    assert status_of(evil) == 403 and b"another site" in evil
+    rebound = raw(
+        server, b"GET /api/state HTTP/1.1\r\nHost: evil.example:80\r\nConnection: close\r\n\r\n"
+    )
+    assert status_of(rebound) == 403 and b"does not answer for host" in rebound
+    plain = raw(
+        server,
+        b"POST /api/command HTTP/1.1\r\nHost: " + host.encode() + b"\r\nContent-Type: text/plain"
+        b"\r\nContent-Length: 19\r\nConnection: close\r\n\r\n" + body,
+    )
+    assert status_of(plain) == 415
+    assert leaves(server) == ["Use_T1"] or not leaves(server), "nothing reached the chart"
+
+
+@pytest.mark.parametrize(
+    "length, body, code, reason",
+    [
+        ("-1", b"{}", 400, b"valid Content-Length"),
+        ("abc", b"{}", 400, b"valid Content-Length"),
+        (str(10**6), b"{}", 413, b"too large"),
+        (None, b"[" * 5000 + b"]" * 5000, 400, b"malformed command"),
+        (None, b'{"a":' * 20 + b"1" + b"}" * 20, 400, b"nested deeper"),
+    ],
+)
+def test_malformed_requests_get_a_clean_answer(console, length, body, code, reason):
+    server, _ = console
+    host = f"{server.host}:{server.port}".encode()
+    size = (length or str(len(body))).encode()
+    reply = raw(
+        server,
+        b"POST /api/command HTTP/1.1\r\nHost: " + host + b"\r\nContent-Type: application/json"
+        b"\r\nContent-Length: " + size + b"\r\nConnection: close\r\n\r\n" + body,
+    )
+    assert status_of(reply) == code and reason in reply
+
+
+def test_a_long_path_is_refused_and_the_server_goes_on(console):
+    server, _ = console
+    host = f"{server.host}:{server.port}".encode()
+    reply = raw(server, b"GET /" + b"a" * 5000 + b" HTTP/1.1\r\nHost: " + host + b"\r\n\r\n")
+    assert status_of(reply) in (403, 414)
+    assert get(server, "/")[0] == 200
+
+
+def test_a_slow_sender_is_cut_off(toy, tmp_path):
+    """Slowloris: a connection that never finishes its request is closed."""
+    import socket
+
+    with served(toy, tmp_path, timeout=0.3) as (server, _):
+        sock = socket.create_connection((server.host, server.port), timeout=20)
+        try:
+            sock.sendall(b"GET / HTTP/1.1\r\n")  # and nothing more
+            assert sock.recv(1024) == b"", "the server closed the connection"
+        finally:
+            sock.close()
