@@ -22,6 +22,7 @@ certificate; `access` adds the deployment's access rules (`framework/access.py`)
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import logging
 import socket
@@ -135,6 +136,18 @@ def zenoh_config(bus: BusConfig, hub: bool = False, subject: str = "") -> zenoh.
         except Exception as exc:  # zenoh raises its own error type
             raise BusError(f"invalid Zenoh setting {key}={value!r}: {exc}") from None
     return config
+
+
+def client_config(bus: BusConfig, keys: str | Path | None = None) -> BusConfig:
+    """`bus` with the keystore a client of the running deployment uses (`keys`, else the
+    deployment's default place); unchanged for a bus that is not secured."""
+    from framework.keystore import OPERATOR, Keystore, keystore_for
+
+    if not bus.secure or bus.keys:
+        return bus
+    store = Keystore(Path(keys)) if keys else keystore_for(bus.namespace)
+    store.check(OPERATOR)
+    return dataclasses.replace(bus, keys=str(store.root))
 
 
 def _tls_settings(bus: BusConfig, subject: str) -> dict[str, Any]:

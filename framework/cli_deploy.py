@@ -292,8 +292,8 @@ def _joined(topology_path: str) -> Iterator[tuple[Any, Any]]:
 
 
 def _join(topology_path: str) -> tuple[Any, Any]:
-    from framework.bus import Bus
-    from framework.keystore import OPERATOR, client_config
+    from framework.bus import Bus, client_config
+    from framework.keystore import OPERATOR
     from framework.topology import load_topology
 
     topology = load_topology(topology_path)

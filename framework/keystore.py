@@ -19,7 +19,6 @@ Several hosts (`fw deploy --host`) share one keystore made with `fw keys`.
 
 from __future__ import annotations
 
-import dataclasses
 import datetime
 import ipaddress
 import os
@@ -27,12 +26,8 @@ import shutil
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from framework.errors import FwError
-
-if TYPE_CHECKING:
-    from framework.bus import BusConfig
 
 CONTROL = "control"
 """The subject of the process running `fw deploy` (Coordinator, Configurator)."""
@@ -100,16 +95,6 @@ def default_root() -> Path:
 def keystore_for(namespace: str) -> Keystore:
     """The default keystore of the deployment whose bus namespace is `namespace`."""
     return Keystore(default_root() / namespace)
-
-
-def client_config(bus: BusConfig, keys: str | Path | None = None) -> BusConfig:
-    """`bus` with the keystore a client of the running deployment uses (`keys`, else the
-    deployment's default place); unchanged for a bus that is not secured."""
-    if not bus.secure or bus.keys:
-        return bus
-    store = Keystore(Path(keys)) if keys else keystore_for(bus.namespace)
-    store.check(OPERATOR)
-    return dataclasses.replace(bus, keys=str(store.root))
 
 
 def create_keystore(

@@ -125,8 +125,8 @@ def join_deployment(bus_config, timeout: float = 30.0):
     the credentials that deployment creates; waits for them to exist)."""
     import dataclasses
 
-    from framework.bus import Bus
-    from framework.keystore import OPERATOR, client_config, keystore_for
+    from framework.bus import Bus, client_config
+    from framework.keystore import OPERATOR, keystore_for
 
     store = keystore_for(bus_config.namespace)
     assert wait_until(lambda: store.private_key(OPERATOR).is_file(), timeout), "no keystore"
