@@ -36,6 +36,7 @@ whenever --console-port is given; --no-console turns it off. It listens on
 127.0.0.1 only, unless --console-host says otherwise.
 """
 
+KEYS_HELP = "the deployment's keystore, if fw deploy was given --keys (default: its own)"
 EPILOG_SEND = """\
 examples:
   fw send e_START --topology topologies/demo.yaml
@@ -169,6 +170,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         host=args.host,
         scenario=scenario,
         report=printer.line if printer else None,
+        keys=Path(args.keys) if args.keys else None,
     )
     from framework.deployer import LOCAL, host_of
 
@@ -282,22 +284,22 @@ def _scenario_report(runner: Any) -> int:
 
 
 @contextlib.contextmanager
-def _joined(topology_path: str) -> Iterator[tuple[Any, Any]]:
+def _joined(topology_path: str, keystore: str | None = None) -> Iterator[tuple[Any, Any]]:
     """Join a running deployment's bus (closed on the way out); see `_join`."""
-    topology, bus = _join(topology_path)
+    topology, bus = _join(topology_path, keystore)
     try:
         yield topology, bus
     finally:
         bus.close()
 
 
-def _join(topology_path: str) -> tuple[Any, Any]:
+def _join(topology_path: str, keystore: str | None = None) -> tuple[Any, Any]:
     from framework.bus import Bus, client_config
     from framework.keystore import OPERATOR
     from framework.topology import load_topology
 
     topology = load_topology(topology_path)
-    bus = Bus(client_config(topology.bus), subject=OPERATOR)
+    bus = Bus(client_config(topology.bus, keystore), subject=OPERATOR)
     processes = len({c.process for c in topology.components.values()}) + 1  # + the deployer
     if not bus.wait_for_peers(processes, timeout=2.0) and bus.peers() == 0:
         return topology, bus  # nobody at all: nothing to wait for
@@ -322,7 +324,7 @@ def cmd_send(args: argparse.Namespace) -> int:
         raise FwError(f"--payload is not JSON: {exc.msg}") from None
     if not isinstance(payload, dict):
         raise FwError("--payload must be a JSON object")
-    with _joined(args.topology) as (topology, bus):
+    with _joined(args.topology, args.keys) as (topology, bus):
         try:
             answer = RemoteComponent(bus, "coordinator", timeout=args.timeout).call(
                 "offer", event=args.event, payload=payload, origin=f"fw send@{getpass.getuser()}"
@@ -340,12 +342,27 @@ def cmd_send(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_keys(args: argparse.Namespace) -> int:
+    """Make a keystore for `fw deploy --keys` (several hosts share one)."""
+    from framework.keystore import create_keystore
+    from framework.topology import load_topology
+
+    topology = load_topology(args.topology)
+    out = Path(args.out)
+    if out.exists() and any(out.iterdir()):
+        raise FwError(f"{out} exists and is not empty: choose a new directory")
+    processes = sorted({c.process for c in topology.components.values()})
+    store = create_keystore(out, processes, ["127.0.0.1", *args.address])
+    print(f"keystore for {topology.name!r} in {store.root}: {', '.join(store.subjects())}")
+    return 0
+
+
 def cmd_status(args: argparse.Namespace) -> int:
     """Component states, active chart states and last events of a running deployment."""
     from framework.introspect import discover
     from framework.remote import RemoteComponent, RemoteError
 
-    with _joined(args.topology) as (topology, bus):
+    with _joined(args.topology, args.keys) as (topology, bus):
         found = discover(bus) if bus.peers() else {}
         if not found:
             raise FwError(f"nothing is running in deployment {topology.bus.namespace!r}")
@@ -407,7 +424,7 @@ def cmd_ls(args: argparse.Namespace) -> int:
     """Components, ports, keys and connections of a running deployment."""
     from framework.introspect import snapshot
 
-    with _joined(args.topology) as (topology, bus):
+    with _joined(args.topology, args.keys) as (topology, bus):
         snap = snapshot(bus)
         if not snap.containers:
             raise FwError(f"nothing is running in deployment {topology.bus.namespace!r}")
@@ -555,6 +572,12 @@ def add_commands(sub: Any) -> None:
         "Configurator run where --host is not given)",
     )
     p.add_argument(
+        "--keys",
+        metavar="DIR",
+        help="use this keystore (made by `fw keys`, copied to every host) instead of a "
+        "fresh one per run; needed with --host",
+    )
+    p.add_argument(
         "--scenario",
         metavar="FILE",
         help="timed events and operation calls to play (see docs/topologies.md)",
@@ -592,6 +615,7 @@ def add_commands(sub: Any) -> None:
         metavar="S",
         help="how long to look for the Coordinator",
     )
+    p.add_argument("--keys", metavar="DIR", help=KEYS_HELP)
     p.set_defaults(func=cmd_send)
 
     p = sub.add_parser("log", help="print the timeline of a flight recording")
@@ -620,9 +644,29 @@ def add_commands(sub: Any) -> None:
         "--watch", action="store_true", help="operation, area, tracker, people, log: live"
     )
     p.add_argument("--frames", type=int, metavar="N", help="with --watch: stop after N screens")
+    p.add_argument("--keys", metavar="DIR", help=KEYS_HELP)
     p.set_defaults(func=cmd_status)
 
     p = sub.add_parser("ls", help="components, ports, keys and connections of a deployment")
     p.add_argument("--topology", required=True, metavar="T")
     p.add_argument("--json", action="store_true")
+    p.add_argument("--keys", metavar="DIR", help=KEYS_HELP)
     p.set_defaults(func=cmd_ls)
+
+    p = sub.add_parser(
+        "keys",
+        help="make a keystore for a deployment over several hosts",
+        description="Issue a CA and one certificate per process of the topology (plus "
+        "control and operator) into DIR, for `fw deploy --keys DIR` on every host. The "
+        "CA's private key is not kept. Copy DIR to each host, readable by its user only.",
+    )
+    p.add_argument("topology", metavar="TOPOLOGY")
+    p.add_argument("-o", "--out", required=True, metavar="DIR")
+    p.add_argument(
+        "--address",
+        action="append",
+        default=[],
+        metavar="ADDR",
+        help="an address the processes listen on, besides 127.0.0.1 (repeatable)",
+    )
+    p.set_defaults(func=cmd_keys)

@@ -217,3 +217,35 @@ def test_a_recording_cut_by_sigkill_reads_back_up_to_the_kill(topology, bus_conf
     assert log.returncode == 0 and "transition Use_T1 -> Use_T2" in log.stdout
     replay = fw("replay", str(record))
     assert replay.returncode == 0 and replay.stdout.strip().endswith("active: Use_T2")
+
+
+def test_a_keystore_made_beforehand_is_used_and_kept(topology, tmp_path):
+    """Several hosts share one keystore (`fw keys`); fw deploy --keys uses it, the
+    clients need it too, and it outlives the run (it was not fw deploy's to delete)."""
+    keys = tmp_path / "keys"
+    made = fw("keys", str(topology), "-o", str(keys))
+    assert made.returncode == 0 and "control, control_side, operator, trackers" in made.stdout
+    deploy = subprocess.Popen(
+        [
+            *(sys.executable, "-m", "framework.cli", "deploy", str(topology), "--headless"),
+            *("--duration", "120", "--keys", str(keys)),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+    )
+    try:
+        status = None
+        for _ in range(60):
+            status = fw("status", "--topology", str(topology), "--keys", str(keys), "--json")
+            if status.returncode == 0 and "Use_T1" in status.stdout:
+                break
+        assert status is not None and json.loads(status.stdout)["chart"]["active"] == ["Use_T1"]
+        without = fw("status", "--topology", str(topology))
+        assert without.returncode == 1 and "no keystore at" in without.stderr
+        assert "Traceback" not in without.stderr
+    finally:
+        deploy.send_signal(signal.SIGINT)
+        deploy.communicate(timeout=60)
+    assert (keys / "operator.key").is_file(), "a keystore given to fw deploy is kept"
