@@ -121,13 +121,15 @@ def access_control(topology: Topology) -> dict[str, Any]:
     def full(key_exprs: list[str]) -> list[str]:
         return [f"{ns}/{k}" for k in key_exprs]
 
-    def rule(rule_id: str, messages: list[str], key_exprs: list[str]) -> dict[str, Any]:
+    def rule(
+        rule_id: str, messages: list[str], key_exprs: list[str], flow: str = "ingress"
+    ) -> dict[str, Any]:
         # a session judges what it receives, by who sent it (ingress); what it sends is
         # judged by its receivers, so egress is free
         return {
             "id": rule_id,
             "permission": "allow",
-            "flows": ["ingress"],
+            "flows": [flow],
             "messages": messages,
             "key_exprs": full(key_exprs),
         }
@@ -142,13 +144,7 @@ def access_control(topology: Topology) -> dict[str, Any]:
         rule("everyone asks for data", ["query"], data_keys(topology)),
         rule("advanced publishers' caches", list(ALL_MESSAGES), ["**/@adv/**"]),
         rule("control does everything", list(ALL_MESSAGES), ["**"]),
-        {
-            "id": "anything may be sent",
-            "permission": "allow",
-            "flows": ["egress"],
-            "messages": list(ALL_MESSAGES),
-            "key_exprs": full(["**", "**/@adv/**"]),
-        },
+        rule("anything may be sent", list(ALL_MESSAGES), ["**", "**/@adv/**"], "egress"),
         rule("operator asks", ["query"], operator_requests(topology)),
     ]
     subjects = [

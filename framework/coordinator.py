@@ -273,9 +273,12 @@ class Coordinator(Component):
         spec = self.chart.events.get(event)
         return spec.problem(payload or {}) if spec is not None else ""
 
-    def _refuse(self, event: str, source: str, reason: str) -> None:
+    def _refuse(self, event: str, source: str, reason: str, publish: bool = True) -> None:
+        """Count and report an event refused where it entered (`publish=False` when the
+        caller's own status message already carries the refusal)."""
         self.refused += 1
-        self.publish("refused", {"event": event, "source": source, "reason": reason})
+        if publish:
+            self.publish("refused", {"event": event, "source": source, "reason": reason})
         for listener in self.extra_listeners:
             with contextlib.suppress(Exception):
                 listener.on_refused(event, source, reason)
@@ -346,7 +349,7 @@ class Coordinator(Component):
             interpreter = self.interpreter
             if refusal:
                 answer = {"accepted": False, "reason": refusal}
-                self._refuse(event, origin or "operator", refusal)
+                self._refuse(event, origin or "operator", refusal, publish=False)  # `command`
             elif interpreter is None or interpreter.finished:
                 answer = {"accepted": False, "reason": "the procedure chart is not running"}
             elif not interpreter.accepts(event):

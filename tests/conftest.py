@@ -147,6 +147,23 @@ def wait_until(predicate, timeout: float = 5.0, interval: float = 0.005) -> bool
     return bool(predicate())
 
 
+def play_seeg_scenario(path, bus_config, tmp_path) -> list:
+    """Play a scenario on the SEEG deployment (real processes, a private bus); the
+    outcomes that failed."""
+    from framework.deployer import Deployment
+    from framework.scenario import load_scenario
+
+    topology = private_topology(REPO / "topologies" / "seeg.yaml", bus_config, tmp_path)
+    scenario = load_scenario(path)
+    deployment = Deployment(topology, tmp_path / "logs", scenario=scenario)
+    deployment.start()
+    try:
+        assert deployment.runner.finished.wait(scenario.timeout + 30), "scenario never finished"
+    finally:
+        deployment.stop()
+    return [o for o in deployment.runner.report() if not o.ok]
+
+
 def private_topology(path, bus_config, device_dir: Path | None = None):
     """A topology on the test's private bus; with `device_dir`, a simulated Vicra's
     device node there instead of the shared path, so tests never share a pty."""

@@ -25,6 +25,19 @@ def fw(*args, timeout=60):
     )
 
 
+def deploy_in_background(topology, *options, stdout=subprocess.DEVNULL):
+    """`fw deploy TOPOLOGY --headless` as its own process, bounded to 120 s; tests stop
+    it with Ctrl-C (SIGINT) when they are done."""
+    command = [sys.executable, "-m", "framework.cli", "deploy", str(topology), "--headless"]
+    return subprocess.Popen(
+        [*command, "--duration", "120", *options],
+        stdout=stdout,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+    )
+
+
 @pytest.fixture
 def topology(tmp_path, bus_config):
     text = (
@@ -57,25 +70,13 @@ def settled(bus, state):
 
 def test_deploy_send_status_ls_log_replay(topology, bus_config, tmp_path):
     record = tmp_path / "run.mcap"
-    deploy = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "framework.cli",
-            "deploy",
-            str(topology),
-            "--headless",
-            "--duration",
-            "120",  # a bound: the test stops it with Ctrl-C (SIGINT) when done
-            "--record",
-            str(record),
-            "--record-samples",
-            "t1/out=Scalar",
-        ],
+    deploy = deploy_in_background(
+        topology,
+        "--record",
+        str(record),
+        "--record-samples",
+        "t1/out=Scalar",
         stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=REPO,
     )
     bus = join_deployment(bus_config)
     try:
@@ -173,22 +174,8 @@ def test_a_recording_cut_by_sigkill_reads_back_up_to_the_kill(topology, bus_conf
     from framework.messages import EventMessage
 
     record = tmp_path / "cut.mcap"
-    deploy = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "framework.cli",
-            "deploy",
-            str(topology),
-            "--headless",
-            "--record",
-            str(record),
-            "--record-samples",
-            "t1/out=Scalar",
-        ],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        cwd=REPO,
+    deploy = deploy_in_background(
+        topology, "--record", str(record), "--record-samples", "t1/out=Scalar"
     )
     bus = join_deployment(bus_config)
     seen = []
@@ -225,16 +212,7 @@ def test_a_keystore_made_beforehand_is_used_and_kept(topology, tmp_path):
     keys = tmp_path / "keys"
     made = fw("keys", str(topology), "-o", str(keys))
     assert made.returncode == 0 and "control, control_side, operator, trackers" in made.stdout
-    deploy = subprocess.Popen(
-        [
-            *(sys.executable, "-m", "framework.cli", "deploy", str(topology), "--headless"),
-            *("--duration", "120", "--keys", str(keys)),
-        ],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=REPO,
-    )
+    deploy = deploy_in_background(topology, "--keys", str(keys))
     try:
         status = None
         for _ in range(60):

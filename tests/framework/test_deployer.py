@@ -10,14 +10,6 @@ from framework.remote import RemoteComponent
 from tests.conftest import wait_until
 
 
-@pytest.fixture
-def deployed(toy, tmp_path):
-    deployment = Deployment(toy, tmp_path)
-    deployment.start()
-    yield deployment
-    deployment.stop()
-
-
 def active(deployment):
     return deployment.coordinator.active()
 

@@ -15,18 +15,9 @@ import zenoh
 from framework import messages
 from framework.bus import Bus, BusError
 from framework.coordinator import EVENTS_KEY, STATUS_KEY, Admission
-from framework.deployer import Deployment
 from framework.keystore import OPERATOR, create_keystore, keystore_for
 from framework.messages import EventMessage
 from tests.conftest import wait_until
-
-
-@pytest.fixture
-def deployed(toy, tmp_path):
-    deployment = Deployment(toy, tmp_path)
-    deployment.start()
-    yield deployment
-    deployment.stop()
 
 
 def leaves(deployment):

@@ -3,12 +3,11 @@ scenario of the procedure: the simulated OR plays it and every expectation holds
 
 import pytest
 
-from framework.deployer import Deployment
 from framework.scenario import load_scenario
 from framework.statechart.loader import load_statechart
 from framework.statechart.model import BUILTIN_EVENTS
 from framework.topology import load_topology
-from tests.conftest import REPO, private_topology
+from tests.conftest import REPO, play_seeg_scenario
 
 SCENARIOS = sorted((REPO / "procedures" / "seeg" / "scenarios").glob("*.yaml"))
 
@@ -29,13 +28,5 @@ def test_every_scenario_is_checked_against_the_chart_and_topology():
 
 @pytest.mark.parametrize("path", SCENARIOS, ids=[p.stem for p in SCENARIOS])
 def test_scenario_passes_on_real_processes(path, bus_config, tmp_path):
-    topology = private_topology(REPO / "topologies" / "seeg.yaml", bus_config, tmp_path)
-    scenario = load_scenario(path)
-    deployment = Deployment(topology, tmp_path / "logs", scenario=scenario)
-    deployment.start()
-    try:
-        assert deployment.runner.finished.wait(scenario.timeout + 30), "scenario never finished"
-    finally:
-        deployment.stop()
-    failed = [o for o in deployment.runner.report() if not o.ok]
+    failed = play_seeg_scenario(path, bus_config, tmp_path)
     assert not failed, failed

@@ -8,12 +8,11 @@ in procedures/seeg/scenarios/faults/; these six run in the suite, every one of t
 
 import pytest
 
-from framework.deployer import Deployment
 from framework.scenario import load_scenario
 from framework.statechart.loader import load_statechart
 from framework.statechart.model import BUILTIN_EVENTS
 from framework.topology import load_topology
-from tests.conftest import REPO, private_topology
+from tests.conftest import REPO, play_seeg_scenario
 
 FAULTS = REPO / "procedures" / "seeg" / "scenarios" / "faults"
 IN_SUITE = [f"{p}_{kind}" for p in ("robot", "supervision", "cameras") for kind in ("kill", "hang")]
@@ -39,13 +38,5 @@ def test_there_is_a_scenario_per_process_and_fault_kind_and_each_checks():
 
 @pytest.mark.parametrize("name", IN_SUITE)
 def test_a_fault_ends_braked_latched_and_nothing_moves_before_release(name, bus_config, tmp_path):
-    topology = private_topology(REPO / "topologies" / "seeg.yaml", bus_config, tmp_path)
-    scenario = load_scenario(FAULTS / f"{name}.yaml")
-    deployment = Deployment(topology, tmp_path / "logs", scenario=scenario)
-    deployment.start()
-    try:
-        assert deployment.runner.finished.wait(scenario.timeout + 30), "scenario never finished"
-    finally:
-        deployment.stop()
-    failed = [o for o in deployment.runner.report() if not o.ok]
+    failed = play_seeg_scenario(FAULTS / f"{name}.yaml", bus_config, tmp_path)
     assert not failed, failed

@@ -43,43 +43,31 @@ def shot(page, name):
         page.screenshot(path=str(Path(folder) / f"console_{name}.png"), full_page=True)
 
 
-def text_is(page, testid, expected):
+def wait_for(page, script, arg, shown, expected):
+    """Wait until `script(arg)` holds in the page; if it never does, fail saying what
+    the page showed (`shown`: a selector) instead of a bare timeout."""
     try:
-        page.wait_for_function(
-            "([id, text]) => document.querySelector(`[data-testid=${id}]`).textContent"
-            ".startsWith(text)",
-            arg=[testid, expected],
-            timeout=WAIT_MS,
-        )
+        page.wait_for_function(script, arg=arg, timeout=WAIT_MS)
     except playwright.Error:
-        shown = page.inner_text(f"[data-testid={testid}]")
-        pytest.fail(f"{testid} shows {shown!r}, expected it to start with {expected!r}")
+        pytest.fail(f"{shown} shows {page.inner_text(shown)!r}, expected {expected}")
+
+
+TILE = "document.querySelector(`[data-testid=${id}]`).textContent"
+
+
+def text_is(page, testid, expected):
+    script = f"([id, text]) => {TILE}.startsWith(text)"
+    wait_for(page, script, [testid, expected], f"[data-testid={testid}]", f"{expected!r}...")
 
 
 def text_matches(page, testid, pattern):
-    try:
-        page.wait_for_function(
-            "([id, re]) => new RegExp(re).test("
-            "document.querySelector(`[data-testid=${id}]`).textContent)",
-            arg=[testid, pattern],
-            timeout=WAIT_MS,
-        )
-    except playwright.Error:
-        shown = page.inner_text(f"[data-testid={testid}]")
-        pytest.fail(f"{testid} shows {shown!r}, expected it to match {pattern!r}")
+    script = f"([id, re]) => new RegExp(re).test({TILE})"
+    wait_for(page, script, [testid, pattern], f"[data-testid={testid}]", f"/{pattern}/")
 
 
 def log_has(page, text):
-    try:
-        page.wait_for_function(
-            "(text) => [...document.querySelectorAll('#log-lines li')].some(li => "
-            "li.textContent.includes(text))",
-            arg=text,
-            timeout=WAIT_MS,
-        )
-    except playwright.Error:
-        shown = page.inner_text("#log-lines")
-        pytest.fail(f"no log line has {text!r}; the log shows:\n{shown}")
+    script = "(t) => [...document.querySelectorAll('#log-lines li')].some(li => li.textContent.includes(t))"
+    wait_for(page, script, text, "#log-lines", f"a line with {text!r}")
 
 
 ORANGE_PIXELS = """() => {
@@ -182,11 +170,7 @@ def test_a_second_console_sees_every_command_with_its_origin(seeg_console, page)
     page.wait_for_selector("#start:enabled", timeout=WAIT_MS)
     page.click("#start")
     text_is(page, "answer", "e_START: accepted")
-    other.wait_for_function(
-        "() => [...document.querySelectorAll('#log-lines li')].some(li => "
-        "li.textContent.includes('command e_START from console@127.0.0.1'))",
-        timeout=WAIT_MS,
-    )
+    log_has(other, "command e_START from console@127.0.0.1")
     text_is(other, "operation", "approaching")
 
 
