@@ -1,14 +1,24 @@
 """Safe YAML reading that remembers where every value was written.
 
-All fw files (statecharts, topologies, procedure data) are read through
-`load_yaml`, so every later error can name file:line:column and the YAML
-path. Scalars are resolved with YAML 1.2 core rules: `on`, `yes`, `no`, `off`
-stay strings, `1:30` is not sexagesimal and `010` is ten. Duplicate keys,
-custom tags and non-scalar keys are refused instead of silently accepted.
+Every fw file a user writes (statecharts, topologies, procedure data,
+scenarios) is read through `load_yaml`, so every later error can name
+file:line:column and the YAML path. Scalars are resolved with YAML 1.2 core
+rules: `on`, `yes`, `no`, `off` stay strings, `1:30` is not sexagesimal and
+`010` is ten. Duplicate keys, custom tags and non-scalar keys are refused
+instead of silently accepted.
+
+The reader is also the first line of defence against hostile files: it
+builds values from the parser's event stream in one iterative pass (no
+recursion, so a list nested 50,000 deep cannot crash the process) and
+enforces `Limits` on file size, nesting depth, values after alias expansion
+(no "billion laughs"), scalar length and integer digits. Recursive aliases,
+invalid UTF-8, NUL and other control characters are refused with
+file:line:column.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 import re
 from collections.abc import Iterable
@@ -27,6 +37,21 @@ except ImportError:  # pragma: no cover - depends on how PyYAML was built
 
 PathKey = tuple[str | int, ...]
 
+
+@dataclass(frozen=True)
+class Limits:
+    """Bounds a file must stay within; far above any real fw file (the largest
+    shipped one is ~10 kB, depth 9, ~1,000 values), far below what would hurt."""
+
+    max_bytes: int = 4 * 1024 * 1024
+    max_depth: int = 64
+    max_values: int = 200_000  # after alias expansion
+    max_scalar: int = 65_536  # characters in one scalar
+    max_digits: int = 64  # digits in one integer
+
+
+DEFAULT_LIMITS = Limits()
+
 _NULL = {"", "~", "null", "Null", "NULL"}
 _TRUE = {"true", "True", "TRUE"}
 _FALSE = {"false", "False", "FALSE"}
@@ -36,10 +61,13 @@ _HEX = re.compile(r"0x[0-9a-fA-F]+\Z")
 _FLOAT = re.compile(r"[-+]?(\.[0-9]+|[0-9]+(\.[0-9]*)?)([eE][-+]?[0-9]+)?\Z")
 _INF = re.compile(r"[-+]?\.(inf|Inf|INF)\Z")
 _NAN = re.compile(r"\.(nan|NaN|NAN)\Z")
+_TAG = "tag:yaml.org,2002:"
 _STANDARD_TAGS = {
-    "tag:yaml.org,2002:" + t
-    for t in ("str", "int", "float", "bool", "null", "map", "seq", "timestamp", "binary")
+    _TAG + t for t in ("str", "int", "float", "bool", "null", "map", "seq", "timestamp", "binary")
 }
+# YAML 1.2 printable characters (5.1) plus tab and line breaks; everything else is refused
+_NOT_PRINTABLE = re.compile("[^\t\n\r\x20-\x7e\x85\xa0-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]")
+_MERGE = object()  # the pending key of a `<<:` entry
 
 
 def resolve_plain_scalar(text: str) -> Any:
@@ -94,103 +122,261 @@ class Document:
         return Location(self.file, line, column, format_path(key))
 
 
+@dataclass
+class _Open:
+    """A mapping or sequence whose end event has not come yet."""
+
+    value: dict[str, Any] | list[Any]
+    path: PathKey
+    anchor: str | None
+    counted: int  # values counted before it began (its size is the difference)
+    key: Any = None  # a mapping's pending key (None: the next scalar is a key)
+    key_mark: tuple[int, int] = (0, 0)
+    merges: list[tuple[dict[str, Any], tuple[int, int]]] = field(default_factory=list)
+
+
 class _Builder:
-    """Turns a composed YAML node graph into Python data, recording marks."""
+    """Turns the parser's events into Python data, recording marks and enforcing limits."""
 
-    def __init__(self, file: str):
+    def __init__(self, file: str, limits: Limits):
         self.file = file
+        self.limits = limits
         self.marks: dict[PathKey, tuple[int, int]] = {}
+        self.stack: list[_Open] = []
+        self.anchors: dict[str, tuple[Any, int]] = {}  # name -> (value, values in it)
+        self.count = 0
+        self.root: Any = None
+        self.done = False
 
-    def error(self, node: yaml.Node, path: PathKey, message: str, hint: str = "") -> YamlError:
-        mark = node.start_mark
-        return YamlError(
-            message, Location(self.file, mark.line + 1, mark.column + 1, format_path(path)), hint
-        )
+    def error(self, event: yaml.Event, message: str, path: PathKey = (), hint: str = ""):
+        mark = event.start_mark
+        where = Location(self.file, mark.line + 1, mark.column + 1, format_path(path))
+        return YamlError(message, where, hint)
 
-    def build(self, node: yaml.Node, path: PathKey) -> Any:
-        mark = node.start_mark
-        self.marks.setdefault(path, (mark.line + 1, mark.column + 1))
-        if node.tag not in _STANDARD_TAGS:
-            raise self.error(node, path, f"custom YAML tag {node.tag!r} is not allowed")
-        if isinstance(node, yaml.ScalarNode):
-            return self.scalar(node, path)
-        if isinstance(node, yaml.SequenceNode):
-            return [self.build(item, (*path, i)) for i, item in enumerate(node.value)]
-        if isinstance(node, yaml.MappingNode):
-            return self.mapping(node, path)
-        raise self.error(node, path, "unsupported YAML node")  # pragma: no cover
+    def feed(self, event: yaml.Event) -> None:
+        if isinstance(event, yaml.DocumentStartEvent) and self.done:
+            raise self.error(event, "a file holds one YAML document (found a second `---`)")
+        if isinstance(event, yaml.DocumentEndEvent):
+            self.done = True
+        elif isinstance(event, yaml.ScalarEvent):
+            self.scalar(event)
+        elif isinstance(event, yaml.AliasEvent):
+            self.alias(event)
+        elif isinstance(event, yaml.MappingStartEvent | yaml.SequenceStartEvent):
+            self.begin(event)
+        elif isinstance(event, yaml.MappingEndEvent | yaml.SequenceEndEvent):
+            self.end()
 
-    def scalar(self, node: yaml.ScalarNode, path: PathKey) -> Any:
-        if node.style:  # quoted or block scalars are always strings (C parser: '' = plain)
-            return node.value
-        if node.tag in ("tag:yaml.org,2002:binary", "tag:yaml.org,2002:timestamp"):
-            return node.value
-        return resolve_plain_scalar(node.value)
+    def _count(self, event: yaml.Event, n: int, path: PathKey) -> None:
+        self.count += n
+        if self.count > self.limits.max_values:
+            raise self.error(
+                event,
+                f"more than {self.limits.max_values:,} values (after expanding aliases)",
+                path,
+                "is an alias repeated many times? fw files are small",
+            )
 
-    def key_of(self, node: yaml.Node, path: PathKey) -> str:
-        if not isinstance(node, yaml.ScalarNode):
-            raise self.error(node, path, "mapping keys must be plain names, not collections")
-        return node.value
+    def _check_tag(self, event: yaml.NodeEvent, path: PathKey) -> None:
+        tag = getattr(event, "tag", None)
+        if tag not in (None, "!") and tag not in _STANDARD_TAGS:
+            raise self.error(event, f"custom YAML tag {tag!r} is not allowed", path)
 
-    def mapping(self, node: yaml.MappingNode, path: PathKey) -> dict[str, Any]:
-        result: dict[str, Any] = {}
-        merged: dict[str, Any] = {}
-        for key_node, value_node in node.value:
-            if key_node.tag == "tag:yaml.org,2002:merge":
-                merged.update(self._merge_source(value_node, path))
-                continue
-            key = self.key_of(key_node, path)
-            child = (*path, key)
-            if key in result:
-                first = self.marks.get(child, (0, 0))[0]
+    def _is_key(self) -> bool:
+        top = self.stack[-1] if self.stack else None
+        return isinstance(top, _Open) and isinstance(top.value, dict) and top.key is None
+
+    def _child_path(self) -> PathKey:
+        if not self.stack:
+            return ()
+        top = self.stack[-1]
+        if isinstance(top.value, list):
+            return (*top.path, len(top.value))
+        return (*top.path, top.key) if isinstance(top.key, str) else top.path
+
+    def scalar(self, event: yaml.ScalarEvent) -> None:
+        path = self._child_path()
+        self._check_tag(event, path)
+        if len(event.value) > self.limits.max_scalar:
+            raise self.error(
+                event,
+                f"a value of {len(event.value):,} characters (at most {self.limits.max_scalar:,})",
+                path,
+            )
+        if self._is_key():
+            self.key(event)
+            return
+        self._count(event, 1, path)
+        text, tag = event.value, event.tag
+        if tag == _TAG + "str" or event.style or tag in (_TAG + "binary", _TAG + "timestamp"):
+            value: Any = text  # quoted or block scalars are always strings (C parser: '' = plain)
+        else:
+            digits = len(text.lstrip("+-"))
+            if digits > self.limits.max_digits and (
+                _INT.match(text) or _HEX.match(text) or _OCT.match(text)
+            ):
                 raise self.error(
-                    key_node,
-                    child,
-                    f"duplicate key {key!r} (first written at line {first})",
-                    "remove or rename one of them",
+                    event,
+                    f"an integer of {digits} digits (at most {self.limits.max_digits})",
+                    path,
+                    "quote it if it is an identifier",
                 )
-            self.marks[child] = (key_node.start_mark.line + 1, key_node.start_mark.column + 1)
-            result[key] = self.build(value_node, child)
-        for key, value in merged.items():
-            result.setdefault(key, value)
-        return result
+            value = resolve_plain_scalar(text)
+        self.attach(event, value, event.anchor, 1)
 
-    def _merge_source(self, node: yaml.Node, path: PathKey) -> dict[str, Any]:
-        sources = node.value if isinstance(node, yaml.SequenceNode) else [node]
-        merged: dict[str, Any] = {}
-        for source in sources:
-            if not isinstance(source, yaml.MappingNode):
-                raise self.error(source, path, "a '<<' merge needs a mapping or a list of them")
-            for key, value in self.mapping(source, path).items():
-                merged.setdefault(key, value)
-        return merged
+    def key(self, event: yaml.ScalarEvent) -> None:
+        top = self.stack[-1]
+        mark = (event.start_mark.line + 1, event.start_mark.column + 1)
+        if event.value == "<<" and not event.style and event.tag is None:
+            top.key, top.key_mark = _MERGE, mark
+            return
+        key = event.value
+        assert isinstance(top.value, dict)
+        if key in top.value:
+            first = self.marks.get((*top.path, key), (0, 0))[0]
+            raise self.error(
+                event,
+                f"duplicate key {key!r} (first written at line {first})",
+                (*top.path, key),
+                "remove or rename one of them",
+            )
+        top.key, top.key_mark = key, mark
+        self.marks[(*top.path, key)] = mark
+
+    def alias(self, event: yaml.AliasEvent) -> None:
+        path = self._child_path()
+        if self._is_key():
+            raise self.error(event, "mapping keys must be plain names, not aliases", path)
+        name = event.anchor
+        if any(o.anchor == name for o in self.stack):
+            raise self.error(event, f"alias *{name} refers to the value that contains it", path)
+        if name not in self.anchors:
+            raise self.error(event, f"alias *{name} has no anchor &{name} before it", path)
+        value, size = self.anchors[name]
+        self._count(event, size, path)
+        self.attach(event, copy.deepcopy(value), None, size)
+
+    def begin(self, event: yaml.MappingStartEvent | yaml.SequenceStartEvent) -> None:
+        path = self._child_path()
+        if self._is_key():
+            raise self.error(event, "mapping keys must be plain names, not collections", path)
+        self._check_tag(event, path)
+        if len(self.stack) >= self.limits.max_depth:
+            raise self.error(event, f"nested more than {self.limits.max_depth} levels deep", path)
+        self._count(event, 1, path)
+        self.marks.setdefault(path, (event.start_mark.line + 1, event.start_mark.column + 1))
+        value: dict[str, Any] | list[Any] = {} if isinstance(event, yaml.MappingStartEvent) else []
+        self.stack.append(_Open(value, path, event.anchor, self.count - 1))
+
+    def end(self) -> None:
+        done = self.stack.pop()
+        if isinstance(done.value, dict):
+            for source, mark in done.merges:
+                for key, item in source.items():
+                    if key not in done.value:
+                        done.value[key] = item
+                        self.marks.setdefault((*done.path, key), mark)
+        size = self.count - done.counted
+        if done.anchor is not None:
+            self.anchors[done.anchor] = (done.value, size)
+        self.attach(None, done.value, None, size, placed=True)
+
+    def attach(
+        self,
+        event: yaml.Event | None,
+        value: Any,
+        anchor: str | None,
+        size: int,
+        placed: bool = False,
+    ) -> None:
+        """Put a finished value where it belongs: the root, a list item or a mapping value."""
+        if anchor is not None:
+            self.anchors[anchor] = (value, size)
+        if not self.stack:
+            self.root = value
+            if event is not None:
+                self.marks.setdefault((), (event.start_mark.line + 1, event.start_mark.column + 1))
+            return
+        top = self.stack[-1]
+        path = self._child_path()
+        if event is not None and not placed:
+            self.marks.setdefault(path, (event.start_mark.line + 1, event.start_mark.column + 1))
+        if isinstance(top.value, list):
+            top.value.append(value)
+        elif top.key is _MERGE:
+            sources = value if isinstance(value, list) else [value]
+            if not all(isinstance(s, dict) for s in sources):
+                where = Location(self.file, *top.key_mark, format_path(top.path))
+                raise YamlError("a '<<' merge needs a mapping or a list of them", where)
+            top.merges.extend((s, top.key_mark) for s in sources)
+            top.key = None
+        else:
+            top.value[top.key] = value
+            top.key = None
 
 
-def load_yaml_text(text: str, file: str = "<string>") -> Document:
+def _check_text(text: str, file: str) -> None:
+    """Refuse NUL and other characters YAML does not allow, at their line:column."""
+    bad = _NOT_PRINTABLE.search(text)
+    if bad is None:
+        return
+    start = bad.start()
+    line = text.count("\n", 0, start) + 1
+    column = start - (text.rfind("\n", 0, start) + 1) + 1
+    char = bad.group()
+    name = "NUL" if char == "\0" else f"U+{ord(char):04X}"
+    raise YamlError(
+        f"the character {name} is not allowed in a YAML file",
+        Location(file, line, column),
+        "is this a binary file, or was it saved with the wrong encoding?",
+    )
+
+
+def load_yaml_text(text: str, file: str = "<string>", limits: Limits = DEFAULT_LIMITS) -> Document:
     """Parse YAML text into a located `Document`; raise `YamlError` on any defect."""
+    if len(text) > limits.max_bytes:
+        raise YamlError(
+            f"{len(text):,} characters: larger than {limits.max_bytes:,}", Location(file)
+        )
+    _check_text(text, file)
+    builder = _Builder(file, limits)
     try:
-        node = yaml.compose(text, Loader=_Loader)
+        for event in yaml.parse(text, Loader=_Loader):
+            builder.feed(event)
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         line, column = (mark.line + 1, mark.column + 1) if mark else (0, 0)
         problem = exc.problem or exc.context or "invalid YAML"
         raise YamlError(f"YAML syntax: {problem}", Location(file, line, column)) from None
-    except yaml.YAMLError as exc:  # e.g. ReaderError: control characters, bad encoding
+    except yaml.YAMLError as exc:  # pragma: no cover - the text was checked above
         raise YamlError(f"YAML syntax: {' '.join(str(exc).split())}", Location(file)) from None
-    if node is None:
+    if builder.root is None and not builder.marks:
         return Document(None, file, {(): (1, 1)})
-    builder = _Builder(file)
-    data = builder.build(node, ())
-    return Document(data, file, builder.marks)
+    return Document(builder.root, file, builder.marks)
 
 
-def load_yaml(path: str | Path) -> Document:
-    """Read and parse a YAML file; unreadable files raise `YamlError` too."""
+def load_yaml(path: str | Path, limits: Limits = DEFAULT_LIMITS) -> Document:
+    """Read and parse a YAML file; unreadable, oversized or non-UTF-8 files raise
+    `YamlError` too (with the line and column of the first bad byte)."""
     name = str(path)
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        with open(path, "rb") as handle:
+            raw = handle.read(limits.max_bytes + 1)
     except FileNotFoundError:
         raise YamlError("file not found", Location(name)) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise YamlError(f"cannot read file: {exc}", Location(name)) from None
-    return load_yaml_text(text, name)
+    except OSError as exc:
+        raise YamlError(f"cannot read file: {exc.strerror or exc}", Location(name)) from None
+    if len(raw) > limits.max_bytes:
+        raise YamlError(f"larger than {limits.max_bytes:,} bytes: not an fw file?", Location(name))
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        before = raw[: exc.start]
+        line = before.count(b"\n") + 1
+        column = len(before[before.rfind(b"\n") + 1 :].decode("utf-8", "replace")) + 1
+        raise YamlError(
+            f"cannot read file: byte 0x{raw[exc.start]:02x} is not UTF-8",
+            Location(name, line, column),
+            "save the file as UTF-8",
+        ) from None
+    return load_yaml_text(text, name, limits)

@@ -66,3 +66,82 @@ def test_unreadable_files_are_yaml_errors(tmp_path):
     bad.write_bytes(b"\xff\xfe\x00bad")
     with pytest.raises(YamlError, match="cannot read"):
         load_yaml(bad)
+
+
+# Hostile files: every limit ends in a located YamlError, quickly and in little memory.
+
+
+def _refused(text: str, match: str, **limits) -> YamlError:
+    from framework.yamlio import Limits
+
+    with pytest.raises(YamlError, match=match) as err:
+        load_yaml_text(text, "h.yaml", Limits(**limits) if limits else Limits())
+    assert str(err.value).startswith("h.yaml:"), str(err.value)
+    return err.value
+
+
+def test_deep_nesting_is_refused_without_recursion():
+    error = _refused("[" * 50_000 + "]" * 50_000, "nested more than 64 levels")
+    assert error.location.line == 1 and error.location.column == 65
+
+
+def test_alias_bombs_are_refused_by_the_expansion_budget():
+    bomb = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+        f"{chr(98 + i)}: &{chr(98 + i)} [{', '.join(['*' + chr(97 + i)] * 9)}]\n" for i in range(9)
+    )
+    error = _refused(bomb, "values \\(after expanding aliases\\)")
+    assert error.location.line > 1
+
+
+def test_recursive_aliases_are_refused():
+    _refused("a: &r [*r]\n", "refers to the value that contains it")
+    _refused("a: &m {b: *m}\n", "refers to the value that contains it")
+
+
+def test_unknown_aliases_are_refused():
+    _refused("a: *nowhere\n", "no anchor &nowhere")
+
+
+def test_long_scalars_and_huge_integers_are_refused():
+    _refused("a: " + "x" * 100, "a value of 100 characters", max_scalar=99)
+    error = _refused("a: 1\nb: " + "9" * 4300 + "\n", "integer of 4300 digits")
+    assert error.location.line == 2
+    assert load_yaml_text("a: '" + "9" * 60 + "'\n").data == {"a": "9" * 60}
+
+
+def test_nul_and_control_characters_are_located():
+    error = _refused("a: 1\nb: x\0y\n", "NUL is not allowed")
+    assert (error.location.line, error.location.column) == (2, 5)
+    _refused("a: \x07\n", "U\\+0007")
+
+
+def test_invalid_utf8_is_located(tmp_path):
+    bad = tmp_path / "latin.yaml"
+    bad.write_bytes("a: 1\nname: caf".encode() + b"\xe9\n")
+    with pytest.raises(YamlError, match="0xe9 is not UTF-8") as err:
+        load_yaml(bad)
+    assert (err.value.location.line, err.value.location.column) == (2, 10)
+
+
+def test_oversized_files_are_refused_before_parsing(tmp_path):
+    from framework.yamlio import Limits
+
+    big = tmp_path / "big.yaml"
+    big.write_text("a: 1\n" * 1000)
+    with pytest.raises(YamlError, match="larger than 100 bytes"):
+        load_yaml(big, Limits(max_bytes=100))
+
+
+def test_collections_as_keys_and_second_documents_are_refused():
+    _refused("? [a, b]\n: 1\n", "keys must be plain names")
+    _refused("a: 1\n---\nb: 2\n", "one YAML document")
+
+
+def test_aliases_are_copies_not_shared_objects():
+    doc = load_yaml_text("a: &x {k: [1]}\nb: *x\n")
+    doc.data["b"]["k"].append(2)
+    assert doc.data["a"] == {"k": [1]}
+
+
+def test_explicit_str_tag_keeps_text():
+    assert load_yaml_text("a: !!str 10\n").data == {"a": "10"}

@@ -220,7 +220,7 @@ def test_load_statechart_raises_with_all_findings(write):
             "statechart: x\ninitial: A\nstates:\n  - {name: A, transitions: [{on: go}]}\n",
             "unknown key 'on'",
         ),
-        ("\x00\x01", "control characters"),
+        ("\x00\x01", "NUL is not allowed"),
     ],
 )
 def test_odd_files_get_one_plain_line(write, text, expected):
