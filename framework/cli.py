@@ -32,8 +32,12 @@ EPILOG_VALIDATE = """\
 examples:
   fw validate statecharts/seeg.yaml
   fw validate statecharts/*.yaml --topology topologies/seeg.yaml
+  fw validate topologies/seeg.yaml procedures/seeg.yaml procedures/seeg/*.yaml
+  fw validate my_sensors.yaml --kind sensors
   fw validate statecharts/seeg.yaml --json | jq .
 
+A file's kind comes from a key it has (topology:, scenario:, sensors:, ...,
+statechart:) or from --kind; `fw validate --kinds` lists every kind known.
 Every finding is printed as file:line:col: yaml.path: severity[code]: message (hint: ...).
 Exit code 1 if any file has an error (or a warning, with --strict).
 """
@@ -74,21 +78,26 @@ def _print_findings(findings: list[Finding], as_json: bool, strict: bool) -> int
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    """Check chart files statically; print every finding."""
+    """Check fw files statically (each by its kind); print every finding."""
+    from framework.filekinds import detect, kinds
     from framework.statechart.validator import validate_file
-    from framework.topology import check_topology
-    from framework.yamlio import load_yaml
 
+    known = kinds()
+    if args.kinds:
+        for kind in known.values():
+            print(f"{kind.name:<12} ({kind.key}:)  {kind.summary}")
+        return 0
+    if not args.files:
+        raise FwError("name the file(s) to check (or --kinds to list what fw can check)")
+    if args.kind is not None and args.kind not in known:
+        raise FwError(f"--kind {args.kind!r}: not one of {', '.join(known)}")
     findings: list[Finding] = []
     for path in args.files:
-        try:
-            is_topology = isinstance((data := load_yaml(path).data), dict) and "topology" in data
-        except FwError:
-            is_topology = False
-        if is_topology:
-            findings.extend(check_topology(path)[1])
-        else:
+        kind = known[args.kind] if args.kind else detect(path) or known["statechart"]
+        if kind.name == "statechart":
             findings.extend(validate_file(path, args.topology))
+        else:
+            findings.extend(kind.check(path))
     code = _print_findings(findings, args.json, args.strict)
     if not args.json:
         errors = sum(f.severity == "error" for f in findings)
@@ -292,17 +301,19 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "validate",
-        help="check statecharts statically (exit 1 on errors)",
+        help="check statecharts, topologies, procedure and scenario files (exit 1 on errors)",
         epilog=EPILOG_VALIDATE,
         formatter_class=raw,
     )
     p.add_argument(
         "files",
-        nargs="+",
+        nargs="*",
         metavar="FILE",
-        help="statechart or topology YAML file(s) (a topology is checked with its "
+        help="fw YAML file(s) of any kind (a topology is checked with its "
         "statechart and every cross-reference)",
     )
+    p.add_argument("--kind", metavar="K", help="check every FILE as this kind (see --kinds)")
+    p.add_argument("--kinds", action="store_true", help="list the kinds of file fw can check")
     p.add_argument(
         "--topology",
         metavar="T",

@@ -33,7 +33,8 @@ from components.people.kinect_sim import KinectModel, look_at
 from components.tracking.calibration import protocol_poses
 from components.tracking.geometry import matrix_to_quat, rotation_angle
 from components.tracking.synthetic import rigid
-from framework.errors import FwError
+from framework.errors import FwError, YamlError
+from framework.yamlio import load_yaml
 
 EPILOG = """\
 examples:
@@ -278,9 +279,9 @@ def _previous_settings(path: Path) -> dict[str, Any]:
     if not path.exists():
         return {}
     try:
-        old = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
-    except yaml.YAMLError as exc:
-        raise CameraCalibrationError(f"{path}: cannot keep its settings: {exc}") from None
+        old = load_yaml(path).data or {}
+    except YamlError as exc:
+        raise CameraCalibrationError(f"cannot keep its settings: {exc}") from None
     if not isinstance(old, dict):
         return {}
     kept = {k: old[k] for k in ("area", "matcher") if k in old}

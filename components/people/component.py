@@ -25,44 +25,46 @@ from components.people.detector import CameraConfig, DetectorConfig, PeopleDetec
 from components.people.kinect_sim import from_message
 from components.people.skeleton import body_center
 from components.tracking.geometry import as_matrix
+from framework import schema
 from framework.component import Component, In, Out, operation
-from framework.errors import FwError
+from framework.errors import FwError, LocatedError
+from framework.filekinds import FileKind, schema_then
 from framework.messages import EventMessage, JointState, Scalar, Skeletons
 from framework.ports import InputPort, ReadStatus
 from framework.properties import prop
 from framework.yamlio import load_yaml
 
+SCHEMA = "components.people:cameras.schema.json"
 
-class CameraConfigError(FwError):
-    """A cameras file is wrong (the message names file:line)."""
+
+class CameraConfigError(LocatedError):
+    """A cameras file is wrong (file:line:column and the field)."""
 
 
 def load_cameras(path: str) -> tuple[DetectorConfig, dict[str, str]]:
     """The detector configuration and each camera's bus key, from YAML."""
     doc = load_yaml(path)
-    data = doc.data if isinstance(doc.data, dict) else None
-    if data is None or not isinstance(data.get("cameras"), dict) or not data["cameras"]:
-        raise CameraConfigError(f"{doc.location(())}: a cameras file needs a `cameras:` mapping")
+    schema.require(doc, SCHEMA, CameraConfigError)
+    data = doc.data
     master = data.get("master", next(iter(data["cameras"])))
     if master not in data["cameras"]:
-        raise CameraConfigError(f"{doc.location(('master',))}: master {master!r} is not a camera")
+        raise CameraConfigError(f"master {master!r} is not a camera", doc.location(("master",)))
     cameras, keys = [], {}
     for name, spec in data["cameras"].items():
-        where = doc.location(("cameras", name))
-        if not isinstance(spec, dict) or "key" not in spec:
-            raise CameraConfigError(f"{where}: camera {name!r} needs a `key`")
         try:
             calibration = as_matrix(spec.get("calibration", np.eye(4).tolist()))
         except ValueError as exc:
-            raise CameraConfigError(f"{where}: {exc}") from None
-        verified = spec.get("verified", False)
-        if not isinstance(verified, bool):
             raise CameraConfigError(
-                f"{doc.location(('cameras', name, 'verified'))}: verified is true or false"
-            )
+                str(exc), doc.location(("cameras", name, "calibration"))
+            ) from None
         keys[name] = spec["key"]
         cameras.append(
-            CameraConfig(name, calibration, float(spec.get("lateral_noise", 0.01)), verified)
+            CameraConfig(
+                name,
+                calibration,
+                float(spec.get("lateral_noise", 0.01)),
+                spec.get("verified", False),
+            )
         )
     cameras.sort(key=lambda c: c.name != master)  # the master first
     area = data.get("area") or {}
@@ -70,15 +72,21 @@ def load_cameras(path: str) -> tuple[DetectorConfig, dict[str, str]]:
         config = DetectorConfig(
             cameras,
             as_matrix(data.get("base_from_master", np.eye(4).tolist())),
-            matcher=str(data.get("matcher", "hungarian")),
+            matcher=data.get("matcher", "hungarian"),
             area_center=tuple(area.get("center", (0.0, 0.0))),  # type: ignore[arg-type]
             area_radius=float(area.get("radius", 1.5)),
         )
     except (TypeError, ValueError) as exc:
-        raise CameraConfigError(f"{doc.location(())}: {exc}") from None
-    if config.matcher not in ("hungarian", "rule"):
-        raise CameraConfigError(f"{doc.location(('matcher',))}: matcher is 'hungarian' or 'rule'")
+        raise CameraConfigError(str(exc), doc.location(())) from None
     return config, keys
+
+
+CAMERAS_FILE = FileKind(
+    "cameras",
+    "cameras",
+    "the people detector's cameras, calibration and area around the table",
+    schema_then(SCHEMA, load_cameras, "cameras"),
+)
 
 
 class WorkspacePeopleDetector(Component):

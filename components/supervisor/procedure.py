@@ -13,11 +13,15 @@ from typing import Any
 
 import numpy as np
 
-from framework.errors import FwError
+from framework import schema
+from framework.errors import FwError, LocatedError
+from framework.filekinds import FileKind, schema_then
 from framework.yamlio import load_yaml
 
+SCHEMA = "components.supervisor:procedure.schema.json"
 
-class ProcedureError(FwError):
+
+class ProcedureError(LocatedError):
     """A procedure file is wrong (file:line and the field in the message)."""
 
 
@@ -88,13 +92,11 @@ def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
 def load_procedure(path: str | Path) -> Procedure:
     """Read and check a procedure file."""
     doc = load_yaml(path)
+    schema.require(doc, SCHEMA, ProcedureError)
     data = doc.data
 
     def fail(message: str, *where: Any) -> ProcedureError:
-        return ProcedureError(f"{doc.location(where)}: {message}")
-
-    if not isinstance(data, dict):
-        raise fail("a procedure file is a mapping (procedure, target, home, ...)")
+        return ProcedureError(message, doc.location(where))
 
     def number(key: str, default: float | None = None, positive: bool = True) -> float:
         value = data.get(key, default)
@@ -153,3 +155,11 @@ def load_procedure(path: str | Path) -> Procedure:
         collision_distance=float(collision),
         speeds=speeds,
     )
+
+
+PROCEDURE_FILE = FileKind(
+    "procedure",
+    "procedure",
+    "goals, areas and speeds of one surgery (Supervisor, interpolator)",
+    schema_then(SCHEMA, load_procedure, "procedure"),
+)

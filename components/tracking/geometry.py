@@ -114,15 +114,31 @@ def rotvec_matrix(rotvec: object) -> np.ndarray:
 
 
 def as_matrix(value: object) -> np.ndarray:
-    """A 4x4 transform from YAML data: a 4x4 list, or {position: [..], quaternion: [..]}."""
+    """A 4x4 rigid transform from YAML data: a 4x4 list, or {position: [..], quaternion:
+    [..]}; `ValueError` for anything that is not one (non-finite values, a quaternion far
+    from unit length, a matrix that is not a rotation and a translation)."""
     if isinstance(value, dict):
-        return transform(
-            np.array(value.get("position", [0, 0, 0]), dtype=float),
-            np.array(value.get("quaternion", [1, 0, 0, 0]), dtype=float),
-        )
+        position = np.array(value.get("position", [0, 0, 0]), dtype=float)
+        quaternion = np.array(value.get("quaternion", [1, 0, 0, 0]), dtype=float)
+        if position.shape != (3,) or quaternion.shape != (4,):
+            raise ValueError("a transform needs 3 position values and 4 quaternion values")
+        if not (np.isfinite(position).all() and np.isfinite(quaternion).all()):
+            raise ValueError("a transform's values must be finite numbers")
+        norm = float(np.linalg.norm(quaternion))
+        if abs(norm - 1.0) > 1e-3:
+            raise ValueError(f"the quaternion [w, x, y, z] must have unit length, not {norm:.4g}")
+        return transform(position, quaternion / norm)
     matrix = np.array(value, dtype=float)
     if matrix.shape != (4, 4):
         raise ValueError(
             f"a transform is 4x4 or {{position, quaternion}}, got shape {matrix.shape}"
         )
+    rotation = matrix[:3, :3]
+    if (
+        not np.isfinite(matrix).all()
+        or not np.allclose(matrix[3], [0, 0, 0, 1])
+        or not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4)
+        or np.linalg.det(rotation) < 0
+    ):
+        raise ValueError("a 4x4 transform must be a rotation and a translation, last row 0 0 0 1")
     return matrix

@@ -27,19 +27,27 @@ import serial
 
 from components.tracking import ndi
 from components.tracking.vicra_sim import make_rom
+from framework import schema
 from framework.component import Component, Out, operation
-from framework.errors import FwError
+from framework.errors import FwError, LocatedError
+from framework.filekinds import FileKind, schema_then
 from framework.messages import EventMessage, Pose
 from framework.properties import prop
 from framework.yamlio import load_yaml
 
-TOOL_NAMES = ("cto", "rto")
 _LINK_ERRORS = (OSError, serial.SerialException, termios.error)
 BAUD_TO_CODE = {v: k for k, v in ndi.BAUD_CODES.items()}
 
 
 class DriverError(FwError):
     """The device or its configuration cannot be used (the reason says why)."""
+
+
+class ToolsFileError(DriverError, LocatedError):
+    """A tools file is wrong (file:line:column and the field)."""
+
+
+TOOLS_SCHEMA = "components.tracking:tools.schema.json"
 
 
 @dataclass
@@ -54,39 +62,30 @@ class ToolSpec:
 def load_tools(path: str | Path) -> list[ToolSpec]:
     """Tools from YAML (`tools: {cto: {markers: [[x,y,z], ...], rom: file}}`), checked."""
     doc = load_yaml(path)
-    data = doc.data if isinstance(doc.data, dict) else {}
-    tools = data.get("tools")
-    if not isinstance(tools, dict) or not tools:
-        raise DriverError(f"{doc.location(())}: a tools file needs a `tools:` mapping")
+    schema.require(doc, TOOLS_SCHEMA, ToolsFileError)
     out = []
-    for name, spec in tools.items():
-        where = doc.location(("tools", name))
-        if name not in TOOL_NAMES:
-            raise DriverError(
-                f"{where}: unknown tool {name!r} (this driver publishes {', '.join(TOOL_NAMES)})"
-            )
-        markers = spec.get("markers") if isinstance(spec, dict) else None
-        if not (
-            isinstance(markers, list)
-            and len(markers) >= 3
-            and all(
-                isinstance(m, list) and len(m) == 3 and all(isinstance(v, (int, float)) for v in m)
-                for m in markers
-            )
-        ):
-            raise DriverError(f"{where}: `markers` must list at least 3 [x, y, z] points (mm)")
-        rom_path = spec.get("rom")
+    for name, spec in doc.data["tools"].items():
+        markers, rom_path = spec["markers"], spec.get("rom")
         if rom_path:
             try:
                 rom = (Path(doc.file).parent / rom_path).read_bytes()
             except OSError as exc:
-                raise DriverError(
-                    f"{where}: cannot read tool definition {rom_path!r}: {exc.strerror}"
+                raise ToolsFileError(
+                    f"cannot read tool definition {rom_path!r}: {exc.strerror}",
+                    doc.location(("tools", name, "rom")),
                 ) from None
         else:
             rom = make_rom(markers, name)
         out.append(ToolSpec(name, markers, rom))
     return out
+
+
+TOOLS_FILE = FileKind(
+    "tools",
+    "tools",
+    "optical tools an NDI tracker follows (markers, .rom files)",
+    schema_then(TOOLS_SCHEMA, load_tools, "tools"),
+)
 
 
 class NdiTracker(Component):

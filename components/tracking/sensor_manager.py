@@ -42,8 +42,10 @@ from components.tracking.geometry import (
     quat_to_matrix,
     rotation_angle,
 )
+from framework import schema
 from framework.component import Component, In, Out, operation
-from framework.errors import FwError, Location
+from framework.errors import FwError, LocatedError
+from framework.filekinds import FileKind, schema_then
 from framework.messages import EventMessage, Pose
 from framework.ports import ConnPolicy, InputPort, ReadStatus
 from framework.properties import prop
@@ -53,7 +55,10 @@ KINEMATICS_MEMORY = 1.0  # s of robot poses kept to match the samples' stamps
 CAUSES = ("no_data", "cto_missing", "rto_missing", "stale", "corrupt", "calibration")
 
 
-class SensorConfigError(FwError):
+SCHEMA = "components.tracking:sensors.schema.json"
+
+
+class SensorConfigError(LocatedError):
     """A sensors file is wrong (the message names file:line and the field)."""
 
 
@@ -87,48 +92,39 @@ class SensorsConfig:
 def load_sensors(path: str | Path) -> SensorsConfig:
     """Read a sensors YAML; every error names file:line and the field."""
     doc = load_yaml(path)
-    data = doc.data if isinstance(doc.data, dict) else None
+    schema.require(doc, SCHEMA, SensorConfigError)
+    data = doc.data
 
     def fail(message: str, where: tuple[Any, ...]) -> SensorConfigError:
-        loc: Location = doc.location(where)
-        return SensorConfigError(f"{loc}: {message}")
+        return SensorConfigError(message, doc.location(where))
 
-    if data is None or not isinstance(data.get("sensors"), dict) or not data["sensors"]:
-        raise fail("a sensors file needs a `sensors:` mapping", ())
     sensors = []
     for name, spec in data["sensors"].items():
         here = ("sensors", name)
-        if not isinstance(spec, dict):
-            raise fail("a sensor is a mapping of settings", here)
-        for required in ("priority", "rate", "keys"):
-            if required not in spec:
-                raise fail(f"sensor {name!r} needs `{required}`", here)
-        keys = spec["keys"]
-        if not (isinstance(keys, dict) and set(keys) == {"cto", "rto"}):
-            raise fail("`keys` must map cto and rto to bus keys", (*here, "keys"))
-        try:
-            calibration = spec.get("calibration") or {}
-            tolerance = spec.get("tolerance") or {}
-            sensors.append(
-                SensorConfig(
-                    name=name,
-                    priority=int(spec["priority"]),
-                    rate=float(spec["rate"]),
-                    keys=dict(keys),
-                    stale_periods=float(spec.get("stale_periods", 2.0)),
-                    max_speed=float(spec.get("max_speed", 1.0)),
-                    tolerance_position=float(tolerance.get("position", 0.005)),
-                    tolerance_angle=math.radians(float(tolerance.get("angle_deg", 3.0))),
-                    limits={k: float(v) for k, v in (spec.get("limits") or {}).items()},
-                    master_from_sensor=as_matrix(calibration.get("C", np.eye(4).tolist())),
-                    rto_from_base=as_matrix(calibration.get("X", np.eye(4).tolist())),
-                    ee_from_cto=as_matrix(calibration.get("Y", np.eye(4).tolist())),
-                )
+        calibration = spec.get("calibration") or {}
+        frames = {}
+        for frame in ("C", "X", "Y"):
+            try:
+                frames[frame] = as_matrix(calibration.get(frame, np.eye(4).tolist()))
+            except ValueError as exc:
+                raise fail(str(exc), (*here, "calibration", frame)) from None
+        tolerance = spec.get("tolerance") or {}
+        sensors.append(
+            SensorConfig(
+                name=name,
+                priority=spec["priority"],
+                rate=float(spec["rate"]),
+                keys=dict(spec["keys"]),
+                stale_periods=float(spec.get("stale_periods", 2.0)),
+                max_speed=float(spec.get("max_speed", 1.0)),
+                tolerance_position=float(tolerance.get("position", 0.005)),
+                tolerance_angle=math.radians(float(tolerance.get("angle_deg", 3.0))),
+                limits={k: float(v) for k, v in (spec.get("limits") or {}).items()},
+                master_from_sensor=frames["C"],
+                rto_from_base=frames["X"],
+                ee_from_cto=frames["Y"],
             )
-        except (TypeError, ValueError) as exc:
-            raise fail(f"sensor {name!r}: {exc}", here) from None
-        if sensors[-1].rate <= 0:
-            raise fail("`rate` must be positive (Hz)", (*here, "rate"))
+        )
     priorities = [s.priority for s in sensors]
     if len(set(priorities)) != len(priorities):
         raise fail("two sensors share a priority: make the order explicit", ("sensors",))
@@ -140,6 +136,14 @@ def load_sensors(path: str | Path) -> SensorsConfig:
     if master not in {s.name for s in sensors}:
         raise fail(f"master {master!r} is not one of the sensors", ("master",))
     return SensorsConfig(sensors, hysteresis, master)
+
+
+SENSORS_FILE = FileKind(
+    "sensors",
+    "sensors",
+    "the trackers the Sensor Manager chooses from (keys, limits, calibration)",
+    schema_then(SCHEMA, load_sensors, "sensors"),
+)
 
 
 @dataclass

@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import difflib
 import json
+import math
 from collections.abc import Callable
 from functools import cache
 from importlib import resources
 from typing import TYPE_CHECKING, Any
 
-from framework.errors import Finding
+from framework.errors import Finding, LocatedError
 from framework.yamlio import Document
 
 if TYPE_CHECKING:  # jsonschema is imported only to explain an invalid document
@@ -23,9 +24,14 @@ if TYPE_CHECKING:  # jsonschema is imported only to explain an invalid document
 
 @cache
 def schema(name: str) -> dict[str, Any]:
-    """The JSON Schema `framework/schema/<name>.schema.json` as data."""
-    text = resources.files(__package__).joinpath(f"{name}.schema.json").read_text("utf-8")
-    return json.loads(text)
+    """The JSON Schema `framework/schema/<name>.schema.json` as data; a name
+    `package:file.schema.json` is read from that package instead (a component's
+    own file kinds keep their schema next to their code)."""
+    package, _, file = name.rpartition(":")
+    resource = resources.files(package or __package__).joinpath(
+        file if package else f"{name}.schema.json"
+    )
+    return json.loads(resource.read_text("utf-8"))
 
 
 @cache
@@ -135,9 +141,51 @@ def _explain(error: ValidationError) -> tuple[str, str]:
         )
         hint = "quote it if you meant text" if isinstance(error.instance, bool) else ""
         return f"expected {wanted}, got {_kind(error.instance)}", hint
+    if error.validator in ("minItems", "maxItems") and isinstance(error.instance, list):
+        bound = error.validator_value
+        return (
+            f"needs {'at least' if error.validator == 'minItems' else 'at most'} {bound} "
+            f"item{'s' if bound != 1 else ''}, has {len(error.instance)}",
+            "",
+        )
+    if error.validator in ("minimum", "exclusiveMinimum", "maximum", "exclusiveMaximum"):
+        words = {
+            "minimum": "at least",
+            "exclusiveMinimum": "more than",
+            "maximum": "at most",
+            "exclusiveMaximum": "less than",
+        }
+        return f"{error.instance!r} must be {words[error.validator]} {error.validator_value}", ""
     if error.validator == "enum":
         return (f"{error.instance!r} is not one of {error.validator_value}", "")
     return error.message, ""
+
+
+def non_finite(data: Any, path: tuple[str | int, ...] = ()) -> tuple[str | int, ...] | None:
+    """The path of the first NaN or infinity in `data` (JSON Schema's `number` lets
+    them through), or None."""
+    stack = [(path, data)]
+    while stack:
+        where, value = stack.pop()
+        if isinstance(value, float) and not math.isfinite(value):
+            return where
+        if isinstance(value, dict):
+            stack.extend(((*where, k), v) for k, v in reversed(value.items()))
+        elif isinstance(value, list):
+            stack.extend(((*where, i), v) for i, v in reversed(list(enumerate(value))))
+    return None
+
+
+def require(document: Document, name: str, error: type[LocatedError], finite: bool = True) -> None:
+    """Raise `error` at the first violation of schema `name` (saying how many more);
+    with `finite`, a NaN or infinity anywhere is refused too."""
+    problems = check(document, name)
+    if finite and not problems and (where := non_finite(document.data)) is not None:
+        raise error("must be a finite number", document.location(where))
+    if problems:
+        first = problems[0]
+        more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+        raise error(first.message + more, first.location, first.hint)
 
 
 def check(document: Document, name: str) -> list[Finding]:

@@ -17,33 +17,37 @@ def test_the_seeg_procedure_loads_with_the_thesis_speeds():
     assert np.allclose(p.target[:3, 2], [0.0, 0.0, -1.0], atol=1e-9), "the tool points down"
 
 
+GOALS = "procedure: x\ntarget: {position: [0, 0, 0]}\nhome: {position: [0, 0, 0]}\n"
+
+
 @pytest.mark.parametrize(
     ("text", "line", "message"),
     [
-        ("procedure: x\n", 1, "`target` needs a position"),
+        ("procedure: x\n", 1, "'target' is required"),
         (
-            "target: {position: [0, 0]}\nhome: {position: [0, 0, 0]}\n",
-            1,
-            "3 finite position values",
-        ),
-        (
-            "target: {position: [0, 0, 0]}\nhome: {position: [0, 0, 0]}\ncritical_radius: -1\n"
+            "procedure: x\ntarget: {position: [0, 0]}\nhome: {position: [0, 0, 0]}\n"
             "trackers: {certus: {fast: 0.1, slow: 0.01}}\n",
-            3,
-            "`critical_radius` must be positive",
+            2,
+            "needs at least 3 items, has 2",
         ),
         (
-            "target: {position: [0, 0, 0]}\nhome: {position: [0, 0, 0]}\n"
-            "trackers:\n  certus: {fast: 0.01, slow: 0.05}\n",
+            GOALS + "critical_radius: -1\ntrackers: {certus: {fast: 0.1, slow: 0.01}}\n",
             4,
-            "slow <= fast",
+            "-1 must be more than 0",
+        ),
+        (GOALS + "trackers:\n  certus: {fast: 0.01, slow: 0.05}\n", 5, "slow <= fast"),
+        (
+            GOALS + "people: {max_near: -1}\ntrackers: {certus: {fast: 0.1, slow: 0.01}}\n",
+            4,
+            "-1 must be at least 0",
         ),
         (
-            "target: {position: [0, 0, 0]}\nhome: {position: [0, 0, 0]}\n"
-            "people: {max_near: -1}\ntrackers: {certus: {fast: 0.1, slow: 0.01}}\n",
-            3,
-            "`max_near` is a whole number",
+            GOALS + "trackers: {certus: {fast: .inf, slow: 0.01}}\n",
+            4,
+            "must be a finite number",
         ),
+        (GOALS + "trackers: {certus: {fast: 0.1, slow: 0.01}}\nspeed: 1\n", 5, "unknown key"),
+        ("target: {position: [0, 0, 0]}\n", 1, "'procedure' is required"),
     ],
 )
 def test_bad_procedures_are_refused_with_a_located_reason(write, text, line, message):

@@ -196,20 +196,31 @@ def test_sensor_files_are_checked_with_locations(write):
     assert [s.name for s in config.sensors] == ["certus", "vicra"]
     assert config.sensors[1].master_from_sensor[0, 3] == 0.1
     cases = [
-        ("sensors: {a: {priority: 1, rate: 100}}", "needs `keys`"),
-        ("sensors: {a: {priority: 1, rate: 0, keys: {cto: x, rto: y}}}", "positive"),
-        ("sensors: {a: {priority: 1, rate: 5, keys: {cto: x}}}", "map cto and rto"),
+        ("sensors: {a: {priority: 1, rate: 100}}", "'keys' is required"),
+        ("sensors: {a: {priority: 1, rate: 0, keys: {cto: x, rto: y}}}", "more than 0"),
+        ("sensors: {a: {priority: 1, rate: 5, keys: {cto: x}}}", "'rto' is required"),
+        (
+            "sensors: {a: {priority: 1, rate: 5, keys: {cto: x, rto: y}, "
+            "calibration: {X: {quaternion: [0, 0, 0, 0]}}}}",
+            "unit length",
+        ),
+        (
+            "sensors: {a: {priority: 1, rate: 5, keys: {cto: x, rto: y}, "
+            "calibration: {X: {quaternion: }}}}",
+            "expected a list",
+        ),
+        ("sensors: {a: {priority: 1, rate: .nan, keys: {cto: x, rto: y}}}", "finite"),
         (
             "sensors: {a: {priority: 1, rate: 5, keys: {cto: x, rto: y}, "
             "calibration: {C: [[1, 0], [0, 1]]}}}",
-            "4x4",
+            "needs at least 4 items",
         ),
         (
             "sensors: {a: {priority: 1, rate: 5, keys: {cto: x, rto: y}}, "
             "b: {priority: 1, rate: 5, keys: {cto: x, rto: y}}}",
             "share a priority",
         ),
-        ("nothing: 1", "needs a `sensors:` mapping"),
+        ("nothing: 1", "'sensors' is required"),
     ]
     for text, message in cases:
         path = write(text, "bad.yaml")

@@ -179,13 +179,14 @@ def test_bad_configuration_is_explained(tmp_path):
         assert message in d.last_error and d.state.value == "PreOperational"
     bad = tmp_path / "tools.yaml"
     for text, message in [
-        ("tools: {wand: {markers: [[0,0,0],[1,0,0],[0,1,0]]}}", "unknown tool 'wand'"),
+        ("tools: {wand: {markers: [[0,0,0],[1,0,0],[0,1,0]]}}", "unknown key 'wand'"),
         ("tools: {cto: {markers: [[0,0,0]]}}", "at least 3"),
+        ("tools: {cto: {markers: [[0,0,0],[1,0,0],[0,1]]}}", "at least 3 items, has 2"),
         (
             "tools: {cto: {markers: [[0,0,0],[1,0,0],[0,1,0]], rom: x.rom}}",
             "cannot read tool definition 'x.rom'",
         ),
-        ("nothing: here", "needs a `tools:` mapping"),
+        ("nothing: here", "'tools' is required"),
     ]:
         bad.write_text(text)
         d.tools_file = str(bad)
