@@ -117,7 +117,7 @@ def test_nul_and_control_characters_are_located():
 
 def test_invalid_utf8_is_located(tmp_path):
     bad = tmp_path / "latin.yaml"
-    bad.write_bytes("a: 1\nname: caf".encode() + b"\xe9\n")
+    bad.write_bytes(b"a: 1\nname: caf" + b"\xe9\n")
     with pytest.raises(YamlError, match="0xe9 is not UTF-8") as err:
         load_yaml(bad)
     assert (err.value.location.line, err.value.location.column) == (2, 10)

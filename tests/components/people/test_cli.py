@@ -62,7 +62,9 @@ def test_cameras_that_share_no_view_cannot_hold_a_board_between_them():
 def test_a_verified_flag_that_is_not_a_boolean_is_located(tmp_path):
     path = tmp_path / "cameras.yaml"
     path.write_text("cameras:\n  k0: {key: a}\n  k1: {key: b, verified: yes please}\n")
-    with pytest.raises(CameraConfigError, match=r"cameras.yaml:3:16: cameras.k1.verified: expected true or false"):
+    with pytest.raises(
+        CameraConfigError, match=r"cameras.yaml:3:16: cameras.k1.verified: expected true or false"
+    ):
         load_cameras(str(path))
 
 
