@@ -69,6 +69,7 @@ def process_keys(topology: Topology, process: str) -> dict[str, list[str]]:
                 outputs.add(step.key)
     put = sorted(outputs)
     put += [keys.heartbeat(n) for n in sorted(names)] + [keys.state(n) for n in sorted(names)]
+    put += [keys.refused(n) for n in sorted(names)]
     put.append(keys.process_heartbeat(process))
     queryable = [f"{keys.control(n)}/**" for n in sorted(names)]
     queryable += [keys.port_type(k) for k in sorted(outputs)]

@@ -476,6 +476,9 @@ def _summary(topic: str, data: dict[str, Any]) -> str:
     if topic == "/fw/components":
         reason = f" ({data['reason']})" if data.get("reason") else ""
         return f"component  {data.get('component')}: {data.get('old')} -> {data.get('new')}{reason}"
+    if topic == "/fw/refused":
+        times = f" (x{data['count']})" if data.get("count", 1) > 1 else ""
+        return f"REFUSED    {data.get('component')}.{data.get('port')}: {data.get('reason')}{times}"
     if topic == "/fw/config/request":
         return f"request    #{data.get('request_id')} {data.get('tag')}"
     if topic == "/fw/config/ack":

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import inspect
+import math
 import threading
 import time
 import traceback
@@ -81,6 +82,17 @@ class StateChange:
     old: State
     new: State
     reason: str
+    stamp: float
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """A sample a component refused: on which port, why, and how many it stands for."""
+
+    component: str
+    port: str
+    reason: str
+    count: int
     stamp: float
 
 
@@ -163,6 +175,8 @@ class Component:
         self._state = State.INIT
         self.last_error = ""
         self._listeners: list[Callable[[StateChange], None]] = []
+        self._refusal_listeners: list[Callable[[Refusal], None]] = []
+        self._refusals: dict[str, tuple[float, int]] = {}  # port -> (last said, unsaid since)
         self._lifecycle_lock = _YieldingLock()
         self.inputs: dict[str, InputPort[Any]] = {}
         self.outputs: dict[str, OutputPort[Any]] = {}
@@ -302,6 +316,31 @@ class Component:
     def add_state_listener(self, listener: Callable[[StateChange], None]) -> None:
         """Be told of every state change (the container publishes them)."""
         self._listeners.append(listener)
+
+    def add_refusal_listener(self, listener: Callable[[Refusal], None]) -> None:
+        """Be told of refused samples (the container publishes them)."""
+        self._refusal_listeners.append(listener)
+
+    REFUSAL_PERIOD = 1.0
+    """s: a port's refusals are said at most this often (the others are counted)."""
+
+    def refuse(self, port: str, reason: str) -> None:
+        """Say that a sample read on `port` was refused, and why: a value no correct
+        producer sends (beyond the procedure's limits, a jump no arm can make). The
+        container publishes it on `fw/refused/<component>` and the flight recorder
+        keeps it. A flood is said once per `REFUSAL_PERIOD`, with how many it stood for."""
+        now = self.clock.now()
+        last, unsaid = self._refusals.get(port, (-math.inf, 0))
+        if now - last < self.REFUSAL_PERIOD:
+            self._refusals[port] = (last, unsaid + 1)
+            return
+        self._refusals[port] = (now, 0)
+        refusal = Refusal(self.name, port, reason, unsaid + 1, time.time())
+        for listener in list(self._refusal_listeners):
+            try:
+                listener(refusal)
+            except Exception:  # a broken listener must not break the component
+                traceback.print_exc()
 
     def _set_state(self, new: State, reason: str = "") -> None:
         old, self._state = self._state, new

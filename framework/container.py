@@ -30,7 +30,7 @@ from framework import keys, messages
 from framework.activity import Activity, RealTimeExecutor, SteppedExecutor
 from framework.bus import Bus, BusConfig, BusError
 from framework.clock import late
-from framework.component import Component, Heartbeat, LifecycleError, StateChange
+from framework.component import Component, Heartbeat, LifecycleError, Refusal, StateChange
 from framework.errors import FwError
 from framework.messages import EventMessage, Scalar
 from framework.ports import ConnPolicy, InputPort, OutputPort, PortError
@@ -69,6 +69,7 @@ class Container:
         self._type_queryables: dict[str, Any] = {}
         self._key_types: dict[str, str] = {}
         self._state_publishers: dict[str, Any] = {}
+        self._refusal_publishers: dict[str, Any] = {}
         self._lock = threading.RLock()
         self._closed = False
         self._declared.append(bus.queryable(keys.container(name), self._on_container_query))
@@ -116,6 +117,8 @@ class Container:
         publisher = self.bus.publisher(keys.state(name))
         self._state_publishers[name] = publisher
         component.add_state_listener(self._publish_state)
+        self._refusal_publishers[name] = self.bus.publisher(keys.refused(name))
+        component.add_refusal_listener(self._publish_refusal)
         self.components[name] = component
         self.activities[name] = activity
         self.executor.add(component, activity)
@@ -143,6 +146,19 @@ class Container:
             "state",
             change.component,
             {"old": change.old.value, "new": change.new.value, "reason": change.reason},
+        )
+        with contextlib.suppress(Exception):
+            publisher.put(messages.encode(message, EventMessage))
+
+    def _publish_refusal(self, refusal: Refusal) -> None:
+        publisher = self._refusal_publishers.get(refusal.component)
+        if publisher is None or self.bus.closed:
+            return
+        message = EventMessage(
+            refusal.stamp,
+            "refused",
+            refusal.component,
+            {"port": refusal.port, "reason": refusal.reason, "count": refusal.count},
         )
         with contextlib.suppress(Exception):
             publisher.put(messages.encode(message, EventMessage))

@@ -30,6 +30,11 @@ def state(component: str) -> str:
     return f"fw/state/{component}"
 
 
+def refused(component: str) -> str:
+    """Where a component says it refused a sample, and why (the flight recorder keeps it)."""
+    return f"fw/refused/{component}"
+
+
 def port_type(key: str) -> str:
     """Queryable telling which message type is written on `key` (checked on connect)."""
     return f"fw/types/{key}"
@@ -59,3 +64,4 @@ DEPLOYER_EVENTS = "fw/deployer/events"
 """Where fw deploy reports what happens to its processes (lost, restarted)."""
 ALL_ALIVE = "fw/alive/*"
 ALL_STATES = "fw/state/*"
+ALL_REFUSED = "fw/refused/*"

@@ -57,6 +57,18 @@ _SCHEMAS: dict[str, dict[str, Any]] = {
             "reason": {"type": "string"},
         },
     },
+    "fw.Refusal": {
+        "type": "object",
+        "title": "fw.Refusal",
+        "description": "A sample a component refused (and how many refusals it stands for)",
+        "properties": {
+            "stamp": {"type": "number"},
+            "component": {"type": "string"},
+            "port": {"type": "string"},
+            "reason": {"type": "string"},
+            "count": {"type": "integer"},
+        },
+    },
     "fw.ConfigRequest": {
         "type": "object",
         "title": "fw.ConfigRequest",
@@ -150,6 +162,7 @@ class FlightRecorder:
         )
         self._listen(bus, ACKS_KEY, ConfigAck, "/fw/config/ack", "fw.ConfigAck", _plain)
         self._state_sub = bus.subscribe(keys.ALL_STATES, self._on_state)
+        self._refused_sub = bus.subscribe(keys.ALL_REFUSED, self._on_refused)
         for key, type_name in (samples or {}).items():
             kind = messages.resolve_type(type_name)
             self._listen(bus, key, kind, f"/fw/samples/{key}", "fw.Sample", _plain)
@@ -218,11 +231,20 @@ class FlightRecorder:
             message.stamp,
         )
 
+    def _on_refused(self, sample: Any) -> None:
+        try:
+            message, _, _ = messages.decode(sample.payload.to_bytes(), EventMessage)
+        except messages.CodecError:
+            return
+        data = {"stamp": message.stamp, "component": message.source, **message.payload}
+        self.write("/fw/refused", "fw.Refusal", data, message.stamp)
+
     def close(self) -> None:
         """Stop listening and finish the file (summary and index)."""
         for port in self._ports:
             port.close()
         self._state_sub.undeclare()
+        self._refused_sub.undeclare()
         self._stop.set()
         with self._lock:
             if self._closed:

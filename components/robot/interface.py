@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from components.robot.lwr4 import POSITION_LIMIT, VELOCITY_LIMIT
 from components.robot.safe_stop import SafeStop
 from components.tracking.geometry import matrix_to_quat
 from framework.component import Component, In, Out, operation
@@ -41,6 +42,10 @@ from framework.ports import ReadStatus
 from framework.properties import prop
 
 CYCLE = 0.001  # s: the controller's cycle
+POSITION_LIMIT_RAD = np.array(POSITION_LIMIT)
+VELOCITY_LIMIT_RAD_S = np.array(VELOCITY_LIMIT)
+STEP_MARGIN = 1.5  # a setpoint step may be 1.5x the rated joint velocity, no more
+FIRST_STEP_CYCLES = 10  # the first setpoint of a motion: this many cycles from the arm
 STILL_RAD_S = 2e-3
 STILL_CYCLES = 50
 STILL_TIMEOUT_CYCLES = 2000
@@ -96,6 +101,7 @@ class RobotInterface(Component):
         self._still_cycles = 0
         self._reported: tuple[Any, ...] | None = None
         self._last_status = -1.0
+        self.peak_step = 0.0  # the largest setpoint step seen, in rated joint velocities
         return True
 
     def stop_hook(self) -> None:
@@ -119,8 +125,14 @@ class RobotInterface(Component):
         elif not self.latched and not state.braked:
             status, setpoint = self.setpoint.read()
             if status is ReadStatus.NEW and setpoint is not None:
-                self._send(np.asarray(setpoint.position, dtype=float))
-                self._since_setpoint = 0
+                q = np.asarray(setpoint.position, dtype=float)
+                wrong = self._implausible(q, state)
+                if wrong:
+                    self.refuse("setpoint", wrong)
+                    self._trip(f"setpoint refused: {wrong}", state)
+                else:
+                    self._send(q)
+                    self._since_setpoint = 0
             elif self._commanding:
                 self._since_setpoint += 1
         if self._brake_when_still is not None:
@@ -169,6 +181,31 @@ class RobotInterface(Component):
         else:
             self._request("brake", reason=reason, latch=True)
         self._commanding = False
+
+    def _implausible(self, q: np.ndarray, state: ArmState) -> str:
+        """Why a setpoint must not reach the arm ("" if it may): not 7 finite joints,
+        beyond a joint's limit, or a step from the last command faster than the joint's
+        rated velocity (with the cycles since then, and a margin). The first setpoint of
+        a motion is measured from where the arm stands."""
+        if q.shape != (7,) or not np.isfinite(q).all():
+            return f"not 7 finite joint positions: {q.tolist()!r:.80}"
+        over = np.abs(q) > POSITION_LIMIT_RAD
+        if over.any():
+            j = int(np.argmax(over))
+            return f"A{j + 1} at {np.degrees(q[j]):.1f} deg is beyond its limit"
+        if self._commanding and self._sent:
+            reference, cycles = self._sent[-1], self._since_setpoint + 1
+        else:
+            reference, cycles = np.asarray(state.position, dtype=float), FIRST_STEP_CYCLES
+        step = np.abs(q - reference) / (VELOCITY_LIMIT_RAD_S * CYCLE * cycles)
+        self.peak_step = max(self.peak_step, float(step.max()))
+        if step.max() > STEP_MARGIN:
+            j = int(np.argmax(step))
+            return (
+                f"A{j + 1} would move {np.degrees(abs(q[j] - reference[j])):.2f} deg in "
+                f"{cycles} cycle(s), {step[j]:.1f}x its rated velocity"
+            )
+        return ""
 
     def _send(self, q: np.ndarray) -> None:
         self.command.write(JointState(time.time(), tuple(q.tolist())))
@@ -292,6 +329,7 @@ class RobotInterface(Component):
             "mode": self.mode,
             "time": round(state.cycle * CYCLE, 4),
             "q": [round(v, 5) for v in state.position],
+            "peak_step": round(self.peak_step, 3),
         }
         if self.safety is not None:
             out["safety"] = self.safety.report()

@@ -296,10 +296,7 @@ class CartesianInterpolator(Component):
             core = self.core
             status, limits = self.limits.read()
             if status is ReadStatus.NEW:
-                try:
-                    core.set_limits(limits.payload["velocity"], limits.payload.get("acceleration"))
-                except (KeyError, TypeError, LimitError) as exc:
-                    self.last_error = f"limits refused: {exc}"
+                self._take_limits(core, limits.payload)
             status, halt = self.halt.read()
             if status is ReadStatus.NEW:
                 core.stop()
@@ -321,6 +318,33 @@ class CartesianInterpolator(Component):
         if phase is not self._phase:
             self._phase = phase
             self.status.write(EventMessage(stamp, phase.value, self.name, self.report()))
+
+    def _take_limits(self, core: InterpolatorCore, payload: Any) -> None:
+        """Apply limits from the port unless they exceed what the procedure allows (its
+        fastest tracker speed, its acceleration): a producer gone wrong cannot speed the
+        arm up; the refusal is said (flight recording) and the previous limits stay."""
+        try:
+            velocity = float(payload["velocity"])
+            acceleration = payload.get("acceleration")
+            acceleration = None if acceleration is None else float(acceleration)
+            self._within_procedure(velocity, acceleration)
+            core.set_limits(velocity, acceleration)
+        except (KeyError, TypeError, ValueError, AttributeError, LimitError) as exc:
+            reason = str(exc) if isinstance(exc, LimitError) else f"malformed limits: {exc!r}"
+            self.last_error = f"limits refused: {reason}"
+            self.refuse("limits", reason)
+
+    def _within_procedure(self, velocity: float, acceleration: float | None) -> None:
+        """`LimitError` for limits beyond the procedure's fastest tracker speed or its
+        acceleration (the core's own ceilings are sanity bounds for any procedure)."""
+        p = self.procedure
+        ceiling = max(s.fast for s in p.speeds.values())
+        if not velocity <= ceiling:
+            raise LimitError(f"velocity {velocity:g} m/s is over the procedure's {ceiling:g}")
+        if acceleration is not None and not acceleration <= p.acceleration:
+            raise LimitError(
+                f"acceleration {acceleration:g} m/s^2 is over the procedure's {p.acceleration:g}"
+            )
 
     def _core(self) -> InterpolatorCore:
         if getattr(self, "core", None) is None:
@@ -364,6 +388,7 @@ class CartesianInterpolator(Component):
     @operation
     def set_limits(self, velocity: float, acceleration: float | None = None) -> dict[str, Any]:
         """Maximum path velocity (m/s) and acceleration (m/s^2), effective at once."""
+        self._within_procedure(float(velocity), acceleration)
         with self._core_lock:
             self._core().set_limits(velocity, acceleration)
             return self.report()

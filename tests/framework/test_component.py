@@ -256,3 +256,49 @@ def test_declarations_that_shadow_the_component_api_are_refused():
 
     with pytest.raises(FwError, match=r"Bad\.state shadows the component API"):
         Bad("b")
+
+
+def test_a_refused_sample_is_said_and_a_flood_is_counted_not_repeated():
+    from framework.clock import SimulatedClock
+
+    clock = SimulatedClock()
+    c = Sink("consumer")
+    c.clock = clock
+    said = []
+    c.add_refusal_listener(said.append)
+    for _ in range(5):
+        c.refuse("inp", "value 7 is over the limit 5")
+    assert [(r.port, r.count) for r in said] == [("inp", 1)]
+    clock.advance(c.REFUSAL_PERIOD)
+    c.refuse("inp", "value 9 is over the limit 5")
+    assert [(r.reason, r.count) for r in said][1] == ("value 9 is over the limit 5", 5)
+    c.refuse("other", "malformed")
+    assert said[-1].port == "other", "each port has its own budget"
+
+
+def test_the_flight_recorder_keeps_every_refusal(hub, tmp_path):
+    import time
+
+    from framework.activity import Activity, SteppedExecutor
+    from framework.clock import SimulatedClock
+    from framework.container import Container
+    from framework.recorder import FlightRecorder, read_recording
+
+    recorder = FlightRecorder(tmp_path / "run.mcap", hub)
+    container = Container("c", hub, SteppedExecutor(SimulatedClock()))
+    consumer = container.add(Sink("consumer"), Activity.event("inp"))
+    time.sleep(0.3)  # the recorder's subscription reaches the container's publisher
+    before = recorder.count
+    consumer.refuse("inp", "a forged sample")
+    deadline = time.monotonic() + 10
+    while recorder.count == before and time.monotonic() < deadline:
+        time.sleep(0.01)
+    container.shutdown()
+    recorder.close()
+    refusals = [d for t, _, d in read_recording(tmp_path / "run.mcap") if t == "/fw/refused"]
+    assert refusals and refusals[0]["component"] == "consumer"
+    assert (refusals[0]["port"], refusals[0]["reason"], refusals[0]["count"]) == (
+        "inp",
+        "a forged sample",
+        1,
+    )

@@ -282,3 +282,82 @@ def test_a_forced_sync_drops_the_motion_a_plain_one_keeps(cell):
     cell.run(0.1)
     measured = np.array(cell.arm.call("report")["q"])
     assert np.allclose(cell.interp.core.q, measured, atol=2e-3)
+
+
+# -- samples checked where they are consumed (issue 16): garbage never reaches the arm
+
+
+def _refusals(bus, component: str) -> tuple[list[dict], object]:
+    """What `component` says it refused (fw/refused/<component>), as it comes, and the
+    subscription (keep it)."""
+    from framework import keys, messages
+    from framework.messages import EventMessage
+
+    said: list[dict] = []
+
+    def on(sample) -> None:
+        message, _, _ = messages.decode(sample.payload.to_bytes(), EventMessage)
+        said.append(message.payload)
+
+    return said, bus.subscribe(keys.refused(component), on)
+
+
+def _forge(cell, peer, key: str, message, kind, until, tries: int = 100) -> None:
+    """Put `message` on `key` from another session before each 1 ms cycle (the
+    interpolator writes its own every cycle) until `until()` holds."""
+    import time
+
+    from framework import messages
+
+    publisher = peer.publisher(key)
+    for _ in range(tries):
+        publisher.put(messages.encode(message, kind))
+        time.sleep(0.005)  # delivered over the loopback before the next cycle
+        cell.run(0.001)
+        if until():
+            return
+    raise AssertionError("the forged sample never took effect")
+
+
+@pytest.mark.parametrize(
+    ("shift", "reason"),
+    [
+        (np.array([0.0, 0.05, 0, 0, 0, 0, 0]), "rated velocity"),  # 2.9 deg in 1 ms
+        (np.array([0.0, 0.0, 0, 0, 0, 0, np.nan]), "not 7 finite"),
+        (np.array([0.0, 0.0, 0, 0, 0, 0, 4.0]), "beyond its limit"),
+    ],
+)
+def test_a_setpoint_no_arm_could_follow_trips_and_stays_braked_until_release(
+    cell, peer, shift, reason
+):
+    from framework.messages import JointState
+
+    said, _sub = _refusals(cell.container.bus, "robot")
+    cell.release()
+    cell.interp.call("go_to", goal="target")
+    cell.run(0.5)
+    q = np.asarray(cell.robot.call("report")["q"]) + shift
+    forged = JointState(0.0, tuple(q.tolist()))
+    _forge(cell, peer, "interpolator/setpoint", forged, JointState, lambda: cell.robot.latched)
+    assert "setpoint refused" in cell.robot.latched and reason in cell.robot.latched
+    cell.run(1.0)
+    report = cell.robot.call("report")
+    assert report["braked"] and report["latched"], "garbage ends braked"
+    assert any(r["port"] == "setpoint" and reason in r["reason"] for r in said)
+    with pytest.raises(FwError):
+        cell.robot.call("release")  # latched: only the operator's acknowledge opens it
+    assert cell.robot.call("report")["braked"]
+
+
+def test_limits_beyond_the_procedure_are_refused_and_the_old_ones_stay(cell, peer):
+    from framework.messages import EventMessage
+
+    cell.container.connect("interpolator", "limits", "supervisor/limits")
+    said, _sub = _refusals(cell.container.bus, "interpolator")
+    cell.interp.call("set_limits", velocity=0.01)
+    forged = EventMessage(0.0, "limits", "supervisor", {"velocity": 0.25, "acceleration": 0.2})
+    _forge(cell, peer, "supervisor/limits", forged, EventMessage, lambda: bool(said))
+    assert cell.interp.call("report")["velocity"] == 0.01
+    assert "over the procedure's 0.075" in said[0]["reason"]
+    with pytest.raises(FwError, match="over the procedure"):
+        cell.interp.call("set_limits", velocity=0.2)
