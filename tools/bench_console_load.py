@@ -51,8 +51,16 @@ class Console:
             return json.loads(reply.read())
 
     def robot_time(self) -> float | None:
-        data = (self.state().get("robot") or {}).get("data") or {}
-        return data.get("time")
+        """The arm controller's time (s), retried while the console refuses (503)."""
+        deadline = time.monotonic() + 10
+        while True:
+            try:
+                data = (self.state().get("robot") or {}).get("data") or {}
+                return data.get("time")
+            except (urllib.error.URLError, OSError):
+                if time.monotonic() > deadline:
+                    return None
+                time.sleep(0.05)
 
 
 def deploy(port: int) -> tuple[subprocess.Popen[str], Console]:

@@ -45,7 +45,7 @@ MAX_DEPTH = 8
 MAX_PATH = 512
 TIMEOUT = 10.0
 """Seconds a connection may take to send its request (slow senders are cut)."""
-MAX_CONNECTIONS = 64
+MAX_CONNECTIONS = 256  # threads are cheap; a slow client holds one until its timeout
 MAX_STREAMS = 16
 COALESCE = 0.02  # s: changes closer than this go out in one picture
 
