@@ -138,30 +138,26 @@ class Container:
             self.beat.start()
 
     def _publish_state(self, change: StateChange) -> None:
-        publisher = self._state_publishers.get(change.component)
-        if publisher is None or self.bus.closed:
-            return
-        message = EventMessage(
-            change.stamp,
-            "state",
-            change.component,
-            {"old": change.old.value, "new": change.new.value, "reason": change.reason},
-        )
-        with contextlib.suppress(Exception):
-            publisher.put(messages.encode(message, EventMessage))
+        payload = {"old": change.old.value, "new": change.new.value, "reason": change.reason}
+        self._announce(self._state_publishers, change.component, "state", payload, change.stamp)
 
     def _publish_refusal(self, refusal: Refusal) -> None:
-        publisher = self._refusal_publishers.get(refusal.component)
+        payload = {"port": refusal.port, "reason": refusal.reason, "count": refusal.count}
+        self._announce(
+            self._refusal_publishers, refusal.component, "refused", payload, refusal.stamp
+        )
+
+    def _announce(
+        self, publishers: dict[str, Any], component: str, kind: str, payload: Any, stamp: float
+    ) -> None:
+        """Publish what a component says of itself (never raises: a closing bus)."""
+        publisher = publishers.get(component)
         if publisher is None or self.bus.closed:
             return
-        message = EventMessage(
-            refusal.stamp,
-            "refused",
-            refusal.component,
-            {"port": refusal.port, "reason": refusal.reason, "count": refusal.count},
-        )
         with contextlib.suppress(Exception):
-            publisher.put(messages.encode(message, EventMessage))
+            publisher.put(
+                messages.encode(EventMessage(stamp, kind, component, payload), EventMessage)
+            )
 
     # -- connections ---------------------------------------------------------------
     def _connect_output(self, component: Component, port_name: str, key: str) -> None:

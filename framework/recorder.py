@@ -161,8 +161,12 @@ class FlightRecorder:
             bus, REQUESTS_KEY, ConfigRequest, "/fw/config/request", "fw.ConfigRequest", _plain
         )
         self._listen(bus, ACKS_KEY, ConfigAck, "/fw/config/ack", "fw.ConfigAck", _plain)
-        self._state_sub = bus.subscribe(keys.ALL_STATES, self._on_state)
-        self._refused_sub = bus.subscribe(keys.ALL_REFUSED, self._on_refused)
+        self._subs = [
+            bus.subscribe(
+                keys.ALL_STATES, self._by_component("/fw/components", "fw.ComponentState")
+            ),
+            bus.subscribe(keys.ALL_REFUSED, self._by_component("/fw/refused", "fw.Refusal")),
+        ]
         for key, type_name in (samples or {}).items():
             kind = messages.resolve_type(type_name)
             self._listen(bus, key, kind, f"/fw/samples/{key}", "fw.Sample", _plain)
@@ -219,32 +223,26 @@ class FlightRecorder:
         port.connect(key)
         self._ports.append(port)
 
-    def _on_state(self, sample: Any) -> None:
-        try:
-            message, _, _ = messages.decode(sample.payload.to_bytes(), EventMessage)
-        except messages.CodecError:
-            return
-        self.write(
-            "/fw/components",
-            "fw.ComponentState",
-            {"stamp": message.stamp, "component": message.source, **message.payload},
-            message.stamp,
-        )
+    def _by_component(self, topic: str, schema: str) -> Any:
+        """A handler for what components say of themselves on `fw/<what>/*` (state
+        changes, refusals): recorded on `topic` with the component's name."""
 
-    def _on_refused(self, sample: Any) -> None:
-        try:
-            message, _, _ = messages.decode(sample.payload.to_bytes(), EventMessage)
-        except messages.CodecError:
-            return
-        data = {"stamp": message.stamp, "component": message.source, **message.payload}
-        self.write("/fw/refused", "fw.Refusal", data, message.stamp)
+        def record(sample: Any) -> None:
+            try:
+                message, _, _ = messages.decode(sample.payload.to_bytes(), EventMessage)
+            except messages.CodecError:
+                return
+            data = {"stamp": message.stamp, "component": message.source, **message.payload}
+            self.write(topic, schema, data, message.stamp)
+
+        return record
 
     def close(self) -> None:
         """Stop listening and finish the file (summary and index)."""
         for port in self._ports:
             port.close()
-        self._state_sub.undeclare()
-        self._refused_sub.undeclare()
+        for sub in self._subs:
+            sub.undeclare()
         self._stop.set()
         with self._lock:
             if self._closed:

@@ -183,8 +183,11 @@ class _Builder:
             raise self.error(event, f"custom YAML tag {tag!r} is not allowed", path)
 
     def _is_key(self) -> bool:
-        top = self.stack[-1] if self.stack else None
-        return isinstance(top, _Open) and isinstance(top.value, dict) and top.key is None
+        return (
+            bool(self.stack)
+            and isinstance(self.stack[-1].value, dict)
+            and self.stack[-1].key is None
+        )
 
     def _child_path(self) -> PathKey:
         if not self.stack:
@@ -279,7 +282,7 @@ class _Builder:
         size = self.count - done.counted
         if done.anchor is not None:
             self.anchors[done.anchor] = (done.value, size)
-        self.attach(None, done.value, None, size, placed=True)
+        self.attach(None, done.value, None, size)  # its mark was set when it began
 
     def attach(
         self,
@@ -287,7 +290,6 @@ class _Builder:
         value: Any,
         anchor: str | None,
         size: int,
-        placed: bool = False,
     ) -> None:
         """Put a finished value where it belongs: the root, a list item or a mapping value."""
         if anchor is not None:
@@ -299,7 +301,7 @@ class _Builder:
             return
         top = self.stack[-1]
         path = self._child_path()
-        if event is not None and not placed:
+        if event is not None:
             self.marks.setdefault(path, (event.start_mark.line + 1, event.start_mark.column + 1))
         if isinstance(top.value, list):
             top.value.append(value)

@@ -527,13 +527,12 @@ def report(args: argparse.Namespace, results: list[dict[str, Any]]) -> dict[str,
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    from benchlib import bench_parser
+
+    parser = bench_parser(__doc__, quick=None)
     parser.add_argument("--n", type=int, default=1000, help="mutants to try (default 1000)")
     parser.add_argument("--seed", type=int, default=1, help="which mutants (default 1)")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
-    parser.add_argument("--out", default="out/bench", help="folder for the report and failures")
     parser.add_argument("--hang-after", type=float, default=20.0, help="s without answer")
     parser.add_argument("--slow", type=float, default=2.0, help="s: a slower check fails")
     parser.add_argument("--max-mb", type=float, default=200.0, help="MB a check may grow by")

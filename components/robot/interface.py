@@ -43,7 +43,7 @@ from framework.properties import prop
 
 CYCLE = 0.001  # s: the controller's cycle
 POSITION_LIMIT_RAD = np.array(POSITION_LIMIT)
-VELOCITY_LIMIT_RAD_S = np.array(VELOCITY_LIMIT)
+MAX_STEP_RAD = np.array(VELOCITY_LIMIT) * CYCLE  # the rated velocity, per cycle
 STEP_MARGIN = 1.5  # a setpoint step may be 1.5x the rated joint velocity, no more
 FIRST_STEP_CYCLES = 10  # the first setpoint of a motion: this many cycles from the arm
 STILL_RAD_S = 2e-3
@@ -197,9 +197,10 @@ class RobotInterface(Component):
             reference, cycles = self._sent[-1], self._since_setpoint + 1
         else:
             reference, cycles = np.asarray(state.position, dtype=float), FIRST_STEP_CYCLES
-        step = np.abs(q - reference) / (VELOCITY_LIMIT_RAD_S * CYCLE * cycles)
-        self.peak_step = max(self.peak_step, float(step.max()))
-        if step.max() > STEP_MARGIN:
+        step = np.abs(q - reference) / (MAX_STEP_RAD * cycles)
+        worst = float(step.max())
+        self.peak_step = max(self.peak_step, worst)
+        if worst > STEP_MARGIN:
             j = int(np.argmax(step))
             return (
                 f"A{j + 1} would move {np.degrees(abs(q[j] - reference[j])):.2f} deg in "
