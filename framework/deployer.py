@@ -293,6 +293,25 @@ class Deployment:
         """Wait until these components' liveliness tokens are up (a restarted process)."""
         self._wait_for_liveliness(components)
 
+    def wait_gone(self, components: list[str]) -> None:
+        """Wait until these components' liveliness tokens are gone (a lost process). The
+        process's exit can be seen before the bus drops its tokens: a restart that did not
+        wait would take the old tokens for the new process's and ask a process that does
+        not answer yet."""
+        assert self.hub is not None
+        expected = {keys.alive(c) for c in components}
+        deadline = time.monotonic() + self.liveliness_timeout
+        while time.monotonic() < deadline:
+            left = expected & set(self.hub.alive(keys.ALL_ALIVE, 0.5))
+            if not left:
+                return
+            time.sleep(0.02)
+        names = ", ".join(sorted(k.rsplit("/", 1)[-1] for k in left))
+        raise DeployError(
+            f"still alive {self.liveliness_timeout:g} s after their process was lost: {names} "
+            "(another process serves these names?)"
+        )
+
     def _wait_for_liveliness(self, components: list[str] | None = None) -> None:
         assert self.hub is not None
         expected = {keys.alive(c) for c in (components or self.topology.components)}

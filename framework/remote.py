@@ -46,6 +46,7 @@ class RemoteComponent:
         deadline = now + wait if deadline is None else min(deadline, now + wait)
         wait = max(deadline - now, 0.001)
         body = json.dumps({"op": op, **fields, "deadline": deadline}).encode()
+        asked = time.monotonic()
         try:
             key = keys.control_request(self.name, op, str(fields.get("operation", "")))
             replies = self.bus.query(key, body, wait)
@@ -64,6 +65,12 @@ class RemoteComponent:
             raise RemoteError(f"{self.name}: {info['error']}", info.get("kind", "")) from None
         if not replies:
             what = f"operation {fields['operation']!r}" if op == "call" else f"{op!r}"
+            if time.monotonic() - asked < wait / 2:  # the bus knew nobody to ask
+                raise RemoteError(
+                    f"nothing on the bus serves component {self.name!r} (asked {what}; "
+                    "is its process running?)",
+                    "Timeout",
+                )
             raise RemoteError(
                 f"no answer from component {self.name!r} to {what} within "
                 f"{wait:g} s (is its process running?)",

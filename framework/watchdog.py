@@ -14,7 +14,11 @@ A restarted process gets its components back to the lifecycle states they had an
 the connections the configurations had made (not only the topology's initial ones).
 Motion never restarts by itself: the robot side latched its stop when the process
 was lost, and only the operator's RELEASE, through the chart, opens the latch.
-A process that keeps dying is restarted at most `MAX_RESTARTS` times.
+A process that keeps dying is restarted at most `MAX_RESTARTS` times. A restart
+that fails (the new process does not come up, or does not take its states and wiring
+back) is tried again, up to `ATTEMPTS` times with a growing pause, each attempt
+reported; a half-started process is killed first, never left running beside the next.
+Restarts run in their own thread, so a loss elsewhere is seen meanwhile.
 """
 
 from __future__ import annotations
@@ -35,6 +39,9 @@ if TYPE_CHECKING:
 
 EVENTS_KEY = keys.DEPLOYER_EVENTS
 MAX_RESTARTS = 3
+ATTEMPTS = 3
+"""Tries per restart (the first and two more)."""
+BACKOFF = 1.0  # s before the second try, doubled before each later one
 POLL = 0.05  # s between looks at the processes
 TARGETS = {"Running": "running", "Stopped": "stopped"}
 """Lifecycle states a restarted component is brought back to (others stay as spawned)."""
@@ -54,6 +61,9 @@ class ProcessWatch:
         self.restarts: dict[str, int] = {}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._restarting: list[threading.Thread] = []
+        self._spawn_lock = threading.Lock()
+        """Held while spawning, and by `stop`: nothing is spawned once the watch stops."""
         hub = deployment.hub
         assert hub is not None
         self._states_sub = hub.subscribe(keys.ALL_STATES, self._on_state)
@@ -74,9 +84,11 @@ class ProcessWatch:
 
     def stop(self) -> None:
         """Stop watching (before the deployment shuts its processes down)."""
-        self._stop.set()
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(5.0)
+        with self._spawn_lock:
+            self._stop.set()
+        for thread in [self._thread, *self._restarting]:
+            if thread is not None and thread is not threading.current_thread():
+                thread.join(5.0)
         with contextlib.suppress(Exception):
             self._states_sub.undeclare()
             self._events.undeclare()
@@ -118,25 +130,63 @@ class ProcessWatch:
             return
         self.restarts[process.name] = self.restarts.get(process.name, 0) + 1
         wanted = {c: self.states.get(c, "") for c in process.components}
-        try:
-            self._restart(process, wanted)
-        except Exception as exc:  # reported; the process stays lost
-            self._report("restart_failed", process.name, str(exc))
+        thread = threading.Thread(
+            target=self._recover,
+            args=(process, wanted),
+            name=f"fw-restart-{process.name}",
+            daemon=True,
+        )
+        self._restarting = [t for t in self._restarting if t.is_alive()] + [thread]
+        thread.start()
+
+    def _recover(self, process: Process, wanted: dict[str, str]) -> None:
+        """Restart `process`, trying again after a failed attempt (module docstring)."""
+        pause = BACKOFF
+        for attempt in range(1, ATTEMPTS + 1):
+            try:
+                self._restart(process, wanted)
+            except Exception as exc:  # reported; tried again, or the process stays lost
+                self._kill(process)
+                if self._stop.is_set():
+                    return
+                again = f"; trying again in {pause:g} s" if attempt < ATTEMPTS else ""
+                self._report(
+                    "restart_failed", process.name, f"attempt {attempt} of {ATTEMPTS}: {exc}{again}"
+                )
+                if self._stop.wait(pause):
+                    return
+                pause *= 2
+                continue
+            if self._stop.is_set():
+                return
+            self.lost.pop(process.name, None)
+            self._report("process_restarted", process.name, "back as it was; RELEASE resumes")
             return
-        del self.lost[process.name]
-        self._report("process_restarted", process.name, "back as it was; RELEASE resumes")
+        self._report("restart_refused", process.name, f"{ATTEMPTS} attempts failed; it stays lost")
+
+    def _kill(self, process: Process) -> None:
+        """End a half-started process (it must not run beside the next attempt)."""
+        popen = process.popen
+        if popen is not None and popen.poll() is None:
+            popen.kill()
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                popen.wait(5)
 
     def _restart(self, process: Process, wanted: dict[str, str]) -> None:
         from framework.deployer import container_spec
 
         deployment = self.deployment
         assert process.stderr is not None
-        with process.stderr.open("ab") as err:
-            process.popen = spawn_container(
-                container_spec(deployment.topology, process.name),
-                stdout=subprocess.DEVNULL,
-                stderr=err,
-            )
+        deployment.wait_gone(process.components)
+        with self._spawn_lock:
+            if self._stop.is_set():
+                raise RuntimeError("the deployment is shutting down")
+            with process.stderr.open("ab") as err:
+                process.popen = spawn_container(
+                    container_spec(deployment.topology, process.name),
+                    stdout=subprocess.DEVNULL,
+                    stderr=err,
+                )
         deployment.wait_alive(process.components)
         configurator = deployment.configurator
         if configurator is None:

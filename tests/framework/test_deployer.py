@@ -320,3 +320,38 @@ def test_a_process_marked_restart_comes_back_as_it_was(toy, tmp_path):
         assert all(v < 0 for v in received(deployment)), "tracker 2, as before the loss"
     finally:
         deployment.stop()
+
+
+def test_a_restart_waits_until_the_lost_process_has_left_the_bus_and_tries_again(toy, tmp_path):
+    """The exit of a process can be seen before the bus drops its liveliness: a restart
+    must not take the old tokens for the new process's. Here a token outlives the process
+    on purpose: nothing is spawned while it lingers, the attempt fails naming it, and the
+    next attempt, once it is gone, brings the process back."""
+    import os
+    import signal
+
+    from framework import keys
+
+    toy.processes["control_side"]["on_loss"] = "restart"
+    deployment = Deployment(toy, tmp_path)
+    deployment.start()
+    try:
+        assert settled_in(deployment, "Use_T1")
+        deployment.liveliness_timeout = 5.0
+        lingering = deployment.hub.token(keys.alive("supervisor"))
+        side = next(p for p in deployment.processes if p.name == "control_side")
+        dead = side.popen
+        os.kill(dead.pid, signal.SIGKILL)
+        assert wait_until(
+            lambda: any("attempt 1 of 3" in i for i in deployment.watch.incidents), timeout=30
+        ), deployment.watch.incidents
+        failed = next(i for i in deployment.watch.incidents if "attempt 1 of 3" in i)
+        assert "still alive" in failed and "supervisor" in failed
+        assert side.popen is dead, "spawned while the lost process was still on the bus"
+        lingering.undeclare()
+        assert wait_until(
+            lambda: any("restarted" in i for i in deployment.watch.incidents), timeout=30
+        ), deployment.watch.incidents
+        assert RemoteComponent(deployment.hub, "supervisor").state() == "Running"
+    finally:
+        deployment.stop()
