@@ -29,11 +29,15 @@ examples:
   fw deploy topologies/demo.yaml --headless --duration 10
   fw deploy topologies/demo.yaml --record run.mcap  keep a flight recording
   fw deploy topologies/seeg.yaml --console-port 8080   the operator console on another port
+  fw deploy topologies/seeg.yaml --console-host 0.0.0.0 --console-cert or3.pem --console-key or3.key
+                                                    the console for the OR's network (HTTPS)
 
 The operator console (a web page: status, START / RELEASE / Go To, the chart, the
 event log) is served on http://127.0.0.1:8470/?token=... when fw deploy runs in a terminal, or
 whenever --console-port is given; --no-console turns it off. It listens on
-127.0.0.1 only, unless --console-host says otherwise.
+127.0.0.1 only, unless --console-host says otherwise; beyond this machine it is served
+over TLS only: with --console-cert/--console-key if given, else with a certificate made
+for the run, whose SHA-256 fingerprint is printed (compare it with the browser's).
 """
 
 KEYS_HELP = "the deployment's keystore, if fw deploy was given --keys (default: its own)"
@@ -135,8 +139,10 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         from framework.messages import resolve_type
 
         resolve_type(kind)
-    workdir = Path(args.workdir) if args.workdir else Path(tempfile.mkdtemp(prefix="fw-"))
     interactive = sys.stdout.isatty() and not args.headless
+    serve_console = not args.no_console and (args.console_port is not None or interactive)
+    console_tls = _console_tls(args) if serve_console else (None, "")  # before anything starts
+    workdir = Path(args.workdir) if args.workdir else Path(tempfile.mkdtemp(prefix="fw-"))
     listeners: list[Listener] = [] if interactive else [_Printer()]
     recorder = None
     console = None
@@ -210,7 +216,8 @@ def cmd_deploy(args: argparse.Namespace) -> int:
             "the chart runs",
             file=sys.stderr,
         )
-        console = _start_console(args, deployment, topology, interactive)
+        if serve_console:
+            console = _start_console(args, deployment, topology, console_tls)
         end = started + args.duration if args.duration else None
         runner = deployment.runner
         while end is None or time.monotonic() < end:
@@ -244,31 +251,52 @@ def cmd_deploy(args: argparse.Namespace) -> int:
 
 
 def _start_console(
-    args: argparse.Namespace, deployment: Any, topology: Any, interactive: bool
+    args: argparse.Namespace, deployment: Any, topology: Any, console_tls: tuple[Any, str]
 ) -> Any:
-    """Serve the operator console if asked (or in a terminal); None if not."""
-    if args.no_console or (args.console_port is None and not interactive):
-        return None
+    """Serve the operator console (over TLS if `console_tls` has a context)."""
     from framework.console.model import ConsoleModel
     from framework.console.server import DEFAULT_PORT, ConsoleServer
 
+    tls, certificate = console_tls
     chart = deployment.coordinator.chart if deployment.coordinator is not None else None
     model = ConsoleModel(deployment.hub, topology, chart).start()
     port = DEFAULT_PORT if args.console_port is None else args.console_port
-    server = ConsoleServer(model, args.console_host, port)
+    server = ConsoleServer(model, args.console_host, port, tls=tls)
     try:
         url = server.start()
     except FwError:
         model.stop()
         raise
     print(f"fw: operator console on {url} (the link carries this run's login)", file=sys.stderr)
-    if args.console_host not in ("127.0.0.1", "localhost", "::1"):
-        print(
-            f"fw: warning: the console is served without TLS on {args.console_host}: its "
-            "login token crosses the network in clear",
-            file=sys.stderr,
-        )
+    if certificate:
+        print(f"fw: {certificate}", file=sys.stderr)
     return server
+
+
+def _console_tls(args: argparse.Namespace) -> tuple[Any, str]:
+    """The console's TLS context (None on loopback without a certificate) and what to
+    tell the operator about its certificate. Beyond loopback there is no plain HTTP."""
+    from framework.console import tls
+
+    if bool(args.console_cert) != bool(args.console_key):
+        raise FwError("--console-cert and --console-key go together (a certificate and its key)")
+    if args.console_cert:
+        cert = Path(args.console_cert)
+        context = tls.server_context(cert, Path(args.console_key))
+        return context, f"console certificate {cert} (SHA-256 {tls.fingerprint(cert)})"
+    if tls.is_loopback(args.console_host):
+        return None, ""
+    made = Path(tempfile.mkdtemp(prefix="fw-console-"))
+    try:
+        cert, key = tls.self_signed(tls.names_for(args.console_host), made)
+        context = tls.server_context(cert, key)
+        print_ = tls.fingerprint(cert)
+    finally:
+        shutil.rmtree(made, ignore_errors=True)  # the key lives on in memory only
+    return context, (
+        "the console's certificate was made for this run (no --console-cert): the browser "
+        f"will warn; accept it only if it shows SHA-256 {print_}"
+    )
 
 
 def _scenario_report(runner: Any) -> int:
@@ -599,6 +627,12 @@ def add_commands(sub: Any) -> None:
         metavar="ADDR",
         help="address the console listens on (default 127.0.0.1: this machine only)",
     )
+    p.add_argument(
+        "--console-cert",
+        metavar="PEM",
+        help="the console's TLS certificate (chain), e.g. from the hospital's PKI",
+    )
+    p.add_argument("--console-key", metavar="PEM", help="the private key of --console-cert")
     p.add_argument("--no-console", action="store_true", help="do not serve the console")
     p.set_defaults(func=cmd_deploy)
 

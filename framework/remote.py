@@ -67,8 +67,8 @@ class RemoteComponent:
             what = f"operation {fields['operation']!r}" if op == "call" else f"{op!r}"
             if time.monotonic() - asked < wait / 2:  # the bus knew nobody to ask
                 raise RemoteError(
-                    f"nothing on the bus serves component {self.name!r} (asked {what}; "
-                    "is its process running?)",
+                    f"no answer from component {self.name!r} to {what}: nothing on the bus "
+                    "takes it (is its process running? may this session ask it?)",
                     "Timeout",
                 )
             raise RemoteError(

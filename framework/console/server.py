@@ -1,8 +1,10 @@
 """The operator console's web server: static page, live state, answered commands.
 
-Started by `fw deploy` on 127.0.0.1 (never on other interfaces unless asked). It
-needs nothing beyond the standard library and ships its page as static files, so
-nothing is built or fetched at run time.
+Started by `fw deploy` on 127.0.0.1 (never on other interfaces unless asked; then
+over TLS only, see `framework/console/tls.py`). It needs nothing beyond the standard
+library and ships its page as static files, so nothing is built or fetched at run time.
+Every request needs the run's token; a client has `TIMEOUT` s for the whole head of a
+request (TLS handshake, request line, headers, a command's body), however it trickles.
 
 * `GET /` and `/static/<file>`: the page (HTML, JS, CSS from `framework/console/static`);
 * `GET /api/state`: the whole picture (`ConsoleModel.snapshot`) as JSON;
@@ -26,7 +28,10 @@ import json
 import math
 import mimetypes
 import secrets
+import socket
+import ssl
 import threading
+import time
 import urllib.parse
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -34,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from framework.console.model import ConsoleModel
+from framework.console.tls import is_loopback, is_wildcard, names_for
 from framework.errors import FwError
 from framework.remote import RemoteComponent, RemoteError
 
@@ -44,7 +50,7 @@ MAX_DEPTH = 8
 """Nesting a command may have (its payload is one flat object)."""
 MAX_PATH = 512
 TIMEOUT = 10.0
-"""Seconds a connection may take to send its request (slow senders are cut)."""
+"""Seconds a connection may take to send a request's head (slow senders are cut)."""
 MAX_CONNECTIONS = 256  # threads are cheap; a slow client holds one until its timeout
 MAX_STREAMS = 16
 COALESCE = 0.02  # s: changes closer than this go out in one picture
@@ -67,8 +73,11 @@ class ConsoleServer:
         host: str = "127.0.0.1",
         port: int = DEFAULT_PORT,
         timeout: float = TIMEOUT,
+        tls: ssl.SSLContext | None = None,
     ):
         self.model, self.host, self.port = model, host, port
+        self.tls = tls
+        """Served over TLS with this context (None: plain HTTP, for loopback only)."""
         self.token = secrets.token_urlsafe(18)
         """The run's login: in the URL fw deploy prints, then in a cookie."""
         self.rate = 5.0
@@ -79,16 +88,23 @@ class ConsoleServer:
         self.timeout = timeout
         self.connections = threading.BoundedSemaphore(MAX_CONNECTIONS)
         self.streams = threading.BoundedSemaphore(MAX_STREAMS)
+        self._heads: dict[socket.socket, float] = {}
+        """Connections still sending a request's head -> when they must be done."""
+        self._heads_lock = threading.Lock()
 
     def allowed_hosts(self) -> set[str]:
         """`Host` headers this server answers (anything else is DNS rebinding)."""
-        names = {self.host, "127.0.0.1", "localhost"} if self.host in LOOPBACK else {self.host}
-        return {f"{n}:{self.port}" for n in names} | {f"[::1]:{self.port}"}
+        names = set(names_for(self.host))
+        if is_loopback(self.host):
+            names |= set(LOOPBACK)
+        return {f"[{n}]:{self.port}" if ":" in n else f"{n}:{self.port}" for n in names}
 
     @property
     def base(self) -> str:
         """Where the console is served (without the login)."""
-        return f"http://{self.host}:{self.port}/"
+        host = socket.gethostname() if is_wildcard(self.host) else self.host
+        host = f"[{host}]" if ":" in host else host
+        return f"{'https' if self.tls else 'http'}://{host}:{self.port}/"
 
     @property
     def url(self) -> str:
@@ -129,7 +145,31 @@ class ConsoleServer:
             target=self._httpd.serve_forever, name="fw-console", daemon=True
         )
         self._thread.start()
+        threading.Thread(target=self._cut_slow_heads, name="fw-console-heads", daemon=True).start()
         return self.url
+
+    def head_begins(self, connection: socket.socket) -> None:
+        """A request's head starts arriving: it has `timeout` s to be complete."""
+        with self._heads_lock:
+            self._heads[connection] = time.monotonic() + self.timeout
+
+    def head_done(self, connection: socket.socket) -> None:
+        """The head has arrived (or the connection ends): no deadline any more."""
+        with self._heads_lock:
+            self._heads.pop(connection, None)
+
+    def _cut_slow_heads(self) -> None:
+        """Close connections whose head is late: a socket timeout bounds each read, not
+        a client that sends one byte just before every timeout."""
+        while not self.stopping.wait(min(0.25, self.timeout / 2)):
+            now = time.monotonic()
+            with self._heads_lock:
+                late = [c for c, until in self._heads.items() if until < now]
+                for connection in late:
+                    del self._heads[connection]
+            for connection in late:
+                with contextlib.suppress(OSError):  # the plain socket's: no TLS close
+                    socket.socket.shutdown(connection, socket.SHUT_RDWR)
 
     def stop(self) -> None:
         """Stop serving (open streams end)."""
@@ -247,11 +287,25 @@ class _Server(ThreadingHTTPServer):
 
     daemon_threads = True
 
+    def get_request(self) -> tuple[Any, Any]:
+        """Accept; over TLS, the handshake is left to the connection's own thread (a
+        slow handshake must not hold the accepting one)."""
+        connection, address = super().get_request()
+        tls = self.RequestHandlerClass.console.tls  # type: ignore[attr-defined]
+        if tls is not None:
+            connection = tls.wrap_socket(
+                connection, server_side=True, do_handshake_on_connect=False
+            )
+        return connection, address
+
     def process_request(self, request: Any, client_address: Any) -> None:
         console = self.RequestHandlerClass.console  # type: ignore[attr-defined]
         if not console.connections.acquire(blocking=False):
-            with contextlib.suppress(OSError):
-                request.sendall(b"HTTP/1.1 503 Service Unavailable\r\nContent-Length: 0\r\n\r\n")
+            if console.tls is None:  # over TLS, plain bytes would only be garbage
+                with contextlib.suppress(OSError):
+                    request.sendall(
+                        b"HTTP/1.1 503 Service Unavailable\r\nContent-Length: 0\r\n\r\n"
+                    )
             self.shutdown_request(request)
             return
         super().process_request(request, client_address)
@@ -273,6 +327,32 @@ class _Handler(BaseHTTPRequestHandler):
 
     def log_message(self, format: str, *args: Any) -> None:
         """Quiet: the console's own log is the event log."""
+
+    def setup(self) -> None:
+        """The head deadline covers the TLS handshake too."""
+        self.console.head_begins(self.request)
+        super().setup()
+        if isinstance(self.connection, ssl.SSLSocket):
+            try:
+                self.connection.do_handshake()
+            except (OSError, ValueError):  # not TLS, a bad certificate, too slow
+                self.console.head_done(self.request)
+                raise ConnectionAbortedError from None
+
+    def handle_one_request(self) -> None:
+        self.console.head_begins(self.request)
+        super().handle_one_request()
+
+    def parse_request(self) -> bool:
+        parsed = super().parse_request()
+        if self.command != "POST":  # a POST's head includes its body
+            self.console.head_done(self.request)
+        return parsed
+
+    def finish(self) -> None:
+        self.console.head_done(self.request)
+        with contextlib.suppress(OSError, ValueError):
+            super().finish()
 
     def _send(self, status: int, body: bytes, kind: str) -> None:
         try:
@@ -345,7 +425,9 @@ class _Handler(BaseHTTPRequestHandler):
         if length > MAX_BODY:
             return self._json({"accepted": False, "reason": "command too large"}, 413)
         try:
-            body = json.loads(self.rfile.read(length) or b"{}")
+            data = self.rfile.read(length)
+            self.console.head_done(self.request)
+            body = json.loads(data or b"{}")
             if not isinstance(body, dict):
                 raise ValueError("not an object")
             if _depth(body) > MAX_DEPTH:
@@ -364,9 +446,11 @@ class _Handler(BaseHTTPRequestHandler):
         (HttpOnly, SameSite=Strict); the address bar loses it."""
         try:
             self.send_response(HTTPStatus.SEE_OTHER)
+            secure = "; Secure" if self.console.tls is not None else ""
             self.send_header(
                 "Set-Cookie",
-                f"{self.console.cookie}={self.console.token}; HttpOnly; SameSite=Strict; Path=/",
+                f"{self.console.cookie}={self.console.token}; HttpOnly; SameSite=Strict; "
+                f"Path=/{secure}",
             )
             self.send_header("Location", "/")
             self.send_header("Content-Length", "0")

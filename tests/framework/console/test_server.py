@@ -2,6 +2,7 @@
 accepted, or refused with a reason (bad input is refused before it reaches the
 chart); it serves only its own files, on the address it was given."""
 
+import contextlib
 import json
 import urllib.error
 import urllib.request
@@ -255,3 +256,27 @@ def test_a_slow_sender_is_cut_off(toy, tmp_path):
             assert sock.recv(1024) == b"", "the server closed the connection"
         finally:
             sock.close()
+
+
+def test_a_sender_that_trickles_its_request_is_cut_off_too(toy, tmp_path):
+    """A client that sends one byte just before every read timeout would hold its
+    connection forever if only reads were timed: the whole head has a deadline."""
+    import socket
+    import time
+
+    with served(toy, tmp_path, timeout=0.3) as (server, _):
+        line = b"GET / HTTP/1.1\r\nX-Slow: " + b"a" * 200
+        sock = socket.create_connection((server.host, server.port), timeout=20)
+        sent = 0
+        try:
+            with contextlib.suppress(OSError):
+                for byte in line:
+                    sock.sendall(bytes([byte]))
+                    sent += 1
+                    time.sleep(0.05)  # each byte well within the 0.3 s read timeout
+            cut = sent < len(line) or sock.recv(1024) == b""
+        finally:
+            sock.close()
+        assert cut, "the server was still listening after the whole trickle"
+        assert sent < len(line), f"the server waited for all {len(line)} bytes"
+        assert get(server, "/")[0] == 200
