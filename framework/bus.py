@@ -63,6 +63,9 @@ class BusConfig:
     """The deployment's keystore directory: mutual TLS on every link (empty: plain TCP)."""
     access: dict[str, Any] = field(default_factory=dict)
     """Zenoh `access_control` settings every session enforces on its links."""
+    listen: str = ""
+    """The address a process other than the hub listens on (empty: `host`, the control
+    host's: right for every process on that machine)."""
 
     @property
     def protocol(self) -> str:
@@ -86,6 +89,7 @@ class BusConfig:
             "secure": self.secure,
             "keys": self.keys,
             "access": dict(self.access),
+            "listen": self.listen,
         }
 
     @classmethod
@@ -103,12 +107,14 @@ def free_port(host: str = "127.0.0.1") -> int:
 
 def zenoh_config(bus: BusConfig, hub: bool = False, subject: str = "") -> zenoh.Config:
     """The Zenoh configuration of one process of the deployment (`hub` listens on the
-    deployment's fixed port; everyone else listens on an ephemeral loopback port;
+    deployment's fixed port; everyone else listens on an ephemeral port of its host;
     `subject`: whose certificate it presents when the bus has a keystore)."""
     settings: dict[str, Any] = {
         "mode": "peer",
         "scouting/multicast/enabled": False,
-        "listen/endpoints": [bus.hub_endpoint if hub else f"{bus.protocol}/{bus.host}:0"],
+        "listen/endpoints": [
+            bus.hub_endpoint if hub else f"{bus.protocol}/{bus.listen or bus.host}:0"
+        ],
         "connect/endpoints": [] if hub else [bus.hub_endpoint],
         "scouting/gossip/enabled": True,
         "scouting/gossip/autoconnect_strategy": {

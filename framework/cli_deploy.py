@@ -380,7 +380,7 @@ def cmd_keys(args: argparse.Namespace) -> int:
     if out.exists() and any(out.iterdir()):
         raise FwError(f"{out} exists and is not empty: choose a new directory")
     processes = sorted({c.process for c in topology.components.values()})
-    store = create_keystore(out, processes, ["127.0.0.1", *args.address])
+    store = create_keystore(out, processes, [*topology.addresses(), *args.address])
     print(f"keystore for {topology.name!r} in {store.root}: {', '.join(store.subjects())}")
     return 0
 
@@ -704,6 +704,7 @@ def add_commands(sub: Any) -> None:
         action="append",
         default=[],
         metavar="ADDR",
-        help="an address the processes listen on, besides 127.0.0.1 (repeatable)",
+        help="an address the processes listen on, besides 127.0.0.1 and the topology's "
+        "bus: address and hosts: addresses (repeatable)",
     )
     p.set_defaults(func=cmd_keys)

@@ -115,9 +115,10 @@ def container_spec(topology: Topology, process: str) -> dict[str, Any]:
         if topology.safety is not None and topology.safety.monitor == spec.name:
             item["safety"] = topology.safety.to_dict()
         components.append(item)
+    listen = topology.listen_address(host_of(topology, process))
     spec: dict[str, Any] = {
         "name": process,
-        "bus": topology.bus.to_dict(),
+        "bus": dataclasses.replace(topology.bus, listen=listen).to_dict(),
         "components": components,
     }
     if topology.safety is not None:
@@ -182,8 +183,9 @@ class Deployment:
         control = self.host in (None, LOCAL)
         if topo.bus.secure:
             topo.bus = self._credentials(control)
-        self.hub = Bus(topo.bus, hub=control, subject=CONTROL_PROCESS if control else OPERATOR)
         mine = LOCAL if self.host is None else self.host
+        here = dataclasses.replace(topo.bus, listen=topo.listen_address(mine))
+        self.hub = Bus(here, hub=control, subject=CONTROL_PROCESS if control else OPERATOR)
         names = sorted(
             {c.process for c in topo.components.values() if host_of(topo, c.process) == mine}
         )
@@ -261,7 +263,9 @@ class Deployment:
             )
         else:
             processes = {c.process for c in topo.components.values()}
-            store = create_keystore(keystore_for(topo.bus.namespace).root, sorted(processes))
+            store = create_keystore(
+                keystore_for(topo.bus.namespace).root, sorted(processes), topo.addresses()
+            )
             self._own_keys = store
         return dataclasses.replace(topo.bus, keys=str(store.root), access=access_control(topo))
 

@@ -132,6 +132,17 @@ class Topology:
     description: str = ""
     safety: SafetySpec | None = None
     """What the robot-side monitor watches (None: the topology declares no monitor)."""
+    hosts: dict[str, str] = field(default_factory=dict)
+    """Other machines -> the address their processes listen on (`hosts:`)."""
+
+    def addresses(self) -> list[str]:
+        """Every address a process of this deployment listens on (a certificate of the
+        deployment names them all)."""
+        return list(dict.fromkeys(["127.0.0.1", self.bus.host, *self.hosts.values()]))
+
+    def listen_address(self, host: str) -> str:
+        """Where the processes of `host` listen ('' for the control host's address)."""
+        return self.hosts.get(host, "")
 
     def heartbeats(self) -> dict[str, float]:
         """Watched components and how often each proves it runs (s)."""
@@ -645,6 +656,7 @@ def check_topology(path: str | Path) -> tuple[Topology | None, list[Finding]]:
     bus = BusConfig(
         namespace=bus_spec.get("namespace", data["topology"]),
         hub_port=bus_spec.get("hub_port", 7447),
+        host=bus_spec.get("address", "127.0.0.1"),
         lease_ms=bus_spec.get("lease_ms", 2000),
         extra=bus_spec.get("extra", {}),
         secure=bus_spec.get("security", "mtls") == "mtls",
@@ -662,6 +674,7 @@ def check_topology(path: str | Path) -> tuple[Topology | None, list[Finding]]:
         procedure=base / data["procedure"] if "procedure" in data else None,
         external_events=list(data.get("external_events") or []),
         description=data.get("description", ""),
+        hosts={name: spec["address"] for name, spec in (data.get("hosts") or {}).items()},
     )
     topo.components = loader.components(data)
     for i, spec in enumerate(data.get("connections") or []):
@@ -674,6 +687,15 @@ def check_topology(path: str | Path) -> tuple[Topology | None, list[Finding]]:
             topo.prepare[ref] = list(candidates)
     topo.configurations = loader.configurations(topo, data)
     topo.safety = loader.safety(topo, data)
+    for process, settings in topo.processes.items():
+        host = settings.get("host")
+        if topo.hosts and host is not None and host not in topo.hosts:
+            loader.error(
+                "host",
+                f"process {process!r} runs on host {host!r}, which hosts: does not declare "
+                f"(declared: {', '.join(sorted(topo.hosts))})",
+                ("processes", process, "host"),
+            )
     if topo.procedure is not None and not topo.procedure.exists():
         loader.error(
             "procedure", f"procedure folder {str(topo.procedure)!r} does not exist", ("procedure",)

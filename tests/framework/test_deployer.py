@@ -199,10 +199,38 @@ def test_a_fault_step_names_a_known_process_and_a_hang_says_how_long(write):
         load_scenario(bad)
 
 
+def listening(pid):
+    """The (address, port) TCP sockets process `pid` listens on (from /proc)."""
+    import os
+    import socket
+    import struct
+    from pathlib import Path
+
+    inodes = set()
+    for fd in os.listdir(f"/proc/{pid}/fd"):
+        try:
+            target = os.readlink(f"/proc/{pid}/fd/{fd}")
+        except OSError:
+            continue
+        if target.startswith("socket:["):
+            inodes.add(target[8:-1])
+    found = set()
+    for line in Path("/proc/net/tcp").read_text().splitlines()[1:]:
+        fields = line.split()
+        if fields[3] == "0A" and fields[9] in inodes:  # LISTEN
+            address, port = fields[1].split(":")
+            ip = socket.inet_ntoa(struct.pack("<I", int(address, 16)))
+            found.add((ip, int(port, 16)))
+    return found
+
+
 def test_processes_placed_on_another_host_are_started_by_that_hosts_deploy(toy, tmp_path):
+    """Another host's processes listen on its own address (here 127.0.0.2 stands for
+    it), with certificates that name it; the chart runs across both."""
     import threading
 
     toy.processes["trackers"] = {"host": "trackhost"}
+    toy.hosts = {"trackhost": "127.0.0.2"}
     control = Deployment(toy, tmp_path / "control")
     failure = []
     thread = threading.Thread(target=lambda: _start(control, failure))
@@ -216,6 +244,8 @@ def test_processes_placed_on_another_host_are_started_by_that_hosts_deploy(toy, 
         assert not failure, failure
         assert [p.name for p in control.processes] == ["control_side"]
         assert settled_in(control, "Use_T1"), "the chart runs across both hosts' processes"
+        assert {ip for ip, _ in listening(other.processes[0].popen.pid)} == {"127.0.0.2"}
+        assert {ip for ip, _ in listening(control.processes[0].popen.pid)} == {"127.0.0.1"}
     finally:
         control.stop()
         other.stop()

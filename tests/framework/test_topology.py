@@ -68,6 +68,12 @@ def test_the_toy_topology_is_clean():
         ("activity: {event: inp}", "activity: {after: t1}", "activity"),  # another process
         ("activity: {event: inp}", "activity: {after: t9}", "activity"),  # no such component
         ("process: trackers", "process: tracker", "process"),
+        (
+            "  trackers: {}\n  control_side: {shutdown: first}\n",
+            "  trackers: {host: cart}\n  control_side: {shutdown: first}\n"
+            "hosts:\n  tower: {address: 10.0.0.7}\n",
+            "host",
+        ),
     ],
 )
 def test_every_cross_check_is_located(write, old, new, code):
@@ -170,3 +176,16 @@ def test_the_safety_spec_watches_heartbeats_ports_processes_and_every_component(
         "coordinator",
     }
     assert topology.heartbeats() == {"t1": heartbeat_period(0.1)}
+
+
+def test_hosts_give_the_addresses_processes_listen_on_and_certificates_name(write):
+    text = TOY.replace("  trackers: {}\n", "  trackers: {host: cart}\n").replace(
+        "processes:", "bus: {address: 10.0.0.1}\nhosts:\n  cart: {address: 10.0.0.7}\nprocesses:"
+    )
+    chart = (REPO / "tests" / "data" / "toy" / "toy_chart.yaml").read_text()
+    write(chart, "toy_chart.yaml")
+    topology = load_topology(write(text, "topo.yaml"))
+    assert topology.bus.hub_endpoint.endswith("/10.0.0.1:7447")
+    assert topology.listen_address("cart") == "10.0.0.7"
+    assert topology.listen_address("local") == ""
+    assert topology.addresses() == ["127.0.0.1", "10.0.0.1", "10.0.0.7"]
