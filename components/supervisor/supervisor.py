@@ -250,19 +250,33 @@ class Supervisor(Component):
             core = self.core
             status, decision = self.tracking.read()
             if status is ReadStatus.NEW:
-                events += core.tracking(
-                    decision.payload.get("best"),
-                    decision.payload.get("health", {}),
-                    decision.payload.get("limits"),
-                )
+                best, health, limits = decision.payload.get("best"), {}, None
+                problem = _decision_problem(decision.payload)
+                if problem:  # no trustworthy tracker: as if none were left
+                    self.refuse("tracking", f"{problem}: taken as no tracker")
+                    best = None
+                else:
+                    health = decision.payload.get("health", {})
+                    limits = decision.payload.get("limits")
+                events += core.tracking(best, health, limits)
             tcp = self._new(self.tcp)
+            if tcp is not None and not all(map(math.isfinite, tcp.position)):
+                self.refuse("tcp", f"a TCP position that is not finite: {tcp.position}")
+                tcp = None
             near = self._new(self.users_near)
+            if near is not None and not (math.isfinite(near.value) and near.value >= 0):
+                self.refuse("users_near", f"a people count of {near.value}")
+                near = None
             distance = self._new(self.min_distance)
-            if tcp is not None or near is not None or distance is not None:
+            measured = distance.value if distance is not None else None
+            if measured is not None and math.isnan(measured):  # unknown: assume contact
+                self.refuse("min_distance", "a distance that is not a number: taken as contact")
+                measured = 0.0
+            if tcp is not None or near is not None or measured is not None:
                 events += core.observe(
                     tcp.position if tcp is not None else None,
                     int(near.value) if near is not None else None,
-                    distance.value if distance is not None else None,
+                    measured,
                 )
             while True:
                 status, change = self.motion.read()
@@ -359,3 +373,23 @@ class Supervisor(Component):
             "target": [round(float(v), 4) for v in core.procedure.target[:3, 3]],
             "critical_radius": core.procedure.critical_radius,
         }
+
+
+def _decision_problem(payload: dict[str, Any]) -> str:
+    """Why a Sensor Manager decision cannot be believed ("" if it can): a best sensor
+    that is not a name, health that is not a table, limits that are not positive
+    finite numbers."""
+    best = payload.get("best")
+    if best is not None and not (isinstance(best, str) and 0 < len(best) <= 64):
+        return f"best sensor {str(best)[:40]!r} is not a sensor name"
+    if not isinstance(payload.get("health", {}), dict):
+        return "health is not a table of sensors"
+    limits = payload.get("limits")
+    if limits is None:
+        return ""
+    if not isinstance(limits, dict):
+        return "limits are not a table"
+    for name, value in limits.items():
+        if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+            return f"limit {str(name)[:40]!r} = {str(value)[:40]} is not a positive number"
+    return ""
