@@ -1,0 +1,436 @@
+"""Mutation testing of the safety core: would its tests notice if the code were wrong?
+
+    python tools/mutation.py framework/configurator.py            its own tests (the map below)
+    python tools/mutation.py components/robot/interface.py --tests tests/components/robot
+    python tools/mutation.py --core                               every safety module
+    python tools/mutation.py framework/configurator.py --lines 150-200 --jobs 2
+
+The mutants are cosmic-ray's (its operators find where and how to change the code:
+a comparison flipped, an operator swapped, a constant changed, `True` for `False`, a
+`not` added, a decorator or an exception handler removed, a loop run zero times). This
+driver runs each mutant against the module's own fast tests, in a private copy of the
+repository per worker (so mutants never touch the working tree and run in parallel),
+and says which survived, as file:line before -> after.
+
+* **killed**: a test failed (or the mutant could not even be imported);
+* **timeout**: the tests ran over 3x their normal time plus 10 s (counted as killed:
+  the mutant made them hang);
+* **survived**: every test passed: a behaviour no test pins down;
+* **not run**: no test executes that line (from a coverage run of the unmutated tests;
+  counted as survived; `--no-coverage` runs them anyway);
+* **equivalent**: listed in `tools/mutation_equivalents.yaml` with the reason it cannot
+  change behaviour (matched by module, operator and the line's text before and after,
+  so it survives edits elsewhere); left out of the score.
+
+Score = (killed + timeout) / (all - equivalent). Mutants inside annotations are not
+made at all: with `from __future__ import annotations` they are never evaluated.
+
+The table goes to the terminal and, per module, into `docs/results/mutation.md`
+(its section is replaced; the other modules' stay). Needs the `mutation` extra:
+`pip install -e '.[mutation]'` (cosmic-ray, coverage).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import json
+import os
+import queue
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+REPORT = REPO / "docs" / "results" / "mutation.md"
+EQUIVALENTS = REPO / "tools" / "mutation_equivalents.yaml"
+
+SAFETY_CORE: dict[str, list[str]] = {
+    "framework/statechart/interpreter.py": ["tests/framework/statechart/test_interpreter.py"],
+    "framework/configurator.py": ["tests/framework/test_configurator.py"],
+    "framework/coordinator.py": ["tests/framework/test_coordinator.py"],
+    "framework/safety.py": ["tests/framework/test_safety.py"],
+    "components/tracking/sensor_manager.py": ["tests/components/tracking/test_sensor_manager.py"],
+    "components/supervisor/supervisor.py": [
+        "tests/components/supervisor/test_supervisor.py",
+        "tests/components/supervisor/test_supervisor_component.py",
+    ],
+    "components/robot/interface.py": [
+        "tests/components/robot/test_robot_components.py",
+        "tests/components/robot/test_safe_stop.py",
+    ],
+    "components/robot/interpolator.py": ["tests/components/robot/test_interpolator.py"],
+}
+"""The modules that keep the robot safe, each with its own fast tests."""
+
+SKIPPED_OPERATORS = ("core/VariableReplacer", "core/VariableInserter")
+"""Random variable swaps (they need arguments and are not reproducible)."""
+
+
+@dataclass
+class Mutant:
+    """One change to one module."""
+
+    module: str
+    operator: str
+    occurrence: int
+    line: int
+    before: str
+    after: str
+    code: str = field(repr=False)
+    status: str = ""
+    detail: str = ""
+
+    @property
+    def short(self) -> str:
+        """The operator without cosmic-ray's prefix."""
+        return self.operator.removeprefix("core/")
+
+
+def annotation_lines(code: str) -> set[tuple[int, int, int, int]]:
+    """Spans (line, col, end line, end col) of every annotation in `code`."""
+    spans = set()
+    for node in ast.walk(ast.parse(code)):
+        found = []
+        if isinstance(node, ast.arg) and node.annotation is not None:
+            found.append(node.annotation)
+        elif isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef) and node.returns:
+            found.append(node.returns)
+        elif isinstance(node, ast.AnnAssign):
+            found.append(node.annotation)
+        for item in found:
+            spans.add((item.lineno, item.col_offset, item.end_lineno, item.end_col_offset))
+    return spans
+
+
+def _inside(position: tuple[int, int], spans: set[tuple[int, int, int, int]]) -> bool:
+    line, col = position
+    return any((l0, c0) <= (line, col) < (l1, c1) for l0, c0, l1, c1 in spans)
+
+
+def make_mutants(module: str, lines: tuple[int, int] | None = None) -> list[Mutant]:
+    """Every mutant cosmic-ray's operators make of `module` (outside annotations)."""
+    from cosmic_ray.ast import ast_nodes, get_ast
+    from cosmic_ray.mutating import mutate_code
+    from cosmic_ray.plugins import get_operator, operator_names
+
+    code = (REPO / module).read_text(encoding="utf-8")
+    original = code.splitlines()
+    tree = get_ast(code)
+    skip = annotation_lines(code)
+    mutants: list[Mutant] = []
+    for name in operator_names():
+        if name in SKIPPED_OPERATORS:
+            continue
+        operator = get_operator(name)()
+        positions = [
+            start for node in ast_nodes(tree) for start, _ in operator.mutation_positions(node)
+        ]
+        for occurrence, start in enumerate(positions):
+            if _inside(start, skip) or (lines and not lines[0] <= start[0] <= lines[1]):
+                continue
+            mutated = mutate_code(code, operator, occurrence)
+            if mutated is None or mutated == code:
+                continue
+            changed = mutated.splitlines()
+            row = start[0] - 1
+            before = original[row].strip() if row < len(original) else ""
+            after = changed[row].strip() if row < len(changed) else ""
+            if len(changed) != len(original):  # a removed line (decorator, handler)
+                after = "(removed) " + after
+            mutants.append(Mutant(module, name, occurrence, start[0], before, after, mutated))
+    return sorted(mutants, key=lambda m: (m.line, m.operator, m.occurrence))
+
+
+def load_equivalents() -> list[dict[str, str]]:
+    """The mutants known to change nothing, with why (tools/mutation_equivalents.yaml)."""
+    if not EQUIVALENTS.exists():
+        return []
+    import yaml
+
+    return list(yaml.safe_load(EQUIVALENTS.read_text(encoding="utf-8")) or [])
+
+
+def equivalent_reason(mutant: Mutant, known: list[dict[str, str]]) -> str:
+    """Why `mutant` is equivalent, or "" if it is not listed."""
+    for item in known:
+        if (
+            item.get("module") == mutant.module
+            and item.get("operator") == mutant.short
+            and item.get("before", "").strip() == mutant.before
+            and item.get("after", "").strip() == mutant.after
+        ):
+            return str(item.get("reason", "listed as equivalent"))
+    return ""
+
+
+class Workspace:
+    """A private copy of the repository's tracked files, where one mutant at a time is
+    written and tested."""
+
+    def __init__(self, root: Path):
+        self.root = root
+        files = subprocess.run(
+            ["git", "ls-files", "-z"], cwd=REPO, capture_output=True, check=True
+        ).stdout.split(b"\0")
+        for name in filter(None, files):
+            source = REPO / name.decode()
+            if source.is_file():
+                target = root / name.decode()
+                target.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(source, target)
+
+    def env(self) -> dict[str, str]:
+        env = dict(os.environ, PYTHONPATH=str(self.root), PYTHONDONTWRITEBYTECODE="1")
+        env.pop("CI", None)
+        return env
+
+    def pytest(self, tests: list[str], timeout: float, prefix: tuple[str, ...] = ()) -> str:
+        """Run the tests here: 'passed', 'failed' or 'timeout'."""
+        command = [
+            sys.executable,
+            *prefix,
+            "-m",
+            "pytest",
+            "-x",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "-p",
+            "no:randomly",
+            *tests,
+        ]
+        try:
+            done = subprocess.run(
+                command,
+                cwd=self.root,
+                env=self.env(),
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+                timeout=timeout,
+                start_new_session=True,
+            )
+        except subprocess.TimeoutExpired:
+            return "timeout"
+        return "passed" if done.returncode == 0 else "failed"
+
+    def test(self, mutant: Mutant, tests: list[str], timeout: float) -> str:
+        """Test one mutant (its module is restored afterwards)."""
+        path = self.root / mutant.module
+        original = path.read_text(encoding="utf-8")
+        try:
+            path.write_text(mutant.code, encoding="utf-8")
+            return self.pytest(tests, timeout)
+        finally:
+            path.write_text(original, encoding="utf-8")
+
+
+def executed_lines(space: Workspace, module: str, tests: list[str]) -> set[int] | None:
+    """Lines of `module` the unmutated tests execute, in the test process and in every
+    process it starts (None if coverage cannot say)."""
+    rc = space.root / ".coveragerc.mutation"
+    rc.write_text(
+        f"[run]\nparallel = true\npatch = subprocess\ninclude = {module}\n"
+        f"data_file = {space.root / '.coverage.mutation'}\n"
+    )
+    env = dict(space.env(), COVERAGE_RCFILE=str(rc))
+    quiet = {
+        "cwd": space.root,
+        "env": env,
+        "stdout": subprocess.DEVNULL,
+        "stderr": subprocess.DEVNULL,
+    }
+    coverage = [sys.executable, "-m", "coverage"]
+    subprocess.run(
+        [*coverage, "run", "-m", "pytest", "-q", "-p", "no:cacheprovider", *tests], **quiet
+    )
+    subprocess.run([*coverage, "combine"], **quiet)
+    report = space.root / "coverage.json"
+    subprocess.run([*coverage, "json", "-o", str(report)], **quiet)
+    if not report.exists():
+        return None
+    for name, info in json.loads(report.read_text())["files"].items():
+        if name.endswith(module):
+            return set(info["executed_lines"])
+    return None
+
+
+def run_module(
+    module: str, tests: list[str], jobs: int, lines: tuple[int, int] | None, coverage: bool
+) -> list[Mutant]:
+    """Make and test every mutant of `module`; returns them with their status."""
+    known = load_equivalents()
+    mutants = make_mutants(module, lines)
+    print(f"{module}: {len(mutants)} mutants; tests: {' '.join(tests)}", flush=True)
+    base = Path(tempfile.mkdtemp(prefix="fw-mutation-"))
+    try:
+        spaces = [Workspace(base / f"w{i}") for i in range(max(1, jobs))]
+        started = time.monotonic()
+        if spaces[0].pytest(tests, timeout=1800) != "passed":
+            raise SystemExit(f"{module}: its tests fail without any mutant: fix them first")
+        normal = time.monotonic() - started
+        timeout = 3 * normal + 10
+        executed = executed_lines(spaces[0], module, tests) if coverage else None
+        print(f"  the tests take {normal:.1f} s; a mutant gets {timeout:.0f} s", flush=True)
+        todo: queue.Queue[Mutant] = queue.Queue()
+        for mutant in mutants:
+            reason = equivalent_reason(mutant, known)
+            if reason:
+                mutant.status, mutant.detail = "equivalent", reason
+            elif executed is not None and mutant.line not in executed:
+                mutant.status = "not run"
+            else:
+                todo.put(mutant)
+        total, done = todo.qsize(), [0]
+        lock = threading.Lock()
+
+        def work(space: Workspace) -> None:
+            while True:
+                try:
+                    mutant = todo.get_nowait()
+                except queue.Empty:
+                    return
+                outcome = space.test(mutant, tests, timeout)
+                mutant.status = {"failed": "killed", "passed": "survived"}.get(outcome, outcome)
+                with lock:
+                    done[0] += 1
+                    if mutant.status != "killed" or done[0] % 25 == 0 or done[0] == total:
+                        print(
+                            f"  [{done[0]}/{total}] {mutant.status:<8} {module}:{mutant.line} "
+                            f"{mutant.short}: {mutant.before} -> {mutant.after}",
+                            flush=True,
+                        )
+
+        threads = [threading.Thread(target=work, args=(s,)) for s in spaces]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+    finally:
+        shutil.rmtree(base, ignore_errors=True)
+    return mutants
+
+
+def score(mutants: list[Mutant]) -> dict[str, float]:
+    """Counts per status and the score (see the module docstring)."""
+    counts = Counter(m.status for m in mutants)
+    counted = len(mutants) - counts["equivalent"]
+    caught = counts["killed"] + counts["timeout"]
+    return {
+        "mutants": len(mutants),
+        "killed": counts["killed"],
+        "timeout": counts["timeout"],
+        "survived": counts["survived"],
+        "not run": counts["not run"],
+        "equivalent": counts["equivalent"],
+        "score": caught / counted if counted else 1.0,
+    }
+
+
+def section(module: str, tests: list[str], mutants: list[Mutant]) -> str:
+    """The report's markdown section of one module."""
+    s = score(mutants)
+    lines = [
+        f"<!-- mutation:{module} -->",
+        f"### `{module}`",
+        "",
+        f"{time.strftime('%Y-%m-%d')}, tests: {', '.join(f'`{t}`' for t in tests)}",
+        "",
+        "| mutants | killed | timeout | survived | not run | equivalent | score |",
+        "|---|---|---|---|---|---|---|",
+        f"| {s['mutants']} | {s['killed']} | {s['timeout']} | {s['survived']} | {s['not run']} "
+        f"| {s['equivalent']} | {s['score']:.1%} |",
+        "",
+    ]
+    left = [m for m in mutants if m.status in ("survived", "not run")]
+    if left:
+        lines += ["Survivors:", ""]
+        lines += [
+            f"- {m.module}:{m.line} {m.short}{' (not run)' if m.status == 'not run' else ''}: "
+            f"`{m.before}` -> `{m.after}`"
+            for m in left
+        ]
+        lines.append("")
+    same = [m for m in mutants if m.status == "equivalent"]
+    if same:
+        lines += ["Equivalent:", ""]
+        lines += [f"- {m.module}:{m.line} {m.short}: {m.detail}" for m in same]
+        lines.append("")
+    lines.append(f"<!-- /mutation:{module} -->")
+    return "\n".join(lines)
+
+
+def write_report(module: str, text: str) -> None:
+    """Replace (or add) this module's section of docs/results/mutation.md."""
+    head = (
+        "# Mutation scores of the safety core\n\n"
+        "Regenerated by `python tools/mutation.py MODULE...` (see its docstring): "
+        "cosmic-ray's mutants, each module against its own fast tests. Target: 90% "
+        "of non-equivalent mutants killed in every module (issue 21).\n"
+    )
+    current = REPORT.read_text(encoding="utf-8") if REPORT.exists() else head
+    pattern = re.compile(
+        rf"<!-- mutation:{re.escape(module)} -->.*?<!-- /mutation:{re.escape(module)} -->",
+        re.S,
+    )
+    if pattern.search(current):
+        current = pattern.sub(lambda _: text, current)
+    else:
+        current = current.rstrip("\n") + "\n\n" + text + "\n"
+    REPORT.parent.mkdir(parents=True, exist_ok=True)
+    REPORT.write_text(current, encoding="utf-8")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog=__doc__.split("\n\n", 2)[1],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("modules", nargs="*", metavar="MODULE", help="e.g. framework/safety.py")
+    parser.add_argument("--core", action="store_true", help="every module of the safety core")
+    parser.add_argument("--tests", nargs="+", metavar="PATH", help="tests to run (default: map)")
+    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1, metavar="N")
+    parser.add_argument("--lines", metavar="A-B", help="only mutants on these lines")
+    parser.add_argument("--no-coverage", action="store_true", help="run mutants on unrun lines")
+    parser.add_argument("--no-report", action="store_true", help="do not update the report")
+    args = parser.parse_args(argv)
+    modules = list(SAFETY_CORE) if args.core else args.modules
+    if not modules:
+        parser.error("name a MODULE (or --core)")
+    try:
+        import cosmic_ray  # noqa: F401
+    except ImportError:
+        parser.error("cosmic-ray is missing: pip install -e '.[mutation]'")
+    lines = None
+    if args.lines:
+        first, _, last = args.lines.partition("-")
+        lines = (int(first), int(last or first))
+    failed = False
+    for module in modules:
+        if not (REPO / module).is_file():
+            parser.error(f"no such module: {module}")
+        tests = args.tests or SAFETY_CORE.get(module)
+        if not tests:
+            parser.error(f"{module} has no tests in the map: give --tests")
+        missing = [t for t in tests if not (REPO / t).exists()]
+        if missing:
+            parser.error(f"no such tests: {', '.join(missing)}")
+        mutants = run_module(module, tests, args.jobs, lines, not args.no_coverage)
+        text = section(module, tests, mutants)
+        print(text)
+        if not args.no_report and lines is None:
+            write_report(module, text)
+        failed |= score(mutants)["score"] < 0.9
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
