@@ -290,12 +290,12 @@ def _console_tls(args: argparse.Namespace) -> tuple[Any, str]:
     try:
         cert, key = tls.self_signed(tls.names_for(args.console_host), made)
         context = tls.server_context(cert, key)
-        print_ = tls.fingerprint(cert)
+        digest = tls.fingerprint(cert)
     finally:
         shutil.rmtree(made, ignore_errors=True)  # the key lives on in memory only
     return context, (
         "the console's certificate was made for this run (no --console-cert): the browser "
-        f"will warn; accept it only if it shows SHA-256 {print_}"
+        f"will warn; accept it only if it shows SHA-256 {digest}"
     )
 
 

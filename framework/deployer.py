@@ -200,10 +200,7 @@ class Deployment:
                 settings.get("shutdown", "normal"),
                 stderr=log,
             )
-            with log.open("wb") as err:
-                process.popen = spawn_container(
-                    container_spec(topo, name), stdout=subprocess.DEVNULL, stderr=err
-                )
+            self.spawn(process, fresh=True)
             self.processes.append(process)
         self._wait_for_liveliness(
             None if control else [c for p in self.processes for c in p.components]
@@ -292,6 +289,15 @@ class Deployment:
             self.coordinator.start()
             if self.runner is not None:
                 self.runner.start()
+
+    def spawn(self, process: Process, fresh: bool = False) -> None:
+        """Start `process`'s container; its stderr goes to its log (kept across restarts,
+        begun anew with `fresh`)."""
+        assert process.stderr is not None
+        with process.stderr.open("wb" if fresh else "ab") as err:
+            process.popen = spawn_container(
+                container_spec(self.topology, process.name), stdout=subprocess.DEVNULL, stderr=err
+            )
 
     def wait_alive(self, components: list[str]) -> None:
         """Wait until these components' liveliness tokens are up (a restarted process)."""

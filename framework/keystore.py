@@ -26,6 +26,7 @@ import shutil
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from framework.errors import FwError
 
@@ -97,6 +98,35 @@ def keystore_for(namespace: str) -> Keystore:
     return Keystore(default_root() / namespace)
 
 
+def write_private(path: Path, data: bytes) -> None:
+    """Write `data` into a file only the user can read (0600 from its creation)."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "wb") as out:
+        out.write(data)
+
+
+def private_pem(key: Any) -> bytes:
+    """A private key as unencrypted PKCS#8 PEM (the file holding it is 0600)."""
+    from cryptography.hazmat.primitives import serialization
+
+    return key.private_bytes(
+        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+    )
+
+
+def alternative_names(hosts: Iterable[str]) -> list[Any]:
+    """Subject alternative names for these hosts: IP addresses as such, others as DNS."""
+    from cryptography import x509
+
+    names: list[x509.GeneralName] = []
+    for host in dict.fromkeys(hosts):
+        try:
+            names.append(x509.IPAddress(ipaddress.ip_address(host)))
+        except ValueError:
+            names.append(x509.DNSName(host))
+    return names
+
+
 def create_keystore(
     root: Path, subjects: Iterable[str], hosts: Iterable[str] = ("127.0.0.1",)
 ) -> Keystore:
@@ -123,11 +153,6 @@ def create_keystore(
                 x509.NameAttribute(NameOID.COMMON_NAME, common),
             ]
         )
-
-    def write(path: Path, data: bytes) -> None:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        with os.fdopen(fd, "wb") as out:
-            out.write(data)
 
     ca_key = ec.generate_private_key(ec.SECP256R1())
     ca_name = name(f"fw CA {root.name}")
@@ -156,13 +181,8 @@ def create_keystore(
         )
         .sign(ca_key, hashes.SHA256())
     )
-    write(root / "ca.pem", ca.public_bytes(serialization.Encoding.PEM))
-    names: list[x509.GeneralName] = [x509.DNSName("localhost")]
-    for host in dict.fromkeys(hosts):
-        try:
-            names.append(x509.IPAddress(ipaddress.ip_address(host)))
-        except ValueError:
-            names.append(x509.DNSName(host))
+    write_private(root / "ca.pem", ca.public_bytes(serialization.Encoding.PEM))
+    names = alternative_names(["localhost", *hosts])
     for subject in dict.fromkeys([*subjects, CONTROL, OPERATOR]):
         key = ec.generate_private_key(ec.SECP256R1())
         cert = (
@@ -183,13 +203,6 @@ def create_keystore(
             )
             .sign(ca_key, hashes.SHA256())
         )
-        write(root / f"{subject}.pem", cert.public_bytes(serialization.Encoding.PEM))
-        write(
-            root / f"{subject}.key",
-            key.private_bytes(
-                serialization.Encoding.PEM,
-                serialization.PrivateFormat.PKCS8,
-                serialization.NoEncryption(),
-            ),
-        )
+        write_private(root / f"{subject}.pem", cert.public_bytes(serialization.Encoding.PEM))
+        write_private(root / f"{subject}.key", private_pem(key))
     return Keystore(root)

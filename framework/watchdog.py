@@ -30,7 +30,6 @@ import time
 from typing import TYPE_CHECKING, Any
 
 from framework import keys, messages
-from framework.container import spawn_container
 from framework.messages import EventMessage
 from framework.topology import Step
 
@@ -173,20 +172,12 @@ class ProcessWatch:
                 popen.wait(5)
 
     def _restart(self, process: Process, wanted: dict[str, str]) -> None:
-        from framework.deployer import container_spec
-
         deployment = self.deployment
-        assert process.stderr is not None
         deployment.wait_gone(process.components)
         with self._spawn_lock:
             if self._stop.is_set():
                 raise RuntimeError("the deployment is shutting down")
-            with process.stderr.open("ab") as err:
-                process.popen = spawn_container(
-                    container_spec(deployment.topology, process.name),
-                    stdout=subprocess.DEVNULL,
-                    stderr=err,
-                )
+            deployment.spawn(process)
         deployment.wait_alive(process.components)
         configurator = deployment.configurator
         if configurator is None:

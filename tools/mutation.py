@@ -192,11 +192,10 @@ class Workspace:
         env.pop("CI", None)
         return env
 
-    def pytest(self, tests: list[str], timeout: float, prefix: tuple[str, ...] = ()) -> str:
+    def pytest(self, tests: list[str], timeout: float) -> str:
         """Run the tests here: 'passed', 'failed' or 'timeout'."""
         command = [
             sys.executable,
-            *prefix,
             "-m",
             "pytest",
             "-x",

@@ -91,9 +91,14 @@ class ConsoleServer:
         self._heads: dict[socket.socket, float] = {}
         """Connections still sending a request's head -> when they must be done."""
         self._heads_lock = threading.Lock()
+        self._allowed: set[str] = set()
 
     def allowed_hosts(self) -> set[str]:
-        """`Host` headers this server answers (anything else is DNS rebinding)."""
+        """`Host` headers this server answers (anything else is DNS rebinding); found
+        once, at start (a wildcard host's names need a lookup)."""
+        return self._allowed
+
+    def _find_allowed_hosts(self) -> set[str]:
         names = set(names_for(self.host))
         if is_loopback(self.host):
             names |= set(LOOPBACK)
@@ -141,6 +146,7 @@ class ConsoleServer:
             ) from None
         self._httpd.daemon_threads = True
         self.port = self._httpd.server_address[1]
+        self._allowed = self._find_allowed_hosts()
         self._thread = threading.Thread(
             target=self._httpd.serve_forever, name="fw-console", daemon=True
         )
@@ -149,9 +155,10 @@ class ConsoleServer:
         return self.url
 
     def head_begins(self, connection: socket.socket) -> None:
-        """A request's head starts arriving: it has `timeout` s to be complete."""
+        """A request's head starts arriving: it has `timeout` s to be complete (a
+        connection's first request keeps the deadline its TLS handshake began)."""
         with self._heads_lock:
-            self._heads[connection] = time.monotonic() + self.timeout
+            self._heads.setdefault(connection, time.monotonic() + self.timeout)
 
     def head_done(self, connection: socket.socket) -> None:
         """The head has arrived (or the connection ends): no deadline any more."""
@@ -341,7 +348,10 @@ class _Handler(BaseHTTPRequestHandler):
 
     def handle_one_request(self) -> None:
         self.console.head_begins(self.request)
-        super().handle_one_request()
+        try:
+            super().handle_one_request()
+        finally:  # however it ended, the next request on this connection starts afresh
+            self.console.head_done(self.request)
 
     def parse_request(self) -> bool:
         parsed = super().parse_request()
@@ -350,8 +360,7 @@ class _Handler(BaseHTTPRequestHandler):
         return parsed
 
     def finish(self) -> None:
-        self.console.head_done(self.request)
-        with contextlib.suppress(OSError, ValueError):
+        with contextlib.suppress(OSError, ValueError):  # a connection cut by the watcher
             super().finish()
 
     def _send(self, status: int, body: bytes, kind: str) -> None:

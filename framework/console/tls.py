@@ -14,14 +14,12 @@ import contextlib
 import datetime
 import hashlib
 import ipaddress
-import os
 import socket
 import ssl
 from pathlib import Path
 
 from framework.errors import FwError
-
-VALIDITY = datetime.timedelta(days=30)
+from framework.keystore import VALIDITY, alternative_names, private_pem, write_private
 
 
 class TlsError(FwError):
@@ -59,8 +57,8 @@ def names_for(host: str) -> list[str]:
 
 
 def self_signed(names: list[str], directory: Path) -> tuple[Path, Path]:
-    """A certificate (and its key) for `names`, valid 30 days, written into `directory`
-    (the key readable only by the user); returns (certificate, key)."""
+    """A self-signed certificate (and its key) for `names`, valid as long as a keystore,
+    written into `directory` (the key readable only by the user); (certificate, key)."""
     from cryptography import x509
     from cryptography.hazmat.primitives import hashes, serialization
     from cryptography.hazmat.primitives.asymmetric import ec
@@ -74,12 +72,6 @@ def self_signed(names: list[str], directory: Path) -> tuple[Path, Path]:
             x509.NameAttribute(NameOID.COMMON_NAME, names[0][:64]),
         ]
     )
-    alternatives: list[x509.GeneralName] = []
-    for name in names:
-        try:
-            alternatives.append(x509.IPAddress(ipaddress.ip_address(name)))
-        except ValueError:
-            alternatives.append(x509.DNSName(name))
     now = datetime.datetime.now(datetime.UTC)
     cert = (
         x509.CertificateBuilder()
@@ -89,20 +81,12 @@ def self_signed(names: list[str], directory: Path) -> tuple[Path, Path]:
         .serial_number(x509.random_serial_number())
         .not_valid_before(now - datetime.timedelta(minutes=5))
         .not_valid_after(now + VALIDITY)
-        .add_extension(x509.SubjectAlternativeName(alternatives), critical=False)
+        .add_extension(x509.SubjectAlternativeName(alternative_names(names)), critical=False)
         .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH]), critical=False)
         .sign(key, hashes.SHA256())
     )
     cert_path, key_path = directory / "console.pem", directory / "console.key"
-    fd = os.open(key_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "wb") as out:
-        out.write(
-            key.private_bytes(
-                serialization.Encoding.PEM,
-                serialization.PrivateFormat.PKCS8,
-                serialization.NoEncryption(),
-            )
-        )
+    write_private(key_path, private_pem(key))
     cert_path.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
     return cert_path, key_path
 
