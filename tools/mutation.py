@@ -10,7 +10,10 @@ a comparison flipped, an operator swapped, a constant changed, `True` for `False
 `not` added, a decorator or an exception handler removed, a loop run zero times). This
 driver runs each mutant against the module's own fast tests, in a private copy of the
 repository per worker (so mutants never touch the working tree and run in parallel),
-and says which survived, as file:line before -> after.
+and says which survived, as file:line before -> after. A mutant meets first the tests
+seen running its line (from a coverage run with per-test contexts), then, if they all
+pass, every test of the module: a kill is quick, and a survivor is one the whole set
+lets through.
 
 * **killed**: a test failed (or the mutant could not even be imported);
 * **timeout**: the tests ran over 3x their normal time plus 10 s (counted as killed:
@@ -220,24 +223,34 @@ class Workspace:
             return "timeout"
         return "passed" if done.returncode == 0 else "failed"
 
-    def test(self, mutant: Mutant, tests: list[str], timeout: float) -> str:
-        """Test one mutant (its module is restored afterwards)."""
+    def test(self, mutant: Mutant, rounds: list[list[str]], timeout: float) -> str:
+        """Test one mutant (its module is restored afterwards): each round of tests in
+        turn, until one fails or times out. The first round is the tests seen running
+        the mutated line (quick to fail), the last all of them (so a survivor is one
+        the whole set lets through)."""
         path = self.root / mutant.module
         original = path.read_text(encoding="utf-8")
         try:
             path.write_text(mutant.code, encoding="utf-8")
-            return self.pytest(tests, timeout)
+            outcome = "passed"
+            for tests in rounds:
+                outcome = self.pytest(tests, timeout)
+                if outcome != "passed":
+                    break
+            return outcome
         finally:
             path.write_text(original, encoding="utf-8")
 
 
-def executed_lines(space: Workspace, module: str, tests: list[str]) -> set[int] | None:
-    """Lines of `module` the unmutated tests execute, in the test process and in every
-    process it starts (None if coverage cannot say)."""
+def covering_tests(space: Workspace, module: str, tests: list[str]) -> dict[int, list[str]] | None:
+    """For every line of `module` the unmutated tests execute (in the test process or in
+    any process it starts), the test functions seen running it, as pytest node ids (an
+    empty list when only code outside a test function ran it: a fixture, a thread, a
+    subprocess). None if coverage cannot say."""
     rc = space.root / ".coveragerc.mutation"
     rc.write_text(
-        f"[run]\nparallel = true\npatch = subprocess\ninclude = {module}\n"
-        f"data_file = {space.root / '.coverage.mutation'}\n"
+        f"[run]\nparallel = true\npatch = subprocess\ndynamic_context = test_function\n"
+        f"include = {module}\ndata_file = {space.root / '.coverage.mutation'}\n"
     )
     env = dict(space.env(), COVERAGE_RCFILE=str(rc))
     quiet = {
@@ -252,13 +265,30 @@ def executed_lines(space: Workspace, module: str, tests: list[str]) -> set[int] 
     )
     subprocess.run([*coverage, "combine"], **quiet)
     report = space.root / "coverage.json"
-    subprocess.run([*coverage, "json", "-o", str(report)], **quiet)
+    subprocess.run([*coverage, "json", "--show-contexts", "-o", str(report)], **quiet)
     if not report.exists():
         return None
     for name, info in json.loads(report.read_text())["files"].items():
         if name.endswith(module):
-            return set(info["executed_lines"])
+            contexts = info.get("contexts", {})
+            return {
+                line: sorted(
+                    {node for c in contexts.get(str(line), []) if (node := _node_id(space, c))}
+                )
+                for line in info["executed_lines"]
+            }
     return None
+
+
+def _node_id(space: Workspace, context: str) -> str:
+    """The pytest node id of a coverage test-function context
+    ('tests.a.test_b.TestC.test_d' -> 'tests/a/test_b.py::TestC::test_d'), or ''."""
+    parts = context.split(".") if context else []
+    for cut in range(len(parts) - 1, 0, -1):
+        path = "/".join(parts[:cut]) + ".py"
+        if (space.root / path).is_file():
+            return path + "::" + "::".join(parts[cut:])
+    return ""
 
 
 def run_module(
@@ -276,14 +306,14 @@ def run_module(
             raise SystemExit(f"{module}: its tests fail without any mutant: fix them first")
         normal = time.monotonic() - started
         timeout = 3 * normal + 10
-        executed = executed_lines(spaces[0], module, tests) if coverage else None
+        covering = covering_tests(spaces[0], module, tests) if coverage else None
         print(f"  the tests take {normal:.1f} s; a mutant gets {timeout:.0f} s", flush=True)
         todo: queue.Queue[Mutant] = queue.Queue()
         for mutant in mutants:
             reason = equivalent_reason(mutant, known)
             if reason:
                 mutant.status, mutant.detail = "equivalent", reason
-            elif executed is not None and mutant.line not in executed:
+            elif covering is not None and mutant.line not in covering:
                 mutant.status = "not run"
             else:
                 todo.put(mutant)
@@ -296,7 +326,8 @@ def run_module(
                     mutant = todo.get_nowait()
                 except queue.Empty:
                     return
-                outcome = space.test(mutant, tests, timeout)
+                first = (covering or {}).get(mutant.line, [])
+                outcome = space.test(mutant, [first, tests] if first else [tests], timeout)
                 mutant.status = {"failed": "killed", "passed": "survived"}.get(outcome, outcome)
                 with lock:
                     done[0] += 1
