@@ -1,11 +1,12 @@
 """Spec: the Supervisor turns measurements into the SEEG chart's events (thesis 3.5.3)."""
 
+import json
 import math
 
 import pytest
 
 from components.supervisor.procedure import load_procedure
-from components.supervisor.supervisor import SupervisorCore
+from components.supervisor.supervisor import SupervisorCore, _decision_problem
 from framework.errors import FwError
 from tests.conftest import REPO
 
@@ -124,3 +125,134 @@ def test_the_sensor_managers_limits_cap_the_procedures_speeds():
     c.use_tracker("vicra")
     assert c.limits("fast") == {"velocity": 0.03, "acceleration": 0.1}, "capped"
     assert c.limits("slow")["velocity"] == 0.010, "below the cap: the procedure's speed"
+
+
+# --- boundaries, phases and the wire ------------------------------------------------------
+# Names arrive decoded from the bus, so the Supervisor must compare them by value: `wire`
+# gives a string as a message would carry it (equal to the literal, not the same object).
+
+
+def wire(text: str) -> str:
+    return json.loads(json.dumps(text))
+
+
+def at_origin() -> SupervisorCore:
+    """A Supervisor whose target is the base frame's origin, so distances along an axis
+    are exact and the limits can be probed on the dot."""
+    procedure = load_procedure(REPO / "procedures" / "seeg.yaml")
+    procedure.define_target((0.0, 0.0, 0.0), (0, 180, 0))
+    return SupervisorCore(procedure)
+
+
+def test_a_person_already_too_close_at_the_first_measurement_stops():
+    c = core()
+    assert names(c.observe(min_distance=PROCEDURE.collision_distance / 2)) == ["e_STOP"]
+
+
+def test_a_person_exactly_at_the_collision_distance_is_not_yet_a_collision():
+    c = core()
+    assert c.observe(min_distance=PROCEDURE.collision_distance) == []
+    assert names(c.observe(min_distance=PROCEDURE.collision_distance * 0.999)) == ["e_STOP"]
+
+
+def test_the_collision_reason_says_the_distance_and_the_limit_in_cm():
+    c = core()
+    ((_, payload),) = c.observe(min_distance=0.0425)
+    assert payload["reason"] == "possible collision: robot 4.2 cm from a person (limit 10 cm)"
+
+
+def test_only_the_start_of_a_motion_during_a_collision_stops_again():
+    c = core()
+    c.observe(min_distance=PROCEDURE.collision_distance / 2)
+    for phase in ("stopping", "stopped", "idle", "reached", "returning"):
+        assert c.motion(wire(phase), "target") == [], phase
+    assert names(c.motion(wire("moving"), "target")) == ["e_STOP"]
+    assert c.motion(wire("moving"), "target") == [], "a repeated 'moving' is the same motion"
+    assert c.motion(wire("returning"), "home") == []
+    assert names(c.motion(wire("moving"), "home")) == ["e_STOP"], "moving after returning"
+
+
+def test_passing_through_the_goal_or_stopping_at_it_is_not_reaching_it():
+    c = at_origin()
+    c.observe(tcp=(0.0, 0.0, 0.2))
+    for phase in ("moving", "stopping", "stopped", "returning", "idle"):
+        c.motion(wire(phase), wire("target"))
+        assert not [e for e in c.observe(tcp=(0.0, 0.0, 0.0)) if e[0] == "e_TARGET"], phase
+    c.motion(wire("reached"), wire("somewhere"))
+    assert not [e for e in c.observe(tcp=(0.0, 0.0, 0.0)) if e[0] == "e_TARGET"], "no such goal"
+    assert ("e_TARGET", {"goal": "target"}) in c.motion(wire("reached"), wire("target"))
+
+
+def test_the_tcp_exactly_at_the_target_tolerance_has_arrived():
+    c = at_origin()
+    tolerance = c.procedure.target_tolerance
+    c.observe(tcp=(0.0, 0.0, 0.2))
+    c.motion("reached", "target")
+    assert not [e for e in c.observe(tcp=(0.0, 0.0, tolerance * 1.001)) if e[0] == "e_TARGET"]
+    assert [e for e in c.observe(tcp=(0.0, 0.0, tolerance)) if e[0] == "e_TARGET"]
+
+
+def test_the_critical_sphere_is_open_at_its_radius_and_events_carry_the_distance():
+    c = at_origin()
+    radius = c.procedure.critical_radius
+    assert c.observe(tcp=(0.0, 0.0, radius)) == [("e_SAFE_AREA", {"distance": radius})]
+    events = c.observe(tcp=(0.0, 0.0, 0.0123456))
+    assert events == [
+        ("e_CRITICAL_AREA", {"distance": 0.0123, "users_near": 0, "why": "near the target"})
+    ]
+    assert c.area == "critical"
+    assert c.observe(tcp=(0.0, 0.0, 0.0456789)) == [], "still inside"
+    assert c.observe(tcp=(0.0, 0.0, 0.1234567)) == [("e_SAFE_AREA", {"distance": 0.1235})]
+    assert c.area == "safe"
+
+
+def test_a_different_robot_fault_while_the_first_holds_stops_again():
+    c = core()
+    assert names(c.robot(True, True, wire("the arm braked by itself: watchdog"))) == ["e_STOP"]
+    assert c.robot(True, True, wire("the arm braked by itself: watchdog")) == [], "same fault"
+    assert names(c.robot(True, True, wire("a monitor tripped"))) == ["e_STOP"], "a new one"
+
+
+def test_the_tracker_in_use_reported_best_again_is_no_fault():
+    c = core()
+    c.use_tracker("certus")
+    assert c.tracking(wire("certus"), HEALTHY) == []
+
+
+def test_speeds_are_chosen_by_name_as_they_arrive_from_the_chart():
+    c = core()
+    c.use_tracker(wire("certus"))
+    assert c.limits(wire("fast"))["velocity"] == 0.075
+    assert c.limits(wire("slow"))["velocity"] == 0.010
+
+
+def test_without_a_tracker_in_use_the_slowest_slow_speed_of_any_tracker_is_used(write):
+    text = (REPO / "procedures" / "seeg.yaml").read_text(encoding="utf-8")
+    text = text.replace("vicra: {fast: 0.050, slow: 0.010}", "vicra: {fast: 0.050, slow: 0.004}")
+    c = SupervisorCore(load_procedure(write(text, "seeg.yaml")))
+    assert c.limits("fast")["velocity"] == c.limits("slow")["velocity"] == 0.004
+    c.tracking("certus", HEALTHY)
+    c.use_tracker("certus")
+    assert c.limits("slow")["velocity"] == 0.010
+
+
+@pytest.mark.parametrize(
+    "payload, problem",
+    [
+        ({"best": "c"}, ""),
+        ({"best": "c" * 64}, ""),
+        ({"best": None, "health": {}}, ""),
+        ({"best": "certus", "limits": {"max_velocity": 1e-6}}, ""),
+        ({"best": ""}, "best sensor '' is not a sensor name"),
+        ({"best": "c" * 65}, f"best sensor {'c' * 40!r} is not a sensor name"),
+        ({"best": "certus", "limits": [0.1]}, "limits are not a table"),
+        ({"best": "certus", "limits": {"v": 0}}, "limit 'v' = 0 is not a positive number"),
+        ({"best": "certus", "limits": {"v": -0.5}}, "limit 'v' = -0.5 is not a positive number"),
+        (
+            {"best": "certus", "limits": {"n" * 50: "x" * 50}},
+            f"limit {'n' * 40!r} = {'x' * 40} is not a positive number",
+        ),
+    ],
+)
+def test_a_sensor_manager_decision_is_believed_only_when_it_makes_sense(payload, problem):
+    assert _decision_problem(payload) == problem

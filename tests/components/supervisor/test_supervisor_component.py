@@ -35,21 +35,33 @@ class Rig:
             ("tcp", Pose),
             ("users_near", Scalar),
             ("min_distance", Scalar),
+            ("motion", EventMessage),
+            ("tracked", Pose),
+            ("robot", EventMessage),
         ]:
             writer = OutputPort(port, kind)
             writer.owner, writer.bus = "test", hub
             writer.connect(f"test/{port}")
             self.container.connect("supervisor", port, f"test/{port}")
             self.writers[port] = writer
-        self.events, self.halts, self.refused = [], [], []
+        self.events, self.halts, self.refused, self.sources = [], [], [], []
         self.probed = set()
         self._subs = [
             peer.subscribe("supervisor/events", self._collect(self.events)),
             peer.subscribe("supervisor/halt", self._collect(self.halts)),
             peer.subscribe(keys.refused("supervisor"), self._collect(self.refused)),
+            peer.subscribe("supervisor/sources", self._collect(self.sources)),
         ]
         assert peer.wait_for_peers(1)
-        self._routed(hub, ["supervisor/events", "supervisor/halt", keys.refused("supervisor")])
+        self._routed(
+            hub,
+            [
+                "supervisor/events",
+                "supervisor/halt",
+                keys.refused("supervisor"),
+                "supervisor/sources",
+            ],
+        )
         assert self.supervisor.configure() and self.supervisor.start()
 
     def _routed(self, hub, keys_):
@@ -142,3 +154,123 @@ def test_an_impossible_people_count_or_tcp_is_refused_and_the_supervisor_runs_on
     assert rig.supervisor.state.value == "Running"
     assert rig.supervisor.call("report")["users_near"] == 0
     assert rig.supervisor.core.tcp is None
+
+
+def emitted(rig, name):
+    assert wait_until(lambda: any(e.name == name for e in rig.events), 10), name
+    return [e.payload for e in rig.events if e.name == name]
+
+
+def test_the_tcp_alone_moves_the_area_and_the_report_says_where_things_are(rig):
+    target = [0.6, 0.0, 0.12]
+    report = rig.supervisor.call("report")
+    assert report["area"] is None and report["min_distance"] is None
+    assert report["target"] == target and report["tracked"] is None
+    rig.feed("tcp", Pose(position=(0.6, 0.0, 0.12 + 0.2), valid=True))
+    assert emitted(rig, "e_SAFE_AREA") == [{"distance": 0.2}]
+    rig.feed("tcp", Pose(position=(0.6, 0.0, 0.12 + 0.01), valid=True))
+    assert emitted(rig, "e_CRITICAL_AREA")[0]["why"] == "near the target"
+    rig.feed("min_distance", Scalar(0.0, 1.25))
+    report = rig.supervisor.call("report")
+    assert report["area"] == "critical" and report["min_distance"] == 1.25
+    assert report["in_collision"] is False
+
+
+def test_a_people_count_back_to_zero_is_taken(rig):
+    rig.feed("tcp", Pose(position=(0.6, 0.0, 0.5), valid=True))
+    rig.feed("users_near", Scalar(0.0, 3.0))
+    assert emitted(rig, "e_CRITICAL_AREA")[0]["why"] == "crowded"
+    rig.feed("users_near", Scalar(0.0, 0.0))
+    assert emitted(rig, "e_SAFE_AREA")
+    assert rig.supervisor.call("report")["users_near"] == 0 and not rig.refused
+
+
+def test_a_distance_that_is_not_a_number_is_reported_as_contact(rig):
+    rig.feed("min_distance", Scalar(0.0, math.nan))
+    (stop,) = emitted(rig, "e_STOP")
+    assert stop["reason"] == "possible collision: robot 0.0 cm from a person (limit 10 cm)"
+
+
+def test_motion_changes_reach_the_supervisor_arrival_and_collision(rig):
+    rig.feed("tcp", Pose(position=(0.6, 0.0, 0.12), valid=True))
+    rig.feed("motion", EventMessage(0.0, "reached", "interpolator", {"goal": "target"}))
+    assert emitted(rig, "e_TARGET") == [{"goal": "target"}]
+    rig.feed("min_distance", Scalar(0.0, 0.01))
+    assert len(emitted(rig, "e_STOP")) == 1
+    rig.feed("motion", EventMessage(0.0, "moving", "interpolator", {"goal": "home"}))
+    assert wait_until(lambda: len([e for e in rig.events if e.name == "e_STOP"]) == 2)
+    assert rig.supervisor.call("report")["phase"] == "moving"
+
+
+def test_a_latched_robot_stop_reaches_the_chart_and_halts(rig):
+    status = {"braked": True, "fault": True, "reason": "monitor tripped"}
+    rig.feed("robot", EventMessage(0.0, "status", "robot", status))
+    assert emitted(rig, "e_STOP") == [{"reason": "robot braked: monitor tripped"}]
+    assert wait_until(lambda: rig.halts)
+    assert rig.halts[0].payload == {"reason": "robot braked: monitor tripped"}
+
+
+def test_all_trackers_lost_halts_the_interpolator_before_the_chart_hears_it(rig):
+    rig.supervisor.call("use_tracker", tracker="certus")
+    rig.feed("tracking", EventMessage(0.0, "decision", "sensor_manager", {"best": None}))
+    assert emitted(rig, "e_NOTRACKER") == [{}]
+    assert wait_until(lambda: rig.halts)
+    assert rig.halts[0].payload == {"reason": "no tracker sees the robot"}
+
+
+def test_the_first_valid_sample_of_each_tracker_marks_its_source_once(rig):
+    rig.feed("tracked", Pose(stamp=10.0, position=(0.1, 0.2, 0.3), valid=False, frame="certus"))
+    rig.feed("tracked", Pose(stamp=11.0, position=(0.1, 0.2, 0.3), valid=True, frame="certus"))
+    rig.feed("tracked", Pose(stamp=12.0, position=(0.1, 0.2, 0.3), valid=True, frame="certus"))
+    rig.feed("tracked", Pose(stamp=13.0, position=(0.1234567, 0.2, 0.3), valid=True, frame="vicra"))
+    assert wait_until(lambda: len(rig.sources) == 2)
+    assert [s.payload for s in rig.sources] == [
+        {"tracker": "certus", "sample_stamp": 11.0},
+        {"tracker": "vicra", "sample_stamp": 13.0},
+    ]
+    seen = rig.supervisor.call("report")["tracked"]
+    assert seen["tracker"] == "vicra" and seen["valid"] is True
+    assert seen["position"] == [0.12346, 0.2, 0.3], "to 10 micrometres"
+    assert seen["age_s"] == round(seen["age_s"], 3), "to the millisecond"
+
+
+def test_the_best_tracker_is_reported_as_an_event_when_asked(rig):
+    assert rig.supervisor.call("report_best_tracker") == "e_NOTRACKER"
+    rig.feed("tracking", EventMessage(0.0, "decision", "sensor_manager", {"best": "vicra"}))
+    assert rig.supervisor.call("report_best_tracker") == "e_TOK"
+    assert emitted(rig, "e_TOK") == [{"tracker": "vicra"}]
+
+
+def test_speed_changes_send_the_interpolator_its_limits(rig):
+    rig.supervisor.call("use_tracker", tracker="vicra")
+    assert rig.supervisor.call("change_movement_parameters", speed="fast") == {
+        "velocity": 0.05,
+        "acceleration": 0.25,
+    }
+    assert rig.supervisor.call("define_target", x=0.5, y=0.1, z=0.123456, roll=0, pitch=180, yaw=0)
+    assert rig.supervisor.call("report")["target"] == [0.5, 0.1, 0.1235]
+
+
+def test_operators_tools_may_only_ask_for_reports():
+    from framework.topology import class_info
+
+    info = class_info(Supervisor)
+    assert "report" in info.readonly
+    assert {"use_tracker", "define_target", "change_movement_parameters"}.isdisjoint(info.readonly)
+    assert {"report_best_tracker", "use_tracker", "report"} <= set(info.operations)
+
+
+def test_a_supervisor_without_a_readable_procedure_does_not_configure(hub, tmp_path):
+    container = Container("c", hub, SteppedExecutor(SimulatedClock()))
+    try:
+        missing = container.add(Supervisor("missing"), Activity())
+        assert not missing.configure()
+        assert "procedure_file" in missing.last_error
+        broken = container.add(Supervisor("broken"), Activity())
+        bad = tmp_path / "seeg.yaml"
+        bad.write_text("procedure: seeg\ntarget: [1, 2\n", encoding="utf-8")
+        broken.set_property("procedure_file", str(bad))
+        assert not broken.configure()
+        assert "seeg.yaml" in broken.last_error
+    finally:
+        container.shutdown()

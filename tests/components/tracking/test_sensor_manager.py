@@ -31,6 +31,8 @@ class World:
         self.kinematics = kinematics
         self.moved = np.eye(4)
         self.frames = {r.name: 0 for r in self.rigs}
+        self.scale = 1.0
+        self.kinematics_error = np.eye(4)
 
     def run(self, seconds):
         decision = None
@@ -44,29 +46,36 @@ class World:
                     continue
                 self.frames[rig.name] = frame
                 self._sample(rig, truth)
-            if self.kinematics:
-                self.core.set_kinematics(truth)
+            if self.kinematics:  # from the joints, maybe with an error of its own
+                self.core.set_kinematics(truth @ self.kinematics_error)
             decision = self.core.evaluate(self.t)
         return decision
 
     def _sample(self, rig, truth):
-        fault = self.faults.get(rig.name, "")
-        if fault == "silent":
+        faults = set(self.faults.get(rig.name, "").split("+"))  # several at once: a+b
+        if "silent" in faults:
             return
         cto, rto = rig.observe(truth, self.rng, self.t)
-        if fault == "rto_moved":  # someone bumped the reference tool: only it moved
+        if "rto_moved" in faults:  # someone bumped the reference tool: only it moved
             bumped = dataclasses.replace(rig, sensor_from_rto=rig.sensor_from_rto @ self.moved)
             _, rto = bumped.observe(truth, self.rng, self.t)
-        if fault == "cto_missing":
+        if "cto_missing" in faults:
             cto = dataclasses.replace(cto, valid=False)
-        if fault == "rto_missing":
+        if "rto_missing" in faults:
             rto = dataclasses.replace(rto, valid=False)
-        if fault == "nan":
+        if "nan" in faults:
             cto = dataclasses.replace(cto, position=(math.nan, 0.0, 0.0))
-        if fault == "jump" and self.frames[rig.name] % 2:  # a flickering, impossible track
+        if "rto_nan" in faults:
+            rto = dataclasses.replace(rto, position=(0.0, math.nan, 0.0))
+        if "unnormalised" in faults:  # a quaternion that is not a rotation
+            cto = dataclasses.replace(
+                cto, orientation=tuple(v * self.scale for v in cto.orientation)
+            )
+        if "jump" in faults and self.frames[rig.name] % 2:  # a flickering, impossible track
             cto = dataclasses.replace(cto, position=tuple(v + 0.05 for v in cto.position))
         self.core.offer(rig.name, "cto", cto, self.t)
-        self.core.offer(rig.name, "rto", rto, self.t)
+        if "rto_silent" not in faults:  # the reference tool's stream froze
+            self.core.offer(rig.name, "rto", rto, self.t)
 
 
 def test_nominal_tracking_chooses_the_master_and_places_the_robot():
@@ -248,3 +257,161 @@ def test_a_late_sample_is_checked_against_where_the_robot_was_when_it_was_taken(
     assert all(h.ok for h in decision.health.values()), decision.health
     core.set_kinematics(later)  # without stamps: only the latest pose is known
     assert {h.cause for h in core.evaluate(0.002).health.values()} == {"calibration"}
+
+
+def test_a_frozen_reference_tool_is_stale_though_the_robots_tool_streams_on():
+    world = World()
+    world.run(0.5)
+    world.faults["certus"] = "rto_silent"
+    decision = world.run(0.03)
+    assert decision.health["certus"].cause == "stale"
+    assert decision.health["certus"].detail == "no new frame for 20 ms (limit 20 ms)"
+    assert decision.best == "vicra"
+
+
+@pytest.mark.parametrize(
+    ("faults", "reported"),
+    [
+        ("cto_missing+rto_missing", "cto_missing"),
+        ("cto_missing+nan", "cto_missing"),
+        ("rto_missing+rto_nan", "rto_missing"),
+        ("cto_missing+rto_silent", "cto_missing"),
+        ("rto_silent+nan", "stale"),
+        ("nan+jump", "corrupt"),
+        ("rto_nan+rto_moved", "corrupt"),
+        ("jump+rto_moved", "corrupt"),
+    ],
+)
+def test_when_faults_coincide_the_first_in_the_trees_order_is_reported(faults, reported):
+    world = World(kinematics=True)
+    world.moved = rigid((0.02, 0.0, 0.0), (0.0, 0.0, 0.0))
+    world.run(0.5)
+    world.faults["certus"] = faults
+    decision = world.run(0.05)
+    assert decision.health["certus"].cause == reported, decision.health["certus"]
+    assert decision.best == "vicra"
+
+
+def test_a_tool_still_reported_missing_when_its_stream_stops_stays_missing():
+    world = World()
+    world.run(0.5)
+    world.faults["certus"] = "cto_missing"
+    world.run(0.02)
+    world.faults["certus"] = "silent"
+    assert world.run(0.1).health["certus"].cause == "cto_missing"
+
+
+@pytest.mark.parametrize(("scale", "cause"), [(1.0008, ""), (1.0012, "corrupt"), (0.99, "corrupt")])
+def test_a_quaternion_must_be_a_rotation_to_rounding(scale, cause):
+    world = World()
+    world.run(0.5)
+    world.scale = scale
+    world.faults["certus"] = "unnormalised"
+    decision = world.run(0.05)
+    assert decision.health["certus"].cause == cause
+    if cause:
+        assert decision.health["certus"].detail == "a tool's pose is not a finite unit pose"
+
+
+@pytest.mark.parametrize(("degrees", "cause"), [(2.0, ""), (5.0, "calibration")])
+def test_a_tool_turned_but_not_moved_is_a_calibration_fault_beyond_the_angle_tolerance(
+    degrees, cause
+):
+    world = World(kinematics=True)
+    world.run(0.5)
+    turn = rigid((0.0, 0.0, 0.0), (0.0, math.radians(degrees), 0.0))
+    y = world.rigs[0].ee_from_cto  # turned about the tracked tool's own origin
+    world.kinematics_error = y @ turn @ np.linalg.inv(y)
+    health = world.run(0.05).health["certus"]
+    assert health.cause == cause, health
+    if cause:
+        offset, angle = health.detail.removesuffix(" deg away from the robot's kinematics").split(
+            ", "
+        )
+        assert float(offset.removesuffix(" mm")) < 0.5, "the tracker's noise only"
+        assert angle == f"{degrees:.2f}"
+
+
+def single_certus(hysteresis=1):
+    rig = standard_rigs()[0]
+    return rig, SensorManagerCore(sensors_config([rig], hysteresis))
+
+
+def offer(core, rig, pose, stamp, arrival):
+    cto, rto = rig.observe(pose, np.random.default_rng(1), stamp)
+    core.offer(rig.name, "cto", cto, arrival)
+    core.offer(rig.name, "rto", rto, arrival)
+
+
+def shifted(pose, dx):
+    out = pose.copy()
+    out[0, 3] += dx
+    return out
+
+
+def test_a_long_step_after_a_gap_between_frames_is_motion_not_a_jump():
+    rig, core = single_certus()
+    start = ee_path(0.0)
+    offer(core, rig, start, 0.0, arrival=0.0)
+    assert core.evaluate(0.001).best == "certus"
+    offer(core, rig, shifted(start, 0.05), 0.08, arrival=0.08)  # 5 cm in 80 ms: 0.6 m/s
+    assert core.evaluate(0.081).health["certus"].ok
+    offer(core, rig, shifted(start, 0.10), 0.09, arrival=0.09)  # 5 cm in 10 ms: 5 m/s
+    health = core.evaluate(0.091).health["certus"]
+    assert (health.cause, health.detail) == ("corrupt", "the robot's tool jumped 50.0 mm in 10 ms")
+
+
+def test_frames_closer_than_the_rate_are_judged_over_one_period():
+    rig, core = single_certus()
+    start = ee_path(0.0)
+    offer(core, rig, start, 0.0, arrival=0.0)
+    offer(core, rig, shifted(start, 0.008), 0.001, arrival=0.001)  # two frames in one cycle
+    assert core.evaluate(0.002).health["certus"].ok, "8 mm in one 10 ms period: 0.8 m/s"
+
+
+def test_each_sample_is_checked_against_the_robot_pose_nearest_its_stamp():
+    rig, core = single_certus()
+    then = ee_path(0.0)
+    later = shifted(then, 0.02)
+    for stamp, pose in [(9.99, then), (10.0, then), (10.01, later), (10.02, later)]:
+        core.set_kinematics(pose, stamp=stamp)
+    verdicts = []
+    for arrival, (stamp, pose) in enumerate(
+        [(10.004, then), (10.006, later), (9.0, then), (11.0, later), (10.014, later)], start=1
+    ):
+        offer(core, rig, pose, stamp, arrival=float(arrival))
+        verdicts.append(core.evaluate(arrival + 0.001).health["certus"].ok)
+    assert verdicts == [True, True, True, True, True]
+    offer(core, rig, then, 10.006, arrival=6.0)  # the robot had moved on by then
+    assert core.evaluate(6.001).health["certus"].cause == "calibration"
+
+
+def test_about_a_second_of_robot_poses_is_remembered():
+    from components.tracking.sensor_manager import KINEMATICS_MEMORY
+
+    rig, core = single_certus()
+    old, new = ee_path(0.0), shifted(ee_path(0.0), 0.03)
+    core.set_kinematics(old, stamp=0.0)
+    for k in range(1, 40):
+        core.set_kinematics(new, stamp=k * KINEMATICS_MEMORY / 10)
+    offer(core, rig, old, 0.0, arrival=0.0)  # a sample from long ago: nothing to match
+    assert core.evaluate(0.001).health["certus"].cause == "calibration"
+    offer(core, rig, new, 0.0, arrival=1.0)
+    assert core.evaluate(1.001).health["certus"].ok
+
+
+@pytest.mark.parametrize(("value", "error"), [("0", True), ("1", False), ("2.5", True)])
+def test_hysteresis_is_a_whole_number_of_samples_from_one(write, value, error):
+    path = write(
+        f"""
+        hysteresis: {value}
+        sensors:
+          a: {{priority: 1, rate: 5, keys: {{cto: x, rto: y}}}}
+        """,
+        "sensors.yaml",
+    )
+    if error:
+        with pytest.raises(SensorConfigError, match="hysteresis"):
+            load_sensors(path)
+    else:
+        assert load_sensors(path).hysteresis == 1
