@@ -23,6 +23,7 @@ called again, so they should be idempotent).
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from dataclasses import dataclass
@@ -287,7 +288,12 @@ class Configurator(Component):
             raise StepFailed(step.describe(), "the port is not connected to a key")
         kind = messages.resolve_type(spec.info.inputs[step.target])
         try:
-            value = kind(**step.value) if isinstance(step.value, dict) else kind(step.value)
+            if isinstance(step.value, dict):
+                value = kind(**step.value)
+            elif "value" in {f.name for f in dataclasses.fields(kind)}:
+                value = kind(value=step.value)  # a bare value is the message's `value`
+            else:
+                raise TypeError("give its fields as a mapping")
             data = messages.encode(value, kind)
         except (TypeError, messages.CodecError) as exc:
             raise StepFailed(step.describe(), f"bad value for {kind.__name__}: {exc}") from None

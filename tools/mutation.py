@@ -174,12 +174,53 @@ def equivalent_reason(mutant: Mutant, known: list[dict[str, str]]) -> str:
     return ""
 
 
+FORK_SERVER = r"""
+import atexit, json, os, signal, sys, time
+import hypothesis, jsonschema, numpy, pytest, yaml  # the slow imports, once
+os.makedirs(os.environ["FW_KEYS"], exist_ok=True)
+print("ready", flush=True)
+for line in sys.stdin:
+    tests, timeout = json.loads(line)
+    pid = os.fork()
+    if pid == 0:
+        os.setsid()
+        quiet = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(quiet, 1)
+        os.dup2(quiet, 2)
+        try:
+            code = pytest.main(
+                ["-x", "-q", "-p", "no:cacheprovider", "-p", "no:randomly", *tests]
+            )
+            atexit._run_exitfuncs()
+        except BaseException:
+            code = 99
+        os._exit(int(code))
+    end = time.monotonic() + timeout
+    outcome = "timeout"
+    while time.monotonic() < end:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            outcome = "passed" if os.waitstatus_to_exitcode(status) == 0 else "failed"
+            break
+        time.sleep(0.005)
+    else:
+        try:
+            os.killpg(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        os.waitpid(pid, 0)
+    print(outcome, flush=True)
+"""
+"""The test server of a workspace (see `Workspace.pytest`)."""
+
+
 class Workspace:
     """A private copy of the repository's tracked files, where one mutant at a time is
     written and tested."""
 
     def __init__(self, root: Path):
         self.root = root
+        self._server: subprocess.Popen[str] | None = None
         files = subprocess.run(
             ["git", "ls-files", "-z"], cwd=REPO, capture_output=True, check=True
         ).stdout.split(b"\0")
@@ -196,32 +237,33 @@ class Workspace:
         return env
 
     def pytest(self, tests: list[str], timeout: float) -> str:
-        """Run the tests here: 'passed', 'failed' or 'timeout'."""
-        command = [
-            sys.executable,
-            "-m",
-            "pytest",
-            "-x",
-            "-q",
-            "-p",
-            "no:cacheprovider",
-            "-p",
-            "no:randomly",
-            *tests,
-        ]
-        try:
-            done = subprocess.run(
-                command,
+        """Run the tests here: 'passed', 'failed' or 'timeout'. Each run is a fork of a
+        server that imported the slow third-party packages once (pytest, hypothesis,
+        numpy...), so a mutant costs its tests, not an interpreter start; the project's
+        own modules are imported afresh by every run."""
+        if self._server is None or self._server.poll() is not None:
+            self._server = subprocess.Popen(
+                [sys.executable, "-c", FORK_SERVER],
                 cwd=self.root,
-                env=self.env(),
-                stdout=subprocess.DEVNULL,
+                env=dict(self.env(), FW_KEYS=str(self.root / ".keys")),
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
                 stderr=subprocess.DEVNULL,
-                timeout=timeout,
-                start_new_session=True,
+                text=True,
             )
-        except subprocess.TimeoutExpired:
-            return "timeout"
-        return "passed" if done.returncode == 0 else "failed"
+            assert self._server.stdout is not None
+            if self._server.stdout.readline().strip() != "ready":
+                raise SystemExit("the mutation test server did not start")
+        assert self._server.stdin is not None and self._server.stdout is not None
+        self._server.stdin.write(json.dumps([tests, timeout]) + "\n")
+        self._server.stdin.flush()
+        return self._server.stdout.readline().strip() or "failed"
+
+    def close(self) -> None:
+        """Stop the test server."""
+        if self._server is not None and self._server.poll() is None:
+            self._server.kill()
+            self._server.wait()
 
     def test(self, mutant: Mutant, rounds: list[list[str]], timeout: float) -> str:
         """Test one mutant (its module is restored afterwards): each round of tests in
@@ -299,8 +341,9 @@ def run_module(
     mutants = make_mutants(module, lines)
     print(f"{module}: {len(mutants)} mutants; tests: {' '.join(tests)}", flush=True)
     base = Path(tempfile.mkdtemp(prefix="fw-mutation-"))
+    spaces: list[Workspace] = []
     try:
-        spaces = [Workspace(base / f"w{i}") for i in range(max(1, jobs))]
+        spaces += [Workspace(base / f"w{i}") for i in range(max(1, jobs))]
         started = time.monotonic()
         if spaces[0].pytest(tests, timeout=1800) != "passed":
             raise SystemExit(f"{module}: its tests fail without any mutant: fix them first")
@@ -344,6 +387,8 @@ def run_module(
         for thread in threads:
             thread.join()
     finally:
+        for space in spaces:
+            space.close()
         shutil.rmtree(base, ignore_errors=True)
     return mutants
 

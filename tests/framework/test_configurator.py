@@ -1,0 +1,230 @@
+"""Spec: the Configurator applies named configurations as ordered steps, one at a time,
+answers every request, and on a failure undoes what it changed, newest first
+(docs/topologies.md, "The Configurator").
+
+The components live in a container on one session of the test's bus, the Configurator
+on another, as in a deployment (requests and answers cross the bus); they share the
+test's process so a configuration costs milliseconds, not a process start."""
+
+import time
+
+import pytest
+
+from framework import messages
+from framework.activity import Activity
+from framework.configurator import Configurator
+from framework.container import Container, build
+from framework.deployer import container_spec
+from framework.messages import ConfigAck, ConfigRequest
+from framework.ports import OutputPort
+from framework.topology import Step
+from tests.conftest import REPO, private_topology, wait_until
+
+TOPOLOGY = REPO / "tests" / "data" / "configurator" / "configurator.yaml"
+REQUESTS, ACKS = "spec/requests", "spec/acks"
+
+
+class Rig:
+    """The workers' container on `peer`; the Configurator in a control container on
+    `hub`, fed requests on its port and answering on `acks`, as the Coordinator sees it."""
+
+    def __init__(self, hub, peer, bus_config):
+        self.topology = private_topology(TOPOLOGY, bus_config)
+        self.workers = build(container_spec(self.topology, "workers"), peer)
+        self.control = Container("control", hub)
+        self.configurator = self.control.add(
+            Configurator("configurator", self.topology, hub),
+            Activity.event("requests"),
+            outputs={"acks": ACKS},
+        )
+        self.control.connect("configurator", "requests", REQUESTS)
+        self.control.start()
+        assert self.configurator.start()
+        assert peer.wait_for_peers(1)
+        self.acks: list[ConfigAck] = []
+        self._sub = peer.subscribe(ACKS, self._on_ack)
+        self.requests = OutputPort("requests", ConfigRequest)
+        self.requests.owner, self.requests.bus = "test", peer
+        self.requests.connect(REQUESTS)
+        self._ids = iter(range(1, 10**6))
+        assert self.apply("setup").ok
+
+    def _on_ack(self, sample):
+        ack, _, _ = messages.decode(sample.payload.to_bytes(), ConfigAck)
+        self.acks.append(ack)
+
+    def apply(self, tag):
+        return self.configurator.apply(tag)
+
+    def request(self, tag, args=None, deadline=0.0) -> ConfigAck:
+        """Send a request on the Configurator's port, as the Coordinator does; its ack."""
+        request_id = next(self._ids)
+        request = ConfigRequest(time.time(), request_id, tag, args or {}, deadline)
+        # the port's subscription is routed a little after it is declared: resend the
+        # first request until it is answered (the Configurator answers each one it gets)
+        for _ in range(200):
+            self.requests.write(request)
+            if wait_until(lambda: any(a.request_id == request_id for a in self.acks), 0.05):
+                break
+        assert wait_until(lambda: any(a.request_id == request_id for a in self.acks), 10)
+        return next(a for a in self.acks if a.request_id == request_id)
+
+    def sink(self):
+        return self.workers.components["sink"]
+
+    def port(self, component, name):
+        return self.workers.components[component].inputs[name]
+
+    def close(self):
+        self._sub.undeclare()
+        self.control.shutdown()
+        self.workers.shutdown()
+
+
+@pytest.fixture
+def rig(hub, peer, bus_config):
+    rig = Rig(hub, peer, bus_config)
+    yield rig
+    rig.close()
+
+
+def received(rig):
+    return rig.sink().call("received")
+
+
+def test_a_configuration_brings_states_and_rewires_in_order(rig):
+    assert rig.sink().state.value == "Running"
+    assert wait_until(lambda: received(rig) and received(rig)[-1] > 0), "a counts up"
+    outcome = rig.apply("to_b")
+    assert outcome.ok and outcome.tag == "to_b" and outcome.rolled_back == 0
+    assert rig.port("sink", "inp").key.endswith("b/out")
+    assert rig.sink().state.value == "Running", "post state"
+    assert wait_until(lambda: received(rig) and received(rig)[-1] < 0), "b counts down"
+    assert rig.configurator.history[-1] is outcome
+
+
+def test_reapplying_leaves_a_connection_in_place_alone(rig):
+    assert rig.apply("hold").ok
+    sink = rig.port("sink", "inp")
+    assert wait_until(lambda: rig.sink().inputs["inp"].stats.received >= 5), "queued, unread"
+    assert rig.apply("hold").ok
+    assert sink.stats.discarded_on_rewire == 0, "not reconnected: nothing queued was lost"
+    assert rig.apply("to_b").ok
+    assert sink.stats.discarded_on_rewire > 0, "a real rewire starts the port empty"
+
+
+def test_the_restore_of_a_restarted_process_says_every_change_since_deploy(rig):
+    assert rig.configurator.restore_steps({"sink", "a"}) == []
+    assert rig.apply("to_b").ok
+    (step,) = rig.configurator.restore_steps({"sink"})
+    assert (step.kind, step.component, step.target) == ("connect", "sink", "inp")
+    assert step.key.endswith("b/out")
+    assert rig.configurator.restore_steps({"a", "dbl"}) == [], "only the named components"
+    assert rig.apply("unplug").ok
+    (step,) = rig.configurator.restore_steps({"sink"})
+    assert (step.kind, step.component, step.target) == ("disconnect", "sink", "inp")
+
+
+def test_forced_steps_are_sent_even_where_the_wiring_already_says_so(rig):
+    assert rig.apply("hold").ok
+    sink = rig.port("sink", "inp")
+    assert wait_until(lambda: sink.stats.received >= 5)
+    again = Step("connect", "sink", "inp", key=sink.key, policy=None)
+    assert rig.configurator.run_steps("restore of sink", [again]).ok
+    assert sink.stats.discarded_on_rewire > 0, "reconnected: a restarted port is wired anew"
+
+
+def test_a_failure_undoes_property_and_connection_changes_newest_first(rig):
+    doubler = rig.workers.components["dbl"]
+    assert doubler.get_property("gain") == 2.0 and rig.port("dbl", "inp").key is None
+    outcome = rig.apply("tune_then_fail")
+    assert not outcome.ok
+    assert outcome.step == "call sink.fail"
+    assert outcome.reason.startswith("sink: ") and "asked to fail" in outcome.reason
+    assert outcome.rolled_back == 3
+    assert doubler.get_property("gain") == 2.0, "3.0 then 5.0 undone: back to the first value"
+    assert rig.port("dbl", "inp").key is None, "the new connection undone"
+    assert ("dbl", "inp") not in rig.configurator.wiring
+
+
+@pytest.mark.parametrize("tag", ["rewire_then_fail", "unplug_then_fail"])
+def test_a_failure_within_one_components_batch_restores_its_previous_wiring(rig, tag):
+    before = rig.port("sink", "inp").key
+    outcome = rig.apply(tag)
+    assert not outcome.ok and outcome.step == "call sink.fail" and outcome.rolled_back == 1
+    assert rig.port("sink", "inp").key == before
+    assert rig.configurator.restore_steps({"sink"}) == [], "the Configurator's map agrees"
+
+
+def test_a_write_is_its_own_step_and_never_swallows_the_next(rig):
+    assert rig.apply("hold").ok  # the sink keeps what arrives, unread
+    outcome = rig.apply("write_then_fail")
+    assert not outcome.ok and outcome.step == "call sink.fail", "the call after it ran"
+    assert rig.apply("call_then_write").ok, "a write after a call is not sent as a call"
+    assert rig.apply("write_twice").ok
+    assert rig.sink().start()
+    assert wait_until(lambda: {-7.5, -8.5, -9.5, -10.5} <= set(received(rig)))
+
+
+def test_several_slow_steps_on_one_component_get_the_time_of_all_of_them(rig):
+    outcome = rig.apply("three_slow")
+    assert outcome.ok, outcome.reason
+
+
+def test_an_unknown_configuration_is_answered_with_the_known_ones(rig):
+    outcome = rig.apply("nope")
+    assert (outcome.ok, outcome.step) == (False, "lookup")
+    assert outcome.reason.startswith("unknown configuration 'nope' (known: call_then_write, ")
+
+
+def test_requests_on_the_port_are_answered_one_each_in_order(rig):
+    ack = rig.request("to_b")
+    assert (ack.ok, ack.tag, ack.step, ack.reason) == (True, "to_b", "", "")
+    ack = rig.request("tune_then_fail")
+    assert (ack.ok, ack.step) == (False, "call sink.fail") and "asked to fail" in ack.reason
+    ack = rig.request("nope")
+    assert (ack.ok, ack.step) == (False, "lookup")
+    assert [a.request_id for a in rig.acks] == sorted(a.request_id for a in rig.acks)
+
+
+def test_a_request_that_comes_after_its_deadline_is_refused_unapplied(rig):
+    ack = rig.request("to_b", deadline=time.time() - 1.0)
+    assert (ack.ok, ack.step) == (False, "deadline")
+    assert not rig.port("sink", "inp").key.endswith("b/out"), "nothing ran"
+    assert rig.configurator.history[-1].step == "deadline"
+    ack = rig.request("to_b", deadline=time.time() + 30.0)
+    assert ack.ok, "in time: applied"
+
+
+def test_the_charts_call_action_runs_one_operation(rig):
+    ack = rig.request("@call", {"target": "sink.slow", "args": {"seconds": 0.0}})
+    assert ack.ok and ack.tag == "@call"
+    ack = rig.request("@call", {"target": "sink.fail"})
+    assert not ack.ok and ack.step == "call sink.fail" and "asked to fail" in ack.reason
+    assert rig.configurator.history[-1].tag == "@call sink.fail"
+    ack = rig.request("@call", {"target": "sink.slow", "args": {"seconds": 0.5}, "timeout": 0.1})
+    assert not ack.ok, "its own timeout"
+
+
+def test_the_charts_write_action_puts_one_sample_on_the_ports_key(rig):
+    ack = rig.request("@write", {"target": "sink.inp", "value": {"stamp": 0.0, "value": -3.5}})
+    assert ack.ok, ack.reason
+    assert wait_until(lambda: -3.5 in received(rig))
+    ack = rig.request("@write", {"target": "sink.inp", "value": -4.5})
+    assert ack.ok, "a bare value is the message's value"
+    assert wait_until(lambda: -4.5 in received(rig))
+
+
+@pytest.mark.parametrize(
+    "target, value, why",
+    [
+        ("dbl.inp", {"stamp": 0.0, "value": 1.0}, "the port is not connected to a key"),
+        ("ghost.inp", {"stamp": 0.0, "value": 1.0}, "the port is not connected to a key"),
+        ("sink.inp", {"stamp": 0.0, "colour": "red"}, "bad value for Scalar"),
+        ("sink.pose", 1.0, "bad value for Pose: give its fields as a mapping"),
+    ],
+)
+def test_a_write_that_cannot_be_made_fails_with_the_reason(rig, target, value, why):
+    ack = rig.request("@write", {"target": target, "value": value})
+    assert not ack.ok and ack.step == f"write {target}" and why in ack.reason
+    assert rig.configurator.history[-1].tag == f"@write {target}"
