@@ -1,0 +1,329 @@
+"""Spec: the Coordinator runs the chart on its own thread, admits only the events each
+source may send with payloads that fit their declaration, turns configurations and
+actions into requests with deadlines and acks into `config.done` / `config.failed`,
+and makes a lost component a chart event (docs/topologies.md, "The Coordinator").
+
+The test plays the Configurator and the components: it answers the requests itself,
+on another session of the test's bus, so every rule is seen from outside."""
+
+import time
+
+import pytest
+
+from framework import keys, messages
+from framework.container import Container
+from framework.coordinator import (
+    ACKS_KEY,
+    EVENTS_KEY,
+    REQUESTS_KEY,
+    SENT_KEY,
+    STATUS_KEY,
+    Admission,
+    Coordinator,
+)
+from framework.messages import ConfigAck, ConfigRequest, EventMessage
+from framework.ports import OutputPort
+from framework.statechart.loader import load_statechart
+from tests.conftest import wait_until
+
+CHART = """
+statechart: coordinator_spec
+configure_timeout: 3s
+events:
+  e_GO: Start working.
+  e_CALL: Call an operation.
+  e_WRITE: Write a port.
+  e_SEND: Send an event out.
+  e_DEPTH: {doc: A depth., payload: {depth: {type: number, min: 0, max: 10}}}
+  e_OUT: {doc: Sent out., payload: {n: integer}}
+initial: Idle
+states:
+  - name: Idle
+    transitions:
+      - {event: e_GO, target: Working}
+      - {event: e_CALL, effect: [{call: {operation: sink.slow, args: {seconds: 0}}}]}
+      - {event: e_WRITE, effect: [{write: {port: sink.inp, value: 2.5}}]}
+      - {event: e_SEND, effect: [{send: {event: e_OUT, payload: {n: 1}}}]}
+      - {event: e_DEPTH, target: Deep}
+      - {event: component.lost, target: Lost}
+  - name: Working
+    configure: {tag: work, timeout: 2s}
+    do: [{log: working}]
+    transitions:
+      - {target: Done}
+      - {event: config.failed, target: Failed}
+  - name: Deep
+    transitions:
+      - {event: e_DEPTH, target: Idle}
+  - name: Done
+    transitions:
+      - {event: e_GO, target: Working}
+  - name: Failed
+    transitions:
+      - {event: e_GO, target: Working}
+  - name: Lost
+    transitions:
+      - {event: component.back, target: Idle}
+"""
+
+
+class Rig:
+    """A Coordinator in a container on `hub`; the test's session (`peer`) collects its
+    requests, status and sent events, answers acks and puts events on fw/events."""
+
+    def __init__(self, hub, peer, write, admission=None, watch=None):
+        chart = load_statechart(write(CHART, "chart.yaml"))
+        self.control = Container("control", hub)
+        self.coordinator = self.control.add(
+            Coordinator("coordinator", chart, watch=watch, admission=admission),
+            None,
+            outputs={"requests": REQUESTS_KEY, "status": STATUS_KEY, "sent": SENT_KEY},
+        )
+        self.control.connect("coordinator", "events", EVENTS_KEY)
+        self.control.connect("coordinator", "acks", ACKS_KEY)
+        self.requests: list[ConfigRequest] = []
+        self.status: list[EventMessage] = []
+        self.sent: list[EventMessage] = []
+        self.answer: dict[str, tuple[bool, str, str]] = {}  # tag -> ok, step, reason
+        self._subs = [
+            peer.subscribe(REQUESTS_KEY, self._on_request),
+            peer.subscribe(STATUS_KEY, self._decoded(self.status, EventMessage)),
+            peer.subscribe(SENT_KEY, self._decoded(self.sent, EventMessage)),
+        ]
+        self.acks = OutputPort("acks", ConfigAck)
+        self.events = OutputPort("events", EventMessage)
+        for port, key in ((self.acks, ACKS_KEY), (self.events, EVENTS_KEY)):
+            port.owner, port.bus = "test", peer
+            port.connect(key)
+        assert peer.wait_for_peers(1)
+        self.control.start()
+        assert self.coordinator.start()
+        assert wait_until(lambda: self.kinds("configuration"), 10), "the chart started"
+        self._routed()
+
+    def _routed(self):
+        """Wait until events put by the test reach the Coordinator (a subscription is
+        routed a little after it is declared): offer a refused probe until it is seen."""
+        port = self.coordinator.inputs["events"]
+        sent = [0]
+
+        def probe():
+            sent[0] += 1
+            self.events.write(EventMessage(time.time(), "config.done", f"probe{sent[0]}", {}))
+            return port.stats.received > 0
+
+        assert wait_until(probe, 10)
+        last = f"probe{sent[0]}"  # delivered in order: once it is refused, all are
+        assert wait_until(lambda: any(r["source"] == last for r in self.refusals()), 10)
+        self.probes = len(self.refusals())
+        self.status.clear()
+
+    def _decoded(self, into, kind):
+        def on(sample):
+            message, _, _ = messages.decode(sample.payload.to_bytes(), kind)
+            into.append(message)
+
+        return on
+
+    def _on_request(self, sample):
+        request, _, _ = messages.decode(sample.payload.to_bytes(), ConfigRequest)
+        self.requests.append(request)
+        if request.tag in self.answer:
+            ok, step, reason = self.answer[request.tag]
+            self.ack(request, ok, step, reason)
+
+    def ack(self, request, ok=True, step="", reason=""):
+        self.acks.write(ConfigAck(time.time(), request.request_id, ok, request.tag, step, reason))
+
+    def put(self, name, payload=None, source="supervisor"):
+        self.events.write(EventMessage(time.time(), name, source, payload or {}))
+
+    def kinds(self, kind):
+        return [s.payload for s in self.status if s.name == kind]
+
+    def refusals(self):
+        return self.kinds("refused")
+
+    def active(self):
+        return self.coordinator.call("active")["active"]
+
+    def close(self):
+        for sub in self._subs:
+            sub.undeclare()
+        self.control.shutdown()
+
+
+@pytest.fixture
+def rig(hub, peer, write):
+    rig = Rig(hub, peer, write)
+    yield rig
+    rig.close()
+
+
+def test_a_configuration_is_requested_with_its_deadline_and_its_ack_completes_the_state(rig):
+    rig.put("e_GO")
+    assert wait_until(lambda: rig.requests, 10)
+    (request,) = rig.requests
+    assert request.tag == "work" and request.deadline - request.stamp == pytest.approx(2.0)
+    assert rig.active() == ["Working"], "waits for the ack"
+    assert rig.coordinator.call("active")["pending"]
+    rig.ack(request)
+    assert wait_until(lambda: rig.active() == ["Done"], 10)
+    assert {"state": "Working", "message": "working"} in rig.kinds("log"), "do ran after the ack"
+
+
+def test_a_failed_configuration_is_the_charts_event_with_the_step_and_reason(rig):
+    rig.answer["work"] = (False, "call sink.fail", "sink: asked to fail")
+    rig.put("e_GO")
+    assert wait_until(lambda: rig.active() == ["Failed"], 10)
+    assert not [log for log in rig.kinds("log") if log["message"] == "working"], "no do"
+    event = next(e for e in rig.kinds("event") if e["event"] == "config.failed")
+    assert event["payload"]["step"] == "call sink.fail"
+    assert event["payload"]["reason"] == "sink: asked to fail"
+
+
+def test_an_ack_nobody_asked_for_or_a_second_one_is_ignored(rig):
+    rig.put("e_GO")
+    assert wait_until(lambda: rig.requests, 10)
+    request = rig.requests[0]
+    rig.acks.write(ConfigAck(time.time(), request.request_id + 100, True, "work", "", ""))
+    rig.ack(request)
+    assert wait_until(lambda: rig.active() == ["Done"], 10)
+    rig.ack(request, ok=False, step="late", reason="a second answer")
+    rig.put("e_GO")
+    assert wait_until(lambda: len(rig.requests) == 2, 10)
+    assert rig.active() == ["Working"], "the stray answers completed nothing"
+    assert not [e for e in rig.kinds("event") if e["event"] == "config.failed"]
+
+
+def test_the_charts_call_and_write_go_to_the_configurator_as_one_step_requests(rig):
+    rig.put("e_CALL")
+    rig.put("e_WRITE")
+    assert wait_until(lambda: len(rig.requests) == 2, 10)
+    call, write = rig.requests
+    assert (call.tag, call.args) == ("@call", {"target": "sink.slow", "args": {"seconds": 0}})
+    assert (write.tag, write.args) == ("@write", {"target": "sink.inp", "value": 2.5})
+    assert call.deadline - call.stamp == pytest.approx(2.0), "an action's own timeout"
+    rig.ack(call, ok=False, step="call sink.slow", reason="no answer")
+    assert wait_until(lambda: rig.kinds("error"), 10)
+    assert rig.kinds("error") == [{"message": "@call: call sink.slow: no answer"}]
+    rig.ack(write)
+    assert rig.active() == ["Idle"], "an action's answer is no chart event"
+
+
+def test_a_send_action_is_published_for_the_outside_world(rig):
+    rig.put("e_SEND")
+    assert wait_until(lambda: rig.sent, 10)
+    (sent,) = rig.sent
+    assert (sent.name, sent.source, sent.payload) == ("e_OUT", "coordinator", {"n": 1})
+
+
+@pytest.mark.parametrize(
+    "payload, why",
+    [
+        ({"depth": 11}, "depth"),
+        ({"depth": 1, "extra": 2}, "extra"),
+        ({}, "depth"),
+    ],
+)
+def test_an_event_whose_payload_does_not_fit_its_declaration_never_reaches_the_chart(
+    rig, payload, why
+):
+    rig.put("e_DEPTH", payload)
+    assert wait_until(lambda: rig.refusals(), 10)
+    (refusal,) = rig.refusals()
+    assert refusal["event"] == "e_DEPTH" and refusal["source"] == "supervisor"
+    assert why in refusal["reason"]
+    assert rig.active() == ["Idle"] and rig.coordinator.refused == rig.probes + 1
+    rig.put("e_DEPTH", {"depth": 5})
+    assert wait_until(lambda: rig.active() == ["Deep"], 10)
+
+
+def test_nobody_may_put_the_coordinators_own_events_on_the_bus(rig):
+    rig.put("config.done", {"tag": "work"})
+    rig.put("component.lost", {"component": "robot", "process": "robot"})
+    assert wait_until(lambda: len(rig.refusals()) == 2, 10)
+    assert all("the Coordinator's own event" in r["reason"] for r in rig.refusals())
+    assert rig.active() == ["Idle"]
+
+
+def test_an_event_that_is_not_a_mapping_of_fields_is_refused(rig):
+    rig.events.write(EventMessage(time.time(), "e_GO", "supervisor", [1, 2]))  # type: ignore[arg-type]
+    assert wait_until(lambda: rig.refusals(), 10)
+    assert "a payload must be a mapping of fields" in rig.refusals()[0]["reason"]
+
+
+def test_operator_commands_are_answered_with_the_charts_verdict(rig):
+    answer = rig.coordinator.call("offer", event="e_DEPTH", payload={"depth": 3}, origin="ui")
+    assert answer == {"accepted": True, "reason": ""}
+    assert rig.active() == ["Deep"], "processed at once, before the answer"
+    answer = rig.coordinator.call("offer", event="e_GO", origin="ui")
+    assert answer == {"accepted": False, "reason": "e_GO is not taken in Deep"}
+    answer = rig.coordinator.call("offer", event="e_DEPTH", payload={"depth": -1})
+    assert not answer["accepted"] and "depth" in answer["reason"]
+    assert wait_until(lambda: len(rig.kinds("command")) == 3, 10)
+    first = rig.kinds("command")[0]
+    assert first == {
+        "event": "e_DEPTH",
+        "payload": {"depth": 3},
+        "origin": "ui",
+        "accepted": True,
+        "reason": "",
+    }
+    assert rig.coordinator.call("takeable", events=["e_GO", "e_DEPTH"]) == ["e_DEPTH"]
+
+
+def test_takeable_says_which_commands_the_chart_would_take_now(rig):
+    assert rig.coordinator.call("takeable", events=["e_GO", "e_SEND", "e_NOPE"]) == [
+        "e_GO",
+        "e_SEND",
+    ]
+    assert rig.coordinator.call("active")["last_events"] == []
+    rig.put("e_SEND")
+    assert wait_until(lambda: rig.coordinator.call("active")["last_events"] == ["e_SEND"], 10)
+
+
+@pytest.fixture
+def guarded(hub, peer, write):
+    admission = Admission(
+        external=frozenset({"e_GO"}), emitters={"supervisor": frozenset({"e_SEND"})}
+    )
+    rig = Rig(hub, peer, write, admission=admission)
+    yield rig
+    rig.close()
+
+
+def test_each_component_may_send_only_the_events_its_class_declares(guarded):
+    guarded.put("e_GO", source="supervisor")
+    guarded.put("e_SEND", source="intruder")
+    guarded.put("e_SEND", source="supervisor")
+    assert wait_until(lambda: guarded.sent, 10), "the declared event was taken"
+    reasons = [r["reason"] for r in guarded.refusals()]
+    assert "supervisor does not declare that it emits e_GO" in reasons
+    assert "intruder is not a component of this deployment" in reasons
+    assert guarded.active() == ["Idle"]
+
+
+def test_the_operator_may_send_only_the_topologys_external_events(guarded):
+    answer = guarded.coordinator.call("offer", event="e_SEND")
+    assert answer == {
+        "accepted": False,
+        "reason": "e_SEND is not an operator event of this topology (those are: e_GO)",
+    }
+    assert guarded.coordinator.call("offer", event="e_GO")["accepted"]
+
+
+def test_a_lost_component_is_a_chart_event_and_its_return_another(hub, peer, write):
+    rig = Rig(hub, peer, write, watch={"sink": "workers"})
+    try:
+        token = peer.token(keys.alive("sink"))
+        assert wait_until(lambda: "sink" in rig.coordinator._alive, 10)
+        token.undeclare()
+        assert wait_until(lambda: rig.active() == ["Lost"], 10)
+        assert rig.coordinator.call("active")["lost"] == {"sink": "workers"}
+        token = peer.token(keys.alive("sink"))
+        assert wait_until(lambda: rig.active() == ["Idle"], 10)
+        assert rig.coordinator.call("active")["lost"] == {}
+        token.undeclare()
+    finally:
+        rig.close()
