@@ -66,8 +66,8 @@ SAFETY_CORE: dict[str, list[str]] = {
         "tests/components/supervisor/test_supervisor_component.py",
     ],
     "components/robot/interface.py": [
+        "tests/components/robot/test_interface.py",
         "tests/components/robot/test_robot_components.py",
-        "tests/components/robot/test_safe_stop.py",
     ],
     "components/robot/interpolator.py": ["tests/components/robot/test_interpolator.py"],
 }

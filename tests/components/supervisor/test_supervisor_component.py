@@ -148,8 +148,10 @@ def test_a_believable_decision_is_taken(rig):
 def test_an_impossible_people_count_or_tcp_is_refused_and_the_supervisor_runs_on(rig):
     rig.feed("users_near", Scalar(0.0, math.nan))
     rig.feed("users_near", Scalar(0.0, -3.0))
+    rig.feed("users_near", Scalar(0.0, -0.5))
     rig.feed("tcp", Pose(position=(math.nan, 0.0, 0.5), valid=True))
     assert "people count of nan" in refusals(rig, "users_near")[0]
+    assert wait_until(lambda: len(refusals(rig, "users_near")) == 3)
     assert "not finite" in refusals(rig, "tcp")[0]
     assert rig.supervisor.state.value == "Running"
     assert rig.supervisor.call("report")["users_near"] == 0

@@ -477,3 +477,25 @@ def test_misuse_is_a_clear_error(chart):
         i.advance(1)
     with pytest.raises(StatechartRuntimeError, match="fresh"):
         i.restore(i.snapshot())
+
+
+def test_a_do_action_does_not_run_when_the_configuration_fails(run):
+    r = run(CONFIG_OK)
+    r.send(("config.failed", {"tag": "setup", "step": "call x.y", "reason": "no"}))
+    assert r.leaves == ["Failed"] and r.interpreter.variables["done"] == 0
+
+
+def test_a_duplicate_ack_is_reported_as_unhandled(run):
+    r = run(CONFIG_OK)
+    r.send(("config.done", {"tag": "setup"}))
+    assert r.leaves == ["Top.B"] and r.interpreter.variables["done"] == 1
+    r.send(("config.done", {"tag": "setup"}))
+    assert r.kinds("unhandled")[-1][1] == "config.done"
+    assert r.leaves == ["Top.B"] and r.interpreter.variables["done"] == 1, "do ran once"
+
+
+def test_an_ack_for_another_tag_settles_nothing_and_is_reported(run):
+    r = run(CONFIG_OK)
+    r.send(("config.done", {"tag": "other"}))
+    assert r.kinds("unhandled")[-1][1] == "config.done"
+    assert r.interpreter.pending_configurations, "still waiting for its own ack"

@@ -1,0 +1,376 @@
+"""Spec: the robot interface, cycle by cycle. The test plays the arm's controller (a
+measured state per cycle) and the interpolator (setpoints), and reads what the interface
+commands and asks of the arm: a setpoint no arm could follow, a silent interpolator or
+the controller's own brake trip a protective stop that latches; only acknowledge (the
+operator's RELEASE) opens it."""
+
+import math
+
+import numpy as np
+import pytest
+
+from components.robot.interface import (
+    FIRST_STEP_CYCLES,
+    MAX_STEP_RAD,
+    POSITION_LIMIT_RAD,
+    STEP_MARGIN,
+    STILL_CYCLES,
+    STILL_TIMEOUT_CYCLES,
+    RobotInterface,
+)
+from framework.activity import Activity, SteppedExecutor
+from framework.clock import SimulatedClock
+from framework.container import Container
+from framework.errors import FwError
+from framework.messages import ArmState, EventMessage, JointState, Pose
+from framework.ports import InputPort, OutputPort, ReadStatus
+
+HOME = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.6, 0.0])
+TCP = (0.5, 0.1, 0.4, 1.0, 0.0, 0.0, 0.0)
+
+
+class Arm:
+    """The interface in a stepped container on the hub session; the test's ports on the
+    same session, so every sample is delivered before `cycle` returns."""
+
+    def __init__(self, hub):
+        self.container = Container("c", hub, SteppedExecutor(SimulatedClock()))
+        self.robot = self.container.add(RobotInterface("robot"), Activity.event("measured"))
+        self.container.connect("robot", "measured", "arm/measured")
+        self.container.connect("robot", "setpoint", "interpolator/setpoint")
+        self.writers = {}
+        for name, kind, key in [
+            ("measured", ArmState, "arm/measured"),
+            ("setpoint", JointState, "interpolator/setpoint"),
+        ]:
+            port = OutputPort(name, kind)
+            port.owner, port.bus = "test", hub
+            port.connect(key)
+            self.writers[name] = port
+        self.readers = {}
+        for name, kind in [
+            ("command", JointState),
+            ("arm_request", EventMessage),
+            ("joints", JointState),
+            ("tcp", Pose),
+            ("status", EventMessage),
+        ]:
+            port = InputPort(name, kind)
+            port.owner, port.bus = "test", hub
+            port.connect(f"robot/{name}", {"type": "buffer", "size": 10000})
+            self.readers[name] = port
+        self.container.start()
+        assert self.robot.configure() and self.robot.start()
+        self.cycle_no = 0
+        self.served = 0
+        self.q = HOME.copy()
+        self.v = np.zeros(7)
+        self.braked = True
+        self.latched = False
+        self.reason = ""
+        self.commands: list[np.ndarray] = []
+        self._requests: list[EventMessage] = []
+
+    @property
+    def requests(self) -> list[EventMessage]:
+        """What the interface asked of the arm so far (brake, release, reset, mode)."""
+        self._collect()
+        return self._requests
+
+    def cycle(self, setpoint=None, **state):
+        """One controller cycle: maybe a setpoint, then the measured state; the
+        interface's answer is collected."""
+        if setpoint is not None:
+            self.writers["setpoint"].write(JointState(0.0, tuple(float(v) for v in setpoint)))
+        self.cycle_no += 1
+        measured = ArmState(
+            0.0,
+            self.cycle_no,
+            state.get("served", self.served),
+            tuple(self.q),
+            tuple(self.v),
+            (0.0,) * 7,
+            TCP,
+            state.get("braked", self.braked),
+            state.get("latched", self.latched),
+            state.get("reason", self.reason),
+        )
+        self.writers["measured"].write(measured)
+        self.robot.update_hook()
+        self._collect()
+
+    def _collect(self):
+        for name, into in (("command", self.commands), ("arm_request", self._requests)):
+            port = self.readers[name]
+            while True:
+                status, sample = port.read()
+                if status is not ReadStatus.NEW:
+                    break
+                into.append(np.array(sample.position) if name == "command" else sample)
+
+    def released(self):
+        """The brakes are off, as the controller reports after a release."""
+        self.braked = False
+        self.served = len(self.requests)
+
+    def follow(self, q):
+        """The arm follows a command exactly (what the measured state says next)."""
+        self.v = (np.asarray(q) - self.q) / 0.001
+        self.q = np.asarray(q, dtype=float)
+
+    def names(self):
+        return [r.name for r in self.requests]
+
+    def report(self):
+        return self.robot.call("report")
+
+    def close(self):
+        self.container.shutdown()
+
+
+@pytest.fixture
+def arm(hub):
+    arm = Arm(hub)
+    yield arm
+    arm.close()
+
+
+def step(fraction, joint=2, cycles=1):
+    """A setpoint `fraction` of the rated velocity away on `joint` over `cycles`."""
+    out = np.zeros(7)
+    out[joint] = fraction * MAX_STEP_RAD[joint] * cycles
+    return out
+
+
+def moving(arm, cycles=3):
+    """Released, commanding: a few small steps the arm follows."""
+    arm.cycle()
+    arm.released()
+    for _ in range(cycles):
+        target = arm.q + step(0.5)
+        arm.cycle(target)
+        arm.follow(target)
+    return arm.q.copy()
+
+
+def test_every_measured_state_is_answered_with_the_latest_setpoint(arm):
+    arm.cycle(HOME + step(1.0))
+    assert arm.commands == [], "braked: nothing reaches the arm"
+    arm.released()
+    target = HOME + step(0.5)
+    arm.cycle(target)
+    assert len(arm.commands) == 1 and np.allclose(arm.commands[0], target)
+    status, joints = arm.readers["joints"].read()
+    assert status is ReadStatus.NEW and np.allclose(joints.position, HOME)
+    status, tcp = arm.readers["tcp"].read()
+    assert status is ReadStatus.NEW and tcp.position == TCP[:3] and tcp.frame == "base"
+
+
+def test_the_first_setpoint_of_a_motion_may_be_ten_cycles_of_rated_velocity_away(arm):
+    arm.cycle()
+    arm.released()
+    arm.cycle(HOME + step(STEP_MARGIN * 0.99, cycles=FIRST_STEP_CYCLES))
+    assert arm.commands and not arm.report()["latched"]
+    assert arm.report()["peak_step"] == pytest.approx(STEP_MARGIN * 0.99, abs=1e-3)
+
+
+def test_a_first_setpoint_further_away_trips(arm):
+    arm.cycle()
+    arm.released()
+    arm.cycle(HOME + step(STEP_MARGIN * 1.02, joint=4, cycles=FIRST_STEP_CYCLES))
+    report = arm.report()
+    assert report["latched"] and not arm.commands
+    assert report["reason"] == (
+        "setpoint refused: A5 would move "
+        f"{math.degrees(STEP_MARGIN * 1.02 * MAX_STEP_RAD[4] * 10):.2f} deg in 10 cycle(s), "
+        "1.5x its rated velocity"
+    )
+    assert arm.requests[-1].name == "brake" and arm.requests[-1].payload["latch"] is True
+
+
+@pytest.mark.parametrize(("fraction", "trips"), [(1.45, False), (1.55, True)])
+def test_each_later_step_may_be_one_and_a_half_rated_velocities(arm, fraction, trips):
+    last = moving(arm)
+    arm.cycle(last + step(fraction, joint=0))
+    assert arm.report()["latched"] == trips
+
+
+def test_a_cycle_without_a_setpoint_allows_a_longer_next_step(arm):
+    last = moving(arm)
+    arm.cycle()  # the interpolator missed one cycle
+    arm.cycle(last + step(1.4, joint=1, cycles=2))
+    assert not arm.report()["latched"], "2.8 rated steps over 2 cycles"
+    arm.follow(arm.commands[-1])
+    arm.cycle(arm.q + step(1.6, joint=1))
+    assert "in 1 cycle(s), 1.6x" in arm.report()["reason"]
+
+
+@pytest.mark.parametrize(
+    ("setpoint", "why"),
+    [
+        (HOME[:6], "not 7 finite joint positions: [0.0, 0.5, 0.0, -1.2, 0.0, 0.6]"),
+        (np.where(np.arange(7) == 3, np.nan, HOME), "not 7 finite joint positions"),
+        (np.where(np.arange(7) == 1, POSITION_LIMIT_RAD[1] + 0.01, HOME), "A2 at 120.6 deg"),
+        (np.where(np.arange(7) == 6, -POSITION_LIMIT_RAD[6] - 0.01, HOME), "A7 at -170.6 deg"),
+    ],
+)
+def test_a_setpoint_no_arm_has_trips_and_is_never_sent(arm, setpoint, why):
+    arm.cycle()
+    arm.released()
+    arm.cycle(setpoint)
+    assert not arm.commands
+    assert arm.report()["reason"].startswith(f"setpoint refused: {why}")
+
+
+def test_a_joint_exactly_at_its_limit_is_allowed(arm):
+    arm.q = np.where(np.arange(7) == 1, POSITION_LIMIT_RAD[1], HOME)
+    arm.cycle()
+    arm.released()
+    arm.cycle(arm.q.copy())
+    assert arm.commands and not arm.report()["latched"]
+
+
+def test_a_silent_interpolator_trips_after_its_cycles_and_the_arm_stops_on_its_path(arm):
+    last = moving(arm)
+    for _ in range(5):
+        arm.cycle()
+    assert not arm.report()["latched"], "5 silent cycles are tolerated"
+    arm.cycle()
+    report = arm.report()
+    assert report["reason"] == "no setpoint for 5 cycles (the interpolator stopped)"
+    assert report["stopping"], "the interface decelerates the arm itself"
+    sent = len(arm.commands)
+    for _ in range(200):
+        arm.follow(arm.commands[-1])
+        arm.cycle()
+    stop = arm.commands[sent - 1 :]
+    assert len(stop) > 2, "commanded to a stop over several cycles"
+    deltas = np.diff(np.array(stop)[:, 2])
+    assert np.all(deltas >= -1e-12) and deltas[-1] < deltas[0] / 100
+    assert np.all(np.diff(deltas) <= 1e-12), "slowing down, never speeding up"
+    assert arm.commands[-1][2] > last[2], "carried on the way it went"
+    assert arm.names()[-1] == "brake" and arm.requests[-1].payload == {
+        "reason": report["reason"],
+        "latch": True,
+    }
+
+
+def test_the_controllers_own_brake_latches_the_interface_once_it_is_not_ours(arm):
+    moving(arm)
+    arm.robot.call("brake", reason="holding")
+    arm.cycle(arm.q, braked=True, latched=True, reason="holding", served=arm.served)
+    assert not arm.report()["latched"], "our own request, not yet served: not a fault"
+    arm.cycle(arm.q, braked=True, latched=True, reason="watchdog", served=len(arm.requests))
+    assert arm.report()["reason"] == "the arm braked by itself: watchdog"
+
+
+def test_a_latched_stop_opens_only_with_acknowledge(arm):
+    last = moving(arm)
+    arm.cycle(last + step(5.0))
+    assert arm.report()["latched"]
+    with pytest.raises(FwError, match="safety stop latched"):
+        arm.robot.call("release")
+    for _ in range(300):
+        arm.follow(arm.commands[-1])
+        arm.cycle()
+    arm.braked = True
+    arm.cycle()
+    arm.cycle(arm.q)
+    assert arm.report()["latched"]
+    arm.robot.call("acknowledge")
+    assert arm.names()[-1] == "reset" and not arm.report()["latched"]
+    arm.robot.call("release")
+    assert arm.names()[-1] == "release"
+
+
+def test_acknowledge_waits_for_the_protective_stop_to_end(arm):
+    last = moving(arm)
+    arm.cycle(last + step(5.0))
+    with pytest.raises(FwError, match="still under way"):
+        arm.robot.call("acknowledge")
+
+
+def test_a_trip_while_not_commanding_brakes_at_once(arm):
+    arm.cycle()
+    arm.released()
+    arm.cycle(HOME + step(50.0))
+    assert arm.names() == ["brake"] and not arm.report()["stopping"]
+
+
+def test_brake_when_still_waits_until_the_arm_stands_still(arm):
+    moving(arm)
+    arm.v = np.full(7, 0.01)
+    arm.robot.call("brake", reason="at goal", when_still=True)
+    requests = len(arm.requests)
+    for _ in range(10):
+        arm.cycle(arm.q)
+    assert len(arm.requests) == requests, "still moving"
+    arm.v = np.full(7, 0.0019)
+    for _ in range(STILL_CYCLES - 1):
+        arm.cycle(arm.q)
+    assert len(arm.requests) == requests, "not yet still long enough"
+    arm.cycle(arm.q)
+    assert arm.requests[-1].name == "brake"
+    assert arm.requests[-1].payload == {"reason": "at goal", "latch": False}
+
+
+def test_brake_when_still_gives_up_waiting_after_two_seconds(arm):
+    moving(arm)
+    arm.v = np.full(7, 0.05)
+    arm.robot.call("brake", reason="at goal", when_still=True)
+    requests = len(arm.requests)
+    for _ in range(STILL_TIMEOUT_CYCLES - 1):
+        arm.cycle(arm.q)
+    assert len(arm.requests) == requests
+    arm.cycle(arm.q)
+    assert arm.names()[-1] == "brake" and len(arm.requests) == requests + 1
+
+
+def test_brake_when_still_is_dropped_once_the_arm_is_braked(arm):
+    moving(arm)
+    arm.v = np.full(7, 0.05)
+    arm.robot.call("brake", reason="at goal", when_still=True)
+    requests = len(arm.requests)
+    arm.braked = True
+    arm.cycle(arm.q)
+    arm.v = np.zeros(7)
+    for _ in range(STILL_CYCLES + 5):
+        arm.cycle(arm.q)
+    assert len(arm.requests) == requests
+
+
+def test_brake_and_release_without_a_latch_and_the_servo_mode(arm):
+    arm.robot.call("brake", reason="waiting")
+    assert arm.requests[-1].payload == {"reason": "waiting", "latch": False}
+    arm.robot.call("set_mode", mode="impedance")
+    assert arm.requests[-1].name == "mode" and arm.requests[-1].payload == {"mode": "impedance"}
+    with pytest.raises(FwError, match="unknown mode 'torque'"):
+        arm.robot.call("set_mode", mode="torque")
+    arm.cycle()
+    assert arm.report()["mode"] == "impedance"
+
+
+def test_the_report_before_and_after_the_first_state(arm):
+    assert arm.report() == {
+        "braked": True,
+        "latched": False,
+        "fault": False,
+        "reason": "no arm state",
+    }
+    with pytest.raises(FwError, match=r"not ready after 0\.05 s: no state from the arm"):
+        arm.robot.call("await_ready", timeout=0.05)
+    arm.q = HOME + 1e-7
+    arm.cycle(reason="powered up")
+    report = arm.report()
+    assert report["q"] == [round(v, 5) for v in arm.q] and report["time"] == 0.001
+    assert report["reason"] == "powered up" and report["ready"] and not report["stopping"]
+    assert arm.robot.call("await_ready", timeout=0.05)["braked"]
+
+
+def test_stopping_the_interface_asks_for_the_brakes_latched(arm):
+    arm.cycle()
+    arm.robot.stop()
+    assert arm.readers["arm_request"].read()[1].payload == {
+        "reason": "robot interface stopped",
+        "latch": True,
+    }
