@@ -162,11 +162,23 @@ def load_equivalents() -> list[dict[str, str]]:
 
 
 def equivalent_reason(mutant: Mutant, known: list[dict[str, str]]) -> str:
-    """Why `mutant` is equivalent, or "" if it is not listed."""
+    """Why `mutant` is equivalent, or "" if it is not listed. An entry names one mutant
+    (operator, before, after), or a kind of them: `operators` and `changed`, a pattern
+    the mutated line matches and the original does not (`== Kind.X` where `is Kind.X`
+    was: an Enum member compared by value instead of identity)."""
     for item in known:
-        if (
-            item.get("module") == mutant.module
-            and item.get("operator") == mutant.short
+        if item.get("module") != mutant.module:
+            continue
+        if "changed" in item:
+            pattern = re.compile(str(item["changed"]))
+            if (
+                mutant.short in item.get("operators", ())
+                and pattern.search(mutant.after)
+                and not pattern.search(mutant.before)
+            ):
+                return str(item.get("reason", "listed as equivalent"))
+        elif (
+            item.get("operator") == mutant.short
             and item.get("before", "").strip() == mutant.before
             and item.get("after", "").strip() == mutant.after
         ):

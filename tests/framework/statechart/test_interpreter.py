@@ -499,3 +499,65 @@ def test_an_ack_for_another_tag_settles_nothing_and_is_reported(run):
     r.send(("config.done", {"tag": "other"}))
     assert r.kinds("unhandled")[-1][1] == "config.done"
     assert r.interpreter.pending_configurations, "still waiting for its own ack"
+
+
+# --- time events on a running clock (the Coordinator calls run() when it wakes up) ------
+
+RACE = """
+statechart: race
+events: {leave: null, back: null, poke: null}
+initial: A
+states:
+  - name: A
+    transitions:
+      - {after: 1s, target: B}
+      - {after: 5s, target: C}
+      - {event: leave, target: D}
+  - {name: B, transitions: [{event: poke, target: C}]}
+  - {name: C, type: final}
+  - name: D
+    transitions: [{event: back, target: A}]
+"""
+
+
+def test_a_time_event_already_past_fires_when_the_chart_next_runs(run):
+    r = run(RACE)
+    r.clock.set(2.0)  # woke up late: the 1 s deadline is behind us
+    assert r.interpreter.run() == 1 and r.leaves == ["B"]
+
+
+def test_a_running_chart_fires_the_earliest_due_time_event_and_then_its_queue(run):
+    r = run(RACE)
+    r.interpreter.queue("poke")
+    r.clock.set(1.0)
+    assert r.interpreter.run() == 2, "the time event, then the queued event, in one run"
+    assert r.leaves == ["C"]
+
+
+def test_the_time_event_of_a_state_left_and_reentered_restarts(run):
+    r = run(RACE)
+    r.clock.set(0.5)
+    r.send("leave")
+    r.clock.set(0.6)
+    r.send("back")  # A again: its 1 s count starts at 0.6
+    r.clock.set(1.2)
+    assert r.interpreter.run() == 0 and r.leaves == ["A"], "the old deadline is dead"
+    assert r.interpreter.next_deadline() == pytest.approx(1.6)
+    r.clock.set(1.6)
+    r.interpreter.run()
+    assert r.leaves == ["B"]
+
+
+def test_a_state_reentered_hundreds_of_times_still_keeps_time(run):
+    r = run(RACE)
+    for _ in range(300):
+        r.send("leave")
+        r.send("back")
+    r.interpreter.advance(1.0)
+    assert r.leaves == ["B"]
+
+
+def test_states_never_entered_are_not_active(run):
+    r = run(RACE)
+    assert r.interpreter.is_active("A")
+    assert not any(r.interpreter.is_active(s) for s in ("B", "C", "D", "nowhere"))
