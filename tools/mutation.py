@@ -69,7 +69,10 @@ SAFETY_CORE: dict[str, list[str]] = {
         "tests/components/robot/test_interface.py",
         "tests/components/robot/test_robot_components.py",
     ],
-    "components/robot/interpolator.py": ["tests/components/robot/test_interpolator.py"],
+    "components/robot/interpolator.py": [
+        "tests/components/robot/test_interpolator.py",
+        "tests/components/robot/test_interpolator_component.py",
+    ],
 }
 """The modules that keep the robot safe, each with its own fast tests."""
 

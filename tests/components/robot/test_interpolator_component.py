@@ -1,0 +1,255 @@
+"""Spec: the interpolator as a component, cycle by cycle. The test plays the robot
+interface (measured joints in, setpoints out), the Supervisor (limits, the halt reflex)
+and the Configurator (operations): limits beyond the procedure are refused, any halt
+brakes, an arm that does not follow stops the motion, and a goal re-sent while moving
+there does not interrupt it."""
+
+import numpy as np
+import pytest
+
+from components.robot.interpolator import CartesianInterpolator
+from components.robot.lwr4 import HOME
+from framework.activity import Activity, SteppedExecutor
+from framework.clock import SimulatedClock
+from framework.container import Container
+from framework.errors import FwError
+from framework.messages import EventMessage, JointState, Pose
+from framework.ports import InputPort, OutputPort, ReadStatus
+from tests.conftest import REPO
+
+PROCEDURE = REPO / "procedures" / "seeg.yaml"
+
+
+class Robot:
+    """The interpolator in a stepped container on the hub session, the test's ports on
+    the same session (delivery is done when `cycle` returns); the arm follows every
+    setpoint exactly unless told to lag."""
+
+    def __init__(self, hub, procedure=PROCEDURE):
+        self.container = Container("c", hub, SteppedExecutor(SimulatedClock()))
+        self.interp = self.container.add(
+            CartesianInterpolator("interpolator"), Activity("after", master="robot")
+        )
+        self.interp.set_property("procedure_file", str(procedure))
+        self.writers = {}
+        for name, kind in [
+            ("joints", JointState),
+            ("limits", EventMessage),
+            ("halt", EventMessage),
+        ]:
+            port = OutputPort(name, kind)
+            port.owner, port.bus = "test", hub
+            port.connect(f"test/{name}")
+            self.container.connect("interpolator", name, f"test/{name}")
+            self.writers[name] = port
+        self.readers = {}
+        for name, kind in [("setpoint", JointState), ("command", Pose), ("status", EventMessage)]:
+            port = InputPort(name, kind)
+            port.owner, port.bus = "test", hub
+            port.connect(f"interpolator/{name}", {"type": "buffer", "size": 100000})
+            self.readers[name] = port
+        self.container.start()
+        self.configured = self.interp.configure() and self.interp.start()
+        self.q = np.array(HOME, dtype=float)
+        self.lag = np.zeros(7)
+
+    def cycle(self, n=1):
+        for _ in range(n):
+            self.writers["joints"].write(JointState(0.0, tuple(self.q + self.lag)))
+            self.interp.update_hook()
+            setpoints = self.drain("setpoint")
+            if setpoints:
+                self.q = np.array(setpoints[-1].position)
+
+    def drain(self, name):
+        out = []
+        while True:
+            status, sample = self.readers[name].read()
+            if status is not ReadStatus.NEW:
+                return out
+            out.append(sample)
+
+    def until(self, phase, limit=20000):
+        for _ in range(limit):
+            self.cycle()
+            if self.report()["phase"] == phase:
+                return
+        raise AssertionError(f"never {phase}: {self.report()}")
+
+    def report(self):
+        return self.interp.call("report")
+
+    def limits(self, **payload):
+        self.writers["limits"].write(EventMessage(0.0, "limits", "supervisor", payload))
+        self.cycle()
+
+    def close(self):
+        self.container.shutdown()
+
+
+@pytest.fixture
+def robot(hub):
+    robot = Robot(hub)
+    assert robot.configured, robot.interp.last_error
+    yield robot
+    robot.close()
+
+
+def test_it_waits_for_the_arms_joints_then_holds_them(robot):
+    assert robot.report() == {"phase": "waiting for joints"}
+    with pytest.raises(FwError, match="no joint state received yet"):
+        robot.interp.call("go_to", goal="target")
+    robot.cycle(5)
+    assert np.allclose(robot.q, HOME, atol=1e-9), "at rest where the arm stands"
+    assert [s.name for s in robot.drain("status")] == ["idle"]
+    assert len(robot.drain("command")) == 1, "idle: the pose once, not every cycle"
+
+
+def test_it_moves_to_a_named_goal_and_says_when_it_is_there(robot):
+    robot.cycle()
+    report = robot.interp.call("go_to", goal="target")
+    assert report["phase"] == "moving" and report["goal"] == "target"
+    robot.until("reached")
+    assert [s.name for s in robot.drain("status")] == ["idle", "moving", "reached"]
+    report = robot.report()
+    assert report["tcp"] == pytest.approx([0.6, 0.0, 0.12], abs=1e-6)
+    assert report["s"] == report["length"] > 0.1 and report["speed"] == 0.0
+
+
+def test_the_same_goal_sent_again_while_moving_there_is_not_a_new_motion(robot):
+    robot.cycle()
+    robot.interp.call("go_to", goal="target")
+    robot.cycle(300)
+    travelled = robot.report()["s"]
+    robot.interp.call("go_to", goal="target")  # a tracker swap re-applies the goto
+    robot.cycle()
+    assert robot.report()["s"] > travelled and robot.report()["phase"] == "moving"
+
+
+def test_another_goal_while_moving_brakes_then_heads_for_it(robot):
+    robot.cycle()
+    robot.interp.call("go_to", goal="target")
+    robot.cycle(300)
+    assert robot.interp.call("go_to", goal="home")["phase"] == "stopping"
+    robot.until("reached")
+    assert robot.report()["goal"] == "home"
+    assert robot.report()["tcp"] == pytest.approx([0.54, 0.0, 0.37], abs=1e-6)
+
+
+def test_unknown_goals_and_bad_poses_are_refused(robot):
+    robot.cycle()
+    with pytest.raises(FwError, match="unknown goal 'moon': one of target, home"):
+        robot.interp.call("go_to", goal="moon")
+    with pytest.raises(FwError):
+        robot.interp.call("go_to_pose", position=[0.5, 0.0], rpy_deg=[0, 180, 0])
+
+
+def test_a_pose_and_a_new_target_are_reached_as_given(robot):
+    robot.cycle()
+    robot.interp.call("go_to_pose", position=[0.55, 0.05, 0.3], rpy_deg=[0, 180, 0])
+    robot.until("reached")
+    assert robot.report()["goal"] == "pose"
+    assert robot.report()["tcp"] == pytest.approx([0.55, 0.05, 0.3], abs=1e-6)
+    assert robot.interp.call("define_target", x=0.58, y=-0.02, z=0.2, roll=0, pitch=180, yaw=0)
+    robot.interp.call("go_to", goal="target")
+    robot.until("reached")
+    assert robot.report()["tcp"] == pytest.approx([0.58, -0.02, 0.2], abs=1e-6)
+
+
+def test_limits_from_the_supervisor_apply_at_once(robot):
+    robot.cycle()
+    robot.limits(velocity=0.01, acceleration=0.1)
+    report = robot.report()
+    assert (report["velocity"], report["acceleration"]) == (0.01, 0.1)
+    robot.limits(velocity=0.075)
+    assert robot.report()["velocity"] == 0.075, "the procedure's fastest speed is allowed"
+    assert robot.report()["acceleration"] == 0.1, "no acceleration: it stays"
+    robot.limits(velocity=0.05, acceleration=0.25)
+    assert robot.report()["acceleration"] == 0.25
+
+
+@pytest.mark.parametrize(
+    ("payload", "reason"),
+    [
+        ({"velocity": 0.0751}, "velocity 0.0751 m/s is over the procedure's 0.075"),
+        ({"velocity": 0.05, "acceleration": 0.26}, "acceleration 0.26 m/s^2 is over"),
+        ({"velocity": 0.0}, "velocity must be in (0, 0.25], got 0.0"),
+        ({"speed": 0.05}, "malformed limits: KeyError('velocity')"),
+        ({"velocity": "fast"}, "malformed limits: ValueError"),
+    ],
+)
+def test_limits_beyond_the_procedure_or_malformed_are_refused_and_the_old_ones_stay(
+    robot, payload, reason
+):
+    robot.cycle()
+    robot.limits(velocity=0.02, acceleration=0.2)
+    robot.limits(**payload)
+    assert (robot.report()["velocity"], robot.report()["acceleration"]) == (0.02, 0.2)
+    assert robot.interp.last_error.startswith(f"limits refused: {reason}")
+
+
+def test_the_set_limits_operation_holds_to_the_procedure_too(robot):
+    robot.cycle()
+    with pytest.raises(FwError, match="over the procedure"):
+        robot.interp.call("set_limits", velocity=0.2)
+    assert robot.interp.call("set_limits", velocity=0.03)["velocity"] == 0.03
+
+
+def test_any_halt_brakes_the_motion_and_says_why(robot):
+    robot.cycle()
+    robot.interp.call("go_to", goal="target")
+    robot.cycle(500)
+    robot.writers["halt"].write(EventMessage(0.0, "halt", "supervisor", {"reason": "e_STOP"}))
+    robot.cycle()
+    report = robot.report()
+    assert report["phase"] == "stopping" and report["halted"] == "e_STOP"
+    assert report["goal"] == "", "the goal is dropped: a re-sent goto starts anew"
+    robot.until("stopped")
+
+
+def test_an_arm_that_stops_following_stops_the_motion(robot):
+    robot.cycle()
+    robot.interp.call("go_to", goal="target")
+    robot.cycle(300)
+    robot.lag = np.zeros(7)
+    robot.lag[1] = 0.049  # within the allowed gap
+    robot.cycle()
+    assert robot.report()["phase"] == "moving"
+    robot.lag[1] = 0.051
+    robot.cycle()
+    assert robot.report()["phase"] in ("stopped", "stopping")
+    assert robot.interp.last_error.startswith("the arm lags the command by 2.9 deg")
+
+
+def test_stop_motion_then_a_plain_sync_while_moving_keeps_the_motion(robot):
+    robot.cycle()
+    robot.interp.call("go_to", goal="target")
+    robot.cycle(300)
+    before = robot.report()["s"]
+    robot.interp.call("sync")
+    assert robot.report()["s"] == before, "a swap's sync must not cut the approach"
+    assert robot.interp.call("stop_motion")["phase"] == "stopping"
+    robot.until("stopped")
+
+
+def test_a_forced_sync_restarts_from_where_the_arm_stands(robot):
+    robot.cycle()
+    robot.interp.call("go_to", goal="target")
+    robot.cycle(300)
+    robot.lag = np.full(7, 0.01)  # the arm was stopped a little away
+    stands = robot.q + robot.lag  # what the next measured state says
+    robot.cycle()
+    report = robot.interp.call("sync", force=True)
+    assert report["phase"] == "idle" and report["goal"] == "" and report["s"] == 0.0
+    robot.cycle()
+    assert np.allclose(robot.q, stands, atol=1e-6), "the next setpoint is where it stands"
+
+
+def test_a_procedure_that_cannot_be_read_stops_configuration(hub, tmp_path):
+    bad = tmp_path / "seeg.yaml"
+    bad.write_text("procedure: x\n", encoding="utf-8")
+    robot = Robot(hub, bad)
+    try:
+        assert not robot.configured and "seeg.yaml" in robot.interp.last_error
+    finally:
+        robot.close()
