@@ -157,3 +157,150 @@ def test_while_braked_a_late_input_blocks_release_but_a_lost_one_latches(cell, b
     assert cell.monitor.ready() == "", "on time again: no RELEASE needed, nothing moved"
     cell.monitor.set_alive("doubler", False)  # a lost component is a fault even when braked
     assert cell.monitor.check(released=False).startswith("doubler lost")
+
+
+# --- the monitor alone, fed by hand on a simulated clock ---------------------------------
+# Times are binary fractions (1/256 s steps) so that ages land exactly on deadlines.
+
+TICK = 1 / 256  # a check every ~3.9 ms, under the 10 ms starvation limit
+
+
+def lone_monitor():
+    """A monitor hosted by process `robot`, watching its own process heartbeat (62.5 ms,
+    beating every 15.6 ms), a component's heartbeat (`x`, 125 ms) and a port (`y.out`,
+    62.5 ms); every component alive."""
+    spec = SafetySpec(
+        "robot",
+        (
+            Watch("process robot", keys.process_heartbeat("robot"), 0.0625, ""),
+            Watch("x", keys.heartbeat("x"), 0.125, "x"),
+            Watch("y.out", "y/out", 0.0625, "y"),
+        ),
+        ("x", "y", "coordinator"),
+        process_deadline=0.0625,
+    )
+    clock = SimulatedClock()
+    monitor = SafetyMonitor(spec, clock, "robot")
+    for component in ("x", "y", "coordinator"):
+        monitor.set_alive(component, True)
+    return monitor, clock
+
+
+def feed(monitor, clock, ticks, watches=(0, 1, 2)):
+    """`ticks` control cycles: samples of `watches`, then a check; the verdicts."""
+    verdicts = []
+    for _ in range(ticks):
+        clock.set(clock.now() + TICK)
+        for index in watches:
+            monitor.arrived(index)
+        verdicts.append(monitor.check())
+    return verdicts
+
+
+def test_a_frozen_monitor_process_does_not_count_its_own_freeze_against_the_others():
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    assert monitor.armed
+    clock.set(clock.now() + 0.25)  # the whole process stood still (SIGSTOP, a frozen VM)
+    assert monitor.check() == "", "a late check only records the time"
+    clock.set(clock.now() + TICK)
+    assert monitor.check() == "", "its own heartbeat was just as late: not the others' fault"
+    assert monitor.problems() == []
+
+
+def test_a_producer_silent_while_the_monitors_process_runs_trips_past_its_deadline():
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    verdicts = feed(monitor, clock, 17, watches=(0, 1))  # y.out falls silent
+    assert verdicts[:16] == [""] * 16, "62.5 ms exactly is not late yet"
+    assert verdicts[16] == "y.out: no data for 66 ms (deadline 62 ms)"
+
+
+def test_a_check_under_the_starvation_limit_decides_one_over_it_only_records():
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    feed(monitor, clock, 14, watches=(0, 1))
+    clock.set(clock.now() + 3 * TICK)  # 11.7 ms since the last check: this thread starved
+    assert monitor.check() == ""
+    monitor.arrived(0)
+    clock.set(clock.now() + 2 * TICK)  # 7.8 ms: a normal cycle; y.out silent for 19 ticks
+    assert monitor.check() == "y.out: no data for 74 ms (deadline 62 ms)"
+
+
+def test_one_sample_is_not_yet_proof_of_life():
+    monitor, clock = lone_monitor()
+    clock.set(TICK)
+    for index in range(3):
+        monitor.arrived(index)
+    assert monitor.problems() == ["x: no data yet", "y.out: no data yet"]
+    assert "no data yet" in monitor.ready()
+    for index in range(3):
+        monitor.arrived(index)
+    assert monitor.problems() == [] and monitor.ready() == ""
+
+
+def test_the_monitors_own_process_heartbeat_is_not_its_problem():
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    feed(monitor, clock, 64, watches=(1, 2))
+    assert monitor.problems() == [], "the arm's watchdog covers a hung monitor process"
+
+
+def test_a_lost_producer_is_reported_as_lost_not_also_as_late():
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    monitor.set_alive("y", False)
+    feed(monitor, clock, 64, watches=(0,))
+    assert monitor.problems() == [
+        "y lost (its process died or cannot be reached)",
+        "x: no data for 250 ms (deadline 125 ms)",
+    ]
+    monitor.set_alive("stranger", False)  # not a component of this deployment
+    assert len(monitor.problems()) == 2
+
+
+def test_the_report_says_each_inputs_age_worst_silence_and_deadline():
+    monitor, clock = lone_monitor()
+    assert monitor.report()["watches"]["x"] == {
+        "age_ms": None,
+        "worst_ms": 0.0,
+        "deadline_ms": 125.0,
+    }
+    feed(monitor, clock, 64)
+    feed(monitor, clock, 10, watches=(0, 2))  # x skips 39 ms of beats
+    feed(monitor, clock, 4)
+    monitor.set_alive("coordinator", False)
+    clock.set(clock.now() + 0.0015)
+    report = monitor.report()
+    assert report["latched"] == "" and report["armed"] and report["trips"] == 0
+    assert report["lost"] == ["coordinator"]
+    assert report["watches"]["y.out"]["age_ms"] == 1.5
+    assert report["watches"]["x"]["worst_ms"] == 39.1
+    assert report["watches"]["y.out"]["deadline_ms"] == 62.5
+
+
+def test_a_safety_spec_travels_as_plain_data():
+    monitor, _ = lone_monitor()
+    spec = monitor.spec
+    assert SafetySpec.from_dict(spec.to_dict()) == spec
+    assert spec.process_beat == 0.015625, "four beats per deadline"
+    assert SafetySpec.from_dict({"monitor": "robot"}).process_deadline == 0.05
+    assert heartbeat_period(0.004) == 0.002, "never faster than 2 ms"
+
+
+def test_a_process_heartbeat_beats_from_its_own_thread_until_stopped(hub):
+    from framework.messages import Scalar
+    from framework.ports import InputPort, ReadStatus
+    from framework.safety import ProcessHeartbeat
+
+    seen = InputPort("beat", Scalar)
+    seen.owner, seen.bus = "test", hub
+    seen.connect(keys.process_heartbeat("worker"), {"type": "buffer", "size": 1000})
+    beat = ProcessHeartbeat(hub, "worker", 0.002).start()
+    assert wait_until(lambda: seen.stats.received >= 3)
+    beat.stop()
+    counts = []
+    while (sample := seen.read())[0] is ReadStatus.NEW:
+        counts.append(sample[1].value)
+    assert counts[:3] == [1.0, 2.0, 3.0], "counted from one"
+    assert beat.port.keys == [], "stopped: nothing published any more"
