@@ -561,3 +561,56 @@ def test_states_never_entered_are_not_active(run):
     r = run(RACE)
     assert r.interpreter.is_active("A")
     assert not any(r.interpreter.is_active(s) for s in ("B", "C", "D", "nowhere"))
+
+
+def test_advancing_returns_how_many_steps_it_took(run):
+    r = run(TIMED)
+    assert r.interpreter.advance(9.9) == 7
+    r.interpreter.queue("reset")
+    assert r.interpreter.advance(0.05) == 1
+
+
+def test_a_time_event_is_reported_and_its_target_completes_at_once(run):
+    r = run("""
+        statechart: chained
+        events: {}
+        initial: A
+        states:
+          - {name: A, transitions: [{after: 1s, target: B}]}
+          - {name: B, transitions: [{target: C}]}
+          - {name: C, type: final}
+    """)
+    r.interpreter.advance(1.0)
+    assert r.leaves == ["C"] and r.interpreter.finished
+    assert ("event", "after", {"state": "A", "delay": 1.0}, "timer") in r.kinds("event")
+
+
+FIRE_AND_FORGET = """
+statechart: f
+events: {go: null}
+initial: A
+states:
+  - name: A
+    entry: [{configure: lamp_on}, {configure: lamp_on}]
+    transitions: [{event: go, target: B}]
+  - {name: B, type: final}
+"""
+
+
+def test_acks_of_configurations_not_waited_for_are_consumed_one_each(run):
+    r = run(FIRE_AND_FORGET)
+    assert r.interpreter.pending_configurations == {}, "nothing waits for them"
+    r.send(("config.done", {"tag": "lamp_on"}), ("config.failed", {"tag": "lamp_on"}))
+    assert not r.kinds("unhandled"), "both consumed silently"
+    r.send(("config.done", {"tag": "lamp_on"}))
+    assert r.kinds("unhandled")[-1][1] == "config.done", "a third one was never asked for"
+
+
+def test_the_awaited_configurations_and_the_queue_are_visible(run):
+    r = run(CONFIG_OK)
+    assert r.interpreter.pending_configurations == {"Top.A": "setup"}
+    r.interpreter.queue("go")
+    r.interpreter.queue("go")
+    assert r.interpreter.queued == 2
+    r.interpreter.run()
+    assert r.interpreter.queued == 0
