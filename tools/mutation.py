@@ -299,6 +299,24 @@ class Workspace:
             path.write_text(original, encoding="utf-8")
 
 
+def statement_starts(code: str) -> dict[int, int]:
+    """For every line of `code`, the first line of the innermost statement spanning it:
+    coverage counts a statement written over several lines on its first line only."""
+    spans = sorted(
+        (
+            (node.end_lineno - node.lineno, node.lineno, node.end_lineno)
+            for node in ast.walk(ast.parse(code))
+            if isinstance(node, ast.stmt) and node.end_lineno is not None
+        ),
+        reverse=True,
+    )
+    starts: dict[int, int] = {}
+    for _, first, last in spans:  # widest first: inner statements overwrite outer ones
+        for line in range(first, last + 1):
+            starts[line] = first
+    return starts
+
+
 def covering_tests(space: Workspace, module: str, tests: list[str]) -> dict[int, list[str]] | None:
     """For every line of `module` the unmutated tests execute (in the test process or in
     any process it starts), the test functions seen running it, as pytest node ids (an
@@ -325,15 +343,20 @@ def covering_tests(space: Workspace, module: str, tests: list[str]) -> dict[int,
     subprocess.run([*coverage, "json", "--show-contexts", "-o", str(report)], **quiet)
     if not report.exists():
         return None
+    starts = statement_starts((space.root / module).read_text(encoding="utf-8"))
     for name, info in json.loads(report.read_text())["files"].items():
         if name.endswith(module):
             contexts = info.get("contexts", {})
-            return {
+            executed = {
                 line: sorted(
                     {node for c in contexts.get(str(line), []) if (node := _node_id(space, c))}
                 )
                 for line in info["executed_lines"]
             }
+            # a line inside a multi-line statement ran if the statement did
+            return {
+                line: executed[first] for line, first in starts.items() if first in executed
+            } | executed
     return None
 
 
