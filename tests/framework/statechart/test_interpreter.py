@@ -614,3 +614,259 @@ def test_the_awaited_configurations_and_the_queue_are_visible(run):
     assert r.interpreter.queued == 2
     r.interpreter.run()
     assert r.interpreter.queued == 0
+
+
+# --- what listeners see, parallel completion, junction paths, history kinds --------------
+
+
+def test_listeners_see_exit_then_the_transition_then_entry(run):
+    r = run(NESTED, validate=False)
+    r.trace.records.clear()
+    r.send("e")
+    seen = [rec for rec in r.trace.records if rec[0] in ("exit", "transition", "entry")]
+    assert seen == [
+        ("exit", "P.C.L"),
+        ("exit", "P.C"),
+        ("exit", "P"),
+        ("transition", "P", "Q", "e"),
+        ("entry", "Q"),
+    ]
+
+
+def test_entering_a_nested_state_directly_enters_its_parents_first(run):
+    r = run(
+        """
+        statechart: direct
+        events: {go: null}
+        initial: A
+        states:
+          - {name: A, transitions: [{event: go, target: P.C}]}
+          - name: P
+            initial: B
+            states: [{name: B}, {name: C}]
+        """,
+        validate=False,
+    )
+    r.trace.records.clear()
+    r.send("go")
+    assert r.leaves == ["P.C"]
+    assert [rec for rec in r.trace.records if rec[0] == "entry"] == [
+        ("entry", "P"),
+        ("entry", "P.C"),
+    ]
+
+
+PARALLEL_DONE = """
+statechart: pd
+events: {a: null, b: null}
+initial: P
+states:
+  - name: P
+    type: parallel
+    states:
+      - name: R1
+        initial: A1
+        states:
+          - {name: A1, transitions: [{event: a, target: F1}]}
+          - {name: F1, type: final}
+      - name: R2
+        initial: A2
+        states:
+          - {name: A2, transitions: [{event: b, target: F2}]}
+          - {name: F2, type: final}
+    transitions: [{target: Done}]
+  - {name: Done, type: final}
+"""
+
+
+def test_a_parallel_state_completes_only_when_every_region_is_final(run):
+    r = run(PARALLEL_DONE, validate=False)
+    r.send("a")
+    assert r.leaves == ["P.R1.F1", "P.R2.A2"], "one region done is not enough"
+    r.send("b")
+    assert r.leaves == ["Done"] and r.interpreter.finished
+
+
+def test_time_events_due_together_in_two_regions_both_fire(run):
+    r = run(
+        """
+        statechart: twin
+        events: {}
+        initial: P
+        states:
+          - name: P
+            type: parallel
+            states:
+              - name: R1
+                initial: A1
+                states:
+                  - {name: A1, transitions: [{after: 1s, target: B1}]}
+                  - {name: B1}
+              - name: R2
+                initial: A2
+                states:
+                  - {name: A2, configure: {tag: x, timeout: 1s}, transitions: [{after: 1s, target: B2}]}
+                  - {name: B2}
+          - name: Q
+            initial: Q1
+            states:
+              - {name: Q1, configure: {tag: y, timeout: 1s}}
+        """,
+        validate=False,
+    )
+    r.interpreter.advance(1.0)
+    assert r.leaves == ["P.R1.B1", "P.R2.B2"]
+
+
+CHAIN = """
+statechart: chain
+events: {go: {payload: {n: integer}}}
+initial: P
+states:
+  - name: P
+    initial: A
+    states:
+      - {name: A, transitions: [{event: go, target: J1, effect: [{log: leave A}]}]}
+      - name: J1
+        type: junction
+        transitions:
+          - {guard: event.n > 10, target: J2, effect: [{log: big}]}
+          - {guard: else, target: Small, effect: [{log: else}]}
+      - name: J2
+        type: junction
+        transitions:
+          - {guard: event.n > 100, target: Huge}
+          - {guard: else, target: Big}
+      - {name: Small}
+      - {name: Big}
+      - {name: Huge}
+"""
+
+
+def test_a_chain_of_junctions_is_one_transition_from_the_state_that_took_the_event(run):
+    r = run(CHAIN, validate=False)
+    r.trace.records.clear()
+    r.send(("go", {"n": 50}))
+    assert r.leaves == ["P.Big"]
+    assert [rec for rec in r.trace.records if rec[0] == "transition"] == [
+        ("transition", "P.A", "P.J1", "go")
+    ]
+    assert [(o.state, o.message) for o in r.outputs if o.kind == "log"] == [
+        ("P.A", "leave A"),
+        ("P.A", "big"),
+    ]
+
+
+def test_an_else_branch_is_taken_when_no_guard_holds(run):
+    r = run(CHAIN, validate=False)
+    r.send(("go", {"n": 3}))
+    assert r.leaves == ["P.Small"] and logs(r) == ["leave A", "else"]
+    r = run(CHAIN, validate=False)
+    r.send(("go", {"n": 500}))
+    assert r.leaves == ["P.Huge"]
+
+
+def test_a_completion_transition_may_go_through_a_junction(run):
+    r = run(
+        """
+        statechart: cj
+        events: {}
+        variables: {n: 3}
+        initial: A
+        states:
+          - {name: A, transitions: [{target: J}]}
+          - name: J
+            type: junction
+            transitions:
+              - {guard: n > 2, target: B}
+              - {guard: else, target: C}
+          - {name: B}
+          - {name: C}
+        """,
+        validate=False,
+    )
+    assert r.leaves == ["B"]
+
+
+ONE_HISTORY = """
+statechart: oh
+events: {next: null, out: null, back: null}
+initial: M
+states:
+  - name: M
+    initial: A
+    states:
+      - {name: H, type: HISTORY_KIND}
+      - {name: A, transitions: [{event: next, target: B}]}
+      - name: B
+        initial: B1
+        states:
+          - {name: B1, transitions: [{event: next, target: B2}]}
+          - {name: B2}
+    transitions: [{event: out, target: Away}]
+  - name: Away
+    transitions: [{event: back, target: M.H}]
+"""
+
+
+@pytest.mark.parametrize(
+    ("kind", "resumed"), [("shallow_history", "M.B.B1"), ("deep_history", "M.B.B2")]
+)
+def test_a_composite_with_one_history_resumes_as_its_kind_says(run, kind, resumed):
+    r = run(ONE_HISTORY.replace("HISTORY_KIND", kind), validate=False)
+    r.send("next", "next", "out", "back")
+    assert r.leaves == [resumed]
+
+
+def test_leaving_a_state_before_its_ack_drops_the_wait(run):
+    r = run(
+        """
+        statechart: leave
+        events: {go: null}
+        initial: A
+        states:
+          - name: A
+            configure: {tag: setup, timeout: 3s}
+            transitions: [{event: go, target: B}, {event: config.failed, target: Failed}]
+          - {name: B}
+          - {name: Failed}
+        """,
+        validate=False,
+    )
+    r.send("go")
+    assert r.leaves == ["B"] and r.interpreter.pending_configurations == {}
+    r.interpreter.advance(5.0)
+    assert r.leaves == ["B"], "no timeout for a state that was left"
+    r.send(("config.done", {"tag": "setup"}))
+    assert r.kinds("unhandled")[-1][1] == "config.done", "a late ack is reported"
+
+
+def test_a_successful_ack_is_handled_not_reported_unhandled(run):
+    r = run(CONFIG_OK)
+    r.send(("config.done", {"tag": "setup"}))
+    assert not r.kinds("unhandled")
+
+
+def test_accepts_says_whether_an_active_state_would_take_the_event(run):
+    r = run(CONFIG_OK)
+    assert not r.interpreter.accepts("go"), "Top.A waits for its ack"
+    assert r.interpreter.accepts("config.failed"), "Top takes it from any child"
+    r.send(("config.done", {"tag": "setup"}))
+    assert r.interpreter.accepts("go") and not r.interpreter.accepts("nothing")
+
+
+def test_a_livelock_of_completion_transitions_is_stopped_and_reported(run):
+    r = run(
+        """
+        statechart: loop
+        events: {}
+        initial: A
+        states:
+          - {name: A, transitions: [{target: B}]}
+          - {name: B, transitions: [{target: A}]}
+        """,
+        validate=False,
+    )
+    errors = [rec for rec in r.trace.records if rec[0] == "error"]
+    assert errors and "more than 10000 completion transitions" in errors[0][1]
+    assert len(r.kinds("transition")) == 10_000
