@@ -166,18 +166,21 @@ def load_equivalents() -> list[dict[str, str]]:
 
 def equivalent_reason(mutant: Mutant, known: list[dict[str, str]]) -> str:
     """Why `mutant` is equivalent, or "" if it is not listed. An entry names one mutant
-    (operator, before, after), or a kind of them: `operators` and `changed`, a pattern
+    (operator, before, after), or a kind of them: `operators` with `changed`, a pattern
     the mutated line matches and the original does not (`== Kind.X` where `is Kind.X`
-    was: an Enum member compared by value instead of identity)."""
+    was: an Enum member compared by value instead of identity), and/or `where`, a
+    pattern of the original line (every such mutant of a placeholder's value)."""
     for item in known:
         if item.get("module") != mutant.module:
             continue
-        if "changed" in item:
-            pattern = re.compile(str(item["changed"]))
+        if "changed" in item or "where" in item:
+            changed = re.compile(str(item.get("changed", "")))
+            where = re.compile(str(item.get("where", "")))
             if (
                 mutant.short in item.get("operators", ())
-                and pattern.search(mutant.after)
-                and not pattern.search(mutant.before)
+                and where.search(mutant.before)
+                and changed.search(mutant.after)
+                and ("changed" not in item or not changed.search(mutant.before))
             ):
                 return str(item.get("reason", "listed as equivalent"))
         elif (

@@ -115,10 +115,14 @@ def load_sensors(path: str | Path) -> SensorsConfig:
                 priority=spec["priority"],
                 rate=float(spec["rate"]),
                 keys=dict(spec["keys"]),
-                stale_periods=float(spec.get("stale_periods", 2.0)),
-                max_speed=float(spec.get("max_speed", 1.0)),
-                tolerance_position=float(tolerance.get("position", 0.005)),
-                tolerance_angle=math.radians(float(tolerance.get("angle_deg", 3.0))),
+                stale_periods=float(spec.get("stale_periods", SensorConfig.stale_periods)),
+                max_speed=float(spec.get("max_speed", SensorConfig.max_speed)),
+                tolerance_position=float(
+                    tolerance.get("position", SensorConfig.tolerance_position)
+                ),
+                tolerance_angle=math.radians(
+                    float(tolerance.get("angle_deg", math.degrees(SensorConfig.tolerance_angle)))
+                ),
                 limits={k: float(v) for k, v in (spec.get("limits") or {}).items()},
                 master_from_sensor=frames["C"],
                 rto_from_base=frames["X"],
@@ -129,9 +133,7 @@ def load_sensors(path: str | Path) -> SensorsConfig:
     if len(set(priorities)) != len(priorities):
         raise fail("two sensors share a priority: make the order explicit", ("sensors",))
     sensors.sort(key=lambda s: s.priority)
-    hysteresis = data.get("hysteresis", 5)
-    if not isinstance(hysteresis, int) or hysteresis < 1:
-        raise fail("`hysteresis` is a whole number of samples >= 1", ("hysteresis",))
+    hysteresis = data.get("hysteresis", SensorsConfig.hysteresis)  # the schema says >= 1
     master = data.get("master", sensors[0].name)
     if master not in {s.name for s in sensors}:
         raise fail(f"master {master!r} is not one of the sensors", ("master",))
@@ -153,7 +155,7 @@ class Health:
     ok: bool
     cause: str = ""
     detail: str = ""
-    streak: int = 0
+    streak: int = 0  # consecutive healthy samples (the cycle fills it in)
 
 
 @dataclass

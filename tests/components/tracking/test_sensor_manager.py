@@ -415,3 +415,38 @@ def test_hysteresis_is_a_whole_number_of_samples_from_one(write, value, error):
             load_sensors(path)
     else:
         assert load_sensors(path).hysteresis == 1
+
+
+def test_a_sensors_file_without_the_optional_fields_gets_the_documented_defaults(write):
+    path = write(
+        """
+        sensors:
+          vicra: {priority: 2, rate: 20, keys: {cto: v/cto, rto: v/rto}}
+          certus: {priority: 1, rate: 100, keys: {cto: c/cto, rto: c/rto}}
+        """,
+        "sensors.yaml",
+    )
+    config = load_sensors(path)
+    assert (config.hysteresis, config.master) == (5, "certus"), "master: the first by priority"
+    certus = config.sensors[0]
+    assert (certus.stale_periods, certus.max_speed) == (2.0, 1.0)
+    assert certus.tolerance_position == 0.005
+    assert certus.tolerance_angle == pytest.approx(math.radians(3.0))
+    assert certus.limits == {} and np.array_equal(certus.master_from_sensor, np.eye(4))
+
+
+def test_before_its_first_frame_a_sensor_has_no_data():
+    world = World()
+    world.faults = {"certus": "silent"}
+    health = world.run(0.1).health["certus"]
+    assert (health.ok, health.cause, health.detail) == (False, "no_data", "no frame yet")
+
+
+def test_at_start_a_sensor_is_used_after_exactly_hysteresis_healthy_samples():
+    rig, core = single_certus(hysteresis=3)
+    for frame in range(1, 4):
+        offer(core, rig, ee_path(0.0), 0.0, arrival=frame * 0.01)
+        decision = core.evaluate(frame * 0.01 + 0.001)
+        assert decision.health["certus"].streak == frame
+        assert decision.best == ("certus" if frame == 3 else None), frame
+    assert core.evaluate(0.032).health["certus"].streak == 3, "no new frame: no new proof"
