@@ -155,10 +155,15 @@ def test_a_person_exactly_at_the_collision_distance_is_not_yet_a_collision():
     assert names(c.observe(min_distance=PROCEDURE.collision_distance * 0.999)) == ["e_STOP"]
 
 
-def test_the_collision_reason_says_the_distance_and_the_limit_in_cm():
+def test_the_collision_reason_says_the_distance_and_the_limit_in_cm(write):
     c = core()
-    ((_, payload),) = c.observe(min_distance=0.0425)
-    assert payload["reason"] == "possible collision: robot 4.2 cm from a person (limit 10 cm)"
+    ((_, payload),) = c.observe(min_distance=0.09)
+    assert payload["reason"] == "possible collision: robot 9.0 cm from a person (limit 10 cm)"
+    text = (REPO / "procedures" / "seeg.yaml").read_text(encoding="utf-8")
+    text = text.replace("collision_distance: 0.10", "collision_distance: 0.70")
+    wide = SupervisorCore(load_procedure(write(text, "seeg.yaml")))
+    ((_, payload),) = wide.observe(min_distance=0.655)
+    assert payload["reason"] == "possible collision: robot 65.5 cm from a person (limit 70 cm)"
 
 
 def test_only_the_start_of_a_motion_during_a_collision_stops_again():

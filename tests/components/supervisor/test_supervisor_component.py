@@ -4,6 +4,7 @@ taken as no tracker (e_NOTRACKER and the reflex), other garbage is refused and i
 every refusal is said on fw/refused/supervisor, and the Supervisor keeps running."""
 
 import math
+import time
 
 import pytest
 
@@ -238,6 +239,9 @@ def test_the_first_valid_sample_of_each_tracker_marks_its_source_once(rig):
     assert seen["tracker"] == "vicra" and seen["valid"] is True
     assert seen["position"] == [0.12346, 0.2, 0.3], "to 10 micrometres"
     assert seen["age_s"] == round(seen["age_s"], 3), "to the millisecond"
+    rig.feed("tracked", Pose(stamp=time.time() - 0.1234, valid=True, frame="vicra"))
+    age = rig.supervisor.call("report")["tracked"]["age_s"]
+    assert 0.1225 < age < 5.0, "its age when asked, in ms"
 
 
 def test_the_best_tracker_is_reported_as_an_event_when_asked(rig):
