@@ -387,13 +387,11 @@ def test_each_sample_is_checked_against_the_robot_pose_nearest_its_stamp():
 
 
 def test_about_a_second_of_robot_poses_is_remembered():
-    from components.tracking.sensor_manager import KINEMATICS_MEMORY
-
     rig, core = single_certus()
     old, new = ee_path(0.0), shifted(ee_path(0.0), 0.03)
     core.set_kinematics(old, stamp=0.0)
-    for k in range(1, 40):
-        core.set_kinematics(new, stamp=k * KINEMATICS_MEMORY / 10)
+    for k in range(1, 40):  # 3.9 s of robot poses at 10 Hz
+        core.set_kinematics(new, stamp=k * 0.1)
     offer(core, rig, old, 0.0, arrival=0.0)  # a sample from long ago: nothing to match
     assert core.evaluate(0.001).health["certus"].cause == "calibration"
     offer(core, rig, new, 0.0, arrival=1.0)
@@ -450,3 +448,11 @@ def test_at_start_a_sensor_is_used_after_exactly_hysteresis_healthy_samples():
         assert decision.health["certus"].streak == frame
         assert decision.best == ("certus" if frame == 3 else None), frame
     assert core.evaluate(0.032).health["certus"].streak == 3, "no new frame: no new proof"
+
+
+def test_a_sensor_configured_without_calibration_is_taken_as_the_identity():
+    from components.tracking.sensor_manager import SensorConfig
+
+    plain = SensorConfig("a", 1, 10.0, {"cto": "a/cto", "rto": "a/rto"})
+    for frame in (plain.master_from_sensor, plain.rto_from_base, plain.ee_from_cto):
+        assert np.array_equal(frame, np.eye(4))
