@@ -387,15 +387,23 @@ def test_each_sample_is_checked_against_the_robot_pose_nearest_its_stamp():
 
 
 def test_about_a_second_of_robot_poses_is_remembered():
+    """The robot moves 2 cm/s; its poses come at 10 Hz, for a second, then (after a 3 s
+    gap) for 2.5 s more. A sample 0.95 s old is checked against the pose of its own time;
+    one from before the gap, long forgotten, against the oldest pose still remembered
+    (several cm away: a calibration fault)."""
     rig, core = single_certus()
-    old, new = ee_path(0.0), shifted(ee_path(0.0), 0.03)
-    core.set_kinematics(old, stamp=0.0)
-    for k in range(1, 40):  # 3.9 s of robot poses at 10 Hz
-        core.set_kinematics(new, stamp=k * 0.1)
-    offer(core, rig, old, 0.0, arrival=0.0)  # a sample from long ago: nothing to match
-    assert core.evaluate(0.001).health["certus"].cause == "calibration"
-    offer(core, rig, new, 0.0, arrival=1.0)
-    assert core.evaluate(1.001).health["certus"].ok
+
+    def pose(t):
+        return shifted(ee_path(0.0), 0.02 * t)
+
+    stamps = [100.0031 + 0.1 * k for k in range(11)] + [104.0031 + 0.1 * k for k in range(26)]
+    for t in stamps:
+        core.set_kinematics(pose(t), stamp=t)
+    recent = stamps[-1] - 0.95
+    offer(core, rig, pose(recent), recent, arrival=0.0)
+    assert core.evaluate(0.001).health["certus"].ok, "matched against its own time"
+    offer(core, rig, pose(100.5031), 100.5031, arrival=1.0)
+    assert core.evaluate(1.001).health["certus"].cause == "calibration"
 
 
 @pytest.mark.parametrize(("value", "error"), [("0", True), ("1", False), ("2.5", True)])
