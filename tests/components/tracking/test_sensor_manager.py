@@ -65,6 +65,8 @@ class World:
             rto = dataclasses.replace(rto, valid=False)
         if "nan" in faults:
             cto = dataclasses.replace(cto, position=(math.nan, 0.0, 0.0))
+        if "z_nan" in faults:
+            cto = dataclasses.replace(cto, position=(*cto.position[:2], math.nan))
         if "rto_nan" in faults:
             rto = dataclasses.replace(rto, position=(0.0, math.nan, 0.0))
         if "unnormalised" in faults:  # a quaternion that is not a rotation
@@ -278,12 +280,15 @@ def test_a_frozen_reference_tool_is_stale_though_the_robots_tool_streams_on():
         ("cto_missing+rto_silent", "cto_missing"),
         ("rto_silent+nan", "stale"),
         ("nan+jump", "corrupt"),
+        ("nan+unnormalised", "corrupt"),
+        ("z_nan", "corrupt"),
         ("rto_nan+rto_moved", "corrupt"),
         ("jump+rto_moved", "corrupt"),
     ],
 )
 def test_when_faults_coincide_the_first_in_the_trees_order_is_reported(faults, reported):
     world = World(kinematics=True)
+    world.scale = 1.1  # what "unnormalised" does to a quaternion
     world.moved = rigid((0.02, 0.0, 0.0), (0.0, 0.0, 0.0))
     world.run(0.5)
     world.faults["certus"] = faults
@@ -301,7 +306,9 @@ def test_a_tool_still_reported_missing_when_its_stream_stops_stays_missing():
     assert world.run(0.1).health["certus"].cause == "cto_missing"
 
 
-@pytest.mark.parametrize(("scale", "cause"), [(1.0008, ""), (1.0012, "corrupt"), (0.99, "corrupt")])
+@pytest.mark.parametrize(
+    ("scale", "cause"), [(1.0008, ""), (0.9996, ""), (1.0012, "corrupt"), (0.99, "corrupt")]
+)
 def test_a_quaternion_must_be_a_rotation_to_rounding(scale, cause):
     world = World()
     world.run(0.5)
@@ -370,20 +377,26 @@ def test_frames_closer_than_the_rate_are_judged_over_one_period():
 
 
 def test_each_sample_is_checked_against_the_robot_pose_nearest_its_stamp():
+    """Robot poses every 31.25 ms (binary-exact stamps), each 2 cm from the last; a
+    sample taken at stamp t shows the pose the robot had then."""
     rig, core = single_certus()
-    then = ee_path(0.0)
-    later = shifted(then, 0.02)
-    for stamp, pose in [(9.99, then), (10.0, then), (10.01, later), (10.02, later)]:
+    poses = [(10.0 + 0.03125 * i, shifted(ee_path(0.0), 0.02 * i)) for i in range(5)]
+    for stamp, pose in poses:
         core.set_kinematics(pose, stamp=stamp)
-    verdicts = []
-    for arrival, (stamp, pose) in enumerate(
-        [(10.004, then), (10.006, later), (9.0, then), (11.0, later), (10.014, later)], start=1
-    ):
-        offer(core, rig, pose, stamp, arrival=float(arrival))
-        verdicts.append(core.evaluate(arrival + 0.001).health["certus"].ok)
-    assert verdicts == [True, True, True, True, True]
-    offer(core, rig, then, 10.006, arrival=6.0)  # the robot had moved on by then
-    assert core.evaluate(6.001).health["certus"].cause == "calibration"
+    cases = [
+        (9.0, 0),  # older than every pose: the oldest
+        (10.0078125, 0),  # nearer the first than the second
+        (10.015625, 1),  # exactly between two: the later one
+        (10.0703125, 2),  # nearer the third than the fourth
+        (10.1171875, 4),  # nearer the fifth
+        (11.0, 4),  # newer than every pose: the newest
+    ]
+    for arrival, (stamp, index) in enumerate(cases, start=1):
+        offer(core, rig, poses[index][1], stamp, arrival=float(arrival))
+        health = core.evaluate(arrival + 0.001).health["certus"]
+        assert health.ok, (stamp, index, health)
+    offer(core, rig, poses[1][1], 10.0078125, arrival=9.0)  # the robot was not there yet
+    assert core.evaluate(9.001).health["certus"].cause == "calibration"
 
 
 def test_about_a_second_of_robot_poses_is_remembered():
@@ -464,3 +477,45 @@ def test_a_sensor_configured_without_calibration_is_taken_as_the_identity():
     plain = SensorConfig("a", 1, 10.0, {"cto": "a/cto", "rto": "a/rto"})
     for frame in (plain.master_from_sensor, plain.rto_from_base, plain.ee_from_cto):
         assert np.array_equal(frame, np.eye(4))
+
+
+@pytest.mark.parametrize(
+    ("noise", "step", "ok"),
+    [
+        (0.0, 0.00045, True),
+        (0.0, 0.00055, False),
+        (0.0002, 0.00095, True),
+        (0.0002, 0.00105, False),
+    ],
+)
+def test_a_step_within_five_times_the_trackers_noise_is_not_a_jump(noise, step, ok):
+    """A tracker that barely moves (max_speed 1 mm/s) may still jitter by five times its
+    RMS noise, and never by less than 0.5 mm (a noise-free tracker rounds too)."""
+    rig = dataclasses.replace(standard_rigs()[0], noise=0.0)
+    core = SensorManagerCore(sensors_config([rig], 1, max_speed=0.001))
+    start = ee_path(0.0)
+    cto, rto = rig.observe(start, np.random.default_rng(0), 0.0)
+    core.offer("certus", "cto", dataclasses.replace(cto, rms=noise), 0.0)
+    core.offer("certus", "rto", rto, 0.0)
+    core.evaluate(0.001)
+    cto, rto = rig.observe(shifted(start, step), np.random.default_rng(0), 0.01)
+    core.offer("certus", "cto", dataclasses.replace(cto, rms=noise), 0.01)
+    core.offer("certus", "rto", rto, 0.01)
+    assert core.evaluate(0.011).health["certus"].ok == ok
+
+
+def test_a_sensor_whose_reference_tool_never_came_has_no_data():
+    rig, core = single_certus()
+    cto, _ = rig.observe(ee_path(0.0), np.random.default_rng(0), 0.0)
+    core.offer("certus", "cto", cto, 0.0)
+    assert core.evaluate(0.001).health["certus"].cause == "no_data"
+
+
+def test_a_tracker_that_sees_the_tools_at_negative_coordinates_is_healthy():
+    certus = standard_rigs()[0]
+    behind = dataclasses.replace(
+        certus, sensor_from_rto=rigid((-3.0, -3.0, -3.0), (0.0, 0.0, 0.0)) @ certus.sensor_from_rto
+    )
+    world = World([behind], kinematics=True)
+    decision = world.run(0.2)
+    assert decision.best == "certus" and decision.health["certus"].ok
