@@ -192,7 +192,7 @@ class Configurator(Component):
             self.history.append(outcome)
             return outcome
 
-    def _batches(self, steps: list[Step], force: bool = False) -> list[list[Step]]:
+    def _batches(self, steps: list[Step], force: bool) -> list[list[Step]]:
         """Consecutive steps on one component travel together (one round trip each)."""
         batches: list[list[Step]] = []
         for step in steps:

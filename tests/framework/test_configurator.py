@@ -47,6 +47,7 @@ class Rig:
         self.requests.owner, self.requests.bus = "test", peer
         self.requests.connect(REQUESTS)
         self._ids = iter(range(1, 10**6))
+        self._routed()
         assert self.apply("setup").ok
 
     def _on_ack(self, sample):
@@ -56,18 +57,28 @@ class Rig:
     def apply(self, tag):
         return self.configurator.apply(tag)
 
+    def _routed(self):
+        """Wait until requests put by the test reach the Configurator (a subscription is
+        routed a little after it is declared): probes with an unknown tag, resent until
+        one is answered; their answers are left out of `acks`."""
+        probe = iter(range(10**9, 2 * 10**9))
+
+        def answered():
+            self.requests.write(ConfigRequest(time.time(), next(probe), "probe", {}, 0.0))
+            return any(a.request_id >= 10**9 for a in self.acks)
+
+        assert wait_until(answered, 10)
+
     def request(self, tag, args=None, deadline=0.0) -> ConfigAck:
         """Send a request on the Configurator's port, as the Coordinator does; its ack."""
         request_id = next(self._ids)
-        request = ConfigRequest(time.time(), request_id, tag, args or {}, deadline)
-        # the port's subscription is routed a little after it is declared: resend the
-        # first request until it is answered (the Configurator answers each one it gets)
-        for _ in range(200):
-            self.requests.write(request)
-            if wait_until(lambda: any(a.request_id == request_id for a in self.acks), 0.05):
-                break
-        assert wait_until(lambda: any(a.request_id == request_id for a in self.acks), 10)
+        self.requests.write(ConfigRequest(time.time(), request_id, tag, args or {}, deadline))
+        assert wait_until(lambda: any(a.request_id == request_id for a in self.acks), 20)
         return next(a for a in self.acks if a.request_id == request_id)
+
+    def answers(self):
+        """The answers to the test's own requests (not the probes), in arrival order."""
+        return [a for a in self.acks if a.request_id < 10**9]
 
     def sink(self):
         return self.workers.components["sink"]
@@ -123,6 +134,36 @@ def test_the_restore_of_a_restarted_process_says_every_change_since_deploy(rig):
     assert rig.apply("unplug").ok
     (step,) = rig.configurator.restore_steps({"sink"})
     assert (step.kind, step.component, step.target) == ("disconnect", "sink", "inp")
+
+
+def test_a_step_already_so_is_skipped_and_the_next_ones_still_run(rig):
+    assert rig.apply("same_then_tune").ok
+    assert rig.workers.components["dbl"].get_property("gain") == 7.0
+
+
+def test_the_restore_names_a_port_wired_only_by_a_configuration(rig):
+    assert rig.apply("feed_doubler").ok
+    (step,) = rig.configurator.restore_steps({"dbl"})
+    assert (step.kind, step.component, step.target) == ("connect", "dbl", "inp")
+    assert step.key.endswith("a/out")
+
+
+def test_an_outcome_says_how_long_it_took(rig):
+    started = time.perf_counter()
+    outcome = rig.apply("three_slow")
+    took = time.perf_counter() - started
+    assert 0.6 <= outcome.seconds <= took, "three calls of 0.2 s"
+    started = time.perf_counter()
+    failed = rig.apply("tune_then_fail")
+    assert 0.0 < failed.seconds <= time.perf_counter() - started
+    assert rig.apply("nope").seconds == 0.0, "nothing was tried"
+
+
+def test_a_configuration_is_an_operation_with_its_outcome_as_data(rig):
+    answer = rig.configurator.call("apply_configuration", tag="to_b")
+    assert answer["ok"] is True and answer["tag"] == "to_b" and answer["step"] == ""
+    answer = rig.configurator.call("apply_configuration", tag="tune_then_fail")
+    assert answer["ok"] is False and answer["rolled_back"] == 3
 
 
 def test_forced_steps_are_sent_even_where_the_wiring_already_says_so(rig):
@@ -184,7 +225,8 @@ def test_requests_on_the_port_are_answered_one_each_in_order(rig):
     assert (ack.ok, ack.step) == (False, "call sink.fail") and "asked to fail" in ack.reason
     ack = rig.request("nope")
     assert (ack.ok, ack.step) == (False, "lookup")
-    assert [a.request_id for a in rig.acks] == sorted(a.request_id for a in rig.acks)
+    ids = [a.request_id for a in rig.answers()]
+    assert ids == sorted(ids) == [1, 2, 3]
 
 
 def test_a_request_that_comes_after_its_deadline_is_refused_unapplied(rig):
@@ -194,6 +236,14 @@ def test_a_request_that_comes_after_its_deadline_is_refused_unapplied(rig):
     assert rig.configurator.history[-1].step == "deadline"
     ack = rig.request("to_b", deadline=time.time() + 30.0)
     assert ack.ok, "in time: applied"
+
+
+def test_the_charts_call_action_gets_two_seconds_unless_it_says_otherwise(rig):
+    assert rig.request("@call", {"target": "sink.slow", "args": {"seconds": 1.5}}).ok
+    ack = rig.request("@call", {"target": "sink.slow", "args": {"seconds": 2.4}})
+    assert not ack.ok, "over the default 2 s"
+    ack = rig.request("@call", {"target": "sink.slow", "args": {"seconds": 2.4}, "timeout": 4})
+    assert ack.ok
 
 
 def test_the_charts_call_action_runs_one_operation(rig):
