@@ -519,3 +519,19 @@ def test_a_tracker_that_sees_the_tools_at_negative_coordinates_is_healthy():
     world = World([behind], kinematics=True)
     decision = world.run(0.2)
     assert decision.best == "certus" and decision.health["certus"].ok
+
+
+def test_a_robot_pose_more_than_two_seconds_older_than_the_newest_is_never_used():
+    """Poses at 10 Hz for 6 s while the robot moves 5 cm/s: a sample 2.5 s older than
+    the newest pose finds only poses at least half a second younger (2.5 cm away)."""
+    rig, core = single_certus()
+
+    def pose(t):
+        return shifted(ee_path(0.0), 0.05 * (t - 100.0))
+
+    stamps = [100.0031 + 0.1 * k for k in range(60)]
+    for t in stamps:
+        core.set_kinematics(pose(t), stamp=t)
+    old = stamps[-1] - 2.5
+    offer(core, rig, pose(old), old, arrival=0.0)
+    assert core.evaluate(0.001).health["certus"].cause == "calibration"
