@@ -212,10 +212,22 @@ def test_several_slow_steps_on_one_component_get_the_time_of_all_of_them(rig):
     assert outcome.ok, outcome.reason
 
 
+@pytest.mark.parametrize("tag", ["batched", "write_then_batched"])
+def test_consecutive_steps_on_one_component_travel_together_with_their_time(rig, tag):
+    """Each slow call alone is over its own 300 ms; sent together they have 600 ms."""
+    outcome = rig.apply(tag)
+    assert outcome.ok, outcome.reason
+
+
+def test_each_component_gets_only_its_own_steps(rig):
+    assert rig.apply("sink_then_doubler").ok
+    assert rig.workers.components["dbl"].get_property("gain") == 4.0
+
+
 def test_an_unknown_configuration_is_answered_with_the_known_ones(rig):
     outcome = rig.apply("nope")
     assert (outcome.ok, outcome.step) == (False, "lookup")
-    assert outcome.reason.startswith("unknown configuration 'nope' (known: call_then_write, ")
+    assert outcome.reason.startswith("unknown configuration 'nope' (known: batched, ")
 
 
 def test_requests_on_the_port_are_answered_one_each_in_order(rig):
