@@ -214,7 +214,7 @@ def test_several_slow_steps_on_one_component_get_the_time_of_all_of_them(rig):
 
 @pytest.mark.parametrize("tag", ["batched", "write_then_batched"])
 def test_consecutive_steps_on_one_component_travel_together_with_their_time(rig, tag):
-    """Each slow call alone is over its own 300 ms; sent together they have 600 ms."""
+    """The slow call alone is over its own 500 ms; sent together, the steps have 1 s."""
     outcome = rig.apply(tag)
     assert outcome.ok, outcome.reason
 
