@@ -380,7 +380,7 @@ def test_each_sample_is_checked_against_the_robot_pose_nearest_its_stamp():
     """Robot poses every 31.25 ms (binary-exact stamps), each 2 cm from the last; a
     sample taken at stamp t shows the pose the robot had then."""
     rig, core = single_certus()
-    poses = [(10.0 + 0.03125 * i, shifted(ee_path(0.0), 0.02 * i)) for i in range(5)]
+    poses = [(10.0 + 0.03125 * i, shifted(ee_path(0.0), 0.02 * i)) for i in range(6)]
     for stamp, pose in poses:
         core.set_kinematics(pose, stamp=stamp)
     cases = [
@@ -389,7 +389,7 @@ def test_each_sample_is_checked_against_the_robot_pose_nearest_its_stamp():
         (10.015625, 1),  # exactly between two: the later one
         (10.0703125, 2),  # nearer the third than the fourth
         (10.1171875, 4),  # nearer the fifth
-        (11.0, 4),  # newer than every pose: the newest
+        (11.0, 5),  # newer than every pose: the newest
     ]
     for arrival, (stamp, index) in enumerate(cases, start=1):
         offer(core, rig, poses[index][1], stamp, arrival=float(arrival))
@@ -535,3 +535,35 @@ def test_a_robot_pose_more_than_two_seconds_older_than_the_newest_is_never_used(
     old = stamps[-1] - 2.5
     offer(core, rig, pose(old), old, arrival=0.0)
     assert core.evaluate(0.001).health["certus"].cause == "calibration"
+
+
+def test_a_frame_after_a_missing_one_is_not_judged_against_the_missing_ones_position(write):
+    """A device reports a missing tool with a meaningless (zero) position; the next real
+    frame is no jump from it. Tool names are the ones read from the sensors file."""
+    rig = standard_rigs()[0]
+    config = load_sensors(
+        write(
+            """
+            sensors:
+              certus: {priority: 1, rate: 100, keys: {cto: c/cto, rto: c/rto}}
+            """,
+            "sensors.yaml",
+        )
+    )
+    config.sensors[0].rto_from_base = rig.rto_from_base
+    config.sensors[0].ee_from_cto = rig.ee_from_cto
+    config.hysteresis = 1
+    core = SensorManagerCore(config)
+    cto_name, rto_name = list(config.sensors[0].keys)
+    rng = np.random.default_rng(0)
+    cto, rto = rig.observe(ee_path(0.0), rng, 0.0)
+    core.offer("certus", cto_name, cto, 0.0)
+    core.offer("certus", rto_name, rto, 0.0)
+    assert core.evaluate(0.001).health["certus"].ok
+    missing = dataclasses.replace(cto, position=(0.0, 0.0, 0.0), valid=False)
+    core.offer("certus", cto_name, missing, 0.01)
+    core.offer("certus", rto_name, rto, 0.01)
+    assert core.evaluate(0.011).health["certus"].cause == "cto_missing"
+    core.offer("certus", cto_name, cto, 0.02)
+    core.offer("certus", rto_name, rto, 0.02)
+    assert core.evaluate(0.021).health["certus"].ok, "seen again, where it was"
