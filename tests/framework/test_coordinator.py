@@ -169,13 +169,14 @@ def test_a_configuration_is_requested_with_its_deadline_and_its_ack_completes_th
     assert rig.coordinator.call("active")["pending"]
     rig.ack(request)
     assert wait_until(lambda: rig.active() == ["Done"], 10)
-    assert {"state": "Working", "message": "working"} in rig.kinds("log"), "do ran after the ack"
+    assert wait_until(lambda: {"state": "Working", "message": "working"} in rig.kinds("log"))
 
 
 def test_a_failed_configuration_is_the_charts_event_with_the_step_and_reason(rig):
     rig.answer["work"] = (False, "call sink.fail", "sink: asked to fail")
     rig.put("e_GO")
     assert wait_until(lambda: rig.active() == ["Failed"], 10)
+    assert wait_until(lambda: any(e["event"] == "config.failed" for e in rig.kinds("event")))
     assert not [log for log in rig.kinds("log") if log["message"] == "working"], "no do"
     event = next(e for e in rig.kinds("event") if e["event"] == "config.failed")
     assert event["payload"]["step"] == "call sink.fail"
