@@ -33,9 +33,12 @@ class Arm:
     """The interface in a stepped container on the hub session; the test's ports on the
     same session, so every sample is delivered before `cycle` returns."""
 
-    def __init__(self, hub):
-        self.container = Container("c", hub, SteppedExecutor(SimulatedClock()))
-        self.robot = self.container.add(RobotInterface("robot"), Activity.event("measured"))
+    def __init__(self, hub, safety=None):
+        self.clock = SimulatedClock()
+        self.container = Container("c", hub, SteppedExecutor(self.clock))
+        self.robot = self.container.add(
+            RobotInterface("robot"), Activity.event("measured"), safety=safety
+        )
         self.container.connect("robot", "measured", "arm/measured")
         self.container.connect("robot", "setpoint", "interpolator/setpoint")
         self.writers = {}
@@ -374,3 +377,61 @@ def test_stopping_the_interface_asks_for_the_brakes_latched(arm):
         "reason": "robot interface stopped",
         "latch": True,
     }
+
+
+def test_a_monitor_trip_while_the_controller_is_silent_brakes_at_once(hub):
+    """The arm's controller stops sending states mid-motion (no cycles left to stop on the
+    path) and a watched input falls silent: the idle check trips and brakes, latched."""
+    from framework.messages import Scalar
+    from framework.safety import SafetySpec, Watch
+
+    token = hub.token("fw/alive/tester")
+    spec = SafetySpec("robot", (Watch("tester", "test/beat", 0.02, "tester"),), ("tester",))
+    arm = Arm(hub, safety=spec)
+    beat = OutputPort("beat", Scalar)
+    beat.owner, beat.bus = "tester", hub
+    beat.connect("test/beat")
+    try:
+        arm.cycle()
+        arm.released()
+        for i in range(20):  # moving, every input on time
+            arm.clock.set(arm.clock.now() + 0.001)
+            beat.write(Scalar(0.0, float(i)))
+            target = arm.q + step(0.5)
+            arm.cycle(target)
+            arm.follow(target)
+        assert arm.report()["safety"]["armed"] and not arm.report()["latched"]
+        for _ in range(10):  # the controller and the heartbeat fall silent
+            arm.clock.set(arm.clock.now() + 0.005)
+            arm.robot.idle_hook()
+        report = arm.report()
+        assert report["latched"] and report["reason"].startswith("tester: no data for")
+        assert not report["stopping"], "no cycles to stop on: the brakes at once"
+        assert arm.requests[-1].name == "brake" and arm.requests[-1].payload["latch"] is True
+        with pytest.raises(FwError, match="safety stop latched"):
+            arm.robot.call("release")
+    finally:
+        arm.close()
+        token.undeclare()
+
+
+def test_release_and_acknowledge_wait_for_every_watched_input(hub):
+    from framework.messages import Scalar
+    from framework.safety import SafetySpec, Watch
+
+    token = hub.token("fw/alive/tester")
+    spec = SafetySpec("robot", (Watch("tester", "test/beat", 0.02, "tester"),), ("tester",))
+    arm = Arm(hub, safety=spec)
+    try:
+        arm.cycle()
+        with pytest.raises(FwError, match="tester: no data yet"):
+            arm.robot.call("release")
+        with pytest.raises(FwError, match="tester: no data yet"):
+            arm.robot.call("acknowledge")
+        with pytest.raises(FwError, match=r"not ready after 0\.05 s: .*tester: no data yet"):
+            arm.robot.call("await_ready", timeout=0.05)
+        assert arm.report()["problems"] == ["tester: no data yet"]
+        assert arm.report()["safety"]["watches"]["tester"]["age_ms"] is None
+    finally:
+        arm.close()
+        token.undeclare()
