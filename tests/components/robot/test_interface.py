@@ -416,7 +416,6 @@ def test_a_monitor_trip_while_the_controller_is_silent_brakes_at_once(hub):
 
 
 def test_release_and_acknowledge_wait_for_every_watched_input(hub):
-    from framework.messages import Scalar
     from framework.safety import SafetySpec, Watch
 
     token = hub.token("fw/alive/tester")
