@@ -36,6 +36,8 @@ events:
   e_SEND: Send an event out.
   e_DEPTH: {doc: A depth., payload: {depth: {type: number, min: 0, max: 10}}}
   e_OUT: {doc: Sent out., payload: {n: integer}}
+  e_END: End the procedure.
+  e_ODD: {doc: Take a guard that fails., payload: {x: any}}
 initial: Idle
 states:
   - name: Idle
@@ -46,6 +48,8 @@ states:
       - {event: e_SEND, effect: [{send: {event: e_OUT, payload: {n: 1}}}]}
       - {event: e_DEPTH, target: Deep}
       - {event: component.lost, target: Lost}
+      - {event: e_END, target: End}
+      - {event: e_ODD, guard: event.x > 1, target: Deep}
   - name: Working
     configure: {tag: work, timeout: 2s}
     do: [{log: working}]
@@ -64,6 +68,7 @@ states:
   - name: Lost
     transitions:
       - {event: component.back, target: Idle}
+  - {name: End, type: final}
 """
 
 
@@ -328,3 +333,67 @@ def test_a_lost_component_is_a_chart_event_and_its_return_another(hub, peer, wri
         token.undeclare()
     finally:
         rig.close()
+
+
+class Listening:
+    """An extra listener, as the flight recorder is one."""
+
+    def __init__(self):
+        self.refused = []
+
+    def on_refused(self, event, source, reason):
+        self.refused.append((event, source, reason))
+
+
+def test_unhandled_events_and_failing_guards_are_said_on_the_status(rig):
+    rig.put("e_SEND")  # taken
+    rig.put("config.done", {"tag": "work"}, source="supervisor")  # refused at the door
+    answer = rig.coordinator.call("offer", event="e_ODD", payload={"x": "text"})
+    assert answer["accepted"] is False
+    assert wait_until(lambda: rig.kinds("error"), 10)
+    assert "treated as false" in rig.kinds("error")[0]["message"]
+    assert wait_until(lambda: rig.kinds("unhandled"), 10)
+    assert rig.kinds("unhandled")[0]["event"] == "e_ODD"
+
+
+def test_the_operator_may_not_send_the_coordinators_own_events(rig):
+    answer = rig.coordinator.call("offer", event="config.done", payload={"tag": "work"})
+    assert answer == {
+        "accepted": False,
+        "reason": "config.done is the Coordinator's own event; nobody may send it",
+    }
+
+
+def test_a_finished_procedure_takes_no_more_commands(rig):
+    assert rig.coordinator.call("offer", event="e_END")["accepted"]
+    answer = rig.coordinator.call("offer", event="e_GO")
+    assert answer == {"accepted": False, "reason": "the procedure chart is not running"}
+    assert rig.coordinator.call("takeable", events=["e_GO"]) == []
+    assert rig.coordinator.call("active")["finished"] is True
+
+
+def test_refusals_reach_the_extra_listeners(hub, peer, write):
+    from framework.statechart.loader import load_statechart as load
+
+    listening = Listening()
+    chart = load(write(CHART, "chart.yaml"))
+    coordinator = Coordinator("c", chart, listeners=[listening])
+    assert coordinator.inject("e_GO") is False, "not started: nothing to queue into"
+    assert coordinator.takeable(["e_GO"]) == []
+    assert coordinator.active() == {
+        "active": [],
+        "pending": {},
+        "finished": False,
+        "last_events": [],
+        "lost": {},
+    }
+    answer = coordinator.offer("e_GO")
+    assert answer == {"accepted": False, "reason": "the procedure chart is not running"}
+    coordinator.offer("config.done")
+    assert listening.refused == [
+        (
+            "config.done",
+            "operator",
+            "config.done is the Coordinator's own event; nobody may send it",
+        )
+    ]
