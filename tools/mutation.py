@@ -455,14 +455,15 @@ def score(mutants: list[Mutant]) -> dict[str, float]:
     }
 
 
-def section(module: str, tests: list[str], mutants: list[Mutant]) -> str:
+def section(module: str, tests: list[str], mutants: list[Mutant], rescored: bool = False) -> str:
     """The report's markdown section of one module."""
     s = score(mutants)
+    how = " (rescored: the run's survivors against today's equivalents list)" if rescored else ""
     lines = [
         f"<!-- mutation:{module} -->",
         f"### `{module}`",
         "",
-        f"{time.strftime('%Y-%m-%d')}, tests: {', '.join(f'`{t}`' for t in tests)}",
+        f"{time.strftime('%Y-%m-%d')}{how}, tests: {', '.join(f'`{t}`' for t in tests)}",
         "",
         "| mutants | killed | timeout | survived | not run | equivalent | score |",
         "|---|---|---|---|---|---|---|",
@@ -509,6 +510,54 @@ def write_report(module: str, text: str) -> None:
     REPORT.write_text(current, encoding="utf-8")
 
 
+_SURVIVOR = re.compile(
+    r"^- (?P<module>[^:]+):(?P<line>\d+) (?P<op>\w+)(?P<nr> \(not run\))?: `(?P<before>.*)` -> `(?P<after>.*)`$"
+)
+_EQUIVALENT = re.compile(r"^- (?P<module>[^:]+):(?P<line>\d+) (?P<op>\w+): (?P<reason>.*)$")
+
+
+def rescored(module: str) -> tuple[list[Mutant], list[str]]:
+    """The module's last reported run with the current equivalents list applied: its
+    survivors that the list now explains are set aside (an equivalence is a judgement
+    about the code, not a test outcome). Also the tests that run used."""
+    current = REPORT.read_text(encoding="utf-8") if REPORT.exists() else ""
+    match = re.search(
+        rf"<!-- mutation:{re.escape(module)} -->(.*?)<!-- /mutation:{re.escape(module)} -->",
+        current,
+        re.S,
+    )
+    if match is None:
+        raise SystemExit(f"{module}: no reported run to rescore (run it once in full)")
+    text = match.group(1)
+    tests = re.findall(r"`(tests/[^`]+)`", text.split("|", 1)[0])
+    row = re.search(r"^\| (\d+) \| (\d+) \| (\d+) \| (\d+) \| (\d+) \| (\d+) \|", text, re.M)
+    assert row is not None, f"{module}: no table in the report"
+    _, killed, timeout, _, _, _ = (int(v) for v in row.groups())
+    known = load_equivalents()
+    mutants = [Mutant(module, "", 0, 0, "", "", "", "killed") for _ in range(killed)]
+    mutants += [Mutant(module, "", 0, 0, "", "", "", "timeout") for _ in range(timeout)]
+    part = "survivors"
+    for line in text.splitlines():
+        if line.startswith("Equivalent:"):
+            part = "equivalent"
+        found = (_SURVIVOR if part == "survivors" else _EQUIVALENT).match(line)
+        if found is None:
+            continue
+        op = "core/" + found["op"]
+        if part == "equivalent":
+            mutants.append(
+                Mutant(module, op, 0, int(found["line"]), "", "", "", "equivalent", found["reason"])
+            )
+            continue
+        mutant = Mutant(module, op, 0, int(found["line"]), found["before"], found["after"], "")
+        mutant.status = "not run" if found["nr"] else "survived"
+        reason = equivalent_reason(mutant, known)
+        if reason:
+            mutant.status, mutant.detail = "equivalent", reason
+        mutants.append(mutant)
+    return mutants, tests
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0],
@@ -522,6 +571,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--lines", metavar="A-B", help="only mutants on these lines")
     parser.add_argument("--no-coverage", action="store_true", help="run mutants on unrun lines")
     parser.add_argument("--no-report", action="store_true", help="do not update the report")
+    parser.add_argument(
+        "--rescore",
+        action="store_true",
+        help="no run: apply the current equivalents list to the module's reported run",
+    )
     args = parser.parse_args(argv)
     modules = list(SAFETY_CORE) if args.core else args.modules
     if not modules:
@@ -544,8 +598,11 @@ def main(argv: list[str] | None = None) -> int:
         missing = [t for t in tests if not (REPO / t).exists()]
         if missing:
             parser.error(f"no such tests: {', '.join(missing)}")
-        mutants = run_module(module, tests, args.jobs, lines, not args.no_coverage)
-        text = section(module, tests, mutants)
+        if args.rescore:
+            mutants, tests = rescored(module)
+        else:
+            mutants = run_module(module, tests, args.jobs, lines, not args.no_coverage)
+        text = section(module, tests, mutants, args.rescore)
         print(text)
         if not args.no_report and lines is None:
             write_report(module, text)
