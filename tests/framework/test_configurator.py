@@ -290,3 +290,10 @@ def test_a_write_that_cannot_be_made_fails_with_the_reason(rig, target, value, w
     ack = rig.request("@write", {"target": target, "value": value})
     assert not ack.ok and ack.step == f"write {target}" and why in ack.reason
     assert rig.configurator.history[-1].tag == f"@write {target}"
+
+
+def test_a_batch_nobody_answers_fails_at_its_first_step(rig):
+    rig.workers.shutdown()  # every component gone at once
+    outcome = rig.apply("tune_then_fail")
+    assert not outcome.ok and outcome.step == "set dbl.gain = 3.0"
+    assert "dbl" in outcome.reason

@@ -504,10 +504,11 @@ def test_a_step_within_five_times_the_trackers_noise_is_not_a_jump(noise, step, 
     assert core.evaluate(0.011).health["certus"].ok == ok
 
 
-def test_a_sensor_whose_reference_tool_never_came_has_no_data():
+@pytest.mark.parametrize("came", ["cto", "rto"])
+def test_a_sensor_with_one_tool_never_seen_has_no_data(came):
     rig, core = single_certus()
-    cto, _ = rig.observe(ee_path(0.0), np.random.default_rng(0), 0.0)
-    core.offer("certus", "cto", cto, 0.0)
+    cto, rto = rig.observe(ee_path(0.0), np.random.default_rng(0), 0.0)
+    core.offer("certus", came, cto if came == "cto" else rto, 0.0)
     assert core.evaluate(0.001).health["certus"].cause == "no_data"
 
 
@@ -567,3 +568,17 @@ def test_a_frame_after_a_missing_one_is_not_judged_against_the_missing_ones_posi
     core.offer("certus", cto_name, cto, 0.02)
     core.offer("certus", rto_name, rto, 0.02)
     assert core.evaluate(0.021).health["certus"].ok, "seen again, where it was"
+
+
+@pytest.mark.parametrize(("step", "ok"), [(0.0102, True), (0.0108, False)])
+def test_the_allowed_step_is_the_speed_over_the_gap_plus_the_noise_margin(step, ok):
+    """1 m/s for 10 ms is 10 mm, plus 0.5 mm of noise margin."""
+    rig = dataclasses.replace(standard_rigs()[0], noise=0.0)
+    core = SensorManagerCore(sensors_config([rig], 1, max_speed=1.0))
+    start = ee_path(0.0)
+    for arrival, pose in ((0.0, start), (0.01, shifted(start, step))):
+        cto, rto = rig.observe(pose, np.random.default_rng(0), arrival)
+        core.offer("certus", "cto", cto, arrival)
+        core.offer("certus", "rto", rto, arrival)
+        decision = core.evaluate(arrival + 0.001)
+    assert decision.health["certus"].ok == ok
