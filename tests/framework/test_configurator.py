@@ -297,3 +297,9 @@ def test_a_batch_nobody_answers_fails_at_its_first_step(rig):
     outcome = rig.apply("tune_then_fail")
     assert not outcome.ok and outcome.step == "set dbl.gain = 3.0"
     assert "dbl" in outcome.reason
+
+
+def test_a_call_before_a_failure_leaves_nothing_to_undo(rig):
+    outcome = rig.apply("call_then_fail")
+    assert not outcome.ok and outcome.rolled_back == 0
+    assert rig.configurator.restore_steps({"sink"}) == [], "an operation is no wiring"

@@ -281,6 +281,7 @@ def test_a_frozen_reference_tool_is_stale_though_the_robots_tool_streams_on():
         ("rto_silent+nan", "stale"),
         ("nan+jump", "corrupt"),
         ("nan+unnormalised", "corrupt"),
+        ("nan+rto_nan", "corrupt"),
         ("z_nan", "corrupt"),
         ("rto_nan+rto_moved", "corrupt"),
         ("jump+rto_moved", "corrupt"),
@@ -582,3 +583,14 @@ def test_the_allowed_step_is_the_speed_over_the_gap_plus_the_noise_margin(step, 
         core.offer("certus", "rto", rto, arrival)
         decision = core.evaluate(arrival + 0.001)
     assert decision.health["certus"].ok == ok
+
+
+def test_a_tool_silent_for_exactly_its_stale_periods_is_not_yet_stale():
+    """64 Hz and 2 periods: 31.25 ms, exact in binary."""
+    rig = dataclasses.replace(standard_rigs()[0], rate=64.0)
+    core = SensorManagerCore(sensors_config([rig], 1, stale_periods=2.0))
+    cto, rto = rig.observe(ee_path(0.0), np.random.default_rng(0), 0.0)
+    core.offer("certus", "cto", cto, 0.0)
+    core.offer("certus", "rto", rto, 0.0)
+    assert core.evaluate(0.03125).health["certus"].ok
+    assert core.evaluate(0.0313).health["certus"].cause == "stale"
