@@ -303,3 +303,9 @@ def test_a_call_before_a_failure_leaves_nothing_to_undo(rig):
     outcome = rig.apply("call_then_fail")
     assert not outcome.ok and outcome.rolled_back == 0
     assert rig.configurator.restore_steps({"sink"}) == [], "an operation is no wiring"
+
+
+def test_a_step_still_running_at_the_requests_deadline_fails_and_nothing_follows(rig):
+    ack = rig.request("slow_then_tune", deadline=time.time() + 0.3)
+    assert (ack.ok, ack.step) == (False, "call sink.slow")
+    assert rig.workers.components["dbl"].get_property("gain") == 2.0, "never set"

@@ -75,7 +75,8 @@ class World:
             )
         if "jump" in faults and self.frames[rig.name] % 2:  # a flickering, impossible track
             cto = dataclasses.replace(cto, position=tuple(v + 0.05 for v in cto.position))
-        self.core.offer(rig.name, "cto", cto, self.t)
+        if "cto_silent" not in faults:  # the robot's tool stream froze
+            self.core.offer(rig.name, "cto", cto, self.t)
         if "rto_silent" not in faults:  # the reference tool's stream froze
             self.core.offer(rig.name, "rto", rto, self.t)
 
@@ -594,3 +595,24 @@ def test_a_tool_silent_for_exactly_its_stale_periods_is_not_yet_stale():
     core.offer("certus", "rto", rto, 0.0)
     assert core.evaluate(0.03125).health["certus"].ok
     assert core.evaluate(0.0313).health["certus"].cause == "stale"
+
+
+@pytest.mark.parametrize("frozen", ["cto_silent", "rto_silent"])
+def test_either_tool_frozen_makes_the_second_of_three_trackers_stale(frozen):
+    rigs = standard_rigs()
+    rigs.append(dataclasses.replace(rigs[1], name="vicra2"))
+    world = World(rigs)
+    world.run(0.5)
+    world.faults["vicra"] = frozen
+    health = world.run(0.2).health["vicra"]
+    assert (health.cause, health.detail) == ("stale", "no new frame for 100 ms (limit 100 ms)")
+
+
+def test_the_stale_verdict_says_the_age_and_the_limit_in_ms():
+    rig = dataclasses.replace(standard_rigs()[0], rate=20.0)
+    core = SensorManagerCore(sensors_config([rig], 1, stale_periods=20.0))
+    cto, rto = rig.observe(ee_path(0.0), np.random.default_rng(0), 0.0)
+    core.offer("certus", "cto", cto, 0.0)
+    core.offer("certus", "rto", rto, 0.0)
+    health = core.evaluate(1.0006).health["certus"]
+    assert health.detail == "no new frame for 1001 ms (limit 1000 ms)"
