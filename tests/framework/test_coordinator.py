@@ -397,3 +397,11 @@ def test_refusals_reach_the_extra_listeners(hub, peer, write):
             "config.done is the Coordinator's own event; nobody may send it",
         )
     ]
+
+
+def test_the_admission_rules_cannot_be_changed_once_made():
+    import dataclasses
+
+    admission = Admission(external=frozenset({"e_GO"}), emitters={})
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        admission.external = None  # type: ignore[misc]

@@ -616,3 +616,13 @@ def test_the_stale_verdict_says_the_age_and_the_limit_in_ms():
     core.offer("certus", "rto", rto, 0.0)
     health = core.evaluate(1.0006).health["certus"]
     assert health.detail == "no new frame for 1001 ms (limit 1000 ms)"
+
+
+def test_a_jumps_verdict_says_how_far_in_how_long():
+    rig, core = single_certus()
+    start = ee_path(0.0)
+    offer(core, rig, start, 0.0, arrival=0.25)
+    core.evaluate(0.251)
+    offer(core, rig, shifted(start, 0.2), 0.05, arrival=0.3)  # 20 cm in 50 ms: 4 m/s
+    health = core.evaluate(0.301).health["certus"]
+    assert (health.cause, health.detail) == ("corrupt", "the robot's tool jumped 200.0 mm in 50 ms")
