@@ -870,3 +870,100 @@ def test_a_livelock_of_completion_transitions_is_stopped_and_reported(run):
     errors = [rec for rec in r.trace.records if rec[0] == "error"]
     assert errors and "more than 10000 completion transitions" in errors[0][1]
     assert len(r.kinds("transition")) == 10_000
+
+
+# --- robustness: initial junctions, failing actions and hosts, snapshots with time -------
+
+INITIAL_JUNCTION = """
+statechart: ij
+events: {go: null}
+variables: {mode: 2}
+initial: P
+states:
+  - name: P
+    initial: J
+    states:
+      - name: J
+        type: junction
+        transitions:
+          - {guard: mode == 1, target: One, effect: [{log: chose one}]}
+          - {guard: mode == 2, target: Two, effect: [{log: chose two}]}
+      - {name: One}
+      - {name: Two}
+"""
+
+
+def test_an_initial_junction_chooses_the_first_entered_child(run):
+    r = run(INITIAL_JUNCTION, validate=False)
+    assert r.leaves == ["P.Two"] and logs(r) == ["chose two"]
+
+
+def test_an_initial_junction_with_no_branch_enabled_takes_its_last_and_says_so(run):
+    r = run(INITIAL_JUNCTION.replace("mode: 2", "mode: 3"), validate=False)
+    assert r.leaves == ["P.Two"]
+    errors = [rec for rec in r.trace.records if rec[0] == "error"]
+    assert errors and "no branch of initial junction P.J is enabled" in errors[0][1]
+
+
+def test_a_failing_action_is_reported_and_the_chart_goes_on(run):
+    r = run(
+        """
+        statechart: fa
+        events: {go: null}
+        variables: {x: 0}
+        initial: A
+        states:
+          - {name: A, transitions: [{event: go, target: B, effect: [{set: {x: "= 1 // x"}}, {log: after}]}]}
+          - {name: B}
+        """,
+        validate=False,
+    )
+    r.send("go")
+    assert r.leaves == ["B"] and logs(r) == ["after"]
+    errors = [rec for rec in r.trace.records if rec[0] == "error"]
+    assert errors and "set action at" in errors[0][1] and "failed" in errors[0][1]
+
+
+def test_a_host_that_fails_on_an_output_does_not_stop_the_chart(chart):
+    from framework.clock import SimulatedClock
+    from framework.statechart.events import Trace
+
+    def broken(output):
+        raise RuntimeError("host down")
+
+    trace = Trace()
+    i = Interpreter(chart(CONFIG_OK), SimulatedClock(), [trace], on_output=broken)
+    i.start()
+    assert i.leaves == ["Top.A"]
+    errors = [rec for rec in trace.records if rec[0] == "error"]
+    assert errors and "output handler failed on configure: host down" in errors[0][1]
+
+
+def test_a_snapshot_keeps_the_time_left_on_running_timers(chart):
+    from framework.clock import SimulatedClock
+
+    c = chart(TIMED)
+    a = Interpreter(c, SimulatedClock())
+    a.start()
+    a.advance(1.5)
+    b = Interpreter(c, SimulatedClock(100.0))
+    b.restore(a.snapshot())
+    b.advance(0.49)
+    assert b.leaves == ["A"], "0.5 s were left of the 2 s"
+    b.advance(0.01)
+    assert b.leaves == ["B"]
+
+
+def test_a_snapshot_of_another_chart_or_an_unknown_state_is_refused(chart):
+    from framework.clock import SimulatedClock
+
+    c = chart(TIMED)
+    a = Interpreter(c, SimulatedClock())
+    a.start()
+    snap = a.snapshot()
+    with pytest.raises(StatechartRuntimeError, match="not started"):
+        a.restore(snap)
+    with pytest.raises(StatechartRuntimeError, match="snapshot is of chart 'other'"):
+        Interpreter(c, SimulatedClock()).restore({**snap, "chart": "other"})
+    with pytest.raises(StatechartRuntimeError, match="unknown state"):
+        Interpreter(c, SimulatedClock()).restore({**snap, "active": ["Nowhere"]})
