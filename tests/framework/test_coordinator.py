@@ -405,3 +405,18 @@ def test_the_admission_rules_cannot_be_changed_once_made():
     admission = Admission(external=frozenset({"e_GO"}), emitters={})
     with pytest.raises(dataclasses.FrozenInstanceError):
         admission.external = None  # type: ignore[misc]
+
+
+def test_a_stopped_coordinator_runs_no_more_steps_and_follows_no_liveliness(hub, peer, write):
+    rig = Rig(hub, peer, write, watch={"sink": "workers"})
+    token = peer.token(keys.alive("sink"))
+    try:
+        assert wait_until(lambda: "sink" in rig.coordinator._alive, 10)
+        assert rig.coordinator.stop()
+        rig.put("e_SEND")
+        token.undeclare()
+        time.sleep(0.5)  # a grace period for anything that would still happen
+        assert rig.sent == [], "no step after stop"
+        assert rig.coordinator.call("active")["lost"] == {}, "liveliness no longer followed"
+    finally:
+        rig.close()
