@@ -626,3 +626,58 @@ def test_a_jumps_verdict_says_how_far_in_how_long():
     offer(core, rig, shifted(start, 0.2), 0.05, arrival=0.3)  # 20 cm in 50 ms: 4 m/s
     health = core.evaluate(0.301).health["certus"]
     assert (health.cause, health.detail) == ("corrupt", "the robot's tool jumped 200.0 mm in 50 ms")
+
+
+def test_the_second_tracker_places_the_robot_where_the_master_would():
+    world = World()
+    world.run(0.5)
+    world.faults["certus"] = "cto_missing"
+    decision = world.run(0.1)
+    assert decision.best == "vicra"
+    truth = world.rigs[0].rto_from_base @ ee_path(world.t)  # in the master's frame
+    assert np.linalg.norm(decision.robot_pose[:3, 3] - truth[:3, 3]) < 0.002
+
+
+def test_with_the_first_of_three_trackers_lost_the_other_two_are_compared():
+    rigs = standard_rigs()
+    rigs.append(dataclasses.replace(rigs[1], name="vicra2"))
+    world = World(rigs)
+    world.run(0.5)
+    world.faults["certus"] = "cto_missing"
+    decision = world.run(0.1)
+    assert decision.best == "vicra"
+    assert decision.health["vicra"].ok and decision.health["vicra2"].ok
+
+
+def test_a_reference_tool_both_shifted_and_turned_is_a_calibration_fault():
+    world = World(kinematics=True)
+    world.run(0.5)
+    world.moved = rigid((0.02, 0.0, 0.0), (0.0, 0.0, 0.1))  # 2 cm and 5.7 deg
+    world.faults["certus"] = "rto_moved"
+    assert world.run(0.05).health["certus"].cause == "calibration"
+
+
+def test_a_decision_says_whether_the_choice_changed():
+    rig, core = single_certus()
+    offer(core, rig, ee_path(0.0), 0.0, arrival=0.0)
+    assert core.evaluate(0.001).changed, "none -> certus"
+    offer(core, rig, ee_path(0.0), 0.01, arrival=0.01)
+    assert not core.evaluate(0.011).changed
+
+
+def test_after_a_fault_the_count_of_healthy_samples_starts_again_from_zero():
+    rig, core = single_certus(hysteresis=3)
+    offer(core, rig, ee_path(0.0), 0.0, arrival=0.0)
+    for k in range(1, 4):
+        offer(core, rig, ee_path(0.0), 0.01 * k, arrival=0.01 * k)
+        core.evaluate(0.01 * k + 0.001)
+    assert core.best == "certus"
+    cto, rto = rig.observe(ee_path(0.0), np.random.default_rng(0), 0.04)
+    core.offer("certus", "cto", dataclasses.replace(cto, valid=False), 0.04)
+    core.offer("certus", "rto", rto, 0.04)
+    assert core.evaluate(0.041).best is None
+    seen = []
+    for k in range(5, 9):
+        offer(core, rig, ee_path(0.0), 0.01 * k, arrival=0.01 * k)
+        seen.append(core.evaluate(0.01 * k + 0.001).best)
+    assert seen == [None, None, "certus", "certus"], "three healthy samples again"
