@@ -60,7 +60,10 @@ SAFETY_CORE: dict[str, list[str]] = {
     "framework/configurator.py": ["tests/framework/test_configurator.py"],
     "framework/coordinator.py": ["tests/framework/test_coordinator.py"],
     "framework/safety.py": ["tests/framework/test_safety.py"],
-    "components/tracking/sensor_manager.py": ["tests/components/tracking/test_sensor_manager.py"],
+    "components/tracking/sensor_manager.py": [
+        "tests/components/tracking/test_sensor_manager.py",
+        "tests/components/tracking/test_sensor_manager_component.py",
+    ],
     "components/supervisor/supervisor.py": [
         "tests/components/supervisor/test_supervisor.py",
         "tests/components/supervisor/test_supervisor_component.py",
