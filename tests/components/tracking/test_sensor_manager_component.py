@@ -78,3 +78,23 @@ def test_the_component_chooses_the_master_then_swaps_on_a_fault(rig):
     vicra.call("corrupt_data")
     assert wait_until(lambda: best(manager) is None, timeout=5)
     assert manager.robot_pose.stats.written > 10
+
+
+def test_a_sensors_file_that_cannot_be_read_stops_configuration_with_its_location(hub, tmp_path):
+    bad = tmp_path / "sensors.yaml"
+    bad.write_text("sensors: {a: {priority: 1, rate: 0, keys: {cto: x, rto: y}}}\n")
+    side = Container("manager", hub)
+    try:
+        manager = side.add(SensorManager("sm"), Activity.periodic(200), {"sensors_file": str(bad)})
+        assert manager.call("current") == {
+            "best": None,
+            "limits": {},
+            "calibration": None,
+            "health": {},
+        }
+        assert not manager.configure()
+        assert manager.last_error.startswith(f"{bad}:1:")
+        nameless = side.add(SensorManager("nameless"), Activity.periodic(200))
+        assert not nameless.configure() and "sensors_file" in nameless.last_error
+    finally:
+        side.shutdown()

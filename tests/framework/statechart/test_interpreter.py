@@ -494,9 +494,10 @@ def test_a_duplicate_ack_is_reported_as_unhandled(run):
     assert r.leaves == ["Top.B"] and r.interpreter.variables["done"] == 1, "do ran once"
 
 
-def test_an_ack_for_another_tag_settles_nothing_and_is_reported(run):
+@pytest.mark.parametrize("other", ["other", "wrap_up"])
+def test_an_ack_for_another_tag_settles_nothing_and_is_reported(run, other):
     r = run(CONFIG_OK)
-    r.send(("config.done", {"tag": "other"}))
+    r.send(("config.done", {"tag": other}))
     assert r.kinds("unhandled")[-1][1] == "config.done"
     assert r.interpreter.pending_configurations, "still waiting for its own ack"
 
@@ -967,3 +968,21 @@ def test_a_snapshot_of_another_chart_or_an_unknown_state_is_refused(chart):
         Interpreter(c, SimulatedClock()).restore({**snap, "chart": "other"})
     with pytest.raises(StatechartRuntimeError, match="unknown state"):
         Interpreter(c, SimulatedClock()).restore({**snap, "active": ["Nowhere"]})
+
+
+def test_time_events_due_at_different_times_fire_at_their_own_time(run):
+    r = run(
+        """
+        statechart: two_timers
+        events: {}
+        initial: A
+        states:
+          - {name: A, transitions: [{after: 1s, target: B}, {after: 5s, target: D}]}
+          - {name: B, transitions: [{after: 1s, target: C}]}
+          - {name: C}
+          - {name: D}
+        """,
+        validate=False,
+    )
+    r.interpreter.advance(3.0)
+    assert r.leaves == ["C"], "B at 1 s, C at 2 s"
