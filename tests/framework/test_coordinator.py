@@ -420,3 +420,21 @@ def test_a_stopped_coordinator_runs_no_more_steps_and_follows_no_liveliness(hub,
         assert rig.coordinator.call("active")["lost"] == {}, "liveliness no longer followed"
     finally:
         rig.close()
+
+
+def test_the_last_twenty_events_are_remembered_from_the_bus_and_the_operator(rig):
+    for _ in range(25):
+        rig.put("e_SEND")
+    assert wait_until(lambda: len(rig.sent) == 25, 10)
+    assert rig.coordinator.call("active")["last_events"] == ["e_SEND"] * 20
+    rig.coordinator.call("offer", event="e_DEPTH", payload={"depth": 1})
+    last = rig.coordinator.call("active")["last_events"]
+    assert len(last) == 20 and last[-1] == "e_DEPTH" and last[0] == "e_SEND"
+
+
+def test_operators_tools_may_only_ask_what_the_chart_would_take_and_where_it_is():
+    from framework.topology import class_info
+
+    info = class_info(Coordinator)
+    assert {"takeable", "active"} <= info.readonly
+    assert "offer" not in info.readonly
