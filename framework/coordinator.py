@@ -55,6 +55,18 @@ ACTION_TIMEOUT = 2.0
 """Seconds a chart's `call` or `write` action may take (a configuration has its own)."""
 
 
+IDLE_WAIT = 0.5
+"""Longest sleep of the chart's loop with nothing due (an event wakes it at once)."""
+
+
+def loop_wait(deadline: float | None, now: float) -> float:
+    """How long the chart's loop may sleep: until its next time event is due (never
+    negative), at most `IDLE_WAIT`."""
+    if deadline is None:
+        return IDLE_WAIT
+    return max(0.0, min(IDLE_WAIT, deadline - now))
+
+
 @dataclass(frozen=True)
 class Admission:
     """Who may give the chart which event, from the topology: the operator's events
@@ -223,9 +235,7 @@ class Coordinator(Component):
             interpreter.start()
             self._publish_configuration()
         while not self._stop.is_set():
-            deadline = interpreter.next_deadline()
-            timeout = 0.5 if deadline is None else max(0.0, min(0.5, deadline - time.monotonic()))
-            self._wake.wait(timeout)
+            self._wake.wait(loop_wait(interpreter.next_deadline(), time.monotonic()))
             self._wake.clear()
             with self._chart_lock:
                 self._drain()

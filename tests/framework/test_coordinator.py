@@ -15,11 +15,13 @@ from framework.container import Container
 from framework.coordinator import (
     ACKS_KEY,
     EVENTS_KEY,
+    IDLE_WAIT,
     REQUESTS_KEY,
     SENT_KEY,
     STATUS_KEY,
     Admission,
     Coordinator,
+    loop_wait,
 )
 from framework.messages import ConfigAck, ConfigRequest, EventMessage
 from framework.ports import OutputPort
@@ -438,3 +440,19 @@ def test_operators_tools_may_only_ask_what_the_chart_would_take_and_where_it_is(
     info = class_info(Coordinator)
     assert {"takeable", "active"} <= info.readonly
     assert "offer" not in info.readonly
+
+
+@pytest.mark.parametrize(
+    ("deadline", "now", "wait"),
+    [(None, 5.0, IDLE_WAIT), (5.25, 5.0, 0.25), (4.0, 5.0, 0.0), (9.0, 5.0, IDLE_WAIT)],
+)
+def test_the_charts_loop_wakes_for_its_next_time_event_at_the_latest(deadline, now, wait):
+    assert loop_wait(deadline, now) == wait
+    assert IDLE_WAIT == 0.5, "an idle chart still looks around twice a second"
+
+
+def test_every_step_that_moves_the_chart_publishes_where_it_is(rig):
+    rig.put("e_GO")
+    assert wait_until(lambda: any(c["active"] == ["Working"] for c in rig.kinds("configuration")))
+    working = next(c for c in rig.kinds("configuration") if c["active"] == ["Working"])
+    assert working["pending"] == {"Working": "work"} and working["finished"] is False
