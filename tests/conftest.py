@@ -134,6 +134,39 @@ def join_deployment(bus_config, timeout: float = 30.0):
     return Bus(client_config(secured), subject=OPERATOR)
 
 
+def writer_port(bus, key: str, kind, owner: str = "test"):
+    """An output port of the test's own on `bus`, publishing on `key`, as a producer the
+    test plays (a tracker, the Coordinator, the arm's controller) would."""
+    from framework.ports import OutputPort
+
+    port = OutputPort(key.rsplit("/", 1)[-1], kind)
+    port.owner, port.bus = owner, bus
+    port.connect(key)
+    return port
+
+
+def reader_port(bus, key: str, kind, size: int = 10000, owner: str = "test"):
+    """An input port of the test's own on `bus`, keeping every sample of `key` (a buffer
+    of `size`) for the test to read in order."""
+    from framework.ports import InputPort
+
+    port = InputPort(key.rsplit("/", 1)[-1], kind)
+    port.owner, port.bus = owner, bus
+    port.connect(key, {"type": "buffer", "size": size})
+    return port
+
+
+def decoded_into(into: list, kind):
+    """A bus subscription callback that decodes each sample as `kind` into `into`."""
+    from framework import messages
+
+    def on(sample) -> None:
+        message, _, _ = messages.decode(sample.payload.to_bytes(), kind)
+        into.append(message)
+
+    return on
+
+
 def wait_until(predicate, timeout: float = 5.0, interval: float = 0.005) -> bool:
     """Poll `predicate` until it holds or `timeout` passes (for asynchronous delivery;
     this bounds a wait, it does not assert on speed)."""

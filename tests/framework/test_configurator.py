@@ -10,15 +10,13 @@ import time
 
 import pytest
 
-from framework import messages
 from framework.activity import Activity
 from framework.configurator import Configurator
 from framework.container import Container, build
 from framework.deployer import container_spec
 from framework.messages import ConfigAck, ConfigRequest
-from framework.ports import OutputPort
 from framework.topology import Step
-from tests.conftest import REPO, private_topology, wait_until
+from tests.conftest import REPO, decoded_into, private_topology, wait_until, writer_port
 
 TOPOLOGY = REPO / "tests" / "data" / "configurator" / "configurator.yaml"
 REQUESTS, ACKS = "spec/requests", "spec/acks"
@@ -42,17 +40,11 @@ class Rig:
         assert self.configurator.start()
         assert peer.wait_for_peers(1)
         self.acks: list[ConfigAck] = []
-        self._sub = peer.subscribe(ACKS, self._on_ack)
-        self.requests = OutputPort("requests", ConfigRequest)
-        self.requests.owner, self.requests.bus = "test", peer
-        self.requests.connect(REQUESTS)
+        self._sub = peer.subscribe(ACKS, decoded_into(self.acks, ConfigAck))
+        self.requests = writer_port(peer, REQUESTS, ConfigRequest)
         self._ids = iter(range(1, 10**6))
         self._routed()
         assert self.apply("setup").ok
-
-    def _on_ack(self, sample):
-        ack, _, _ = messages.decode(sample.payload.to_bytes(), ConfigAck)
-        self.acks.append(ack)
 
     def apply(self, tag):
         return self.configurator.apply(tag)

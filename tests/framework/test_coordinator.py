@@ -24,9 +24,8 @@ from framework.coordinator import (
     loop_wait,
 )
 from framework.messages import ConfigAck, ConfigRequest, EventMessage
-from framework.ports import OutputPort
 from framework.statechart.loader import load_statechart
-from tests.conftest import wait_until
+from tests.conftest import decoded_into, wait_until, writer_port
 
 CHART = """
 statechart: coordinator_spec
@@ -94,14 +93,11 @@ class Rig:
         self.answer: dict[str, tuple[bool, str, str]] = {}  # tag -> ok, step, reason
         self._subs = [
             peer.subscribe(REQUESTS_KEY, self._on_request),
-            peer.subscribe(STATUS_KEY, self._decoded(self.status, EventMessage)),
-            peer.subscribe(SENT_KEY, self._decoded(self.sent, EventMessage)),
+            peer.subscribe(STATUS_KEY, decoded_into(self.status, EventMessage)),
+            peer.subscribe(SENT_KEY, decoded_into(self.sent, EventMessage)),
         ]
-        self.acks = OutputPort("acks", ConfigAck)
-        self.events = OutputPort("events", EventMessage)
-        for port, key in ((self.acks, ACKS_KEY), (self.events, EVENTS_KEY)):
-            port.owner, port.bus = "test", peer
-            port.connect(key)
+        self.acks = writer_port(peer, ACKS_KEY, ConfigAck)
+        self.events = writer_port(peer, EVENTS_KEY, EventMessage)
         assert peer.wait_for_peers(1)
         self.control.start()
         assert self.coordinator.start()
@@ -124,13 +120,6 @@ class Rig:
         assert wait_until(lambda: any(r["source"] == last for r in self.refusals()), 10)
         self.probes = len(self.refusals())
         self.status.clear()
-
-    def _decoded(self, into, kind):
-        def on(sample):
-            message, _, _ = messages.decode(sample.payload.to_bytes(), kind)
-            into.append(message)
-
-        return on
 
     def _on_request(self, sample):
         request, _, _ = messages.decode(sample.payload.to_bytes(), ConfigRequest)

@@ -290,12 +290,11 @@ def test_a_safety_spec_travels_as_plain_data():
 
 def test_a_process_heartbeat_beats_from_its_own_thread_until_stopped(hub):
     from framework.messages import Scalar
-    from framework.ports import InputPort, ReadStatus
+    from framework.ports import ReadStatus
     from framework.safety import ProcessHeartbeat
+    from tests.conftest import reader_port
 
-    seen = InputPort("beat", Scalar)
-    seen.owner, seen.bus = "test", hub
-    seen.connect(keys.process_heartbeat("worker"), {"type": "buffer", "size": 1000})
+    seen = reader_port(hub, keys.process_heartbeat("worker"), Scalar)
     beat = ProcessHeartbeat(hub, "worker", 0.002).start()
     assert wait_until(lambda: seen.stats.received >= 3)
     beat.stop()

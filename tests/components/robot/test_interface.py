@@ -23,7 +23,8 @@ from framework.clock import SimulatedClock
 from framework.container import Container
 from framework.errors import FwError
 from framework.messages import ArmState, EventMessage, JointState, Pose
-from framework.ports import InputPort, OutputPort, ReadStatus
+from framework.ports import ReadStatus
+from tests.conftest import reader_port, writer_port
 
 HOME = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.6, 0.0])
 TCP = (0.5, 0.1, 0.4, 1.0, 0.0, 0.0, 0.0)
@@ -41,27 +42,20 @@ class Arm:
         )
         self.container.connect("robot", "measured", "arm/measured")
         self.container.connect("robot", "setpoint", "interpolator/setpoint")
-        self.writers = {}
-        for name, kind, key in [
-            ("measured", ArmState, "arm/measured"),
-            ("setpoint", JointState, "interpolator/setpoint"),
-        ]:
-            port = OutputPort(name, kind)
-            port.owner, port.bus = "test", hub
-            port.connect(key)
-            self.writers[name] = port
-        self.readers = {}
-        for name, kind in [
-            ("command", JointState),
-            ("arm_request", EventMessage),
-            ("joints", JointState),
-            ("tcp", Pose),
-            ("status", EventMessage),
-        ]:
-            port = InputPort(name, kind)
-            port.owner, port.bus = "test", hub
-            port.connect(f"robot/{name}", {"type": "buffer", "size": 10000})
-            self.readers[name] = port
+        self.writers = {
+            "measured": writer_port(hub, "arm/measured", ArmState),
+            "setpoint": writer_port(hub, "interpolator/setpoint", JointState),
+        }
+        self.readers = {
+            name: reader_port(hub, f"robot/{name}", kind)
+            for name, kind in [
+                ("command", JointState),
+                ("arm_request", EventMessage),
+                ("joints", JointState),
+                ("tcp", Pose),
+                ("status", EventMessage),
+            ]
+        }
         self.container.start()
         assert self.robot.configure() and self.robot.start()
         self.cycle_no = 0
@@ -388,9 +382,7 @@ def test_a_monitor_trip_while_the_controller_is_silent_brakes_at_once(hub):
     token = hub.token("fw/alive/tester")
     spec = SafetySpec("robot", (Watch("tester", "test/beat", 0.02, "tester"),), ("tester",))
     arm = Arm(hub, safety=spec)
-    beat = OutputPort("beat", Scalar)
-    beat.owner, beat.bus = "tester", hub
-    beat.connect("test/beat")
+    beat = writer_port(hub, "test/beat", Scalar, owner="tester")
     try:
         arm.cycle()
         arm.released()

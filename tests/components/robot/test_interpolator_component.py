@@ -14,8 +14,8 @@ from framework.clock import SimulatedClock
 from framework.container import Container
 from framework.errors import FwError
 from framework.messages import EventMessage, JointState, Pose
-from framework.ports import InputPort, OutputPort, ReadStatus
-from tests.conftest import REPO
+from framework.ports import ReadStatus
+from tests.conftest import REPO, reader_port, writer_port
 
 PROCEDURE = REPO / "procedures" / "seeg.yaml"
 
@@ -37,17 +37,16 @@ class Robot:
             ("limits", EventMessage),
             ("halt", EventMessage),
         ]:
-            port = OutputPort(name, kind)
-            port.owner, port.bus = "test", hub
-            port.connect(f"test/{name}")
+            self.writers[name] = writer_port(hub, f"test/{name}", kind)
             self.container.connect("interpolator", name, f"test/{name}")
-            self.writers[name] = port
-        self.readers = {}
-        for name, kind in [("setpoint", JointState), ("command", Pose), ("status", EventMessage)]:
-            port = InputPort(name, kind)
-            port.owner, port.bus = "test", hub
-            port.connect(f"interpolator/{name}", {"type": "buffer", "size": 100000})
-            self.readers[name] = port
+        self.readers = {
+            name: reader_port(hub, f"interpolator/{name}", kind, size=100000)
+            for name, kind in [
+                ("setpoint", JointState),
+                ("command", Pose),
+                ("status", EventMessage),
+            ]
+        }
         self.container.start()
         self.configured = self.interp.configure() and self.interp.start()
         self.q = np.array(HOME, dtype=float)

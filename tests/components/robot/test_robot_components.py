@@ -13,7 +13,7 @@ from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
 from framework.container import Container
 from framework.errors import FwError
-from tests.conftest import REPO
+from tests.conftest import REPO, writer_port
 
 PROCEDURE = REPO / "procedures" / "seeg.yaml"
 
@@ -105,7 +105,6 @@ def test_the_supervisors_halt_brakes_the_motion_without_the_chart(hub):
     Supervisor's `halt` port, before (and without) any stop configuration."""
     from components.supervisor.supervisor import Supervisor
     from framework.messages import Scalar
-    from framework.ports import OutputPort
 
     cell = Cell(hub)
     try:
@@ -114,9 +113,7 @@ def test_the_supervisors_halt_brakes_the_motion_without_the_chart(hub):
         cell.container.connect("supervisor", "min_distance", "test/min_distance")
         cell.container.connect("interpolator", "halt", "supervisor/halt")
         assert supervisor.configure() and supervisor.start(), supervisor.last_error
-        distance = OutputPort("distance", Scalar)
-        distance.owner, distance.bus = "test", hub
-        distance.connect("test/min_distance")
+        distance = writer_port(hub, "test/min_distance", Scalar)
 
         cell.release()
         cell.interp.call("go_to", goal="target")
@@ -221,15 +218,12 @@ def test_a_monitor_trip_stops_the_arm_on_its_path_then_brakes_latched(hub):
     """A watched input falls silent while the arm moves: the interface itself decelerates
     the arm along its path (no reversal, a short stop), then the brakes latch."""
     from framework.messages import Scalar
-    from framework.ports import OutputPort
     from framework.safety import SafetySpec, Watch
 
     token = hub.token("fw/alive/tester")
     spec = SafetySpec("robot", (Watch("tester", "test/beat", 0.02, "tester"),), ("tester",))
     cell = Cell(hub, safety=spec)
-    beat = OutputPort("beat", Scalar)
-    beat.owner, beat.bus = "tester", hub
-    beat.connect("test/beat")
+    beat = writer_port(hub, "test/beat", Scalar, owner="tester")
     try:
         with pytest.raises(FwError, match="tester: no data yet"):
             cell.robot.call("release")  # not before every watched input is there

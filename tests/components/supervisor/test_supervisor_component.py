@@ -14,8 +14,7 @@ from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
 from framework.container import Container
 from framework.messages import EventMessage, Pose, Scalar
-from framework.ports import OutputPort
-from tests.conftest import REPO, wait_until
+from tests.conftest import REPO, wait_until, writer_port
 
 PROCEDURE = REPO / "procedures" / "seeg.yaml"
 
@@ -40,11 +39,8 @@ class Rig:
             ("tracked", Pose),
             ("robot", EventMessage),
         ]:
-            writer = OutputPort(port, kind)
-            writer.owner, writer.bus = "test", hub
-            writer.connect(f"test/{port}")
+            self.writers[port] = writer_port(hub, f"test/{port}", kind)
             self.container.connect("supervisor", port, f"test/{port}")
-            self.writers[port] = writer
         self.events, self.halts, self.refused, self.sources = [], [], [], []
         self.probed = set()
         self._subs = [

@@ -481,6 +481,20 @@ def test_a_sensor_configured_without_calibration_is_taken_as_the_identity():
         assert np.array_equal(frame, np.eye(4))
 
 
+def step_taken(step, max_speed, rms):
+    """Two frames 10 ms apart from a noise-free tracker whose samples claim `rms`, the
+    robot's tool `step` m further on: is the second one healthy?"""
+    rig = dataclasses.replace(standard_rigs()[0], noise=0.0)
+    core = SensorManagerCore(sensors_config([rig], 1, max_speed=max_speed))
+    start = ee_path(0.0)
+    for arrival, pose in ((0.0, start), (0.01, shifted(start, step))):
+        cto, rto = rig.observe(pose, np.random.default_rng(0), arrival)
+        core.offer("certus", "cto", dataclasses.replace(cto, rms=rms), arrival)
+        core.offer("certus", "rto", rto, arrival)
+        decision = core.evaluate(arrival + 0.001)
+    return decision.health["certus"].ok
+
+
 @pytest.mark.parametrize(
     ("noise", "step", "ok"),
     [
@@ -493,17 +507,7 @@ def test_a_sensor_configured_without_calibration_is_taken_as_the_identity():
 def test_a_step_within_five_times_the_trackers_noise_is_not_a_jump(noise, step, ok):
     """A tracker that barely moves (max_speed 1 mm/s) may still jitter by five times its
     RMS noise, and never by less than 0.5 mm (a noise-free tracker rounds too)."""
-    rig = dataclasses.replace(standard_rigs()[0], noise=0.0)
-    core = SensorManagerCore(sensors_config([rig], 1, max_speed=0.001))
-    start = ee_path(0.0)
-    cto, rto = rig.observe(start, np.random.default_rng(0), 0.0)
-    core.offer("certus", "cto", dataclasses.replace(cto, rms=noise), 0.0)
-    core.offer("certus", "rto", rto, 0.0)
-    core.evaluate(0.001)
-    cto, rto = rig.observe(shifted(start, step), np.random.default_rng(0), 0.01)
-    core.offer("certus", "cto", dataclasses.replace(cto, rms=noise), 0.01)
-    core.offer("certus", "rto", rto, 0.01)
-    assert core.evaluate(0.011).health["certus"].ok == ok
+    assert step_taken(step, max_speed=0.001, rms=noise) == ok
 
 
 @pytest.mark.parametrize("came", ["cto", "rto"])
@@ -575,15 +579,7 @@ def test_a_frame_after_a_missing_one_is_not_judged_against_the_missing_ones_posi
 @pytest.mark.parametrize(("step", "ok"), [(0.0102, True), (0.0108, False)])
 def test_the_allowed_step_is_the_speed_over_the_gap_plus_the_noise_margin(step, ok):
     """1 m/s for 10 ms is 10 mm, plus 0.5 mm of noise margin."""
-    rig = dataclasses.replace(standard_rigs()[0], noise=0.0)
-    core = SensorManagerCore(sensors_config([rig], 1, max_speed=1.0))
-    start = ee_path(0.0)
-    for arrival, pose in ((0.0, start), (0.01, shifted(start, step))):
-        cto, rto = rig.observe(pose, np.random.default_rng(0), arrival)
-        core.offer("certus", "cto", cto, arrival)
-        core.offer("certus", "rto", rto, arrival)
-        decision = core.evaluate(arrival + 0.001)
-    assert decision.health["certus"].ok == ok
+    assert step_taken(step, max_speed=1.0, rms=0.0) == ok
 
 
 def test_a_tool_silent_for_exactly_its_stale_periods_is_not_yet_stale():
