@@ -52,6 +52,7 @@ from framework.properties import prop
 from framework.yamlio import load_yaml
 
 KINEMATICS_MEMORY = 1.0  # s of robot poses kept to match the samples' stamps
+STATUS_PERIOD = 0.5  # s between tracking statuses when nothing changes (a change: at once)
 CAUSES = ("no_data", "cto_missing", "rto_missing", "stale", "corrupt", "calibration")
 
 
@@ -425,12 +426,12 @@ class SensorManagerCore:
 
 
 class SensorManager(Component):
-    """Feeds `SensorManagerCore` from the trackers' ports and publishes its decisions."""
+    """Feeds `SensorManagerCore` from the trackers' ports and publishes its decisions,
+    once per cycle of its activity (the topology's `periodic:` rate)."""
 
     sensors_file = prop(
         str, "", doc="sensors YAML (priorities, keys, calibration, limits)", required=True
     )
-    rate = prop(float, 1000.0, unit="Hz", min=1.0, max=5000.0, doc="evaluation rate")
     ee_pose = In(Pose, doc="end-effector in the robot base frame, from joints (optional)")
     robot_pose = Out(Pose, doc="end-effector in the master frame (eq. 3.5), best sensor")
     status = Out(EventMessage, doc="best sensor, its limits, every sensor's health")
@@ -447,7 +448,7 @@ class SensorManager(Component):
             for tool, key in sensor.keys.items():
                 port = self.add_input(f"{sensor.name}_{tool}", Pose, key, ConnPolicy("buffer", 64))
                 self.tracker_ports.append((sensor.name, tool, port))
-        self._last_status = 0.0
+        self._last_status = -math.inf  # the first cycle says where tracking stands
         return True
 
     def cleanup_hook(self) -> None:
@@ -455,7 +456,7 @@ class SensorManager(Component):
             port.close()
 
     def update_hook(self) -> None:
-        now = time.monotonic()
+        now = self.clock.now()
         for sensor, tool, port in self.tracker_ports:
             while True:
                 status, pose = port.read()
@@ -482,7 +483,7 @@ class SensorManager(Component):
                     "ee",
                 )
             )
-        if decision.changed or now - self._last_status > 0.5:
+        if decision.changed or now - self._last_status >= STATUS_PERIOD:
             self._last_status = now
             self.status.write(
                 EventMessage(time.time(), "tracking", self.name, self.describe_decision(decision))

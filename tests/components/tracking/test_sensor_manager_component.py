@@ -1,29 +1,32 @@
 """Spec: the Sensor Manager component reads real tracker ports and publishes its choice."""
 
+import dataclasses
+
+import numpy as np
 import pytest
+import yaml
 
 from components.tracking.certus_sim import TrackerSim
-from components.tracking.sensor_manager import SensorManager
-from components.tracking.synthetic import sensors_config, standard_rigs
-from framework.activity import Activity
+from components.tracking.geometry import matrix_to_quat, quat_to_matrix
+from components.tracking.sensor_manager import STATUS_PERIOD, SensorManager
+from components.tracking.synthetic import ee_path, rigid, sensors_config, standard_rigs
+from framework.activity import Activity, SteppedExecutor
+from framework.clock import SimulatedClock
 from framework.container import Container
-from framework.messages import EventMessage
-from framework.ports import InputPort
-from tests.conftest import wait_until
+from framework.messages import EventMessage, Pose
+from framework.ports import InputPort, ReadStatus
+from tests.conftest import reader_port, wait_until, writer_port
 
 
-@pytest.fixture
-def rig(hub, peer, tmp_path):
-    import yaml
+def as_yaml(t):
+    """A transform as sensors.yaml writes it."""
+    return {"position": t[:3, 3].tolist(), "quaternion": list(matrix_to_quat(t[:3, :3]))}
 
-    from components.tracking.geometry import matrix_to_quat
 
-    config = sensors_config(standard_rigs(), hysteresis=3)
+def write_sensors(tmp_path, hysteresis=3):
+    """sensors.yaml for the thesis' two trackers (exact calibration), keys `<name>/<tool>`."""
+    config = sensors_config(standard_rigs(), hysteresis=hysteresis)
     sensors = {}
-
-    def as_yaml(t):
-        return {"position": t[:3, 3].tolist(), "quaternion": list(matrix_to_quat(t[:3, :3]))}
-
     for s in config.sensors:
         sensors[s.name] = {
             "priority": s.priority,
@@ -37,7 +40,15 @@ def rig(hub, peer, tmp_path):
             },
         }
     path = tmp_path / "sensors.yaml"
-    path.write_text(yaml.safe_dump({"master": "certus", "hysteresis": 3, "sensors": sensors}))
+    path.write_text(
+        yaml.safe_dump({"master": "certus", "hysteresis": hysteresis, "sensors": sensors})
+    )
+    return path
+
+
+@pytest.fixture
+def rig(hub, peer, tmp_path):
+    path = write_sensors(tmp_path)
     trackers, manager_side = Container("trackers", hub), Container("manager", peer)
     certus = trackers.add(TrackerSim("certus"), Activity.periodic(100), {"rig": "certus"})
     vicra = trackers.add(TrackerSim("vicra"), Activity.periodic(20), {"rig": "vicra", "seed": 1})
@@ -98,3 +109,134 @@ def test_a_sensors_file_that_cannot_be_read_stops_configuration_with_its_locatio
         assert not nameless.configure() and "sensors_file" in nameless.last_error
     finally:
         side.shutdown()
+
+
+TICK = 1 / 256  # s: the stepped manager's cycle, exact in binary
+
+
+class Stepped:
+    """The Sensor Manager in a stepped container on the hub session; the test plays both
+    trackers (their tools' ports) and the robot (its end-effector pose from joints) on
+    the same session, so every sample has arrived when `tick` returns."""
+
+    def __init__(self, hub, tmp_path):
+        self.clock = SimulatedClock()
+        self.container = Container("c", hub, SteppedExecutor(self.clock))
+        self.manager = self.container.add(
+            SensorManager("sensor_manager"),
+            Activity.periodic(1 / TICK),
+            {"sensors_file": str(write_sensors(tmp_path))},
+        )
+        self.rigs = standard_rigs()
+        self.trackers = {
+            f"{rig.name}/{tool}": writer_port(hub, f"{rig.name}/{tool}", Pose)
+            for rig in self.rigs
+            for tool in ("cto", "rto")
+        }
+        self.ee = writer_port(hub, "test/ee_pose", Pose)
+        self.container.connect("sensor_manager", "ee_pose", "test/ee_pose")
+        self.status = reader_port(hub, "sensor_manager/status", EventMessage)
+        self.robot_pose = reader_port(hub, "sensor_manager/robot_pose", Pose)
+        assert self.manager.configure() and self.manager.start(), self.manager.last_error
+        self.rng = np.random.default_rng(3)
+        self.hidden: set[str] = set()  # tracker/tool not seen
+        self.ticks = 0
+        self.statuses: list[tuple[int, dict]] = []  # (tick, payload)
+        self.poses: list[Pose] = []
+
+    def tick(self, n=1, kinematics=None):
+        """`n` cycles with both trackers seeing the robot at rest at `ee_path(0)`;
+        `kinematics`: the end-effector pose the robot's joints give, sent every cycle."""
+        truth = ee_path(0.0)
+        for _ in range(n):
+            self.ticks += 1
+            stamp = self.ticks * TICK
+            for rig in self.rigs:
+                samples = rig.observe(truth, self.rng, stamp)
+                for tool, pose in zip(("cto", "rto"), samples, strict=True):
+                    valid = f"{rig.name}/{tool}" not in self.hidden
+                    self.trackers[f"{rig.name}/{tool}"].write(
+                        dataclasses.replace(pose, valid=valid)
+                    )
+            if kinematics is not None:
+                rotation = matrix_to_quat(kinematics[:3, :3])
+                self.ee.write(Pose(tuple(kinematics[:3, 3]), rotation, stamp))
+            self.container.executor.advance(TICK)
+            self.statuses += [(self.ticks, m.payload) for m in drain(self.status)]
+            self.poses += drain(self.robot_pose)
+
+    def best(self):
+        return self.statuses[-1][1]["best"]
+
+
+def drain(port):
+    out = []
+    while True:
+        status, sample = port.read()
+        if status is not ReadStatus.NEW:
+            return out
+        out.append(sample)
+
+
+@pytest.fixture
+def stepped(hub, tmp_path):
+    rig = Stepped(hub, tmp_path)
+    yield rig
+    rig.container.shutdown()
+
+
+def test_the_tracking_status_is_said_at_once_on_every_change_and_every_half_second(stepped):
+    stepped.tick()
+    assert stepped.statuses == [(1, stepped.statuses[0][1])]  # before any sensor is chosen
+    assert stepped.best() is None
+    stepped.tick(2 * round(STATUS_PERIOD / TICK) + 10)
+    period, chosen = round(STATUS_PERIOD / TICK), 3  # certus, after 3 fresh frames
+    assert [t for t, _ in stepped.statuses] == [1, chosen, chosen + period, chosen + 2 * period]
+    assert [p["best"] for _, p in stepped.statuses] == [None, "certus", "certus", "certus"]
+    stepped.hidden.add("certus/cto")
+    before = stepped.ticks
+    stepped.tick(3)
+    assert stepped.statuses[-1] == (before + 1, stepped.statuses[-1][1])
+    assert stepped.best() == "vicra"
+    assert stepped.statuses[-1][1]["health"]["certus"]["cause"] == "cto_missing"
+
+
+def test_the_best_sensors_end_effector_is_published_in_the_master_frame(stepped):
+    stepped.tick(10)
+    assert stepped.best() == "certus"
+    pose = stepped.poses[-1]
+    truth = stepped.rigs[0].rto_from_base @ ee_path(0.0)  # the master's reference frame
+    assert np.linalg.norm(np.array(pose.position) - truth[:3, 3]) < 1e-3
+    assert np.allclose(quat_to_matrix(np.array(pose.orientation)), truth[:3, :3], atol=1e-6)
+    assert (pose.rms, pose.frame_number, pose.valid, pose.frame, pose.tool) == (
+        0.0,
+        0,
+        True,
+        "certus",
+        "ee",
+    )
+
+
+def test_the_robots_own_kinematics_overrule_trackers_that_agree_with_each_other(stepped):
+    truth = ee_path(0.0)
+    stepped.tick(10, kinematics=truth)
+    assert stepped.best() == "certus"
+    off = rigid((0.02, 0.0, 0.0), (0.0, 0.0, 0.0)) @ truth  # 20 mm away from both trackers
+    stepped.tick(3, kinematics=off)
+    assert stepped.best() is None
+    health = stepped.statuses[-1][1]["health"]
+    assert {health[n]["cause"] for n in ("certus", "vicra")} == {"calibration"}
+    assert "away from the robot's kinematics" in health["certus"]["detail"]
+    stepped.tick(10, kinematics=truth)
+    assert stepped.best() == "certus"
+
+
+def test_a_cleaned_up_manager_no_longer_listens_to_the_trackers(stepped):
+    stepped.tick(3)
+    manager = stepped.manager
+    assert manager.stop() and manager.cleanup()
+    stepped.tick(1)
+    assert not any(
+        manager.inputs[f"{r.name}_{t}"].pending() for r in stepped.rigs for t in ("cto", "rto")
+    )
+    assert not manager.inputs["certus_cto"].connected
