@@ -36,7 +36,12 @@ PROCEDURE = load_procedure(Path(__file__).resolve().parents[1] / "procedures" / 
 def loop_cycles(cycles: int) -> dict[str, dict[str, float]]:
     arm = SimulatedArm()
     arm.release()
-    core = InterpolatorCore(np.array(HOME), brake_acceleration=PROCEDURE.brake_acceleration)
+    core = InterpolatorCore(
+        np.array(HOME),
+        velocity=max(t.fast for t in PROCEDURE.speeds.values()),
+        acceleration=PROCEDURE.acceleration,
+        brake_acceleration=PROCEDURE.brake_acceleration,
+    )
     core.go_to(PROCEDURE.target)
     arm_t, interp_t = [], []
     for _ in range(cycles):

@@ -14,7 +14,9 @@ limit at constant acceleration) and a new goal may arrive at any time.
 * **A new goal while moving** brakes on the current path, then starts the new one
   (a path cannot turn a corner at speed).
 * Rotation-dominated paths: `s` runs over max(translation, angle x
-  `rotation_radius`), so a pure reorientation still has a finite duration.
+  `ROTATION_RADIUS` (0.1 m)), so a pure reorientation still has a finite duration.
+* **Until the Supervisor sends limits**, the component moves at the procedure's
+  slowest speed (no tracker said to be in use).
 
 Each cycle the Cartesian setpoint goes through differential IK (`ik.py`) to the
 joint setpoint the robot interface receives. `InterpolatorCore` is the logic
@@ -70,15 +72,19 @@ class InterpolatorCore:
     MAX_VELOCITY = 0.25  # m/s: far above any surgical approach speed, a sanity ceiling
     MAX_ACCELERATION = 5.0  # m/s^2
 
+    ROTATION_RADIUS = 0.1  # m: a rotation of 1 rad counts as 0.1 m of path
+
     def __init__(
         self,
         q0: np.ndarray,
+        *,
+        velocity: float,
+        acceleration: float,
+        brake_acceleration: float,
         ik: DifferentialIK | None = None,
-        velocity: float = 0.075,
-        acceleration: float = 0.25,
-        brake_acceleration: float = 2.0,
-        rotation_radius: float = 0.1,
     ):
+        """Start at rest at the joints `q0`; the limits (m/s, m/s^2) are the procedure's,
+        so every caller states them (no second set of defaults to drift from it)."""
         self.ik = ik or DifferentialIK()
         self.dt = self.ik.dt
         self.velocity = _check_limit("velocity", velocity, self.MAX_VELOCITY)
@@ -86,7 +92,6 @@ class InterpolatorCore:
         self.brake_acceleration = _check_limit(
             "brake_acceleration", brake_acceleration, self.MAX_ACCELERATION
         )
-        self.rotation_radius = rotation_radius
         self._otg = Ruckig(1, self.dt)
         self._in = InputParameter(1)
         self._out = OutputParameter(1)
@@ -190,7 +195,7 @@ class InterpolatorCore:
         self._delta_r = pin.log3(start[:3, :3].T @ goal[:3, :3])  # in the start frame
         self.length = max(
             float(np.linalg.norm(self._delta_p)),
-            float(np.linalg.norm(self._delta_r)) * self.rotation_radius,
+            float(np.linalg.norm(self._delta_r)) * self.ROTATION_RADIUS,
         )
         self._in.current_position = [0.0]
         self._in.current_velocity = [0.0]
@@ -290,6 +295,7 @@ class CartesianInterpolator(Component):
                 p = self.procedure
                 self.core = InterpolatorCore(
                     np.asarray(measured.position),
+                    velocity=p.slowest,  # until the Supervisor's limits come
                     acceleration=p.acceleration,
                     brake_acceleration=p.brake_acceleration,
                 )

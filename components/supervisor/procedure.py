@@ -52,6 +52,12 @@ class Procedure:
         """The target pose (4x4)."""
         return self.goals["target"]
 
+    @property
+    def slowest(self) -> float:
+        """The slowest speed of any tracker (m/s): the speed when nobody has said which
+        tracker guides the robot."""
+        return min(s.slow for s in self.speeds.values())
+
     def define_target(self, position: Any, rpy_deg: Any) -> np.ndarray:
         """Replace the target (m, deg; base frame); `FwError` for a pose that is not one."""
         try:

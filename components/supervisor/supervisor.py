@@ -149,7 +149,7 @@ class SupervisorCore:
             raise FwError(f"speed is 'fast' or 'slow', not {speed!r}")
         speeds = self.procedure.speeds.get(self.in_use or "")
         if speeds is None:  # no tracker in use: the slowest speed of any tracker
-            velocity = min(s.slow for s in self.procedure.speeds.values())
+            velocity = self.procedure.slowest
         else:
             velocity = speeds.fast if speed == "fast" else speeds.slow
         acceleration = self.procedure.acceleration

@@ -14,8 +14,12 @@ KIN = Kinematics()
 DT = 0.001
 
 
+SEEG = {"velocity": 0.075, "acceleration": 0.25, "brake_acceleration": 2.0}
+
+
 def core(**kwargs) -> InterpolatorCore:
-    return InterpolatorCore(np.array(HOME), **kwargs)
+    """A core at HOME with the SEEG procedure's limits unless told otherwise."""
+    return InterpolatorCore(np.array(HOME), **{**SEEG, **kwargs})
 
 
 def goal_at(offset: tuple[float, float, float]) -> np.ndarray:
@@ -162,3 +166,50 @@ def test_stop_anywhere_ends_at_rest_exactly_where_asserted(dz, velocity, acceler
     assert max(abs(v) for v in speeds) <= velocity + 1e-9
     assert np.allclose(c.pose[:3, 3], where[:3, 3], atol=1e-9)
     assert c.speed == 0.0
+
+
+def test_limits_up_to_the_sanity_ceilings_are_taken_and_beyond_are_refused():
+    c = core(velocity=0.25, acceleration=5.0, brake_acceleration=5.0)
+    assert (c.velocity, c.acceleration, c.brake_acceleration) == (0.25, 5.0, 5.0)
+    for limit, value in [("velocity", 0.2501), ("acceleration", 5.001)]:
+        with pytest.raises(LimitError, match=f"{limit} must be in"):
+            core(**{limit: value})
+    with pytest.raises(LimitError, match="brake_acceleration must be in"):
+        core(brake_acceleration=5.001)
+    c.set_limits(0.25, 5.0)
+    with pytest.raises(LimitError, match="acceleration must be in"):
+        c.set_limits(0.1, 5.001)
+
+
+def test_a_rotation_counts_as_path_at_a_tenth_of_a_metre_per_radian():
+    turn, shift = core(), core()
+    goal = KIN.tcp(np.array(HOME))
+    angle = 0.3
+    about_z = np.array(
+        [[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0, 0, 1]]
+    )
+    goal[:3, :3] = goal[:3, :3] @ about_z
+    turn.go_to(goal)
+    shift.go_to(goal_at((0.0, 0.0, -0.1 * angle)))
+    assert turn.length == pytest.approx(0.03) and shift.length == pytest.approx(0.03)
+    assert len(run(turn, Phase.REACHED)) == len(run(shift, Phase.REACHED))
+
+
+@pytest.mark.parametrize("shape", [(3, 4), (4, 5), (3, 3), (16,)])
+def test_a_goal_that_is_not_a_4x4_pose_is_refused(shape):
+    c = core()
+    with pytest.raises(ValueError, match="finite 4x4 pose"):
+        c.go_to(np.ones(shape))
+    assert c.phase is Phase.IDLE
+
+
+def test_a_new_goal_before_the_motion_has_started_replaces_the_old_one_without_braking():
+    c = core()
+    c.go_to(goal_at((0.0, 0.0, -0.2)))
+    second = goal_at((0.05, 0.0, -0.1))
+    c.go_to(second)
+    assert c.phase is Phase.MOVING
+    assert np.array_equal(c.goal, second)
+    trace = run(c, Phase.REACHED)
+    assert all(v >= 0.0 for _, v in trace)  # straight there: never slowed to turn
+    assert np.allclose(c.pose, second, atol=1e-9)

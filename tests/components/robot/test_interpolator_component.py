@@ -104,8 +104,19 @@ def test_it_waits_for_the_arms_joints_then_holds_them(robot):
     assert len(robot.drain("command")) == 1, "idle: the pose once, not every cycle"
 
 
+def test_until_the_supervisor_sets_limits_it_moves_at_the_procedures_slowest_speed(robot):
+    robot.cycle()
+    assert robot.interp.call("go_to", goal="target")["velocity"] == 0.010  # seeg.yaml
+    robot.cycle(1000)
+    assert robot.report()["speed"] == pytest.approx(0.010, abs=1e-12)
+    robot.limits(velocity=0.075)
+    robot.cycle(1000)
+    assert robot.report()["speed"] == pytest.approx(0.075, abs=1e-12)
+
+
 def test_it_moves_to_a_named_goal_and_says_when_it_is_there(robot):
     robot.cycle()
+    robot.limits(velocity=0.075)
     report = robot.interp.call("go_to", goal="target")
     assert report["phase"] == "moving" and report["goal"] == "target"
     robot.until("reached")

@@ -45,6 +45,7 @@ class Cell:
         for component in (self.arm, self.robot, self.interp):
             assert component.configure() and component.start(), component.last_error
         self.run(0.01)  # the interpolator learns the joints
+        self.interp.call("set_limits", velocity=0.075)  # the Supervisor's, Certus in use
 
     def run(self, seconds: float) -> None:
         self.executor.advance(seconds)
