@@ -179,7 +179,6 @@ class InterpolatorCore:
             elif result not in (Result.Working,):
                 raise RuntimeError(f"ruckig failed: {result}")
             self.pose = self._pose_at(self.s)
-            self._settled = False
         elif self._settled:  # at rest and converged: the same setpoint, no IK to solve
             return self.q
         q = self.ik.step(self.q, self.pose)
