@@ -148,7 +148,7 @@ class InterpolatorCore:
             self.acceleration = _check_limit("acceleration", acceleration, self.MAX_ACCELERATION)
         if self.phase is Phase.MOVING:
             self._in.max_velocity = [self.velocity]
-            self._in.max_acceleration = [max(self.acceleration, 1e-9)]
+            self._in.max_acceleration = [self.acceleration]
 
     def stop(self) -> None:
         """Brake at full deceleration, then return to where the STOP was asserted.

@@ -213,3 +213,47 @@ def test_a_new_goal_before_the_motion_has_started_replaces_the_old_one_without_b
     trace = run(c, Phase.REACHED)
     assert all(v >= 0.0 for _, v in trace)  # straight there: never slowed to turn
     assert np.allclose(c.pose, second, atol=1e-9)
+
+
+def test_once_at_the_goal_the_joint_setpoint_settles_within_a_micrometre_of_it():
+    c = core()
+    goal = goal_at((0.06, 0.0, -0.20))
+    c.go_to(goal)
+    run(c, Phase.REACHED)
+    for _ in range(50):
+        q = c.step()
+    assert np.abs(KIN.tcp(q) - goal).max() < 1e-6  # damped IK's fixed point, not exact
+    assert np.array_equal(c.step(), q), "settled: the same setpoint every cycle"
+
+
+def test_a_stop_at_rest_is_stopped_at_once_and_in_motion_brakes_first():
+    c = core()
+    c.stop()
+    assert c.phase is Phase.STOPPED
+    c = core()
+    c.go_to(goal_at((0.0, 0.0, -0.2)))
+    c.stop()  # asked to move, not moving yet: brakes all the same
+    assert c.phase is Phase.STOPPING
+    c = core()
+    c.go_to(goal_at((0.0, 0.0, -0.01)))
+    run(c, Phase.REACHED)
+    c.stop()
+    assert c.phase is Phase.STOPPED
+
+
+def test_a_stop_while_braking_to_turn_to_a_new_goal_cancels_the_new_goal():
+    c = core(brake_acceleration=0.5)
+    c.go_to(goal_at((0.0, 0.0, -0.2)))
+    for _ in range(500):
+        c.step()
+    c.go_to(goal_at((0.1, 0.1, -0.05)))  # brakes on this path, then would turn
+    c.step()
+    c.stop()
+    assert c.phase is Phase.STOPPING, "still braking: a stop never halts the path at speed"
+    where = c.pose.copy()
+    speeds = [v for _, v in run(c, Phase.STOPPED)]
+    assert speeds[0] > 0.0 and np.all(np.abs(np.diff(speeds)) <= 0.5 * DT + 1e-9)
+    assert np.allclose(c.pose[:3, 3], where[:3, 3], atol=1e-9), "back where STOP was asserted"
+    for _ in range(100):
+        c.step()
+    assert c.phase is Phase.STOPPED and np.allclose(c.pose[:3, 3], where[:3, 3], atol=1e-9)
