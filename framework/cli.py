@@ -42,6 +42,18 @@ Every finding is printed as file:line:col: yaml.path: severity[code]: message (h
 Exit code 1 if any file has an error (or a warning, with --strict).
 """
 
+EPILOG_DESCRIBE = """\
+examples:
+  fw describe components.robot.interface:RobotInterface
+  fw describe topologies/seeg.yaml -o seeg-components.md
+  fw describe topologies/*.yaml -o docs/reference.md     (the shipped reference)
+
+Read from the classes' declarations, not from a running deployment (`fw ls` shows
+that): each property's type, default, unit and range, each port's message type, and
+whether each operation only reads or may change the component's state. Your own
+classes are found on the Python path (run from your project's directory).
+"""
+
 EPILOG_GRAPH = """\
 examples:
   fw graph statecharts/seeg.yaml -o seeg.svg
@@ -287,6 +299,30 @@ def _interactive(interpreter: Any, apply: Any) -> None:
             print(f"fw: {exc}", file=sys.stderr)
 
 
+def cmd_describe(args: argparse.Namespace) -> int:
+    """Print (or write) the reference of component classes, named or used by topologies."""
+    from pathlib import Path
+
+    from framework.container import load_class
+    from framework.reference import reference
+    from framework.topology import load_topology
+
+    classes = []
+    for target in args.targets:
+        if target.endswith((".yaml", ".yml")):
+            topology = load_topology(target)
+            paths = [spec.class_path for spec in topology.components.values()]
+        else:
+            paths = [target]
+        classes += [load_class(path) for path in paths]
+    text = reference(classes, command="fw describe " + " ".join(args.targets))
+    if args.output:
+        Path(args.output).write_text(text, encoding="utf-8")
+    else:
+        print(text, end="")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `fw` (also used to render --help in the docs)."""
     parser = argparse.ArgumentParser(
@@ -373,6 +409,21 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--json", action="store_true", help="one JSON object per trace line")
     p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser(
+        "describe",
+        help="the ports, properties and operations of component classes (Markdown)",
+        epilog=EPILOG_DESCRIBE,
+        formatter_class=raw,
+    )
+    p.add_argument(
+        "targets",
+        nargs="+",
+        metavar="CLASS|TOPOLOGY",
+        help="package.module:Class, or a topology YAML (every class it uses)",
+    )
+    p.add_argument("-o", "--output", metavar="OUT", help="write to this file (default: stdout)")
+    p.set_defaults(func=cmd_describe)
 
     for provider in COMMAND_PROVIDERS:  # domain packages add their own commands
         importlib.import_module(provider).add_commands(sub)

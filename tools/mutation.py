@@ -55,26 +55,34 @@ REPO = Path(__file__).resolve().parents[1]
 REPORT = REPO / "docs" / "results" / "mutation.md"
 EQUIVALENTS = REPO / "tools" / "mutation_equivalents.yaml"
 
+REFERENCE = "tests/framework/test_reference.py"
+"""docs/reference.md against the classes: a component's declared contract (defaults,
+ranges, operation access) is behaviour its users rely on."""
+
 SAFETY_CORE: dict[str, list[str]] = {
     "framework/statechart/interpreter.py": ["tests/framework/statechart/test_interpreter.py"],
-    "framework/configurator.py": ["tests/framework/test_configurator.py"],
-    "framework/coordinator.py": ["tests/framework/test_coordinator.py"],
+    "framework/configurator.py": ["tests/framework/test_configurator.py", REFERENCE],
+    "framework/coordinator.py": ["tests/framework/test_coordinator.py", REFERENCE],
     "framework/safety.py": ["tests/framework/test_safety.py"],
     "components/tracking/sensor_manager.py": [
         "tests/components/tracking/test_sensor_manager.py",
         "tests/components/tracking/test_sensor_manager_component.py",
+        REFERENCE,
     ],
     "components/supervisor/supervisor.py": [
         "tests/components/supervisor/test_supervisor.py",
         "tests/components/supervisor/test_supervisor_component.py",
+        REFERENCE,
     ],
     "components/robot/interface.py": [
         "tests/components/robot/test_interface.py",
         "tests/components/robot/test_robot_components.py",
+        REFERENCE,
     ],
     "components/robot/interpolator.py": [
         "tests/components/robot/test_interpolator.py",
         "tests/components/robot/test_interpolator_component.py",
+        REFERENCE,
     ],
 }
 """The modules that keep the robot safe, each with its own fast tests."""
