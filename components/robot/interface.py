@@ -26,6 +26,7 @@ goal): they do not latch.
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 from typing import Any
@@ -48,6 +49,7 @@ STEP_MARGIN = 1.5  # a setpoint step may be 1.5x the rated joint velocity, no mo
 FIRST_STEP_CYCLES = 10  # the first setpoint of a motion: this many cycles from the arm
 STILL_RAD_S = 2e-3
 STILL_CYCLES = 50
+STATUS_PERIOD = 0.5  # s between statuses when nothing changes (a change: at once)
 STILL_TIMEOUT_CYCLES = 2000
 
 
@@ -100,7 +102,7 @@ class RobotInterface(Component):
         self._brake_when_still: tuple[str, int] | None = None
         self._still_cycles = 0
         self._reported: tuple[Any, ...] | None = None
-        self._last_status = -1.0
+        self._last_status = -math.inf
         self.peak_step = 0.0  # the largest setpoint step seen, in rated joint velocities
         return True
 
@@ -142,9 +144,10 @@ class RobotInterface(Component):
     def idle_hook(self) -> None:
         """No measured state for the activity's `idle` period (the arm's controller is
         silent or slow): the monitor still checks every input, the controller's own
-        state among them if the topology watches it, and a trip asks for the brakes."""
+        state among them if the topology watches it, and a trip asks for the brakes; so
+        does a protective stop still under way (it has no cycles left to run on)."""
         state = self._arm
-        if state is None or self.latched:
+        if state is None:
             return
         self._guard(state)
         if self._stop is not None:  # no cycles to decelerate with: brake at once
@@ -238,8 +241,8 @@ class RobotInterface(Component):
     def _publish_status(self, state: ArmState) -> None:
         """On every change of brakes, latch or mode, and at 2 Hz."""
         seen = (state.braked, self.latched, state.reason, self.mode)
-        now = time.monotonic()
-        if seen != self._reported or now - self._last_status > 0.5:
+        now = self.clock.now()
+        if seen != self._reported or now - self._last_status >= STATUS_PERIOD:
             self._reported, self._last_status = seen, now
             self.status.write(EventMessage(time.time(), "robot", self.name, self.report()))
 

@@ -426,3 +426,131 @@ def test_release_and_acknowledge_wait_for_every_watched_input(hub):
     finally:
         arm.close()
         token.undeclare()
+
+
+def test_updates_without_a_new_measured_state_are_not_cycles(arm):
+    moving(arm)
+    sent = len(arm.commands)
+    for _ in range(20):  # woken with nothing new from the arm (another port, a spurious wake)
+        arm.robot.update_hook()
+    assert not arm.report()["latched"], "the interpolator is silent for 0 cycles, not 20"
+    assert len(arm.commands) == sent, "nothing is sent without a state to answer"
+
+
+class Watched:
+    """An `Arm` whose safety monitor watches one heartbeat (20 ms), played by the test."""
+
+    def __init__(self, hub):
+        from framework.messages import Scalar
+        from framework.safety import SafetySpec, Watch
+
+        self.token = hub.token("fw/alive/tester")
+        spec = SafetySpec("robot", (Watch("tester", "test/beat", 0.02, "tester"),), ("tester",))
+        self.arm = Arm(hub, safety=spec)
+        self.beat = writer_port(hub, "test/beat", Scalar, owner="tester")
+        self.beats = 0
+
+    def cycle(self, setpoint=None, beat=True, **state):
+        """One millisecond: maybe a heartbeat, then a controller cycle."""
+        from framework.messages import Scalar
+
+        self.arm.clock.set(self.arm.clock.now() + 0.001)
+        if beat:
+            self.beats += 1
+            self.beat.write(Scalar(0.0, float(self.beats)))
+        self.arm.cycle(setpoint, **state)
+
+    def close(self):
+        self.arm.close()
+        self.token.undeclare()
+
+
+@pytest.fixture
+def watched(hub):
+    rig = Watched(hub)
+    yield rig
+    rig.close()
+
+
+def test_a_late_input_only_holds_a_braked_arm(watched):
+    for _ in range(5):
+        watched.cycle()
+    for _ in range(100):  # 100 ms without a heartbeat, the arm braked
+        watched.cycle(beat=False)
+    report = watched.arm.report()
+    assert not report["latched"] and report["problems"][0].startswith("tester: no data for")
+    with pytest.raises(FwError, match="tester: no data for"):
+        watched.arm.robot.call("release")
+
+
+def test_a_late_input_trips_a_released_arm_even_before_its_first_setpoint(watched):
+    watched.cycle()
+    watched.arm.released()
+    for _ in range(5):
+        watched.cycle()
+    for _ in range(100):
+        watched.cycle(beat=False)
+    assert watched.arm.report()["reason"].startswith("tester: no data for")
+
+
+def test_an_arm_braked_again_after_a_motion_is_held_not_tripped_by_a_late_input(watched):
+    arm = watched.arm
+    watched.cycle()
+    arm.released()
+    for _ in range(5):
+        target = arm.q + step(0.5)
+        watched.cycle(target)
+        arm.follow(target)
+    arm.robot.call("brake", reason="at goal")
+    arm.braked, arm.served = True, len(arm.requests)
+    watched.cycle()
+    for _ in range(100):
+        watched.cycle(beat=False)
+    assert not arm.report()["latched"]
+
+
+def test_a_protective_stop_under_way_when_the_controller_falls_silent_brakes_at_once(arm):
+    last = moving(arm)
+    arm.cycle(last + step(5.0))  # trips: the interface starts decelerating the arm
+    assert arm.report()["stopping"]
+    requests = len(arm.requests)
+    arm.robot.idle_hook()  # then no state from the controller for an idle period
+    assert not arm.report()["stopping"]
+    assert arm.names()[requests:] == ["brake"] and arm.requests[-1].payload["latch"] is True
+
+
+def test_an_interface_that_starts_beside_an_arm_its_controller_latched_latches_too(arm):
+    arm.cycle(latched=True, reason="watchdog", served=7)  # requests of a previous run
+    assert arm.report()["reason"] == "the arm braked by itself: watchdog"
+
+
+def test_fewer_setpoint_cycles_set_while_the_interpolator_is_silent_trip_at_once(arm):
+    moving(arm)
+    for _ in range(3):
+        arm.cycle()
+    arm.robot.set_property("setpoint_cycles", 2)
+    arm.cycle()
+    assert arm.report()["reason"] == "no setpoint for 3 cycles (the interpolator stopped)"
+
+
+def test_the_status_is_said_at_once_on_every_change_and_every_half_second(arm):
+    def statuses():
+        out = []
+        while (sample := arm.readers["status"].read())[0] is ReadStatus.NEW:
+            out.append(sample[1])
+        return out
+
+    arm.cycle()
+    assert len(statuses()) == 1, "the first state is said at once"
+    ticks = 0
+    for _ in range(4):
+        while not statuses():
+            arm.clock.set(arm.clock.now() + 1 / 256)
+            arm.cycle()
+            ticks += 1
+        assert ticks == 128, "nothing changed: every half second"
+        ticks = 0
+    arm.robot.call("brake", reason="waiting")
+    arm.reason = "waiting"
+    arm.cycle()
+    assert [s.payload["reason"] for s in statuses()] == ["waiting"], "a change: at once"

@@ -9,6 +9,8 @@ import pytest
 
 from components.robot.interpolator import CartesianInterpolator
 from components.robot.lwr4 import HOME
+from components.supervisor.procedure import load_procedure
+from components.tracking.geometry import quat_to_matrix
 from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
 from framework.container import Container
@@ -18,6 +20,7 @@ from framework.ports import ReadStatus
 from tests.conftest import REPO, reader_port, writer_port
 
 PROCEDURE = REPO / "procedures" / "seeg.yaml"
+PROCEDURE_TARGET = load_procedure(PROCEDURE).target
 
 
 class Robot:
@@ -124,6 +127,16 @@ def test_it_moves_to_a_named_goal_and_says_when_it_is_there(robot):
     report = robot.report()
     assert report["tcp"] == pytest.approx([0.6, 0.0, 0.12], abs=1e-6)
     assert report["s"] == report["length"] > 0.1 and report["speed"] == 0.0
+    command = robot.drain("command")[-1]  # the commanded TCP, for whoever records it
+    assert command.position == pytest.approx((0.6, 0.0, 0.12), abs=1e-6)
+    assert np.allclose(quat_to_matrix(np.array(command.orientation)), PROCEDURE_TARGET[:3, :3])
+    assert (command.rms, command.frame_number, command.valid, command.frame, command.tool) == (
+        0.0,
+        0,
+        True,
+        "base",
+        "tcp",
+    )
 
 
 def test_the_same_goal_sent_again_while_moving_there_is_not_a_new_motion(robot):
