@@ -257,3 +257,19 @@ def test_a_stop_while_braking_to_turn_to_a_new_goal_cancels_the_new_goal():
     for _ in range(100):
         c.step()
     assert c.phase is Phase.STOPPED and np.allclose(c.pose[:3, 3], where[:3, 3], atol=1e-9)
+
+
+def test_a_goal_where_the_tcp_already_is_is_reached_at_once():
+    c = core()
+    c.go_to(KIN.tcp(np.array(HOME)))
+    assert c.phase is Phase.REACHED
+
+
+def test_a_stop_before_the_motion_has_started_ends_stopped_with_no_return_leg():
+    c = core()
+    start = c.pose.copy()
+    c.go_to(goal_at((0.0, 0.0, -0.2)))
+    c.stop()
+    c.step()
+    assert c.phase is Phase.STOPPED, "nothing to brake, nowhere to return to"
+    assert np.array_equal(c.pose, start)
