@@ -197,7 +197,7 @@ class Coordinator(Component):
         self._stop.clear()
         self._thread = threading.Thread(target=self._loop, name=f"fw-{self.name}", daemon=True)
         self._thread.start()
-        if self.watch and self.bus is not None and self._tokens is None:
+        if self.watch and self.bus is not None:  # stop_hook let go of any earlier one
             self._tokens = self.bus.watch(keys.ALL_ALIVE, self._on_token)
         return True
 
@@ -311,7 +311,7 @@ class Coordinator(Component):
         request_id = next(self._ids)
         self._pending[request_id] = tag
         now = time.time()
-        deadline = now + (timeout if timeout > 0 else ACTION_TIMEOUT)
+        deadline = now + timeout  # a chart's configuration timeout is positive (validated)
         self.publish("request", {"tag": tag, "request_id": request_id, **args})
         self.requests.write(ConfigRequest(now, request_id, tag, args, deadline))
 

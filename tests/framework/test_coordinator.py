@@ -39,6 +39,7 @@ events:
   e_OUT: {doc: Sent out., payload: {n: integer}}
   e_END: End the procedure.
   e_ODD: {doc: Take a guard that fails., payload: {x: any}}
+  e_NEST: Go into a compound state.
 initial: Idle
 states:
   - name: Idle
@@ -51,8 +52,9 @@ states:
       - {event: component.lost, target: Lost}
       - {event: e_END, target: End}
       - {event: e_ODD, guard: event.x > 1, target: Deep}
+      - {event: e_NEST, target: Nest}
   - name: Working
-    configure: {tag: work, timeout: 2s}
+    configure: {tag: work, timeout: 1500ms}
     do: [{log: working}]
     transitions:
       - {target: Done}
@@ -69,6 +71,12 @@ states:
   - name: Lost
     transitions:
       - {event: component.back, target: Idle}
+  - name: Nest
+    initial: Inner
+    states:
+      - name: Inner
+        transitions:
+          - {event: e_NEST, target: Idle}
   - {name: End, type: final}
 """
 
@@ -160,7 +168,7 @@ def test_a_configuration_is_requested_with_its_deadline_and_its_ack_completes_th
     rig.put("e_GO")
     assert wait_until(lambda: rig.requests, 10)
     (request,) = rig.requests
-    assert request.tag == "work" and request.deadline - request.stamp == pytest.approx(2.0)
+    assert request.tag == "work" and request.deadline - request.stamp == pytest.approx(1.5)
     assert rig.active() == ["Working"], "waits for the ack"
     assert rig.coordinator.call("active")["pending"]
     rig.ack(request)
@@ -445,3 +453,45 @@ def test_every_step_that_moves_the_chart_publishes_where_it_is(rig):
     assert wait_until(lambda: any(c["active"] == ["Working"] for c in rig.kinds("configuration")))
     working = next(c for c in rig.kinds("configuration") if c["active"] == ["Working"])
     assert working["pending"] == {"Working": "work"} and working["finished"] is False
+
+
+def test_an_idle_chart_publishes_nothing(rig):
+    time.sleep(1.2)  # more than two of the loop's idle wakes
+    assert rig.status == [], "no step moved the chart: nothing to say"
+
+
+def test_an_operators_command_that_moves_the_chart_publishes_where_it_is(rig):
+    assert rig.coordinator.call("offer", event="e_DEPTH", payload={"depth": 1})["accepted"]
+    assert wait_until(lambda: any(c["active"] == ["Deep"] for c in rig.kinds("configuration")))
+
+
+def test_a_refused_command_is_said_once_as_the_command_it_was(rig):
+    refused = rig.coordinator.refused
+    answer = rig.coordinator.call("offer", event="e_DEPTH", payload={"depth": 99}, origin="ui")
+    assert answer["accepted"] is False and "depth" in answer["reason"]
+    assert wait_until(lambda: rig.kinds("command"), 10)
+    assert rig.kinds("command")[0]["origin"] == "ui" and not rig.kinds("command")[0]["accepted"]
+    assert rig.refusals() == [] and rig.coordinator.refused == refused + 1
+
+
+def test_a_command_not_taken_names_the_innermost_active_state(rig):
+    assert rig.coordinator.call("offer", event="e_NEST")["accepted"]
+    assert rig.active() == ["Nest.Inner"]
+    answer = rig.coordinator.call("offer", event="e_GO")
+    assert answer == {"accepted": False, "reason": "e_GO is not taken in Inner"}
+
+
+def test_a_command_whose_every_guard_is_false_is_refused_with_the_charts_reason(rig):
+    answer = rig.coordinator.call("offer", event="e_ODD", payload={"x": 0})
+    assert answer == {"accepted": False, "reason": "no enabled transition"}
+    assert rig.active() == ["Idle"]
+
+
+def test_an_event_injected_in_this_process_is_queued_for_the_chart(rig):
+    assert rig.coordinator.inject("e_DEPTH", {"depth": 1}) is True
+    assert wait_until(lambda: rig.active() == ["Deep"], 10)
+
+
+def test_an_events_payload_from_the_bus_reaches_the_charts_guards(rig):
+    rig.put("e_ODD", {"x": 5})
+    assert wait_until(lambda: rig.active() == ["Deep"], 10)
