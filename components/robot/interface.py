@@ -47,10 +47,10 @@ POSITION_LIMIT_RAD = np.array(POSITION_LIMIT)
 MAX_STEP_RAD = np.array(VELOCITY_LIMIT) * CYCLE  # the rated velocity, per cycle
 STEP_MARGIN = 1.5  # a setpoint step may be 1.5x the rated joint velocity, no more
 FIRST_STEP_CYCLES = 10  # the first setpoint of a motion: this many cycles from the arm
-STILL_RAD_S = 2e-3
-STILL_CYCLES = 50
+STILL_RAD_S = 2e-3  # rad/s: every joint slower than this...
+STILL_CYCLES = 50  # ...for this many cycles: the arm stands still (brake when still)
+STILL_TIMEOUT_CYCLES = 2000  # brake when still brakes anyway after 2 s
 STATUS_PERIOD = 0.5  # s between statuses when nothing changes (a change: at once)
-STILL_TIMEOUT_CYCLES = 2000
 
 
 def tcp_message(tcp: np.ndarray, stamp: float, frame: str = "base") -> Pose:
@@ -249,8 +249,9 @@ class RobotInterface(Component):
     # -- operations ------------------------------------------------------------------------
     @operation
     def brake(self, reason: str = "operator", when_still: bool = False) -> dict[str, Any]:
-        """Engage the brakes now, or once the arm stands still (at most 2 s later): the
-        interpolator's own STOP brakes along the path first."""
+        """Engage the brakes now, or once the arm stands still (every joint under 2 mrad/s
+        for 50 ms; at most 2 s later): the interpolator's own STOP brakes along the path
+        first."""
         state = self._arm
         if when_still and state is not None and not state.braked:
             self._brake_when_still = (reason, state.cycle + STILL_TIMEOUT_CYCLES)

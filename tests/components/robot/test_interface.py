@@ -14,9 +14,8 @@ from components.robot.interface import (
     MAX_STEP_RAD,
     POSITION_LIMIT_RAD,
     STEP_MARGIN,
-    STILL_CYCLES,
-    STILL_TIMEOUT_CYCLES,
     RobotInterface,
+    tcp_message,
 )
 from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
@@ -130,6 +129,10 @@ def arm(hub):
     arm = Arm(hub)
     yield arm
     arm.close()
+
+
+STILL_CYCLES = 50  # 50 ms under 2 mrad/s on every joint: the arm stands still
+STILL_TIMEOUT_CYCLES = 2000  # brake when still gives up waiting after 2 s
 
 
 def step(fraction, joint=2, cycles=1):
@@ -554,3 +557,20 @@ def test_the_status_is_said_at_once_on_every_change_and_every_half_second(arm):
     arm.reason = "waiting"
     arm.cycle()
     assert [s.payload["reason"] for s in statuses()] == ["waiting"], "a change: at once"
+
+
+def test_a_tcp_pose_is_a_valid_message_in_its_frame():
+    tcp = np.eye(4)
+    tcp[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]  # 90 deg about z
+    tcp[:3, 3] = [0.5, 0.1, 0.4]
+    pose = tcp_message(tcp, 12.5, "patient")
+    assert pose.position == (0.5, 0.1, 0.4) and pose.stamp == 12.5
+    assert pose.orientation == pytest.approx((math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)))
+    assert (pose.rms, pose.frame_number, pose.valid, pose.frame, pose.tool) == (
+        0.0,
+        0,
+        True,
+        "patient",
+        "tcp",
+    )
+    assert tcp_message(tcp, 0.0).frame == "base"
