@@ -411,7 +411,7 @@ class SensorManagerCore:
         for k, i in enumerate(candidates):
             others = [j for j in range(len(candidates)) if j != k]
             agree = sum(self._close(int(i), master[k], master[j]) for j in others)
-            if agree * 2 < len(others) or (len(others) == 1 and agree == 0):
+            if agree * 2 < len(others):  # fewer than half agree (one other: it must)
                 names = ", ".join(self.tracks[candidates[j]].config.name for j in others)
                 failed[int(i)] = Health(
                     False, "calibration", f"disagrees with {names} beyond tolerance"

@@ -643,6 +643,8 @@ def test_with_the_first_of_three_trackers_lost_the_other_two_are_compared():
     decision = world.run(0.1)
     assert decision.best == "vicra"
     assert decision.health["vicra"].ok and decision.health["vicra2"].ok
+    truth = rigs[0].rto_from_base @ ee_path(world.t)
+    assert np.linalg.norm(decision.robot_pose[:3, 3] - truth[:3, 3]) < 0.002
 
 
 def test_a_reference_tool_both_shifted_and_turned_is_a_calibration_fault():
@@ -677,3 +679,61 @@ def test_after_a_fault_the_count_of_healthy_samples_starts_again_from_zero():
         offer(core, rig, ee_path(0.0), 0.01 * k, arrival=0.01 * k)
         seen.append(core.evaluate(0.01 * k + 0.001).best)
     assert seen == [None, None, "certus", "certus"], "three healthy samples again"
+
+
+def test_a_tracker_with_its_own_reference_tool_maps_the_robot_into_the_masters_frame():
+    rigs = standard_rigs()
+    elsewhere = rigid((0.30, 0.25, -0.06), (0.0, 0.0, -0.4)) @ rigs[1].rto_from_base
+    rigs[1] = dataclasses.replace(rigs[1], rto_from_base=elsewhere)  # its own tool, 40 cm off
+    world = World(rigs)
+    decision = world.run(0.5)
+    assert decision.best == "certus" and decision.health["vicra"].ok, "they agree"
+    world.faults["certus"] = "cto_missing"
+    decision = world.run(0.1)
+    assert decision.best == "vicra"
+    truth = rigs[0].rto_from_base @ ee_path(world.t)  # in the master's (Certus') frame
+    assert np.linalg.norm(decision.robot_pose[:3, 3] - truth[:3, 3]) < 0.002
+    assert np.allclose(decision.robot_pose[:3, :3], truth[:3, :3], atol=1e-6)
+
+
+@pytest.mark.parametrize(("bad", "trusted"), [(1, {"vicra", "vicra2", "vicra3"}), (2, set())])
+def test_with_four_trackers_each_must_agree_with_at_least_half_of_the_others(bad, trusted):
+    rigs = standard_rigs()
+    rigs += [dataclasses.replace(rigs[1], name=n) for n in ("vicra2", "vicra3")]
+    world = World(rigs)
+    world.run(0.5)
+    world.moved = rigid((0.02, 0.0, 0.0), (0.0, 0.0, 0.0))
+    world.faults.update({name: "rto_moved" for name in ["certus", "vicra"][:bad]})
+    decision = world.run(0.1)
+    assert {n for n, h in decision.health.items() if h.ok} == trusted
+    assert all(h.cause == "calibration" for n, h in decision.health.items() if n not in trusted)
+
+
+@pytest.mark.parametrize(
+    ("moved", "detail"),
+    [
+        (rigid((0.06, 0.0, 0.0), (0.0, 0.0, 0.0)), "60.0 mm, 0.00 deg"),
+        (rigid((0.0, 0.0, 0.0), (0.0, 0.0, math.pi)), "180.00 deg"),
+    ],
+)
+def test_the_calibration_verdict_says_how_far_from_the_kinematics_and_how_much_turned(
+    moved, detail
+):
+    rigs = [dataclasses.replace(r, noise=0.0) for r in standard_rigs()]
+    world = World(rigs, kinematics=True)
+    world.run(0.5)
+    world.moved = moved
+    world.faults["certus"] = "rto_moved"
+    health = world.run(0.05).health["certus"]
+    assert not health.ok and health.cause == "calibration"
+    assert detail in health.detail and health.detail.endswith("away from the robot's kinematics")
+
+
+def test_two_sensors_that_disagree_are_both_reported_not_ok():
+    world = World()
+    world.run(0.5)
+    world.moved = rigid((0.02, 0.0, 0.0), (0.0, 0.0, 0.0))
+    world.faults["certus"] = "rto_moved"
+    health = world.run(0.1).health
+    assert not health["certus"].ok and not health["vicra"].ok
+    assert health["certus"].detail == "disagrees with vicra beyond tolerance"
