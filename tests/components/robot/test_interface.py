@@ -574,3 +574,13 @@ def test_a_tcp_pose_is_a_valid_message_in_its_frame():
         "tcp",
     )
     assert tcp_message(tcp, 0.0).frame == "base"
+
+
+def test_a_protective_stop_carries_on_at_the_commanded_velocity_whatever_the_arm_measures(arm):
+    last = moving(arm)  # steps of half the rated velocity on A3, the arm following
+    arm.v = np.zeros(7)  # the arm's own velocity estimate lags: it says still
+    for _ in range(6):  # the interpolator falls silent: the sixth cycle trips
+        arm.cycle()
+    assert arm.report()["stopping"]
+    first_step = arm.commands[-1][2] - last[2]
+    assert first_step == pytest.approx(0.5 * MAX_STEP_RAD[2], rel=0.05), "no jump, no halt"
