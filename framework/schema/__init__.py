@@ -109,6 +109,19 @@ def _leaf(error: ValidationError) -> ValidationError:
     return error if not error.context else best_match(error.context)
 
 
+def _pattern_problem(value: Any, pattern: str) -> tuple[str, str]:
+    """What a text that does not match one of the schemas' patterns should have been."""
+    if "(ms|s|min|h)" in pattern:
+        return f"{value!r} is not a duration", "write e.g. 2s, 500ms or 1.5min; never negative"
+    if ":" in pattern:
+        return f"{value!r} is not a class path", "write package.module:Class"
+    if "_-]" in pattern:
+        return f"{value!r} is not a valid name here", "use letters, digits, '_' and '-'"
+    if r"\." in pattern:
+        return f"{value!r} is not a valid name here", "use names of letters, digits and '_', dotted"
+    return f"{value!r} is not a valid name here", "use letters, digits and '_'"
+
+
 def _explain(error: ValidationError) -> tuple[str, str]:
     """A one-line message and a hint for one schema violation."""
     error = _leaf(error)
@@ -129,7 +142,7 @@ def _explain(error: ValidationError) -> tuple[str, str]:
             f"one of: {', '.join(allowed)}" if allowed else "",
         )
     if error.validator == "pattern":
-        return f"{error.instance!r} is not a valid name here", "use letters, digits and '_'"
+        return _pattern_problem(error.instance, str(error.validator_value))
     if error.validator == "type":
         if error.instance is None and not error.absolute_path:
             return "the file is empty", "a statechart needs at least `statechart:` and `states:`"

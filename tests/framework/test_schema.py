@@ -51,3 +51,35 @@ def test_fast_and_full_validators_agree(where, junk, extra):
 def test_the_shipped_chart_is_valid_both_ways():
     assert schema.is_valid(SEEG, "statechart")
     assert schema._validator("statechart").is_valid(SEEG)
+
+
+def test_a_text_of_the_wrong_form_is_named_for_what_it_should_be(write):
+    from framework.statechart.validator import validate_file
+
+    path = write(
+        """
+        statechart: forms
+        initial: A
+        states:
+          - name: A
+            configure: {tag: x, timeout: -2s}
+            transitions:
+              - {event: config.failed, target: B}
+              - {target: B}
+          - {name: B, type: final}
+        """
+    )
+    (finding,) = [f for f in validate_file(path) if f.code == "schema"]
+    assert finding.message == "'-2s' is not a duration"
+    assert finding.hint == "write e.g. 2s, 500ms or 1.5min; never negative"
+    path = write(
+        """
+        statechart: forms
+        initial: A
+        states:
+          - {name: 2nd, type: final}
+        """
+    )
+    (finding,) = [f for f in validate_file(path) if f.code == "schema"]
+    assert finding.message == "'2nd' is not a valid name here"
+    assert finding.hint == "use letters, digits and '_'"
