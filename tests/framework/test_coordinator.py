@@ -6,6 +6,7 @@ and makes a lost component a chart event (docs/topologies.md, "The Coordinator")
 The test plays the Configurator and the components: it answers the requests itself,
 on another session of the test's bus, so every rule is seen from outside."""
 
+import threading
 import time
 
 import pytest
@@ -411,7 +412,11 @@ def test_a_stopped_coordinator_runs_no_more_steps_and_follows_no_liveliness(hub,
     token = peer.token(keys.alive("sink"))
     try:
         assert wait_until(lambda: "sink" in rig.coordinator._alive, 10)
+        (loop,) = [t for t in threading.enumerate() if t.name == "fw-coordinator"]
+        assert loop.daemon, "the chart's loop never keeps a dying process alive"
         assert rig.coordinator.stop()
+        alive = [t.name for t in threading.enumerate()]
+        assert "fw-coordinator" not in alive, "stop returns once the chart's loop has ended"
         rig.put("e_SEND")
         token.undeclare()
         time.sleep(0.5)  # a grace period for anything that would still happen
