@@ -517,8 +517,44 @@ def write_report(module: str, text: str) -> None:
         current = pattern.sub(lambda _: text, current)
     else:
         current = current.rstrip("\n") + "\n\n" + text + "\n"
+    table = summary(current)
+    marked = re.compile(r"<!-- summary -->.*?<!-- /summary -->", re.S)
+    if marked.search(current):
+        current = marked.sub(lambda _: table, current)
+    else:
+        first = current.find("<!-- mutation:")
+        current = current[:first] + table + "\n\n" + current[first:]
     REPORT.parent.mkdir(parents=True, exist_ok=True)
     REPORT.write_text(current, encoding="utf-8")
+
+
+def summary(report: str) -> str:
+    """One row per reported module: its mutants, survivors, equivalents and score."""
+    rows = [
+        "<!-- summary -->",
+        "| module | mutants | survived | equivalent | score | run |",
+        "|---|---:|---:|---:|---:|---|",
+    ]
+    for section in re.finditer(
+        r"<!-- mutation:(?P<module>\S+) -->(?P<body>.*?)<!-- /mutation:(?P=module) -->",
+        report,
+        re.S,
+    ):
+        body = section.group("body")
+        counts = re.search(
+            r"^\| (\d+) \| (\d+) \| (\d+) \| (\d+) \| (\d+) \| (\d+) \| (.+?) \|$", body, re.M
+        )
+        when = re.search(r"^(\d{4}-\d\d-\d\d)( \(rescored)?", body, re.M)
+        if counts is None:
+            continue
+        mutants, _, _, survived, not_run, equivalent, score = counts.groups()
+        run = (when.group(1) + (", rescored" if when.group(2) else "")) if when else ""
+        rows.append(
+            f"| `{section.group('module')}` | {mutants} | {int(survived) + int(not_run)} "
+            f"| {equivalent} | {score} | {run} |"
+        )
+    rows.append("<!-- /summary -->")
+    return "\n".join(rows)
 
 
 _SURVIVOR = re.compile(

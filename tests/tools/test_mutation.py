@@ -1,0 +1,73 @@
+"""Spec: the mutation tool's bookkeeping: which mutants a reviewer listed as equivalent,
+and the summary table of docs/results/mutation.md."""
+
+import sys
+
+from tests.conftest import REPO
+
+sys.path.insert(0, str(REPO / "tools"))
+import mutation
+
+
+def mutant(operator, before, after, module="framework/x.py"):
+    return mutation.Mutant(module, f"core/{operator}", 0, 1, before, after, "")
+
+
+KNOWN = [
+    {
+        "module": "framework/x.py",
+        "operator": "NumberReplacer",
+        "before": "x = 0",
+        "after": "x = 1",
+        "reason": "overwritten",
+    },
+    {
+        "module": "framework/x.py",
+        "operators": ["ReplaceComparisonOperator_Is_Eq"],
+        "changed": r"== Kind\.\w+",
+        "reason": "an Enum",
+    },
+    {
+        "module": "framework/x.py",
+        "operators": ["NumberReplacer"],
+        "where": r"^_NEVER = ",
+        "reason": "a placeholder",
+    },
+]
+
+
+def test_a_listed_mutant_is_equivalent_only_in_its_module_and_exactly_as_listed():
+    assert mutation.equivalent_reason(mutant("NumberReplacer", "x = 0", "x = 1"), KNOWN)
+    assert not mutation.equivalent_reason(mutant("NumberReplacer", "x = 0", "x = -1"), KNOWN)
+    other = mutant("NumberReplacer", "x = 0", "x = 1", module="framework/y.py")
+    assert not mutation.equivalent_reason(other, KNOWN)
+
+
+def test_a_kind_of_mutant_is_matched_by_what_the_mutation_introduced():
+    enum = mutant("ReplaceComparisonOperator_Is_Eq", "if k is Kind.A:", "if k == Kind.A:")
+    assert mutation.equivalent_reason(enum, KNOWN) == "an Enum"
+    already = mutant(
+        "ReplaceComparisonOperator_Is_Eq", "a == Kind.A and b is c", "a == Kind.A and b == c"
+    )
+    assert not mutation.equivalent_reason(already, KNOWN), "the pattern was there before"
+    placeholder = mutant("NumberReplacer", "_NEVER = (0.0, 1.0)", "_NEVER = (1.0, 1.0)")
+    assert mutation.equivalent_reason(placeholder, KNOWN) == "a placeholder"
+    elsewhere = mutant("NumberReplacer", "limit = 1.0", "limit = 2.0")
+    assert not mutation.equivalent_reason(elsewhere, KNOWN)
+
+
+def test_the_summary_has_a_row_per_reported_module():
+    section = """<!-- mutation:framework/x.py -->
+### `framework/x.py`
+
+2026-11-23 (rescored: ...), tests: `tests/x.py`
+
+| mutants | killed | timeout | survived | not run | equivalent | score |
+|---|---|---|---|---|---|---|
+| 100 | 80 | 2 | 8 | 1 | 9 | 90.1% |
+<!-- /mutation:framework/x.py -->"""
+    table = mutation.summary("# head\n\n" + section)
+    assert (
+        table.splitlines()[3] == "| `framework/x.py` | 100 | 9 | 9 | 90.1% | 2026-11-23, rescored |"
+    )
+    assert table.startswith("<!-- summary -->") and table.endswith("<!-- /summary -->")
