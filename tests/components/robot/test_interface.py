@@ -584,3 +584,54 @@ def test_a_protective_stop_carries_on_at_the_commanded_velocity_whatever_the_arm
     assert arm.report()["stopping"]
     first_step = arm.commands[-1][2] - last[2]
     assert first_step == pytest.approx(0.5 * MAX_STEP_RAD[2], rel=0.05), "no jump, no halt"
+
+
+def test_a_refused_setpoint_is_said_with_its_reason(arm):
+    refusals = []
+    arm.robot.add_refusal_listener(refusals.append)
+    arm.cycle()
+    arm.released()
+    arm.cycle(HOME + step(50.0))
+    assert [(r.port, r.reason.split(" would ")[0]) for r in refusals] == [("setpoint", "A3")]
+
+
+def test_a_trip_latches_the_safety_monitor_too(watched):
+    arm = watched.arm
+    watched.cycle()
+    arm.released()
+    watched.cycle(HOME + step(50.0))  # a setpoint no arm can follow
+    assert arm.report()["safety"]["latched"] == arm.report()["reason"]
+
+
+def test_a_protective_stop_asks_for_the_brakes_once_latched_whatever_was_pending(arm):
+    moving(arm)
+    arm.v = np.full(7, 0.05)
+    arm.robot.call("brake", reason="at goal", when_still=True)  # pending, still moving
+    requests = len(arm.requests)
+    for _ in range(6):  # the interpolator falls silent: a protective stop
+        arm.cycle()
+    for _ in range(300):
+        arm.follow(arm.commands[-1])
+        arm.cycle()
+    asked = arm.requests[requests:]
+    assert [(r.name, r.payload["latch"]) for r in asked] == [("brake", True)]
+
+
+def test_a_stop_just_after_a_new_motions_first_setpoint_ignores_the_last_motions_commands(arm):
+    moving(arm)
+    arm.robot.call("brake", reason="at goal")
+    arm.braked, arm.served = True, len(arm.requests)
+    arm.cycle()
+    arm.q = arm.q + step(8.0, joint=2, cycles=10)  # moved while braked (hand guided)
+    arm.v = np.zeros(7)
+    arm.cycle()
+    arm.robot.call("release")
+    arm.released()
+    arm.cycle(arm.q.copy())  # the new motion's first setpoint: where the arm stands
+    sent = len(arm.commands)
+    for _ in range(20):  # then silence: a stop from the arm's own state, at rest
+        arm.cycle()
+        arm.follow(arm.commands[-1])
+    assert arm.report()["reason"].startswith("no setpoint for 5 cycles")
+    leaps = [abs(q[2] - arm.q[2]) for q in arm.commands[sent - 1 :]]
+    assert max(leaps) < MAX_STEP_RAD[2], "no leap along the last motion's velocity"
