@@ -107,8 +107,8 @@ class Mutant:
 
     @property
     def short(self) -> str:
-        """The operator without cosmic-ray's prefix."""
-        return self.operator.removeprefix("core/")
+        """The operator without cosmic-ray's (or this tool's) prefix."""
+        return self.operator.removeprefix("core/").removeprefix("fw/")
 
 
 def annotation_lines(code: str) -> set[tuple[int, int, int, int]]:
@@ -169,6 +169,46 @@ def make_mutants(module: str, lines: tuple[int, int] | None = None) -> list[Muta
                 after = "(removed) " + after
             mutants.append(Mutant(module, name, occurrence, start[0], before, after, mutated))
     return sorted(mutants, key=lambda m: (m.line, m.operator, m.occurrence))
+
+
+DELETE = "fw/DeleteStatement"
+"""A statement inside a function replaced by `pass`: the hand-written mutant cosmic-ray
+does not make (a forgotten update, a call that never happens, a missing raise)."""
+
+
+def deletion_mutants(module: str, lines: tuple[int, int] | None = None) -> list[Mutant]:
+    """Every statement of a function body of `module` deleted, one at a time: calls,
+    assignments, raises and returns (docstrings, `pass` and `...` are left alone). The
+    line count is kept, so line numbers match the original."""
+    code = (REPO / module).read_text(encoding="utf-8")
+    original = code.splitlines()
+    kinds = (ast.Expr, ast.Assign, ast.AugAssign, ast.AnnAssign, ast.Raise, ast.Return)
+    mutants: list[Mutant] = []
+    for function in ast.walk(ast.parse(code)):
+        if not isinstance(function, ast.FunctionDef | ast.AsyncFunctionDef):
+            continue
+        for node in ast.walk(function):
+            if not isinstance(node, kinds) or node is function:
+                continue
+            if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant):
+                continue  # a docstring or `...`
+            if isinstance(node, ast.AnnAssign) and node.value is None:
+                continue
+            first, last = node.lineno, node.end_lineno or node.lineno
+            if lines and not lines[0] <= first <= lines[1]:
+                continue
+            text = original[first - 1]
+            if text[: node.col_offset].strip():  # shares its line (`if x: y = 1`)
+                continue
+            mutated = list(original)
+            mutated[first - 1] = " " * node.col_offset + "pass"
+            for row in range(first, last):
+                mutated[row] = ""
+            after = "pass" if last == first else f"pass (and {last - first} more line(s))"
+            mutants.append(
+                Mutant(module, DELETE, first, first, text.strip(), after, "\n".join(mutated) + "\n")
+            )
+    return sorted(mutants, key=lambda m: m.line)
 
 
 def load_equivalents() -> list[dict[str, str]]:
@@ -391,11 +431,17 @@ def _node_id(space: Workspace, context: str) -> str:
 
 
 def run_module(
-    module: str, tests: list[str], jobs: int, lines: tuple[int, int] | None, coverage: bool
+    module: str,
+    tests: list[str],
+    jobs: int,
+    lines: tuple[int, int] | None,
+    coverage: bool,
+    deletions: bool = False,
 ) -> list[Mutant]:
-    """Make and test every mutant of `module`; returns them with their status."""
+    """Make and test every mutant of `module` (cosmic-ray's, or with `deletions` the
+    statement deletions instead); returns them with their status."""
     known = load_equivalents()
-    mutants = make_mutants(module, lines)
+    mutants = deletion_mutants(module, lines) if deletions else make_mutants(module, lines)
     print(f"{module}: {len(mutants)} mutants; tests: {' '.join(tests)}", flush=True)
     base = Path(tempfile.mkdtemp(prefix="fw-mutation-"))
     spaces: list[Workspace] = []
@@ -619,6 +665,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-coverage", action="store_true", help="run mutants on unrun lines")
     parser.add_argument("--no-report", action="store_true", help="do not update the report")
     parser.add_argument(
+        "--deletions",
+        action="store_true",
+        help="instead of cosmic-ray's mutants, delete each statement of each function "
+        "(the hand-written kind of mutant; reported apart, never in the score's section)",
+    )
+    parser.add_argument(
         "--rescore",
         action="store_true",
         help="no run: apply the current equivalents list to the module's reported run",
@@ -648,10 +700,12 @@ def main(argv: list[str] | None = None) -> int:
         if args.rescore:
             mutants, tests = rescored(module)
         else:
-            mutants = run_module(module, tests, args.jobs, lines, not args.no_coverage)
+            mutants = run_module(
+                module, tests, args.jobs, lines, not args.no_coverage, args.deletions
+            )
         text = section(module, tests, mutants, args.rescore)
         print(text)
-        if not args.no_report and lines is None:
+        if not args.no_report and lines is None and not args.deletions:
             write_report(module, text)
         failed |= score(mutants)["score"] < 0.9
     return 1 if failed else 0

@@ -71,3 +71,30 @@ def test_the_summary_has_a_row_per_reported_module():
         table.splitlines()[3] == "| `framework/x.py` | 100 | 9 | 9 | 90.1% | 2026-11-23, rescored |"
     )
     assert table.startswith("<!-- summary -->") and table.endswith("<!-- /summary -->")
+
+
+def test_statement_deletions_keep_the_module_valid_and_its_line_numbers(tmp_path, monkeypatch):
+    source = '''"""A module."""
+
+
+def f(x):
+    """Docstring stays."""
+    y = x + 1
+    if y:
+        print(
+            y,
+        )
+    return y
+'''
+    (tmp_path / "m.py").write_text(source)
+    monkeypatch.setattr(mutation, "REPO", tmp_path)
+    mutants = mutation.deletion_mutants("m.py")
+    assert [(m.line, m.before, m.after) for m in mutants] == [
+        (6, "y = x + 1", "pass"),
+        (8, "print(", "pass (and 2 more line(s))"),
+        (11, "return y", "pass"),
+    ]
+    for m in mutants:
+        compile(m.code, "m.py", "exec")
+        assert len(m.code.splitlines()) == len(source.splitlines())
+    assert mutants[0].short == "DeleteStatement"
