@@ -635,3 +635,12 @@ def test_a_stop_just_after_a_new_motions_first_setpoint_ignores_the_last_motions
     assert arm.report()["reason"].startswith("no setpoint for 5 cycles")
     leaps = [abs(q[2] - arm.q[2]) for q in arm.commands[sent - 1 :]]
     assert max(leaps) < MAX_STEP_RAD[2], "no leap along the last motion's velocity"
+
+
+def test_an_interface_that_starts_beside_a_released_arm_answers_it(arm):
+    arm.braked = False  # restarted while the arm was released (its brakes are the arm's)
+    arm.cycle()
+    arm.cycle(HOME + step(0.5))
+    report = arm.report()
+    assert not report["latched"] and not report["braked"]
+    assert len(arm.commands) == 1, "its first setpoint goes through"
