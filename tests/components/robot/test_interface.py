@@ -402,6 +402,10 @@ def test_a_monitor_trip_while_the_controller_is_silent_brakes_at_once(hub):
         report = arm.report()
         assert report["latched"] and report["reason"].startswith("tester: no data for")
         assert not report["stopping"], "no cycles to stop on: the brakes at once"
+        said = []
+        while (sample := arm.readers["status"].read())[0] is ReadStatus.NEW:
+            said.append(sample[1].payload)
+        assert said[-1]["latched"] and said[-1]["reason"] == report["reason"], "said at once"
         assert arm.requests[-1].name == "brake" and arm.requests[-1].payload["latch"] is True
         with pytest.raises(FwError, match="safety stop latched"):
             arm.robot.call("release")
