@@ -183,7 +183,6 @@ class RobotInterface(Component):
             self._stop = SafeStop(last, velocity, np.full(7, self.stop_deceleration), CYCLE)
         else:
             self._request("brake", reason=reason, latch=True)
-        self._commanding = False
 
     def _implausible(self, q: np.ndarray, state: ArmState) -> str:
         """Why a setpoint must not reach the arm ("" if it may): not 7 finite joints,

@@ -648,3 +648,53 @@ def test_an_interface_that_starts_beside_a_released_arm_answers_it(arm):
     report = arm.report()
     assert not report["latched"] and not report["braked"]
     assert len(arm.commands) == 1, "its first setpoint goes through"
+
+
+def still_brake_pending(arm):
+    """Moving, then asked to brake once still (the arm still moving: pending)."""
+    moving(arm)
+    arm.v = np.full(7, 0.05)
+    answer = arm.robot.call("brake", reason="at goal", when_still=True)
+    assert answer["braked"] is False, "the operation answers with the report"
+    return len(arm.requests)
+
+
+def test_brake_when_still_asks_once(arm):
+    requests = still_brake_pending(arm)
+    arm.v = np.zeros(7)
+    for _ in range(STILL_CYCLES + 20):
+        arm.cycle(arm.q)
+    assert arm.names()[requests:] == ["brake"]
+
+
+def test_a_brake_when_still_dropped_by_the_brakes_stays_dropped_after_a_release(arm):
+    requests = still_brake_pending(arm)
+    arm.braked = True  # braked by someone else meanwhile
+    arm.cycle(arm.q)
+    arm.braked, arm.v = False, np.zeros(7)  # released again, standing still
+    for _ in range(STILL_CYCLES + 20):
+        arm.cycle(arm.q)
+    assert arm.names()[requests:] == []
+
+
+def test_a_release_drops_a_pending_brake_when_still(arm):
+    requests = still_brake_pending(arm)
+    arm.robot.call("release")
+    arm.v = np.zeros(7)
+    for _ in range(STILL_CYCLES + 20):
+        arm.cycle(arm.q)
+    assert arm.names()[requests:] == ["release"]
+
+
+def test_each_brake_when_still_waits_its_own_still_time(arm):
+    requests = still_brake_pending(arm)
+    arm.v = np.zeros(7)
+    for _ in range(STILL_CYCLES):
+        arm.cycle(arm.q)
+    assert arm.names()[requests:] == ["brake"]
+    arm.robot.call("brake", reason="again", when_still=True)  # the arm has not braked yet
+    for _ in range(STILL_CYCLES - 1):
+        arm.cycle(arm.q)
+    assert arm.names()[requests:] == ["brake"], "not still long enough since asked"
+    arm.cycle(arm.q)
+    assert arm.names()[requests:] == ["brake", "brake"]
