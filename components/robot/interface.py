@@ -286,7 +286,6 @@ class RobotInterface(Component):
             if why:
                 raise FwError(why)
         self.latched = ""
-        self._since_setpoint = 0
         self._request("reset")
         return self.report()
 

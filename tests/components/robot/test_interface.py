@@ -277,9 +277,9 @@ def test_a_latched_stop_opens_only_with_acknowledge(arm):
     arm.cycle()
     arm.cycle(arm.q)
     assert arm.report()["latched"]
-    arm.robot.call("acknowledge")
+    assert arm.robot.call("acknowledge")["latched"] is False
     assert arm.names()[-1] == "reset" and not arm.report()["latched"]
-    arm.robot.call("release")
+    assert arm.robot.call("release")["braked"] is True, "answers with the report"
     assert arm.names()[-1] == "release"
 
 
