@@ -5,6 +5,7 @@ the controller's own brake trip a protective stop that latches; only acknowledge
 operator's RELEASE) opens it."""
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -163,7 +164,14 @@ def test_every_measured_state_is_answered_with_the_latest_setpoint(arm):
     status, joints = arm.readers["joints"].read()
     assert status is ReadStatus.NEW and np.allclose(joints.position, HOME)
     status, tcp = arm.readers["tcp"].read()
-    assert status is ReadStatus.NEW and tcp.position == TCP[:3] and tcp.frame == "base"
+    assert status is ReadStatus.NEW and tcp.position == TCP[:3] and tcp.orientation == TCP[3:]
+    assert (tcp.rms, tcp.frame_number, tcp.valid, tcp.frame, tcp.tool) == (
+        0.0,
+        0,
+        True,
+        "base",
+        "tcp",
+    )
 
 
 def test_the_first_setpoint_of_a_motion_may_be_ten_cycles_of_rated_velocity_away(arm):
@@ -209,6 +217,7 @@ def test_a_cycle_without_a_setpoint_allows_a_longer_next_step(arm):
     ("setpoint", "why"),
     [
         (HOME[:6], "not 7 finite joint positions: [0.0, 0.5, 0.0, -1.2, 0.0, 0.6]"),
+        (np.append(HOME, 0.0), "not 7 finite joint positions"),
         (np.where(np.arange(7) == 3, np.nan, HOME), "not 7 finite joint positions"),
         (np.where(np.arange(7) == 1, POSITION_LIMIT_RAD[1] + 0.01, HOME), "A2 at 120.6 deg"),
         (np.where(np.arange(7) == 6, -POSITION_LIMIT_RAD[6] - 0.01, HOME), "A7 at -170.6 deg"),
@@ -315,7 +324,7 @@ def test_brake_when_still_waits_until_the_arm_stands_still(arm):
 
 
 def test_brake_when_still_gives_up_waiting_after_two_seconds(arm):
-    moving(arm)
+    moving(arm, cycles=15)  # asked at cycle 16: a deadline that shares bits with 2000
     arm.v = np.full(7, 0.05)
     arm.robot.call("brake", reason="at goal", when_still=True)
     requests = len(arm.requests)
@@ -549,14 +558,19 @@ def test_the_status_is_said_at_once_on_every_change_and_every_half_second(arm):
 
     arm.cycle()
     assert len(statuses()) == 1, "the first state is said at once"
-    ticks = 0
-    for _ in range(4):
-        while not statuses():
-            arm.clock.set(arm.clock.now() + 1 / 256)
+
+    def ticks_to_next_status(step):
+        for ticks in range(1, 1000):
+            arm.clock.set(arm.clock.now() + step)
             arm.cycle()
-            ticks += 1
-        assert ticks == 128, "nothing changed: every half second"
-        ticks = 0
+            if statuses():
+                return ticks
+        return None
+
+    for _ in range(4):
+        assert ticks_to_next_status(1 / 256) == 128, "nothing changed: every half second"
+    for _ in range(3):  # steps that never land on the half second: the first past it
+        assert ticks_to_next_status(3 / 256) == 43, "43 x 3/256 s is the first >= 0.5 s"
     arm.robot.call("brake", reason="waiting")
     arm.reason = "waiting"
     arm.cycle()
@@ -698,3 +712,50 @@ def test_each_brake_when_still_waits_its_own_still_time(arm):
     assert arm.names()[requests:] == ["brake"], "not still long enough since asked"
     arm.cycle(arm.q)
     assert arm.names()[requests:] == ["brake", "brake"]
+
+
+def test_brake_when_still_gives_up_even_if_the_deadlines_cycle_was_never_seen(arm):
+    moving(arm)
+    arm.v = np.full(7, 0.05)
+    arm.robot.call("brake", reason="at goal", when_still=True)
+    requests = len(arm.requests)
+    arm.cycle_no += STILL_TIMEOUT_CYCLES + 5  # states lost: the counter jumps past it
+    arm.cycle(arm.q)
+    assert arm.names()[requests:] == ["brake"]
+
+
+def test_a_refused_step_names_the_joint_and_how_far_it_would_move(arm):
+    arm.cycle()
+    arm.released()
+    arm.cycle(HOME + step(STEP_MARGIN * 1.02, joint=3, cycles=FIRST_STEP_CYCLES))
+    moved = math.degrees(STEP_MARGIN * 1.02 * MAX_STEP_RAD[3] * 10)
+    assert arm.report()["reason"] == (
+        f"setpoint refused: A4 would move {moved:.2f} deg in 10 cycle(s), 1.5x its rated velocity"
+    )
+
+
+def test_await_ready_waits_for_the_arm_to_answer(arm):
+    import threading
+
+    answer = {}
+
+    def wait():
+        try:
+            answer["report"] = arm.robot.call("await_ready", timeout=5.0)
+        except FwError as exc:
+            answer["error"] = str(exc)
+
+    waiter = threading.Thread(target=wait)
+    waiter.start()
+    time.sleep(0.1)  # the arm's first state comes while it waits
+    arm.cycle()
+    waiter.join(10)
+    assert "error" not in answer and answer["report"]["braked"]
+
+
+def test_after_three_missed_cycles_the_next_step_may_span_four(arm):
+    last = moving(arm)
+    for _ in range(3):
+        arm.cycle()
+    arm.cycle(last + step(1.4, joint=1, cycles=4))
+    assert not arm.report()["latched"], "5.6 rated steps over 4 cycles"
