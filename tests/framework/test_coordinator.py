@@ -500,3 +500,30 @@ def test_an_event_injected_in_this_process_is_queued_for_the_chart(rig):
 def test_an_events_payload_from_the_bus_reaches_the_charts_guards(rig):
     rig.put("e_ODD", {"x": 5})
     assert wait_until(lambda: rig.active() == ["Deep"], 10)
+
+
+def test_the_status_tells_each_transition_and_the_states_left_and_entered(rig):
+    rig.put("e_DEPTH", {"depth": 1})
+    assert wait_until(lambda: rig.kinds("entry"), 10)
+    assert rig.kinds("transition") == [{"source": "Idle", "target": "Deep", "event": "e_DEPTH"}]
+    assert rig.kinds("exit") == [{"state": "Idle"}] and rig.kinds("entry") == [{"state": "Deep"}]
+
+
+def test_a_coordinator_started_again_after_a_stop_runs_its_chart_again(rig):
+    assert rig.coordinator.stop() and rig.coordinator.start()
+    assert wait_until(lambda: rig.active() == ["Idle"], 10)
+    rig.put("e_SEND")
+    assert wait_until(lambda: rig.sent, 10), "the restarted loop takes events"
+
+
+def test_the_liveliness_of_a_component_not_watched_is_no_event(hub, peer, write):
+    rig = Rig(hub, peer, write, watch={"sink": "workers"})
+    try:
+        token = peer.token(keys.alive("stranger"))
+        time.sleep(0.3)  # the token is seen, then goes
+        token.undeclare()
+        time.sleep(0.3)
+        assert rig.coordinator.call("active")["lost"] == {}
+        assert not [e for e in rig.kinds("event") if e["event"].startswith("component.")]
+    finally:
+        rig.close()
