@@ -98,3 +98,17 @@ def f(x):
         compile(m.code, "m.py", "exec")
         assert len(m.code.splitlines()) == len(source.splitlines())
     assert mutants[0].short == "DeleteStatement"
+
+
+def test_every_listed_equivalent_names_its_module_its_mutants_and_a_reason():
+    import re
+
+    for entry in mutation.load_equivalents():
+        assert (REPO / entry["module"]).is_file(), entry
+        assert len(str(entry.get("reason", ""))) > 10, entry
+        if "operators" in entry:
+            assert entry["operators"] and ("where" in entry or "changed" in entry), entry
+            for key in ("where", "changed"):
+                re.compile(str(entry.get(key, "")))
+        else:
+            assert {"operator", "before", "after"} <= set(entry), entry
