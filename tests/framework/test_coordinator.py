@@ -170,6 +170,8 @@ def test_a_configuration_is_requested_with_its_deadline_and_its_ack_completes_th
     assert wait_until(lambda: rig.requests, 10)
     (request,) = rig.requests
     assert request.tag == "work" and request.deadline - request.stamp == pytest.approx(1.5)
+    assert wait_until(lambda: rig.kinds("request"), 10), "the flight recorder sees it too"
+    assert rig.kinds("request") == [{"tag": "work", "request_id": request.request_id}]
     assert rig.active() == ["Working"], "waits for the ack"
     assert rig.coordinator.call("active")["pending"]
     rig.ack(request)
