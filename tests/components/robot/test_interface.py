@@ -199,6 +199,7 @@ def test_a_first_setpoint_further_away_trips(arm):
 @pytest.mark.parametrize(("fraction", "trips"), [(1.45, False), (1.55, True)])
 def test_each_later_step_may_be_one_and_a_half_rated_velocities(arm, fraction, trips):
     last = moving(arm)
+    assert arm.report()["peak_step"] == 0.5, "so far half the rated velocity at most"
     arm.cycle(last + step(fraction, joint=0))
     assert arm.report()["latched"] == trips
 
@@ -657,7 +658,9 @@ def test_a_stop_just_after_a_new_motions_first_setpoint_ignores_the_last_motions
 
 def test_an_interface_that_starts_beside_a_released_arm_answers_it(arm):
     arm.braked = False  # restarted while the arm was released (its brakes are the arm's)
-    arm.cycle()
+    for _ in range(10):
+        arm.cycle()
+    assert not arm.report()["latched"], "it commanded nothing yet: no setpoint is missing"
     arm.cycle(HOME + step(0.5))
     report = arm.report()
     assert not report["latched"] and not report["braked"]
