@@ -737,3 +737,16 @@ def test_two_sensors_that_disagree_are_both_reported_not_ok():
     health = world.run(0.1).health
     assert not health["certus"].ok and not health["vicra"].ok
     assert health["certus"].detail == "disagrees with vicra beyond tolerance"
+
+
+def test_a_jumps_verdict_over_a_long_gap_says_its_duration_to_the_millisecond():
+    rig, core = single_certus()
+    start = ee_path(0.0)
+    offer(core, rig, start, 0.0, arrival=0.25)
+    core.evaluate(0.251)
+    offer(core, rig, shifted(start, 1.0), 0.6, arrival=0.85)  # 1 m in 600 ms
+    health = core.evaluate(0.851).health["certus"]
+    assert (health.cause, health.detail) == (
+        "corrupt",
+        "the robot's tool jumped 1000.0 mm in 600 ms",
+    )

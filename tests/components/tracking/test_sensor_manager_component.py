@@ -8,7 +8,7 @@ import yaml
 
 from components.tracking.certus_sim import TrackerSim
 from components.tracking.geometry import matrix_to_quat, quat_to_matrix
-from components.tracking.sensor_manager import STATUS_PERIOD, SensorManager
+from components.tracking.sensor_manager import SensorManager
 from components.tracking.synthetic import ee_path, rigid, sensors_config, standard_rigs
 from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
@@ -189,8 +189,8 @@ def test_the_tracking_status_is_said_at_once_on_every_change_and_every_half_seco
     stepped.tick()
     assert stepped.statuses == [(1, stepped.statuses[0][1])]  # before any sensor is chosen
     assert stepped.best() is None
-    stepped.tick(2 * round(STATUS_PERIOD / TICK) + 10)
-    period, chosen = round(STATUS_PERIOD / TICK), 3  # certus, after 3 fresh frames
+    stepped.tick(2 * round(0.5 / TICK) + 10)
+    period, chosen = round(0.5 / TICK), 3  # every half second; certus after 3 fresh frames
     assert [t for t, _ in stepped.statuses] == [1, chosen, chosen + period, chosen + 2 * period]
     assert [p["best"] for _, p in stepped.statuses] == [None, "certus", "certus", "certus"]
     stepped.hidden.add("certus/cto")
