@@ -78,6 +78,7 @@ def test_a_component_that_stops_running_trips_after_its_deadline_and_the_trip_la
     cell.counter.start()  # it comes back: the latch holds
     assert set(cell.run(0.5)) == {first}
     assert cell.monitor.ready().startswith("safety stop latched")
+    assert cell.monitor.report()["trips"] == 1, "one trip, however long it is latched"
 
 
 def test_only_an_acknowledge_with_every_input_healthy_clears_the_latch(cell):
@@ -90,6 +91,7 @@ def test_only_an_acknowledge_with_every_input_healthy_clears_the_latch(cell):
     cell.counter.start()
     cell.run(0.1)
     assert cell.monitor.acknowledge() == ""
+    assert cell.monitor.report()["armed"], "acknowledged with every input healthy: armed"
     assert set(cell.run(0.5)) == {""}
 
 
