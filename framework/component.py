@@ -516,7 +516,7 @@ class Component:
         """Plain data: class, state, ports, properties, operations (for `fw ls`)."""
         return {
             "name": self.name,
-            "class": f"{type(self).__module__}:{type(self).__qualname__}",
+            "class": class_path(type(self)),
             "doc": (inspect.getdoc(type(self)) or "").split("\n")[0],
             "state": self._state.value,
             "last_error": self.last_error,
@@ -562,6 +562,11 @@ def _reserved_names() -> frozenset[str]:
         | {"name", "inputs", "outputs", "operations", "last_error", "declared_properties"}
         | {"bus", "clock", "heartbeat", "safety"}
     )
+
+
+def class_path(cls: type) -> str:
+    """`package.module:Class`, as topologies name a component class."""
+    return f"{cls.__module__}:{cls.__qualname__}"
 
 
 def declarations(cls: type) -> list[tuple[str, Any]]:

@@ -13,7 +13,8 @@ import inspect
 from collections.abc import Iterable
 from typing import Any
 
-from framework.component import Component, In, Out, declarations
+from framework.component import Component, In, Out, class_path, declarations
+from framework.messages import type_name
 from framework.ports import ConnPolicy
 from framework.properties import Property
 
@@ -27,10 +28,6 @@ def _first_paragraph(obj: Any) -> str:
 
 def _cell(text: Any) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ")
-
-
-def _type_name(kind: type) -> str:
-    return getattr(kind, "__name__", str(kind))
 
 
 def _range(p: Property) -> str:
@@ -51,16 +48,11 @@ def _signature(method: Any) -> str:
         text = p.name
         if p.annotation is not inspect.Parameter.empty:
             annotation = p.annotation
-            text += f": {annotation if isinstance(annotation, str) else _type_name(annotation)}"
+            text += f": {annotation if isinstance(annotation, str) else type_name(annotation)}"
         if p.default is not inspect.Parameter.empty:
             text += f" = {p.default!r}"
         parts.append(text)
     return "(" + ", ".join(parts) + ")"
-
-
-def class_path(cls: type) -> str:
-    """`package.module:Class`, as topologies name it."""
-    return f"{cls.__module__}:{cls.__qualname__}"
 
 
 def component_reference(cls: type[Component]) -> str:
@@ -87,7 +79,7 @@ def component_reference(cls: type[Component]) -> str:
         for name, p in properties:
             required = "**required**. " if p.required else ""
             lines.append(
-                f"| `{name}` | {_type_name(p.type)} | `{p.default!r}` | {_cell(p.unit)} "
+                f"| `{name}` | {type_name(p.type)} | `{p.default!r}` | {_cell(p.unit)} "
                 f"| {_cell(_range(p))} | {required}{_cell(p.doc)} |"
             )
         lines.append("")
@@ -96,9 +88,9 @@ def component_reference(cls: type[Component]) -> str:
         for name, port in inputs:
             policy = port.policy.to_dict()
             extra = f" (policy: {_cell(policy)})" if policy != _DEFAULT_POLICY else ""
-            lines.append(f"| `{name}` | in | {_type_name(port.type)} | {_cell(port.doc)}{extra} |")
+            lines.append(f"| `{name}` | in | {type_name(port.type)} | {_cell(port.doc)}{extra} |")
         for name, port in outputs:
-            lines.append(f"| `{name}` | out | {_type_name(port.type)} | {_cell(port.doc)} |")
+            lines.append(f"| `{name}` | out | {type_name(port.type)} | {_cell(port.doc)} |")
         lines.append("")
     if operations:
         lines += ["| operation | access | |", "|---|---|---|"]

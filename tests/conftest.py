@@ -156,6 +156,18 @@ def reader_port(bus, key: str, kind, size: int = 10000, owner: str = "test"):
     return port
 
 
+def drained(port) -> list:
+    """Every sample waiting on an input port, oldest first (the port is left empty)."""
+    from framework.ports import ReadStatus
+
+    out = []
+    while True:
+        status, sample = port.read()
+        if status is not ReadStatus.NEW:
+            return out
+        out.append(sample)
+
+
 def decoded_into(into: list, kind):
     """A bus subscription callback that decodes each sample as `kind` into `into`."""
     from framework import messages

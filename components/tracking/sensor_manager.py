@@ -38,6 +38,7 @@ import numpy as np
 from components.tracking.geometry import (
     as_matrix,
     invert,
+    matrix_to_quat,
     pose_matrix,
     quat_to_matrix,
     rotation_angle,
@@ -468,8 +469,6 @@ class SensorManager(Component):
             self.core.set_kinematics(pose_matrix(ee), ee.stamp)
         decision = self.core.evaluate(now)
         if decision.robot_pose is not None:
-            from components.tracking.geometry import matrix_to_quat
-
             position = tuple(float(v) for v in decision.robot_pose[:3, 3])
             self.robot_pose.write(
                 Pose(

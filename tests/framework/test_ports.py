@@ -5,7 +5,7 @@ import pytest
 from framework import messages
 from framework.messages import Pose, Scalar
 from framework.ports import ConnPolicy, InputPort, OutputPort, PortError, ReadStatus
-from tests.conftest import wait_until
+from tests.conftest import drained, wait_until
 
 
 def make_out(bus, name="out", kind=Scalar):
@@ -38,12 +38,7 @@ def routed(out, inp):
 
 
 def values(port):
-    out = []
-    while True:
-        status, sample = port.read()
-        if status is not ReadStatus.NEW:
-            return out
-        out.append(sample.value)
+    return [sample.value for sample in drained(port)]
 
 
 @pytest.fixture(params=["same session", "two sessions"])

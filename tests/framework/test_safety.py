@@ -292,16 +292,13 @@ def test_a_safety_spec_travels_as_plain_data():
 
 def test_a_process_heartbeat_beats_from_its_own_thread_until_stopped(hub):
     from framework.messages import Scalar
-    from framework.ports import ReadStatus
     from framework.safety import ProcessHeartbeat
-    from tests.conftest import reader_port
+    from tests.conftest import drained, reader_port
 
     seen = reader_port(hub, keys.process_heartbeat("worker"), Scalar)
     beat = ProcessHeartbeat(hub, "worker", 0.002).start()
     assert wait_until(lambda: seen.stats.received >= 3)
     beat.stop()
-    counts = []
-    while (sample := seen.read())[0] is ReadStatus.NEW:
-        counts.append(sample[1].value)
+    counts = [sample.value for sample in drained(seen)]
     assert counts[:3] == [1.0, 2.0, 3.0], "counted from one"
     assert beat.port.keys == [], "stopped: nothing published any more"

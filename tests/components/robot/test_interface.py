@@ -24,7 +24,7 @@ from framework.container import Container
 from framework.errors import FwError
 from framework.messages import ArmState, EventMessage, JointState, Pose
 from framework.ports import ReadStatus
-from tests.conftest import reader_port, writer_port
+from tests.conftest import drained, reader_port, writer_port
 
 HOME = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.6, 0.0])
 TCP = (0.5, 0.1, 0.4, 1.0, 0.0, 0.0, 0.0)
@@ -97,13 +97,8 @@ class Arm:
         self._collect()
 
     def _collect(self):
-        for name, into in (("command", self.commands), ("arm_request", self._requests)):
-            port = self.readers[name]
-            while True:
-                status, sample = port.read()
-                if status is not ReadStatus.NEW:
-                    break
-                into.append(np.array(sample.position) if name == "command" else sample)
+        self.commands += [np.array(s.position) for s in drained(self.readers["command"])]
+        self._requests += drained(self.readers["arm_request"])
 
     def released(self):
         """The brakes are off, as the controller reports after a release."""
@@ -412,9 +407,7 @@ def test_a_monitor_trip_while_the_controller_is_silent_brakes_at_once(hub):
         report = arm.report()
         assert report["latched"] and report["reason"].startswith("tester: no data for")
         assert not report["stopping"], "no cycles to stop on: the brakes at once"
-        said = []
-        while (sample := arm.readers["status"].read())[0] is ReadStatus.NEW:
-            said.append(sample[1].payload)
+        said = [s.payload for s in drained(arm.readers["status"])]
         assert said[-1]["latched"] and said[-1]["reason"] == report["reason"], "said at once"
         assert arm.requests[-1].name == "brake" and arm.requests[-1].payload["latch"] is True
         with pytest.raises(FwError, match="safety stop latched"):
@@ -552,10 +545,7 @@ def test_fewer_setpoint_cycles_set_while_the_interpolator_is_silent_trip_at_once
 
 def test_the_status_is_said_at_once_on_every_change_and_every_half_second(arm):
     def statuses():
-        out = []
-        while (sample := arm.readers["status"].read())[0] is ReadStatus.NEW:
-            out.append(sample[1])
-        return out
+        return drained(arm.readers["status"])
 
     arm.cycle()
     assert len(statuses()) == 1, "the first state is said at once"

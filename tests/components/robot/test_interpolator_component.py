@@ -18,8 +18,7 @@ from framework.clock import SimulatedClock
 from framework.container import Container
 from framework.errors import FwError
 from framework.messages import EventMessage, JointState, Pose
-from framework.ports import ReadStatus
-from tests.conftest import REPO, reader_port, writer_port
+from tests.conftest import REPO, drained, reader_port, writer_port
 
 PROCEDURE = REPO / "procedures" / "seeg.yaml"
 PROCEDURE_TARGET = load_procedure(PROCEDURE).target
@@ -66,12 +65,7 @@ class Robot:
                 self.q = np.array(setpoints[-1].position)
 
     def drain(self, name):
-        out = []
-        while True:
-            status, sample = self.readers[name].read()
-            if status is not ReadStatus.NEW:
-                return out
-            out.append(sample)
+        return drained(self.readers[name])
 
     def until(self, phase, limit=20000):
         for _ in range(limit):

@@ -14,8 +14,8 @@ from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
 from framework.container import Container
 from framework.messages import EventMessage, Pose
-from framework.ports import InputPort, ReadStatus
-from tests.conftest import reader_port, wait_until, writer_port
+from framework.ports import InputPort
+from tests.conftest import drained, reader_port, wait_until, writer_port
 
 
 def as_yaml(t):
@@ -162,20 +162,11 @@ class Stepped:
                 rotation = matrix_to_quat(kinematics[:3, :3])
                 self.ee.write(Pose(tuple(kinematics[:3, 3]), rotation, stamp))
             self.container.executor.advance(TICK)
-            self.statuses += [(self.ticks, m.payload) for m in drain(self.status)]
-            self.poses += drain(self.robot_pose)
+            self.statuses += [(self.ticks, m.payload) for m in drained(self.status)]
+            self.poses += drained(self.robot_pose)
 
     def best(self):
         return self.statuses[-1][1]["best"]
-
-
-def drain(port):
-    out = []
-    while True:
-        status, sample = port.read()
-        if status is not ReadStatus.NEW:
-            return out
-        out.append(sample)
 
 
 @pytest.fixture
