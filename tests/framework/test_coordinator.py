@@ -358,6 +358,13 @@ def test_unhandled_events_and_failing_guards_are_said_on_the_status(rig):
     assert rig.kinds("unhandled")[0]["event"] == "e_ODD"
 
 
+def test_an_event_refused_once_is_judged_afresh_when_offered_again(rig):
+    first = rig.coordinator.call("offer", event="e_ODD", payload={"x": 0})
+    assert first["accepted"] is False  # its guard is false
+    second = rig.coordinator.call("offer", event="e_ODD", payload={"x": 2})
+    assert second["accepted"] is True, second  # the same event, now its guard holds
+
+
 def test_the_operator_may_not_send_the_coordinators_own_events(rig):
     answer = rig.coordinator.call("offer", event="config.done", payload={"tag": "work"})
     assert answer == {

@@ -347,7 +347,8 @@ def test_brake_when_still_is_dropped_once_the_arm_is_braked(arm):
 def test_brake_and_release_without_a_latch_and_the_servo_mode(arm):
     arm.robot.call("brake", reason="waiting")
     assert arm.requests[-1].payload == {"reason": "waiting", "latch": False}
-    arm.robot.call("set_mode", mode="impedance")
+    answer = arm.robot.call("set_mode", mode="impedance")
+    assert answer == arm.report()  # the caller reads where the robot stands in the answer
     assert arm.requests[-1].name == "mode" and arm.requests[-1].payload == {"mode": "impedance"}
     with pytest.raises(FwError, match="unknown mode 'torque'"):
         arm.robot.call("set_mode", mode="torque")
