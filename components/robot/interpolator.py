@@ -17,6 +17,14 @@ limit at constant acceleration) and a new goal may arrive at any time.
   `ROTATION_RADIUS` (0.1 m)), so a pure reorientation still has a finite duration.
 * **Until the Supervisor sends limits**, the component moves at the procedure's
   slowest speed (no tracker said to be in use).
+* **Steering** (`steer`): while moving to a goal or holding it, the goal may
+  move (navigation: the tracked patient, the arm's model errors). The path is
+  kept; the difference between the goal now and the goal the path was planned
+  to is added to it as an offset that moves at most as fast as the speed left
+  over by the path this cycle (the commanded TCP never exceeds the velocity
+  limit; a step in the goal never gives a step in the command). While a
+  correction is pending the path cruises at `1 - STEER_SHARE` of the limit, so
+  the correction always has a share. A STOP freezes the offset.
 
 Each cycle the Cartesian setpoint goes through differential IK (`ik.py`) to the
 joint setpoint the robot interface receives. `InterpolatorCore` is the logic
@@ -73,6 +81,8 @@ class InterpolatorCore:
     MAX_ACCELERATION = 5.0  # m/s^2
 
     ROTATION_RADIUS = 0.1  # m: a rotation of 1 rad counts as 0.1 m of path
+    STEER_SHARE = 0.5  # of the velocity limit kept for a pending correction
+    STEER_DEADBAND = 1e-6  # m: a smaller correction is not pending
 
     def __init__(
         self,
@@ -101,6 +111,9 @@ class InterpolatorCore:
         self.stop_s = 0.0
         self.stop_pose: np.ndarray | None = None
         self._return_after_stop = True
+        self.offset = np.zeros(6)  # applied correction: translation (m), rotation vector (rad)
+        self._wanted = np.zeros(6)  # the correction the goal asks for
+        self._slowed = False
         self.sync(q0)
 
     # --- state -------------------------------------------------------------------------
@@ -124,6 +137,8 @@ class InterpolatorCore:
         self.q = np.asarray(q, dtype=float).copy()
         self._settled = False
         self.pose = self.ik.kin.tcp(self.q)
+        self.offset = np.zeros(6)
+        self._wanted = np.zeros(6)
         self._start_path(self.pose, self.pose)
         self.phase = Phase.IDLE
         self._pending = None
@@ -141,13 +156,27 @@ class InterpolatorCore:
             return
         self._begin(goal)
 
+    def steer(self, goal: np.ndarray) -> None:
+        """Where the goal of the current motion is now (4x4, base frame): the command
+        converges on it at the speed the path leaves over (module docstring). Ignored
+        unless moving to a goal or holding one."""
+        goal = np.asarray(goal, dtype=float)
+        if goal.shape != (4, 4) or not np.all(np.isfinite(goal)):
+            raise ValueError("a goal is a finite 4x4 pose")
+        if self.phase not in (Phase.MOVING, Phase.REACHED) or self.goal is None:
+            return
+        planned = self.goal
+        self._wanted = np.concatenate(
+            [goal[:3, 3] - planned[:3, 3], pin.log3(goal[:3, :3] @ planned[:3, :3].T)]
+        )
+
     def set_limits(self, velocity: float, acceleration: float | None = None) -> None:
         """New maximum path velocity (m/s) and acceleration (m/s^2), effective at once."""
         self.velocity = _check_limit("velocity", velocity, self.MAX_VELOCITY)
         if acceleration is not None:
             self.acceleration = _check_limit("acceleration", acceleration, self.MAX_ACCELERATION)
         if self.phase is Phase.MOVING:
-            self._in.max_velocity = [self.velocity]
+            self._in.max_velocity = [self._cruise()]
             self._in.max_acceleration = [self.acceleration]
 
     def stop(self) -> None:
@@ -171,14 +200,23 @@ class InterpolatorCore:
     # --- the cycle ---------------------------------------------------------------------
     def step(self) -> np.ndarray:
         """Advance one cycle; the joint setpoint for the robot."""
+        steering = self.phase in (Phase.MOVING, Phase.REACHED)
         if self.moving:
+            before = self.s
             result = self._otg.update(self._in, self._out)
             self._out.pass_to_input(self._in)
             if result == Result.Finished:
                 self._finished()
             elif result not in (Result.Working,):
                 raise RuntimeError(f"ruckig failed: {result}")
-            self.pose = self._pose_at(self.s)
+            if steering:  # the straight path's translation this cycle
+                share = abs(self.s - before) / self.length if self.length > 1e-12 else 0.0
+                self._correct(share * float(np.linalg.norm(self._delta_p)))
+            self.pose = self._offset_pose(self._pose_at(self.s))
+        elif steering and self._pending_correction():
+            self._correct(0.0)
+            self.pose = self._offset_pose(self._pose_at(self.s))
+            self._settled = False
         elif self._settled:  # at rest and converged: the same setpoint, no IK to solve
             return self.q
         q = self.ik.step(self.q, self.pose)
@@ -187,6 +225,40 @@ class InterpolatorCore:
         return self.q
 
     # --- internals ---------------------------------------------------------------------
+    def _cruise(self) -> float:
+        """The path's velocity limit: less while a correction is pending."""
+        return self.velocity * (1.0 - self.STEER_SHARE) if self._slowed else self.velocity
+
+    def _correction_size(self, error: np.ndarray) -> float:
+        return max(
+            float(np.linalg.norm(error[:3])),
+            float(np.linalg.norm(error[3:])) * self.ROTATION_RADIUS,
+        )
+
+    def _pending_correction(self) -> bool:
+        return self._correction_size(self._wanted - self.offset) > self.STEER_DEADBAND
+
+    def _correct(self, path_step: float) -> None:
+        """Move the offset toward the wanted correction with the speed left this cycle."""
+        error = self._wanted - self.offset
+        size = self._correction_size(error)
+        budget = max(0.0, self.velocity * self.dt - path_step)
+        if size > 0.0:
+            self.offset = self.offset + error * min(1.0, budget / size)
+        slowed = size > self.STEER_DEADBAND and self.phase is Phase.MOVING
+        if slowed != self._slowed:
+            self._slowed = slowed
+            if self.phase is Phase.MOVING:
+                self._in.max_velocity = [self._cruise()]
+
+    def _offset_pose(self, path: np.ndarray) -> np.ndarray:
+        if not self.offset.any():
+            return path
+        out = np.eye(4)
+        out[:3, 3] = path[:3, 3] + self.offset[:3]
+        out[:3, :3] = pin.exp3(self.offset[3:]) @ path[:3, :3]
+        return out
+
     def _start_path(self, start: np.ndarray, goal: np.ndarray) -> None:
         self._start = start.copy()
         self._goal = goal.copy()
@@ -202,6 +274,9 @@ class InterpolatorCore:
 
     def _begin(self, goal: np.ndarray) -> None:
         self.goal = goal.copy()
+        self.offset = np.zeros(6)  # the new path starts where the command is, offset included
+        self._wanted = np.zeros(6)
+        self._slowed = False
         self._start_path(self.pose, goal)
         if self.length < 1e-9:
             self.phase = Phase.REACHED
@@ -217,6 +292,7 @@ class InterpolatorCore:
         self._in.max_velocity = [velocity]
         self._in.max_acceleration = [acceleration]
         self._in.max_jerk = [math.inf]
+        self._slowed = False
 
     def _brake(self, phase: Phase) -> None:
         self._in.control_interface = ControlInterface.Velocity
@@ -234,7 +310,7 @@ class InterpolatorCore:
             self._in.current_acceleration = [0.0]
             if self._pending is not None:
                 goal, self._pending = self._pending, None
-                self.pose = self._pose_at(self.s)
+                self.pose = self._offset_pose(self._pose_at(self.s))
                 self._begin(goal)
             elif self._return_after_stop and abs(self.s - self.stop_s) > 1e-9:
                 self._position_control(self.stop_s, self.velocity, self.acceleration)

@@ -42,6 +42,7 @@ class TrackerSim(Component):
     seed = prop(int, 0, doc="noise seed")
     check_view = prop(bool, True, doc="report tools outside the field of view as missing")
     ee_pose = In(Pose, doc="end-effector in the robot base frame (default: a slow path)")
+    head = In(Pose, doc="the reference tool in the robot base frame, as the head moves it")
     cto = Out(Pose, doc="calibration tool optical, sensor frame")
     rto = Out(Pose, doc="reference tool optical, sensor frame")
 
@@ -53,6 +54,7 @@ class TrackerSim(Component):
         self.corrupt = False
         self.t0 = time.monotonic()
         self.frame_number = 0
+        self.slip = np.eye(4)  # the reference tool moved on its mount (bump_reference)
         return True
 
     def update_hook(self) -> None:
@@ -64,8 +66,16 @@ class TrackerSim(Component):
             if status is not ReadStatus.NO_DATA and ee is not None
             else ee_path(time.monotonic() - self.t0)
         )
+        status, head = self.head.read()
+        base_from_rto = (
+            invert(self.model.rto_from_base)
+            if status is ReadStatus.NO_DATA or head is None
+            else pose_matrix(head)
+        )
         self.frame_number += 1
-        cto, rto = self.model.observe(truth, self.rng, time.time(), self.frame_number)
+        cto, rto = self.model.observe(
+            truth, self.rng, time.time(), self.frame_number, base_from_rto @ self.slip
+        )
         if "cto" in self.hidden or (
             self.check_view and not in_certus_view(cto.position) and self.rig == "certus"
         ):
@@ -96,12 +106,7 @@ class TrackerSim(Component):
 
     @operation
     def bump_reference(self, dx: float = 0.02) -> None:
-        """Someone bumps the reference tool by `dx` metres along its x axis: it moves in
-        the room while the sensor and the robot stay, so the robot's pose relative to it
-        (what the calibration maps) is now wrong."""
-        motion = rigid((dx, 0, 0), (0, 0, 0))
-        self.model = dataclasses.replace(
-            self.model,
-            sensor_from_rto=self.model.sensor_from_rto @ motion,
-            rto_from_base=invert(motion) @ self.model.rto_from_base,
-        )
+        """Someone bumps this tracker's reference tool by `dx` metres along its x axis:
+        it slips on its mount while the head, the sensor and the robot stay, so the robot's
+        pose relative to it (what the calibration maps) is now wrong."""
+        self.slip = self.slip @ rigid((dx, 0, 0), (0, 0, 0))

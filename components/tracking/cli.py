@@ -41,12 +41,19 @@ def run(poses: int, seed: int) -> dict[str, Any]:
     rng = np.random.default_rng(seed)
     robot = protocol_poses(poses, seed)
     results = {}
+    references = {}
     for rig in rigs:
-        a = []
+        a, seen = [], []
         for pose in robot:
             cto, rto = rig.observe(pose, rng)
             a.append(invert(pose_matrix(rto)) @ pose_matrix(cto))
+            seen.append(pose_matrix(rto))
         results[rig.name] = hand_eye(a, robot, noise=math.sqrt(2.0) * rig.noise)
+        # the reference tool stood still: its mean pose places the robot base in the
+        # tracker's frame (S = T_RTO X), the tracker's own calibration to the robot
+        reference = seen[0].copy()
+        reference[:3, 3] = np.mean([t[:3, 3] for t in seen], axis=0)
+        references[rig.name] = reference
     master = rigs[0]
     sensors: dict[str, Any] = {}
     report: dict[str, Any] = {}
@@ -69,7 +76,12 @@ def run(poses: int, seed: int) -> dict[str, Any]:
                 "max_velocity": 0.10 if priority == 1 else 0.05,
                 "max_acceleration": 0.5 if priority == 1 else 0.25,
             },
-            "calibration": {"C": _transform(c), "X": _transform(fit.x), "Y": _transform(fit.y)},
+            "calibration": {
+                "C": _transform(c),
+                "X": _transform(fit.x),
+                "Y": _transform(fit.y),
+                "S": _transform(references[rig.name] @ fit.x),
+            },
         }
         report[rig.name] = {
             "poses": fit.poses,
@@ -85,6 +97,15 @@ def run(poses: int, seed: int) -> dict[str, Any]:
                 ),
                 "Y_mm": round(
                     float(np.linalg.norm(fit.y[:3, 3] - rig.ee_from_cto[:3, 3])) * 1e3, 3
+                ),
+                "S_mm": round(
+                    float(
+                        np.linalg.norm(
+                            (references[rig.name] @ fit.x)[:3, 3] - rig.sensor_from_base[:3, 3]
+                        )
+                    )
+                    * 1e3,
+                    3,
                 ),
             },
         }

@@ -10,9 +10,18 @@ For every sensor, each cycle, the fault tree of 3.3.3 in its order:
 4. `calibration`: the robot pose this sensor gives disagrees, beyond the
    tolerance, with the prediction from the robot's kinematics (at the sample's
    stamp, so a late sample of a moving robot is not a fault) and the
-   calibration (the reference tool was moved); without kinematics, with the
-   other healthy sensors (two sensors that disagree are both distrusted: the
-   robot stops rather than follow the wrong one).
+   calibration; without kinematics, with the other healthy sensors (two sensors
+   that disagree are both distrusted: the robot stops rather than follow the
+   wrong one). Which pose is compared depends on the calibration:
+   * with the tracker's calibration to the robot base (`S`), its view of the
+     robot's tool in its own frame: a reference tool on the patient's head may
+     move with the head (the navigation follows it) without a fault, while a
+     tracker pushed out of place is one. Sensors that pass must then agree with
+     each other about where the patient is (their reference tools share the
+     head clamp): one whose reference tool slipped on its mount is the odd one
+     out (of two, the one further from where the calibration found the patient);
+   * without `S` (the thesis: a reference tool fixed to the table), the robot in
+     the reference tool's frame: a moved reference tool is a fault.
 
 The first healthy sensor in priority order wins; a sensor that was unhealthy
 (or at start) is used again only after `hysteresis` consecutive healthy
@@ -80,6 +89,7 @@ class SensorConfig:
     master_from_sensor: np.ndarray = field(default_factory=lambda: np.eye(4))  # C_i
     rto_from_base: np.ndarray = field(default_factory=lambda: np.eye(4))  # X_i
     ee_from_cto: np.ndarray = field(default_factory=lambda: np.eye(4))  # Y_i
+    sensor_from_base: np.ndarray | None = None  # S_i: the tracker's calibration to the robot
 
 
 @dataclass
@@ -105,7 +115,10 @@ def load_sensors(path: str | Path) -> SensorsConfig:
         here = ("sensors", name)
         calibration = spec.get("calibration") or {}
         frames = {}
-        for frame in ("C", "X", "Y"):
+        for frame in ("C", "X", "Y", "S"):
+            if frame == "S" and frame not in calibration:
+                frames[frame] = None
+                continue
             try:
                 frames[frame] = as_matrix(calibration.get(frame, np.eye(4).tolist()))
             except ValueError as exc:
@@ -129,6 +142,7 @@ def load_sensors(path: str | Path) -> SensorsConfig:
                 master_from_sensor=frames["C"],
                 rto_from_base=frames["X"],
                 ee_from_cto=frames["Y"],
+                sensor_from_base=frames["S"],
             )
         )
     priorities = [s.priority for s in sensors]
@@ -221,6 +235,14 @@ class SensorManagerCore:
         self._tol_cos = np.cos([s.tolerance_angle for s in sensors])
         self._y = np.stack([s.ee_from_cto for s in sensors])
         self._y_inv = invert(self._y)
+        # sensors calibrated to the robot (S) are checked in their own frame, so a reference
+        # tool that moves with the patient's head is not mistaken for a calibration fault
+        self._camera = np.array([s.sensor_from_base is not None for s in sensors])
+        self._s = np.stack(
+            [np.eye(4) if s.sensor_from_base is None else s.sensor_from_base for s in sensors]
+        )
+        self._s_inv = invert(self._s)
+        self._base_from_rto = invert(self._x)  # where each reference tool was at calibration
         self.last: Decision | None = None
 
     def offer(self, sensor: str, tool: str, pose: Pose, arrival: float) -> None:
@@ -391,11 +413,18 @@ class SensorManagerCore:
             every = len(candidates) == self._n
             x = self._x if every else self._x[candidates]
             y = self._y if every else self._y[candidates]
+            camera = self._camera[candidates]
+            measured = local
+            if camera.any():  # in the tracker's frame: S K Y against the CTO as seen
+                x = x.copy()
+                x[camera] = self._s[candidates[camera]]
+                measured = local.copy()
+                measured[camera] = self._tool_matrices(candidates[camera])
             predicted = x @ self._kinematics_at(candidates) @ y
-            diff = local[:, :3, 3] - predicted[:, :3, 3]
+            diff = measured[:, :3, 3] - predicted[:, :3, 3]
             offsets2 = (diff * diff).sum(axis=1)
             # trace(A^T B) = 1 + 2 cos(angle): compare cosines, no arccos for healthy rows
-            cosines = ((local[:, :3, :3] * predicted[:, :3, :3]).sum(axis=(1, 2)) - 1.0) / 2.0
+            cosines = ((measured[:, :3, :3] * predicted[:, :3, :3]).sum(axis=(1, 2)) - 1.0) / 2.0
             bad = (offsets2 > self._tol_pos2[candidates]) | (cosines < self._tol_cos[candidates])
             for k in np.flatnonzero(bad):
                 angle = math.degrees(math.acos(min(1.0, max(-1.0, cosines[k]))))
@@ -405,6 +434,9 @@ class SensorManagerCore:
                     f"{math.sqrt(offsets2[k]) * 1e3:.1f} mm, "
                     f"{angle:.2f} deg away from the robot's kinematics",
                 )
+            agreed = np.flatnonzero(camera & ~bad)
+            if len(agreed) >= 2:
+                failed.update(self._check_references(candidates[agreed]))
             return failed
         if len(candidates) < 2:
             return failed
@@ -417,6 +449,49 @@ class SensorManagerCore:
                 failed[int(i)] = Health(
                     False, "calibration", f"disagrees with {names} beyond tolerance"
                 )
+        return failed
+
+    def _tool_matrices(self, sensors: np.ndarray, tool: int = 0) -> np.ndarray:
+        """The latest CTO (tool 0) or RTO (tool 1) of these sensors, in their own frames."""
+        rows = self._rows[sensors + tool * self._n]
+        out = np.zeros((len(sensors), 4, 4))
+        out[:, :3, :3] = quat_to_matrix(rows[:, 3:7])
+        out[:, :3, 3] = rows[:, :3]
+        out[:, 3, 3] = 1.0
+        return out
+
+    def _check_references(self, sensors: np.ndarray) -> dict[int, Health]:
+        """Sensors calibrated to the robot must also agree about where the patient is:
+        their reference tools sit on the same head clamp, so each one's reference tool,
+        placed in the robot base by its calibration (S) and mapped into the master's
+        reference frame (C), is the same pose. (Reference tools, not the robot's tool: the
+        head moves slowly, so samples of different stamps still compare.) One that
+        disagrees with the others (of two, the one further from where the calibration
+        found the patient) had its reference tool moved on its mount."""
+        patient = (
+            self._s_inv[sensors] @ self._tool_matrices(sensors, tool=1) @ invert(self._c[sensors])
+        )
+        master = self._base_from_rto[self._index[self.config.master]]
+        moved = np.linalg.norm(patient[:, :3, 3] - master[:3, 3], axis=1)
+        suspects = []
+        for k, i in enumerate(sensors):
+            others = [j for j in range(len(sensors)) if j != k]
+            agree = sum(self._close(int(i), patient[k], patient[j]) for j in others)
+            if agree * 2 < len(others):
+                suspects.append(k)
+        if len(suspects) == len(sensors):  # nobody has a majority: trust the steadiest
+            suspects.remove(int(np.argmin(moved)))
+        failed = {}
+        for k in suspects:
+            others = [j for j in range(len(sensors)) if j != k]
+            names = ", ".join(self.tracks[sensors[j]].config.name for j in others)
+            apart = min(math.dist(patient[k, :3, 3], patient[j, :3, 3]) for j in others)
+            failed[int(sensors[k])] = Health(
+                False,
+                "calibration",
+                f"disagrees with {names} by {apart * 1e3:.1f} mm about where the patient is: "
+                "its reference tool moved on the head clamp",
+            )
         return failed
 
     def _close(self, i: int, a: np.ndarray, b: np.ndarray) -> bool:

@@ -37,14 +37,28 @@ class Rig:
     noise: float  # 3-D RMS, m
     rate: float
 
+    @property
+    def sensor_from_base(self) -> np.ndarray:
+        """Where the robot base is in the tracker's frame (both stand still in the room)."""
+        return self.sensor_from_rto @ self.rto_from_base
+
     def observe(
-        self, base_from_ee: np.ndarray, rng: np.random.Generator, stamp: float = 0.0, frame: int = 0
+        self,
+        base_from_ee: np.ndarray,
+        rng: np.random.Generator,
+        stamp: float = 0.0,
+        frame: int = 0,
+        base_from_rto: np.ndarray | None = None,
     ) -> tuple[Pose, Pose]:
-        """(CTO, RTO) as the tracker reports them, with its noise."""
-        cto = self.sensor_from_rto @ self.rto_from_base @ base_from_ee @ self.ee_from_cto
+        """(CTO, RTO) as the tracker reports them, with its noise. `base_from_rto`: where
+        the reference tool is now, if the patient's head moved it (default: where it was
+        when the rig was set up)."""
+        sensor_from_base = self.sensor_from_base
+        rto = self.sensor_from_rto if base_from_rto is None else sensor_from_base @ base_from_rto
+        cto = sensor_from_base @ base_from_ee @ self.ee_from_cto
         return (
             self._pose(cto, rng, stamp, frame, "cto"),
-            self._pose(self.sensor_from_rto, rng, stamp, frame, "rto"),
+            self._pose(rto, rng, stamp, frame, "rto"),
         )
 
     def _pose(
@@ -85,8 +99,11 @@ def standard_rigs() -> list[Rig]:
     ]
 
 
-def sensors_config(rigs: list[Rig], hysteresis: int = 5, **overrides: float) -> SensorsConfig:
-    """A Sensor Manager configuration with the exact calibration of these rigs."""
+def sensors_config(
+    rigs: list[Rig], hysteresis: int = 5, camera: bool = False, **overrides: float
+) -> SensorsConfig:
+    """A Sensor Manager configuration with the exact calibration of these rigs; with
+    `camera`, each tracker's calibration to the robot base (S) too."""
     master = rigs[0]
     sensors = []
     for priority, rig in enumerate(rigs, start=1):
@@ -99,6 +116,7 @@ def sensors_config(rigs: list[Rig], hysteresis: int = 5, **overrides: float) -> 
                 master_from_sensor=master.rto_from_base @ invert(rig.rto_from_base),
                 rto_from_base=rig.rto_from_base,
                 ee_from_cto=rig.ee_from_cto,
+                sensor_from_base=rig.sensor_from_base if camera else None,
                 limits={"max_velocity": 0.10, "max_acceleration": 0.5},
                 **overrides,
             )

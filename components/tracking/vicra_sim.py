@@ -349,10 +349,11 @@ class VicraDevice:
         return self._reply(ndi.encode_tx(self._frames()))
 
 
-def synthetic_world(rig_name: str, robot: Any = None) -> Any:
+def synthetic_world(rig_name: str, robot: Any = None, head: Any = None) -> Any:
     """A world callable for `VicraDevice.world`: the robot seen by one of the synthetic
     trackers (noise-free: the device adds its own). `robot()` gives the end-effector in
-    the base frame (4x4) or None, in which case the synthetic path is used."""
+    the base frame (4x4) or None, in which case the synthetic path is used; `head()`
+    the reference tool in the base frame (4x4) or None (where the rig was set up)."""
     import dataclasses
 
     import numpy as np
@@ -364,7 +365,10 @@ def synthetic_world(rig_name: str, robot: Any = None) -> Any:
 
     def see(tool: str, seconds: float) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
         ee = robot() if robot is not None else None
-        cto, rto = rig.observe(ee if ee is not None else ee_path(seconds), rng)
+        base_from_rto = head() if head is not None else None
+        cto, rto = rig.observe(
+            ee if ee is not None else ee_path(seconds), rng, base_from_rto=base_from_rto
+        )
         pose = {"cto": cto, "rto": rto}.get(tool)
         if pose is None:
             return None
@@ -384,6 +388,7 @@ class VicraSimulator(Component):
     seed = prop(int, 0, doc="noise seed (repeatable runs)")
     follow_world = prop(bool, False, doc="move the tools with the synthetic tracking world")
     ee_pose = In(Pose, doc="the robot's TCP in its base frame (with follow_world; else a path)")
+    head = In(Pose, doc="the reference tool in the robot base frame (with follow_world)")
 
     def configure_hook(self) -> bool:
         import tempfile
@@ -391,13 +396,18 @@ class VicraSimulator(Component):
         path = self.link or str(Path(tempfile.mkdtemp(prefix="fw-vicra-")) / "ttyVICRA")
         self.device = VicraDevice(path, self.rate, self.noise, self.seed)
         if self.follow_world:
-            self.device.world = synthetic_world("vicra", self._robot)
+            self.device.world = synthetic_world("vicra", self._robot, self._head)
         self.device.plug()
         return True
 
     def _robot(self) -> Any:
         """The latest robot TCP (4x4), read when the device makes a frame."""
         status, pose = self.ee_pose.read()
+        return None if status is ReadStatus.NO_DATA or pose is None else pose_matrix(pose)
+
+    def _head(self) -> Any:
+        """The latest pose of the reference tool on the head clamp (4x4), or None."""
+        status, pose = self.head.read()
         return None if status is ReadStatus.NO_DATA or pose is None else pose_matrix(pose)
 
     def cleanup_hook(self) -> None:

@@ -273,3 +273,123 @@ def test_a_stop_before_the_motion_has_started_ends_stopped_with_no_return_leg():
     c.step()
     assert c.phase is Phase.STOPPED, "nothing to brake, nowhere to return to"
     assert np.array_equal(c.pose, start)
+
+
+# --- steering: the goal moves while the robot heads for it (navigation) -------------------
+
+
+def moved(goal: np.ndarray, offset: tuple[float, float, float]) -> np.ndarray:
+    out = goal.copy()
+    out[:3, 3] += offset
+    return out
+
+
+def commanded_speeds(c: InterpolatorCore, cycles: int, on_cycle=None) -> np.ndarray:
+    """The commanded TCP's speed (m/s) over `cycles` cycles."""
+    previous, speeds = c.pose[:3, 3].copy(), []
+    for k in range(cycles):
+        if on_cycle is not None:
+            on_cycle(k)
+        c.step()
+        speeds.append(np.linalg.norm(c.pose[:3, 3] - previous) / DT)
+        previous = c.pose[:3, 3].copy()
+    return np.array(speeds)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    when=st.integers(0, 2500),
+    jump=st.tuples(*[st.floats(-0.01, 0.01)] * 3),
+    velocity=st.sampled_from([0.01, 0.05, 0.075]),
+)
+def test_a_goal_that_jumps_never_makes_the_command_exceed_the_speed_limit(when, jump, velocity):
+    c = core(velocity=velocity)
+    goal = goal_at((0.03, 0.02, -0.05))
+    c.go_to(goal)
+    speeds = commanded_speeds(c, 4000, lambda k: k == when and c.steer(moved(goal, jump)))
+    assert speeds.max() <= velocity * (1 + 1e-9) + 1e-9
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    when=st.integers(0, 1500),
+    jump=st.tuples(*[st.floats(-0.005, 0.005)] * 3),
+)
+def test_the_command_ends_on_the_goal_where_it_is_now(when, jump):
+    c = core(velocity=0.05)
+    goal = goal_at((0.02, -0.01, -0.04))
+    c.go_to(goal)
+    now = moved(goal, jump)
+    commanded_speeds(c, 5000, lambda k: k == when and c.steer(now))
+    assert c.phase is Phase.REACHED
+    assert np.allclose(c.pose[:3, 3], now[:3, 3], atol=1e-9)
+    assert np.linalg.norm(KIN.tcp(c.q)[:3, 3] - now[:3, 3]) < 1e-4  # the joints follow
+
+
+def test_a_correction_pending_slows_the_path_to_keep_it_a_share_of_the_speed():
+    c = core(velocity=0.05)
+    goal = goal_at((0.0, 0.0, -0.15))
+    c.go_to(goal)
+    commanded_speeds(c, 600)  # cruising at the limit
+    assert c.speed == pytest.approx(0.05)
+    c.steer(moved(goal, (0.01, 0.0, 0.0)))
+    commanded_speeds(c, 200)
+    assert c.speed == pytest.approx(0.025)  # half the limit for the path...
+    x = c.pose[0, 3]
+    commanded_speeds(c, 100)
+    assert (c.pose[0, 3] - x) / (100 * DT) == pytest.approx(0.025)  # ...the rest corrects
+    commanded_speeds(c, 600)  # 10 mm at >= 25 mm/s: done
+    assert c.speed == pytest.approx(0.05)  # the path cruises at the limit again
+
+
+def test_holding_a_goal_follows_it_when_it_moves_at_the_limit_and_no_faster():
+    c = core(velocity=0.01)
+    goal = goal_at((0.0, 0.0, -0.01))
+    c.go_to(goal)
+    run(c, Phase.REACHED)
+    c.steer(moved(goal, (0.0, 0.005, 0.0)))  # the head was bumped by 5 mm
+    speeds = commanded_speeds(c, 600)
+    assert c.phase is Phase.REACHED
+    assert speeds.max() == pytest.approx(0.01)
+    assert int(np.sum(speeds > 0)) == 500  # 5 mm at 1 cm/s: half a second
+    assert np.allclose(c.pose[:3, 3], moved(goal, (0.0, 0.005, 0.0))[:3, 3], atol=1e-9)
+
+
+def test_a_stop_freezes_the_correction_and_returns_to_where_it_was_asserted():
+    c = core(velocity=0.05)
+    goal = goal_at((0.0, 0.0, -0.10))
+    c.go_to(goal)
+    commanded_speeds(c, 300)
+    c.steer(moved(goal, (0.004, 0.0, 0.0)))
+    commanded_speeds(c, 50)
+    c.stop()
+    stop_point = c.stop_pose.copy()
+    c.steer(moved(goal, (-0.004, 0.0, 0.0)))  # ignored: the robot is stopping
+    run(c, Phase.STOPPED)
+    assert np.allclose(c.pose, stop_point, atol=1e-9)
+    commanded_speeds(c, 100)
+    assert np.allclose(c.pose, stop_point, atol=1e-9)
+
+
+def test_a_new_goal_starts_from_the_command_with_its_correction():
+    c = core(velocity=0.05)
+    goal = goal_at((0.0, 0.0, -0.02))
+    c.go_to(goal)
+    c.steer(moved(goal, (0.003, 0.0, 0.0)))
+    run(c, Phase.REACHED)
+    commanded_speeds(c, 200)
+    here = c.pose.copy()
+    c.go_to(goal_at((0.0, 0.02, 0.0)))
+    speeds = commanded_speeds(c, 3)
+    assert speeds.max() < 0.001  # from rest, no jump back by the correction
+    assert np.linalg.norm(c.pose[:3, 3] - here[:3, 3]) < 1e-5
+
+
+def test_steering_is_ignored_when_not_heading_for_a_goal():
+    c = core()
+    before = c.pose.copy()
+    c.steer(moved(before, (0.01, 0.0, 0.0)))
+    commanded_speeds(c, 100)
+    assert np.array_equal(c.pose, before) and c.phase is Phase.IDLE
+    with pytest.raises(ValueError, match="finite 4x4"):
+        c.steer(np.full((4, 4), np.nan))

@@ -3,6 +3,7 @@ chooses the highest-priority healthy sensor (after hysteresis)."""
 
 import dataclasses
 import math
+import re
 
 import numpy as np
 import pytest
@@ -22,9 +23,10 @@ TICK = 0.001  # the Sensor Manager's 1 kHz cycle
 class World:
     """Trackers streaming at their rates into a Sensor Manager, on a simulated clock."""
 
-    def __init__(self, rigs=None, hysteresis=3, kinematics=False, **overrides):
+    def __init__(self, rigs=None, hysteresis=3, kinematics=False, camera=False, **overrides):
         self.rigs = rigs or standard_rigs()
-        self.core = SensorManagerCore(sensors_config(self.rigs, hysteresis, **overrides))
+        self.core = SensorManagerCore(sensors_config(self.rigs, hysteresis, camera, **overrides))
+        self.head = None  # where the patient's head put the reference tools (None: at rest)
         self.rng = np.random.default_rng(7)
         self.t = 0.0
         self.faults: dict[str, str] = {}
@@ -55,10 +57,15 @@ class World:
         faults = set(self.faults.get(rig.name, "").split("+"))  # several at once: a+b
         if "silent" in faults:
             return
-        cto, rto = rig.observe(truth, self.rng, self.t)
-        if "rto_moved" in faults:  # someone bumped the reference tool: only it moved
+        cto, rto = rig.observe(truth, self.rng, self.t, base_from_rto=self.head)
+        if "rto_moved" in faults and self.head is not None:  # it slipped on the head clamp
+            _, rto = rig.observe(truth, self.rng, self.t, base_from_rto=self.head @ self.moved)
+        elif "rto_moved" in faults:  # someone bumped the reference tool: only it moved
             bumped = dataclasses.replace(rig, sensor_from_rto=rig.sensor_from_rto @ self.moved)
             _, rto = bumped.observe(truth, self.rng, self.t)
+        if "sensor_moved" in faults:  # the tracker itself was pushed: it sees everything moved
+            moved = dataclasses.replace(rig, sensor_from_rto=self.moved @ rig.sensor_from_rto)
+            cto, rto = moved.observe(truth, self.rng, self.t, base_from_rto=self.head)
         if "cto_missing" in faults:
             cto = dataclasses.replace(cto, valid=False)
         if "rto_missing" in faults:
@@ -750,3 +757,68 @@ def test_a_jumps_verdict_over_a_long_gap_says_its_duration_to_the_millisecond():
         "corrupt",
         "the robot's tool jumped 1000.0 mm in 600 ms",
     )
+
+
+# --- trackers calibrated to the robot (S): the reference tool is on the patient's head ---
+
+
+def moved_head(world, dx):
+    """The head (and the reference tools clamped to it) moved by `dx` m along the base x."""
+    return rigid((dx, 0.0, 0.0), (0.0, 0.0, 0.0)) @ np.linalg.inv(world.rigs[0].rto_from_base)
+
+
+@pytest.mark.parametrize(
+    ("camera", "healthy"),
+    [(True, True), (False, False)],
+    ids=["calibrated to the robot: followed", "reference frame only: a calibration fault"],
+)
+def test_a_head_that_moves_the_reference_tools_is_a_fault_only_without_the_robot_calibration(
+    camera, healthy
+):
+    world = World(kinematics=True, camera=camera)
+    world.run(0.5)
+    world.head = moved_head(world, 0.006)  # beyond the 5 mm tolerance
+    decision = world.run(0.1)
+    assert [h.ok for h in decision.health.values()] == [healthy, healthy], decision.health
+    assert decision.best == ("certus" if healthy else None)
+
+
+@pytest.mark.parametrize("slipped", ["certus", "vicra"])
+def test_a_reference_tool_that_slipped_on_the_head_clamp_is_found_among_two_trackers(slipped):
+    world = World(kinematics=True, camera=True)
+    world.head = moved_head(world, 0.003)  # the head moved too: that alone is no fault
+    world.run(0.5)
+    world.moved = rigid((0.02, 0.0, 0.0), (0.0, 0.0, 0.0))
+    world.faults[slipped] = "rto_moved"
+    decision = world.run(0.1)
+    other = "vicra" if slipped == "certus" else "certus"
+    assert decision.health[slipped].cause == "calibration"
+    said = re.match(
+        rf"disagrees with {other} by ([0-9.]+) mm about where the patient is",
+        decision.health[slipped].detail,
+    )
+    assert said and float(said[1]) == pytest.approx(20.0, abs=0.5), decision.health[slipped]
+    assert decision.health[other].ok
+    assert decision.best == other
+
+
+def test_a_tracker_pushed_out_of_place_disagrees_with_the_kinematics_in_its_own_frame():
+    world = World(kinematics=True, camera=True)
+    world.run(0.5)
+    world.moved = rigid((0.0, 0.01, 0.0), (0.0, 0.0, 0.0))
+    world.faults["certus"] = "sensor_moved"
+    decision = world.run(0.1)
+    assert decision.health["certus"].cause == "calibration"
+    assert "10.0 mm" in decision.health["certus"].detail, decision.health["certus"].detail
+    assert decision.best == "vicra"
+
+
+def test_three_trackers_calibrated_to_the_robot_outvote_the_one_whose_reference_slipped():
+    rigs = [*standard_rigs(), dataclasses.replace(standard_rigs()[1], name="vicra2")]
+    world = World(rigs, kinematics=True, camera=True)
+    world.run(0.5)
+    world.moved = rigid((0.0, 0.0, 0.01), (0.0, 0.0, 0.0))
+    world.faults["vicra"] = "rto_moved"
+    decision = world.run(0.1)
+    assert [n for n, h in decision.health.items() if not h.ok] == ["vicra"]
+    assert decision.best == "certus"
