@@ -28,8 +28,9 @@ Steps run one after the other: `at` waits until that time after time zero,
 triggered (consecutive steps with the same `when` share one entry), and `after`
 adds a delay to either. A state is named by its full path or by any dotted
 suffix of it (`Stopped`, `Task.Stopped`). `check` calls an operation and
-compares the given fields of its result (a failed check is a FAIL, the scenario
-goes on); with `wait: 30s` it asks again until they match or the wait is over,
+compares the given fields of its result, equal to `expect` and no greater than
+`max` (a failed check is a FAIL, the scenario goes on); with `wait: 30s` it asks
+again until they match or the wait is over,
 for outcomes whose timing depends on the host (a simulated arm slows down, it
 does not skip, when the machine is busy). `fault` injects a fault into one of the
 deployment's processes: `KILL` (a crash), `STOP` (a hang: SIGSTOP, then SIGCONT
@@ -65,6 +66,8 @@ class ScenarioStep:
     check: str = ""
     payload: dict[str, Any] = field(default_factory=dict)
     expect: dict[str, Any] = field(default_factory=dict)
+    maximum: dict[str, float] = field(default_factory=dict)
+    """Numeric fields of a check's result that must not exceed these."""
     wait: float = 0.0
     fault: Fault | None = None
     location: Location = field(default_factory=Location)
@@ -203,6 +206,7 @@ def load_scenario(
             check=spec.get("check", ""),
             payload=dict(spec.get("payload") or spec.get("args") or {}),
             expect=dict(spec.get("expect") or {}),
+            maximum={k: float(v) for k, v in (spec.get("max") or {}).items()},
             wait=parse_duration(spec.get("wait", 0)),
             location=where,
         )
@@ -509,12 +513,21 @@ class ScenarioRunner(Listener):
                         for k, v in step.expect.items()
                         if not isinstance(result, dict) or result.get(k) != v
                     }
+                    wrong.update(
+                        {
+                            k: result.get(k) if isinstance(result, dict) else result
+                            for k, v in step.maximum.items()
+                            if not isinstance(result, dict) or not _at_most(result.get(k), v)
+                        }
+                    )
                     if not wrong or time.monotonic() >= until or self._stop.wait(0.05):
                         break
                 ok = not wrong
-                missing = isinstance(result, dict) and any(k not in result for k in step.expect)
+                fields = (*step.expect, *step.maximum)
+                missing = isinstance(result, dict) and any(k not in result for k in fields)
                 got = result if missing or not isinstance(result, dict) else wrong
-                detail = "" if ok else f"expected {step.expect}, got {got}"
+                wanted = {**step.expect, **{k: f"<= {v:g}" for k, v in step.maximum.items()}}
+                detail = "" if ok else f"expected {wanted}, got {got}"
                 self.outcomes.append(Outcome(ok, step.describe(), detail))
             self._report(f"scenario   {elapsed:7.3f}s {step.describe()}")
         except Exception as exc:  # a failing step is reported, the scenario goes on
@@ -568,3 +581,8 @@ class ScenarioRunner(Listener):
                 detail = f"{samples} samples" if samples else "not exercised: state never held"
                 out.append(Outcome(True, inv.describe(), detail))
         return out
+
+
+def _at_most(value: Any, limit: float) -> bool:
+    """True for a number no greater than `limit` (anything else fails the check)."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and value <= limit

@@ -5,8 +5,9 @@ timestamp is taken (all `time.time()` on this host):
 
 * t_trackerfail: the Sensor Manager's status message whose verdict first marks the
   tracker in use as failed (its stamp: when the Sensor Manager decided);
-* t_newtracker: the Supervisor's `sources` record of the first valid sample from
-  the new tracker on its rewired `tracked` input (stamped on receipt there);
+* t_newtracker: the navigator's `sources` record of the first valid sample from
+  the new tracker on its rewired `cto` input (stamped on receipt there: the tracker
+  that steers has changed);
 * t_nosensors and t_stop (the thesis' "STOP command sent to the robot"): the
   Supervisor's `halt` message to the interpolator, stamped when it is written;
 * t_brake (stricter, not in the thesis): the interpolator's status message
@@ -103,8 +104,8 @@ def keep_moving(run: SeegRun, goal: list[str]) -> None:
 
 
 def _tracker_in_use(run: SeegRun) -> str:
-    state = run.last_entered(("Certus_Up", "Vicra_Up"))
-    return {"Certus_Up": "certus", "Vicra_Up": "vicra"}.get(state, "")
+    tag = run.last_requested(("tracker_1_up", "tracker_2_up"))
+    return {"tracker_1_up": "certus", "tracker_2_up": "vicra"}.get(tag, "")
 
 
 def _repeat(
@@ -146,10 +147,10 @@ def sensor_swap(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
             fail = _first(run, "sensor_manager/status", t0, _failed("certus"), "Certus fault")
             new = _first(
                 run,
-                "supervisor/sources",
+                "navigator/sources",
                 t0,
                 lambda m: m.payload.get("tracker") == "vicra",
-                "Vicra sample at the Supervisor",
+                "Vicra sample at the navigator",
             )
         finally:
             run.call("certus.occlude", tool="cto", hidden=False)
@@ -159,8 +160,8 @@ def sensor_swap(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
             [
                 ("Supervisor raises e_TFAULT", _event_stamp(run, "e_TFAULT", t0)),
                 ("the chart takes it", run.taken_after("e_TFAULT", t_fail)),
-                ("tracker_2_up requested", run.entered_after("Vicra_Up", t_fail)),
-                ("first Vicra sample at the Supervisor", t_new),
+                ("tracker_2_up requested", run.requested_after("tracker_2_up", t_fail)),
+                ("first Vicra sample at the navigator", t_new),
             ],
         )
         _back_to(run, "certus")

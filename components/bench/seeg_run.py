@@ -33,7 +33,7 @@ TOPOLOGY = REPO / "topologies" / "seeg.yaml"
 
 WATCHED: dict[str, type] = {
     "sensor_manager/status": EventMessage,  # t_trackerfail: the verdict's stamp
-    "supervisor/sources": EventMessage,  # t_newtracker: first valid sample, on receipt
+    "navigator/sources": EventMessage,  # t_newtracker: first valid sample, on receipt
     "supervisor/halt": EventMessage,  # t_stop: the STOP command sent to the robot
     "interpolator/status": EventMessage,  # t_brake: the cycle the motion starts braking
     "people_detector/min_distance": Scalar,  # t_collision: the distance's stamp
@@ -58,6 +58,7 @@ class _States(Listener):
     def __init__(self) -> None:
         self.entered: list[tuple[str, float]] = []
         self.taken: list[tuple[str, float]] = []  # events as the chart takes them
+        self.requested: list[tuple[str, float]] = []  # configurations the chart asks for
         self.changed = threading.Condition()
 
     def on_event(self, event: Any) -> None:
@@ -68,6 +69,11 @@ class _States(Listener):
         with self.changed:
             self.entered.append((state.name, time.time()))
             self.changed.notify_all()
+
+    def on_output(self, output: Any) -> None:
+        if output.kind == "configure":
+            with self.changed:
+                self.requested.append((output.tag, time.time()))
 
 
 @dataclass
@@ -191,12 +197,24 @@ class SeegRun:
         """When the chart first took event `name` at or after time `t` (None: not yet)."""
         return self._first_after(self._states.taken, name, t)
 
+    def requested_after(self, tag: str, t: float) -> float | None:
+        """When the chart first asked for configuration `tag` at or after `t` (None: not yet)."""
+        return self._first_after(self._states.requested, tag, t)
+
     def _first_after(self, history: list[tuple[str, float]], name: str, t: float) -> float | None:
         # bisect: the lock is the Coordinator's too, so a long scan here would delay
         # the very chart being measured
         with self._states.changed:
             start = bisect.bisect_left(history, t, key=lambda item: item[1])
             return next((at for s, at in history[start:] if s == name), None)
+
+    def last_requested(self, tags: tuple[str, ...]) -> str:
+        """The most recently requested of the configurations `tags` ("" if none yet)."""
+        with self._states.changed:
+            for tag, _ in reversed(self._states.requested):
+                if tag in tags:
+                    return tag
+        return ""
 
     def last_entered(self, names: tuple[str, ...]) -> str:
         """The most recently entered of `names` ("" if none yet)."""

@@ -328,6 +328,20 @@ class InterpolatorCore:
         return out
 
 
+def _pose_from_list(values: Any) -> np.ndarray:
+    """[x, y, z, qw, qx, qy, qz] to a 4x4 pose; ValueError unless finite, unit quaternion."""
+    v = [float(x) for x in values]
+    if len(v) != 7 or not all(map(math.isfinite, v)):
+        raise ValueError(f"a pose is 7 finite numbers, got {values!r}")
+    w, x, y, z = v[3:]
+    if abs(w * w + x * x + y * y + z * z - 1.0) > 1e-3:
+        raise ValueError("a pose's quaternion must be a unit one")
+    out = np.eye(4)
+    out[:3, :3] = pin.Quaternion(w, x, y, z).toRotationMatrix()
+    out[:3, 3] = v[:3]
+    return out
+
+
 class CartesianInterpolator(Component):
     """Feeds `InterpolatorCore` at 1 kHz: goals by name, limits by port, joint setpoints out.
 
@@ -342,6 +356,11 @@ class CartesianInterpolator(Component):
     joints = In(JointState, doc="measured joints (from the robot interface)")
     limits = In(EventMessage, doc="new limits: payload {velocity, acceleration} (m/s, m/s^2)")
     halt = In(EventMessage, doc="STOP now (the Supervisor's reflex): any sample brakes")
+    goals = In(
+        EventMessage,
+        doc="where the goals are now (the navigator): the motion steers toward its goal; "
+        "a refusal stops it",
+    )
     setpoint = Out(JointState, doc="joint setpoints for the robot interface, every cycle")
     command = Out(Pose, doc="commanded TCP in the robot base frame (every cycle unless idle)")
     status = Out(EventMessage, doc="phase (idle, moving, reached, stopping, returning, stopped)")
@@ -359,6 +378,10 @@ class CartesianInterpolator(Component):
         self._phase: Phase | None = None
         self._core_lock = threading.Lock()
         self.halted = ""  # the reason of the last halt
+        self._goals: dict[str, np.ndarray] = {}  # the navigator's latest, base frame
+        self._revisions: dict[str, int] = {}
+        self._revision = 0  # of the goal the current motion heads for
+        self._refused = ""
         return True
 
     def update_hook(self) -> None:
@@ -383,6 +406,9 @@ class CartesianInterpolator(Component):
                 core.stop()
                 self._goal_name = ""
                 self.halted = str(halt.payload.get("reason", ""))
+            status, goals = self.goals.read()
+            if status is ReadStatus.NEW:
+                self._navigate(core, goals.payload)
             lag = float(np.max(np.abs(core.q - np.asarray(measured.position))))
             if core.moving and core.phase is not Phase.STOPPING and lag > self.max_lag:
                 # the arm does not follow (brakes, contact): stop commanding a motion
@@ -399,6 +425,27 @@ class CartesianInterpolator(Component):
         if phase is not self._phase:
             self._phase = phase
             self.status.write(EventMessage(stamp, phase.value, self.name, self.report()))
+
+    def _navigate(self, core: InterpolatorCore, payload: Any) -> None:
+        """The navigator's goals: steer the motion toward its goal where it is now; a
+        refusal (the patient moved too far or too fast) stops it at once, as a halt."""
+        try:
+            goals = {str(k): _pose_from_list(v) for k, v in payload["goals"].items()}
+            revisions = {str(k): int(v) for k, v in (payload.get("revisions") or {}).items()}
+            refused = str(payload.get("refused") or "")
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            self.refuse("goals", f"malformed goals: {exc!r}")
+            return
+        self._goals, self._revisions = goals, revisions
+        if refused and not self._refused:
+            core.stop()
+            self._goal_name = ""
+            self.halted = refused
+        self._refused = refused
+        goal = goals.get(self._goal_name)
+        same = revisions.get(self._goal_name, 0) == self._revision  # not defined anew
+        if goal is not None and same and not refused:
+            core.steer(goal)
 
     def _take_limits(self, core: InterpolatorCore, payload: Any) -> None:
         """Apply limits from the port unless they exceed what the procedure allows (its
@@ -441,8 +488,17 @@ class CartesianInterpolator(Component):
             raise FwError(f"unknown goal {goal!r}: one of {', '.join(self.procedure.goals)}")
         with self._core_lock:
             core = self._core()
+            if self._refused:
+                raise FwError(f"navigation refuses: {self._refused}")
+            pose = self._goals.get(goal)
+            if pose is None and self.procedure.frame(goal) == "patient":
+                raise FwError(
+                    f"goal {goal!r} is on the patient and no navigator said where the "
+                    "patient is: is the navigator running and connected to `goals`?"
+                )
             if not (goal == self._goal_name and core.phase in (Phase.MOVING, Phase.REACHED)):
-                core.go_to(self.procedure.goals[goal])
+                core.go_to(self.procedure.goals[goal] if pose is None else pose)
+                self._revision = self._revisions.get(goal, 0)
             self._goal_name = goal
             return self.report()
 
@@ -456,15 +512,6 @@ class CartesianInterpolator(Component):
             self._core().go_to(pose)
             self._goal_name = "pose"
             return self.report()
-
-    @operation
-    def define_target(
-        self, x: float, y: float, z: float, roll: float, pitch: float, yaw: float
-    ) -> dict[str, Any]:
-        """A new target pose (m, deg; robot base frame) for `go_to(goal="target")`."""
-        with self._core_lock:
-            self.procedure.define_target((x, y, z), (roll, pitch, yaw))
-        return {"target": [x, y, z], "rpy_deg": [roll, pitch, yaw]}
 
     @operation
     def set_limits(self, velocity: float, acceleration: float | None = None) -> dict[str, Any]:

@@ -34,14 +34,23 @@ from __future__ import annotations
 
 import bisect
 import math
+import time
 from collections import deque
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
 
-from components.tracking.geometry import invert
-from components.tracking.sensor_manager import SensorsConfig
+from components.robot.lwr4 import Kinematics
+from components.supervisor.procedure import Procedure, load_procedure
+from components.tracking.geometry import invert, matrix_to_quat, pose_matrix
+from components.tracking.sensor_manager import SensorsConfig, load_sensors
+from framework.component import Component, In, Out, operation
+from framework.errors import FwError
+from framework.messages import EventMessage, JointState, Pose
+from framework.ports import ReadStatus
+from framework.properties import prop
 
 SPEED_WINDOW = 1.0  # s over which the patient's speed is averaged
 JOINT_MEMORY = 0.5  # s of joint states kept to match the samples' stamps
@@ -76,16 +85,20 @@ class NavigatorCore:
         smoothing: float = 0.1,
         max_motion: float = 0.01,
         max_speed: float = 0.008,
+        confirm: float = 0.3,
     ):
         """`registration`: the patient frame in the robot base where the calibration
         found it (X^-1 of the master tracker)."""
-        if not (smoothing > 0 and max_motion > 0 and max_speed > 0):
-            raise ValueError("smoothing, max_motion and max_speed must be positive")
+        if not (smoothing > 0 and max_motion > 0 and max_speed > 0 and confirm >= 0):
+            raise ValueError(
+                "smoothing, max_motion and max_speed must be positive, confirm not negative"
+            )
         self.trackers = trackers
         self.registration = np.asarray(registration, dtype=float).copy()
         self.smoothing = smoothing
         self.max_motion = max_motion
         self.max_speed = max_speed
+        self.confirm = confirm
         self.base_from_patient = self.registration.copy()  # B, filtered
         self.tracker: str | None = None  # whose samples steer now
         self.samples = 0
@@ -96,6 +109,8 @@ class NavigatorCore:
         self.patient_offset = np.zeros(3)
         self.patient_speed = 0.0
         self.refused = ""
+        self.suspect = ""  # a motion beyond the limits, not yet confirmed
+        self._suspect_since = 0.0
 
     # --- inputs ------------------------------------------------------------------------
     def joints(self, stamp: float, q: np.ndarray) -> None:
@@ -129,6 +144,17 @@ class NavigatorCore:
         frames = self.trackers.get(tracker)
         if frames is None:
             return False
+        if tracker != self.tracker:
+            self._patient.clear()  # another tracker: its own view of the patient's motion
+            self.suspect = ""
+        if frames.base_from_sensor is not None:
+            patient = frames.base_from_sensor @ rto @ invert(frames.master_from_sensor)
+            self._watch_patient(t, patient[:3, 3])
+        self.tracker = tracker
+        self.samples += 1
+        if self.suspect or self.refused:
+            self._last_t = t
+            return True  # the goals hold still: the robot does not chase a moved patient
         on_patient = frames.master_from_sensor @ invert(rto) @ cto @ frames.cto_from_ee
         measured = base_from_ee @ invert(on_patient)
         if self._last_t is None:
@@ -137,11 +163,6 @@ class NavigatorCore:
             weight = 1.0 - math.exp(-max(0.0, t - self._last_t) / self.smoothing)
         self.base_from_patient = blend(self.base_from_patient, measured, weight)
         self._last_t = t
-        self.tracker = tracker
-        self.samples += 1
-        if frames.base_from_sensor is not None:
-            patient = frames.base_from_sensor @ rto @ invert(frames.master_from_sensor)
-            self._watch_patient(t, patient[:3, 3])
         return True
 
     def register(self) -> None:
@@ -151,6 +172,7 @@ class NavigatorCore:
         self.patient_offset = np.zeros(3)
         self._patient.clear()
         self.refused = ""
+        self.suspect = ""
 
     # --- outputs -----------------------------------------------------------------------
     def goal(self, on_patient: np.ndarray) -> np.ndarray:
@@ -167,15 +189,23 @@ class NavigatorCore:
         self.patient_speed = float(np.linalg.norm(position - window[0][1])) / SPEED_WINDOW
         moved = float(np.linalg.norm(self.patient_offset))
         if moved > self.max_motion:
-            self.refused = (
+            reason = (
                 f"the patient moved {moved * 1e3:.1f} mm from where it was registered "
                 f"(limit {self.max_motion * 1e3:.1f} mm)"
             )
         elif self.patient_speed > self.max_speed:
-            self.refused = (
+            reason = (
                 f"the patient moves at {self.patient_speed * 1e3:.1f} mm/s "
                 f"(limit {self.max_speed * 1e3:.1f} mm/s)"
             )
+        else:
+            self.suspect = ""
+            return
+        if not self.suspect:
+            self._suspect_since = t
+        self.suspect = reason
+        if t - self._suspect_since >= self.confirm and not self.refused:
+            self.refused = reason
 
 
 def frames_of(sensors: SensorsConfig) -> tuple[dict[str, TrackerFrames], np.ndarray]:
@@ -191,3 +221,162 @@ def frames_of(sensors: SensorsConfig) -> tuple[dict[str, TrackerFrames], np.ndar
     }
     master = next(s for s in sensors.sensors if s.name == sensors.master)
     return trackers, invert(master.rto_from_base)
+
+
+def pose_list(pose: np.ndarray) -> list[float]:
+    """A 4x4 pose as [x, y, z, qw, qx, qy, qz] (m), for a message."""
+    return [round(float(v), 7) for v in (*pose[:3, 3], *matrix_to_quat(pose[:3, :3]))]
+
+
+class Navigator(Component):
+    """Where the procedure's goals are now in the robot's nominal base frame, from the
+    tracker whose tools are connected to `cto` and `rto` (the chart's tracker swap
+    rewires them: the swap changes what steers). Goals given in the base frame pass
+    unchanged; goals on the patient follow the patient (module docstring).
+
+    Publishes `goals` on every tracker sample and at least every `idle` of its activity:
+    `{goals: {name: [x y z qw qx qy qz]}, revisions: {name: n}, tracker, refused,
+    patient_mm, patient_speed_mm_s}`; a goal defined anew has a new revision (a motion
+    heading for the old one is not steered to the new one).
+    `tracker` names whose samples steer (None once they stop for `stale`); `refused`
+    says why the patient's motion is refused ("" when it is not); `holding`, why the
+    goals hold still while a motion beyond the limits awaits confirmation. The interpolator
+    steers by it and stops on a refusal; the Supervisor raises e_PATIENT_MOVED."""
+
+    procedure_file = prop(str, "", doc="procedure YAML (goals and their frames)", required=True)
+    sensors_file = prop(str, "", doc="sensors YAML (each tracker's calibration)", required=True)
+    stale = prop(
+        float, 0.25, unit="s", min=0.01, max=5.0, doc="no sample for this long: no tracker steers"
+    )
+    cto = In(Pose, doc="the robot's tool as the tracker in use sees it (rewired per tracker)")
+    rto = In(Pose, doc="the reference tool on the head clamp, as the same tracker sees it")
+    joints = In(
+        JointState,
+        doc="measured joints: the nominal pose at each sample's stamp",
+        policy={"type": "buffer", "size": 512},
+    )
+    goals = Out(EventMessage, doc="where the goals are now, base frame; tracker; refusal")
+    sources = Out(
+        EventMessage,
+        doc="first valid sample from a tracker that did not steer before: {tracker, "
+        "sample_stamp} (stamped on receipt; a sensor swap's latency ends here)",
+    )
+
+    def configure_hook(self) -> bool:
+        try:
+            self.procedure: Procedure = load_procedure(self.procedure_file)
+            trackers, registration = frames_of(load_sensors(self.sensors_file))
+        except FwError as exc:
+            self.last_error = str(exc)
+            return False
+        n = self.procedure.navigation
+        self.core = NavigatorCore(
+            trackers,
+            registration,
+            smoothing=n.smoothing,
+            max_motion=n.max_patient_motion,
+            max_speed=n.max_patient_speed,
+            confirm=n.confirm,
+        )
+        self.kinematics = Kinematics()
+        self._rto: Pose | None = None
+        self._last_sample = -math.inf
+        self.revisions: dict[str, int] = {}  # how often each goal was defined anew
+        return True
+
+    def update_hook(self) -> None:
+        while True:
+            status, state = self.joints.read()
+            if status is not ReadStatus.NEW:
+                break
+            self.core.joints(state.stamp, np.asarray(state.position))
+        status, rto = self.rto.read()
+        if status is ReadStatus.NEW:
+            self._rto = rto
+        status, cto = self.cto.read()
+        if status is ReadStatus.NEW and self._usable(cto):
+            q = self.core.joints_at(cto.stamp)
+            steered = self.steering()
+            if q is not None and self.core.offer(
+                cto.frame,
+                pose_matrix(cto),
+                pose_matrix(self._rto),  # type: ignore[arg-type]
+                self.kinematics.tcp(q),
+                cto.stamp,
+            ):
+                self._last_sample = time.time()
+                if cto.frame != steered:
+                    payload = {"tracker": cto.frame, "sample_stamp": cto.stamp}
+                    self.sources.write(
+                        EventMessage(self._last_sample, "tracked_source", self.name, payload)
+                    )
+            elif cto.frame not in self.core.trackers:
+                self.refuse("cto", f"samples of {cto.frame!r}, a tracker the sensors file lacks")
+        self.goals.write(EventMessage(time.time(), "goals", self.name, self.report()))
+
+    def idle_hook(self) -> None:
+        self.update_hook()
+
+    def _usable(self, cto: Pose) -> bool:
+        """Both tools seen, finite, by the same tracker."""
+        rto = self._rto
+        return (
+            rto is not None
+            and cto.valid
+            and rto.valid
+            and cto.frame == rto.frame
+            and cto.is_finite()
+            and rto.is_finite()
+        )
+
+    def steering(self) -> str | None:
+        """The tracker whose samples steer now (None when they stopped)."""
+        if time.time() - self._last_sample > self.stale:
+            return None
+        return self.core.tracker
+
+    @operation
+    def define_target(
+        self,
+        x: float,
+        y: float,
+        z: float,
+        roll: float,
+        pitch: float,
+        yaw: float,
+        frame: str = "patient",
+    ) -> dict[str, Any]:
+        """A new target (m, deg) on the patient (the reference tool's frame) or, with
+        `frame="base"`, in the robot base frame; every follower of `goals` takes it."""
+        self.procedure.define_target((x, y, z), (roll, pitch, yaw), frame)
+        self.revisions["target"] = self.revisions.get("target", 0) + 1
+        return self.report()
+
+    @operation
+    def register(self) -> dict[str, Any]:
+        """The patient is where the tracking sees it now: measure its motion from here
+        (after the surgeon checked the registration; clears a refusal)."""
+        self.core.register()
+        report = self.report()
+        self.goals.write(EventMessage(time.time(), "goals", self.name, report))  # no wait
+        return report
+
+    @operation(readonly=True)
+    def report(self) -> dict[str, Any]:
+        """The goals now (base frame), the tracker that steers, the patient's motion."""
+        core = getattr(self, "core", None)
+        if core is None:
+            return {"goals": {}, "tracker": None, "refused": ""}
+        goals = {}
+        for name, pose in self.procedure.goals.items():
+            goal = core.goal(pose) if self.procedure.frame(name) == "patient" else pose
+            goals[name] = pose_list(goal)
+        return {
+            "goals": goals,
+            "revisions": {name: self.revisions.get(name, 0) for name in goals},
+            "tracker": self.steering(),
+            "refused": core.refused,
+            "holding": core.suspect,
+            "patient_mm": [round(float(v) * 1e3, 3) for v in core.patient_offset],
+            "patient_speed_mm_s": round(core.patient_speed * 1e3, 3),
+        }

@@ -13,7 +13,10 @@ scenario asks for (thesis 3.2: motion compensation of the patient's head):
 Offsets are translations in the robot base frame; the head does not rotate (a
 rotation of the clamp would be a larger accident than the ones simulated).
 `PatientHead` publishes the RTO's pose in the robot base frame on `pose` at its
-activity's rate; the simulated trackers observe the RTO there.
+activity's rate; the simulated trackers observe the RTO there. Given the real arm's
+TCP (`tcp`, the simulation's ground truth) and the procedure, it is also the
+referee of navigation: `report()` says how far the real TCP is from the target on
+the head, which no component of the deployment can know.
 """
 
 from __future__ import annotations
@@ -25,11 +28,13 @@ from typing import Any
 
 import numpy as np
 
-from components.tracking.geometry import invert, matrix_to_quat
+from components.tracking.geometry import invert, matrix_to_quat, pose_matrix
 from components.tracking.synthetic import standard_rigs
-from framework.component import Component, Out, operation
+from framework.component import Component, In, Out, operation
 from framework.errors import FwError
 from framework.messages import Pose
+from framework.ports import ReadStatus
+from framework.properties import prop
 
 
 @dataclass(frozen=True)
@@ -101,13 +106,36 @@ class PatientHead(Component):
     """Publishes the reference tool on the head clamp (robot base frame) as the head
     moves; scenarios move it by operations (module docstring)."""
 
+    procedure_file = prop(
+        str, "", doc="procedure YAML whose target on the patient is refereed ('': none)"
+    )
     pose = Out(Pose, doc="the reference tool on the head clamp, robot base frame")
+    tcp = In(Pose, doc="the real arm's TCP (ground truth), for the referee")
 
     def configure_hook(self) -> bool:
         self.home = invert(standard_rigs()[0].rto_from_base)  # base_from_rto at rest
         self.motion = HeadMotion()
         self.frame_number = 0
+        self.target: np.ndarray | None = None  # on the patient
+        if self.procedure_file:
+            from components.supervisor.procedure import load_procedure
+
+            try:
+                procedure = load_procedure(self.procedure_file)
+            except FwError as exc:
+                self.last_error = str(exc)
+                return False
+            if procedure.frame("target") == "patient":
+                self.target = procedure.target
         return True
+
+    def target_error(self) -> float | None:
+        """How far (m) the real TCP is from the target on the head now (None: unknown)."""
+        status, tcp = self.tcp.read()
+        if self.target is None or status is ReadStatus.NO_DATA or tcp is None:
+            return None
+        target = self.base_from_rto() @ self.target
+        return float(np.linalg.norm(pose_matrix(tcp)[:3, 3] - target[:3, 3]))
 
     def base_from_rto(self, t: float | None = None) -> np.ndarray:
         """The reference tool's pose in the robot base frame at `t` (default: now)."""
@@ -173,7 +201,9 @@ class PatientHead(Component):
         if motion is None:
             return {"offset_mm": [0.0, 0.0, 0.0]}
         offset = motion.offset(self.clock.now())
+        error = self.target_error()
         return {
+            "target_error_mm": None if error is None else round(error * 1000.0, 3),
             "offset_mm": [round(float(v) * 1000.0, 3) for v in offset],
             "drift_mm_s": [round(float(v) * 1000.0, 3) for v in motion.drift_velocity],
             "bumps": len(motion.bumps),

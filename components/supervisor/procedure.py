@@ -19,6 +19,9 @@ from framework.filekinds import FileKind, schema_then
 from framework.yamlio import load_yaml
 
 SCHEMA = "components.supervisor:procedure.schema.json"
+FRAMES = ("base", "patient")
+"""The frames a goal may be given in: the robot base, or the reference tool on the head
+clamp (the master tracker's), which moves with the patient."""
 
 
 class ProcedureError(LocatedError):
@@ -33,12 +36,22 @@ class Speeds:
     slow: float
 
 
+@dataclass(frozen=True)
+class Navigation:
+    """How the tracked patient steers the robot (components/robot/navigation.py)."""
+
+    smoothing: float = 0.1  # s
+    max_patient_motion: float = 0.01  # m from where the patient was registered
+    max_patient_speed: float = 0.008  # m/s, over the last second
+    confirm: float = 0.3  # s a motion beyond the limits persists before it is refused
+
+
 @dataclass
 class Procedure:
     """What the Supervisor and the interpolator need to know about the surgery."""
 
     name: str
-    goals: dict[str, np.ndarray]  # name -> 4x4 pose in the robot base frame
+    goals: dict[str, np.ndarray]  # name -> 4x4 pose in its frame (`frames`)
     critical_radius: float
     target_tolerance: float
     acceleration: float
@@ -46,6 +59,12 @@ class Procedure:
     max_near: int
     collision_distance: float
     speeds: dict[str, Speeds] = field(default_factory=dict)
+    frames: dict[str, str] = field(default_factory=dict)  # name -> "base" (default) or "patient"
+    navigation: Navigation = field(default_factory=Navigation)
+
+    def frame(self, goal: str) -> str:
+        """The frame a goal is given in: "base" or "patient"."""
+        return self.frames.get(goal, "base")
 
     @property
     def target(self) -> np.ndarray:
@@ -58,12 +77,16 @@ class Procedure:
         tracker guides the robot."""
         return min(s.slow for s in self.speeds.values())
 
-    def define_target(self, position: Any, rpy_deg: Any) -> np.ndarray:
-        """Replace the target (m, deg; base frame); `FwError` for a pose that is not one."""
+    def define_target(self, position: Any, rpy_deg: Any, frame: str = "base") -> np.ndarray:
+        """Replace the target (m, deg) given in `frame` (base or patient); `FwError` for a
+        pose that is not one or an unknown frame."""
+        if frame not in FRAMES:
+            raise FwError(f"target refused: frame {frame!r} is not one of {', '.join(FRAMES)}")
         try:
             self.goals["target"] = pose_from(position, rpy_deg)
         except ValueError as exc:
             raise FwError(f"target refused: {exc}") from None
+        self.frames["target"] = frame
         return self.goals["target"]
 
 
@@ -116,7 +139,7 @@ def load_procedure(path: str | Path) -> Procedure:
             raise fail(f"`{key}` must be positive", key)
         return float(value)
 
-    goals = {}
+    goals, frames = {}, {}
     for name in ("target", "home"):
         spec = data.get(name)
         if not isinstance(spec, dict) or "position" not in spec:
@@ -125,6 +148,9 @@ def load_procedure(path: str | Path) -> Procedure:
             goals[name] = pose_from(spec["position"], spec.get("rpy_deg", (0, 0, 0)))
         except (TypeError, ValueError) as exc:
             raise fail(f"`{name}`: {exc}", name) from None
+        frames[name] = spec.get("frame", "base")
+    navigation = data.get("navigation") or {}
+    defaults = Navigation()
     people = data.get("people", {}) or {}
     if not isinstance(people, dict):
         raise fail("`people` is a mapping (max_near, collision_distance)", "people")
@@ -160,6 +186,13 @@ def load_procedure(path: str | Path) -> Procedure:
         max_near=max_near,
         collision_distance=float(collision),
         speeds=speeds,
+        frames=frames,
+        navigation=Navigation(
+            float(navigation.get("smoothing", defaults.smoothing)),
+            float(navigation.get("max_patient_motion", defaults.max_patient_motion)),
+            float(navigation.get("max_patient_speed", defaults.max_patient_speed)),
+            float(navigation.get("confirm", defaults.confirm)),
+        ),
     )
 
 

@@ -12,20 +12,27 @@ interpolator, and raises the events the SEEG chart reacts to:
 * `e_TOK {tracker}` / `e_NOTRACKER`: answers to `report_best_tracker`;
 * `e_TFAULT {tracker, failed, fault}`: the tracker in use (`failed`) is no longer the
   best one (its fault, or a better one recovered); `tracker` is the one to use now (as
-  in `e_TOK`), so the chart swaps without asking; `e_NOTRACKER` if none is left;
+  in `e_TOK`), so the chart swaps without asking; `e_NOTRACKER` if none is left. The
+  tracker in use is the one whose samples steer the navigator (its `navigation`
+  news), not a name handed back by the chart;
+* `e_PATIENT_MOVED {reason}`: the navigator refuses the patient's motion (moved too
+  far or too fast from where it was registered);
 * `e_TARGET {goal}`: the interpolator reached the goal and the measured TCP is
   within `target_tolerance` of it;
 * `e_STOP {reason}` also when the robot side latched a safety stop by itself (its
   safety monitor tripped, the arm's controller braked): the chart must know the robot
   no longer follows.
 
-Every `e_STOP` and `e_NOTRACKER` is preceded by a message on `halt`, wired straight
+Every `e_STOP`, `e_NOTRACKER` and `e_PATIENT_MOVED` is preceded by a message on `halt`, wired straight
 to the interpolator: braking starts one hop after the verdict instead of after the
 chart and the Configurator (three more hops). The chart still enters its stop state
 and applies the stop configuration; the reflex only starts the braking earlier.
 
 `change_movement_parameters(speed)` sends the interpolator the limits of the
-tracker in use for the area ("fast" or "slow"), from the procedure file.
+tracker in use for the area ("fast" or "slow"), from the procedure file, and again
+by itself whenever another tracker starts steering (a swap needs no re-application).
+Goals on the patient are where the navigator says they are now (the critical area
+and the arrival follow the head).
 `SupervisorCore` is the logic (plain values in, events out); the component feeds it.
 """
 
@@ -45,7 +52,7 @@ from framework.ports import ReadStatus
 from framework.properties import prop
 
 Event = tuple[str, dict[str, Any]]
-HALTING = ("e_STOP", "e_NOTRACKER")
+HALTING = ("e_STOP", "e_NOTRACKER", "e_PATIENT_MOVED")
 """Events that also halt the interpolator directly (the chart's stop follows)."""
 
 
@@ -67,6 +74,10 @@ class SupervisorCore:
     arriving: str = ""  # the goal the interpolator reached, until the TCP is there too
     sensor_limits: dict[str, dict[str, float]] = field(default_factory=dict)
     robot_fault: str = ""
+    steering: str | None = None  # whose samples steer the navigator (None: they stopped)
+    speed: str = ""  # the speed the chart last asked for (fast, slow)
+    goal_positions: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    patient_refused: str = ""
 
     # --- inputs ----------------------------------------------------------------------
     def tracking(
@@ -114,6 +125,29 @@ class SupervisorCore:
         self.arriving = goal if phase == "reached" and goal in self.procedure.goals else ""
         return self._arrival()
 
+    def navigation(
+        self,
+        tracker: str | None,
+        goals: dict[str, tuple[float, float, float]],
+        refused: str = "",
+    ) -> tuple[list[Event], bool]:
+        """The navigator's news: the tracker whose samples steer (None: they stopped),
+        where the goals are now (base frame), its refusal of the patient's motion. The
+        events, and whether the limits must be sent again (another tracker steers, at its
+        own speeds)."""
+        self.goal_positions = dict(goals)
+        resend = False
+        if tracker != self.steering:
+            self.steering = tracker
+            if tracker is not None:
+                self.in_use = tracker
+                resend = bool(self.speed)
+        events = []
+        if refused and not self.patient_refused:
+            events.append(("e_PATIENT_MOVED", {"reason": refused}))
+        self.patient_refused = refused
+        return events + self._area() + self._arrival(), resend
+
     def robot(self, braked: bool, fault: bool, reason: str) -> list[Event]:
         """The robot interface's status: a safety stop the robot side latched by itself
         (monitor trip, the arm's own brakes) stops the task, once per fault, whether the
@@ -133,20 +167,12 @@ class SupervisorCore:
             return ("e_NOTRACKER", {})
         return ("e_TOK", {"tracker": self.best})
 
-    def use_tracker(self, tracker: str) -> None:
-        """The Configurator connected `tracker`: watch it from now on."""
-        if tracker not in self.procedure.speeds:
-            raise FwError(
-                f"tracker {tracker!r} has no speeds in the procedure "
-                f"({', '.join(self.procedure.speeds)})"
-            )
-        self.in_use = tracker
-
     def limits(self, speed: str) -> dict[str, float]:
         """Interpolator limits for the tracker in use at `speed` (fast, slow): the
         procedure's speed, capped by what the Sensor Manager allows for that tracker."""
         if speed not in ("fast", "slow"):
             raise FwError(f"speed is 'fast' or 'slow', not {speed!r}")
+        self.speed = speed
         speeds = self.procedure.speeds.get(self.in_use or "")
         if speeds is None:  # no tracker in use: the slowest speed of any tracker
             velocity = self.procedure.slowest
@@ -159,19 +185,28 @@ class SupervisorCore:
         return {"velocity": velocity, "acceleration": acceleration}
 
     # --- internals -------------------------------------------------------------------
+    def goal_position(self, name: str) -> tuple[float, float, float] | None:
+        """Where a goal is now in the base frame (None: on the patient, and the navigator
+        has not said where the patient is)."""
+        if name in self.goal_positions:
+            return self.goal_positions[name]
+        if self.procedure.frame(name) == "patient":
+            return None
+        return tuple(float(v) for v in self.procedure.goals[name][:3, 3])  # type: ignore[return-value]
+
     def _arrival(self) -> list[Event]:
         if not self.arriving or self.tcp is None:
             return []
-        goal = self.procedure.goals[self.arriving][:3, 3]
-        if math.dist(self.tcp, goal) > self.procedure.target_tolerance:
+        goal = self.goal_position(self.arriving)
+        if goal is None or math.dist(self.tcp, goal) > self.procedure.target_tolerance:
             return []
         goal_name, self.arriving = self.arriving, ""
         return [("e_TARGET", {"goal": goal_name})]
 
     def _area(self) -> list[Event]:
-        if self.tcp is None:
+        target = self.goal_position("target")
+        if self.tcp is None or target is None:
             return []
-        target = self.procedure.target[:3, 3]
         distance = math.dist(self.tcp, target)
         crowded = self.users_near > self.procedure.max_near
         critical = distance < self.procedure.critical_radius or crowded
@@ -207,6 +242,7 @@ class Supervisor(Component):
         "e_NOTRACKER",
         "e_TFAULT",
         "e_TARGET",
+        "e_PATIENT_MOVED",
     )
     procedure_file = prop(str, "", doc="procedure YAML (target, areas, speeds)", required=True)
     tracking = In(EventMessage, doc="Sensor Manager decisions (best tracker, health)")
@@ -214,14 +250,12 @@ class Supervisor(Component):
     users_near = In(Scalar, doc="confirmed people near the table")
     min_distance = In(Scalar, doc="closest robot-person distance (m)")
     motion = In(EventMessage, doc="interpolator phase changes")
-    tracked = In(Pose, doc="the robot's tool as the tracker in use sees it (rewired per tracker)")
+    navigation = In(
+        EventMessage,
+        doc="the navigator's goals (base frame), the tracker that steers, its refusal",
+    )
     robot = In(EventMessage, doc="robot interface status (brakes, reason, fault)")
     events = Out(EventMessage, doc="events for the Coordinator (fw/events)")
-    sources = Out(
-        EventMessage,
-        doc="first valid sample from a new tracker on `tracked`: {tracker, sample_stamp} "
-        "(stamped on receipt; the sensor swap latency ends here)",
-    )
     limits = Out(EventMessage, doc="interpolator limits {velocity, acceleration}")
     halt = Out(
         EventMessage,
@@ -236,7 +270,6 @@ class Supervisor(Component):
             self.last_error = str(exc)
             return False
         self._core_lock = threading.Lock()
-        self._source: str | None = None  # the tracker whose samples `tracked` last carried
         return True
 
     def idle_hook(self) -> None:
@@ -283,28 +316,48 @@ class Supervisor(Component):
                 if status is not ReadStatus.NEW:
                     break
                 events += core.motion(change.name, str(change.payload.get("goal", "")))
+            news = self._new(self.navigation)
+            if news is not None:
+                navigated = self._navigation(news.payload)
+                if navigated is not None:
+                    more, resend = core.navigation(*navigated)
+                    events += more
+                    if resend:
+                        self._send_limits(core.limits(core.speed))
             robot = self._new(self.robot)
             if robot is not None:
                 p = robot.payload
                 events += core.robot(
                     bool(p.get("braked")), bool(p.get("fault")), str(p.get("reason", ""))
                 )
-        tool = self._new(self.tracked)
-        if tool is not None and tool.valid and tool.frame != self._source:
-            self._source = tool.frame
-            self.sources.write(
-                EventMessage(
-                    time.time(),
-                    "tracked_source",
-                    self.name,
-                    {"tracker": tool.frame, "sample_stamp": tool.stamp},
-                )
-            )
         for name, payload in events:
             if name in HALTING:
                 reason = payload.get("reason", "no tracker sees the robot")
                 self.halt.write(EventMessage(time.time(), "halt", self.name, {"reason": reason}))
             self._emit(name, payload)
+
+    def _navigation(
+        self, payload: Any
+    ) -> tuple[str | None, dict[str, tuple[float, float, float]], str] | None:
+        """The navigator's message as (tracker, goal positions, refusal), or None (and
+        a refusal said) if it cannot be believed."""
+        try:
+            tracker = payload.get("tracker")
+            if tracker is not None and not (isinstance(tracker, str) and 0 < len(tracker) <= 64):
+                raise ValueError(f"tracker {str(tracker)[:40]!r} is not a name")
+            goals = {}
+            for name, pose in payload["goals"].items():
+                position = tuple(float(v) for v in pose[:3])
+                if len(position) != 3 or not all(map(math.isfinite, position)):
+                    raise ValueError(f"goal {str(name)[:40]!r} is not a finite position")
+                goals[str(name)] = position
+            return tracker, goals, str(payload.get("refused") or "")
+        except (AttributeError, KeyError, TypeError, ValueError) as exc:
+            self.refuse("navigation", f"navigator news that cannot be believed: {exc}")
+            return None
+
+    def _send_limits(self, limits: dict[str, float]) -> None:
+        self.limits.write(EventMessage(time.time(), "limits", self.name, limits))
 
     @staticmethod
     def _new(port: Any) -> Any:
@@ -323,46 +376,23 @@ class Supervisor(Component):
         return name
 
     @operation
-    def use_tracker(self, tracker: str) -> str:
-        """Watch `tracker` as the one in use (called by tracker_N_up)."""
-        with self._core_lock:
-            self.core.use_tracker(tracker)
-        return tracker
-
-    @operation
-    def define_target(
-        self, x: float, y: float, z: float, roll: float, pitch: float, yaw: float
-    ) -> list[float]:
-        """A new target pose (m, deg; robot base frame): the critical sphere and the
-        arrival check follow it from now on."""
-        with self._core_lock:
-            self.core.procedure.define_target((x, y, z), (roll, pitch, yaw))
-        return [x, y, z]
-
-    @operation
     def change_movement_parameters(self, speed: str) -> dict[str, float]:
         """Send the interpolator the limits for the tracker in use at `speed` (fast, slow)."""
         with self._core_lock:
             limits = self.core.limits(speed)
-        self.limits.write(EventMessage(time.time(), "limits", self.name, limits))
+        self._send_limits(limits)
         return limits
 
     @operation(readonly=True)
     def report(self) -> dict[str, Any]:
-        """Tracker in use, best tracker, area, people, distance, motion, tracked tool."""
+        """Tracker in use (and the one steering now), best tracker, area, people,
+        distance, motion, where the target is now, the navigator's refusal."""
         core = self.core
-        status, tool = self.tracked.read()
-        seen = None
-        if status is not ReadStatus.NO_DATA and tool is not None:
-            seen = {
-                "tracker": tool.frame,
-                "valid": tool.valid,
-                "position": [round(v, 5) for v in tool.position],
-                "age_s": round(time.time() - tool.stamp, 3),
-            }
+        target = core.goal_position("target")
         return {
-            "tracked": seen,
             "tracker": core.in_use,
+            "steering": core.steering,
+            "patient_refused": core.patient_refused,
             "best": core.best,
             "area": core.area,
             "users_near": core.users_near,
@@ -370,7 +400,7 @@ class Supervisor(Component):
             "in_collision": core.in_collision,
             "phase": core.phase,
             "goal": core.goal,
-            "target": [round(float(v), 4) for v in core.procedure.target[:3, 3]],
+            "target": None if target is None else [round(float(v), 4) for v in target],
             "critical_radius": core.procedure.critical_radius,
         }
 

@@ -92,7 +92,7 @@ class ConsoleModel:
         self._listen("supervisor/halt", EventMessage, self._on_halt, 16)
         self._listen("interpolator/status", EventMessage, self._on_motion, 16)
         self._listen("sensor_manager/status", EventMessage, self._on_tracking, 16)
-        self._listen("supervisor/sources", EventMessage, self._on_source, 16)
+        self._listen("navigator/sources", EventMessage, self._on_source, 16)
         # fw deploy publishes these from its own session, which may be this one
         self._incidents = self.bus.subscribe(keys.DEPLOYER_EVENTS, self._on_incident, False)
         self._thread = threading.Thread(target=self._poll, name="fw-console-poll", daemon=True)

@@ -77,7 +77,7 @@ def test_run_prints_the_trace_and_the_final_state(capsys):
     out = capsys.readouterr().out
     assert code == 0 and "configure tracker_2_up" in out
     assert out.strip().splitlines()[-1] == (
-        "active: System_OK.Area.Critical, System_OK.Task.Moving.Moving_Slow"
+        "active: System_OK.Area.Critical, System_OK.Task.Navigating.Moving.Moving_Slow"
     )
 
 

@@ -132,7 +132,7 @@ def test_an_out_of_range_target_is_refused_by_the_coordinator_itself():
     coordinator = Coordinator("coordinator", chart, admission=Admission(external=None))
     target = {"x": 5.0, "y": -3.0, "z": -1.0, "roll": 1e9, "pitch": 0.0, "yaw": 0.0}
     answer = coordinator.offer("e_DEFINE_TARGET", target, origin="test")
-    assert answer == {"accepted": False, "reason": "e_DEFINE_TARGET.x must be at most 0.8 m"}
+    assert answer == {"accepted": False, "reason": "e_DEFINE_TARGET.x must be at most 0.5 m"}
     answer = coordinator.offer("e_DEFINE_TARGET", {**target, "x": 0.5, "y": 0.0, "z": 0.2})
     assert answer["reason"] == "e_DEFINE_TARGET.roll must be at most 180 deg"
     answer = coordinator.offer("e_DEFINE_TARGET", {"x": float("nan")})

@@ -1,8 +1,9 @@
 """Spec: the interpolator as a component, cycle by cycle. The test plays the robot
-interface (measured joints in, setpoints out), the Supervisor (limits, the halt reflex)
-and the Configurator (operations): limits beyond the procedure are refused, any halt
-brakes, an arm that does not follow stops the motion, and a goal re-sent while moving
-there does not interrupt it."""
+interface (measured joints in, setpoints out), the Supervisor (limits, the halt reflex),
+the navigator (where the goals are now) and the Configurator (operations): limits beyond
+the procedure are refused, any halt brakes, an arm that does not follow stops the
+motion, a goal re-sent while moving there does not interrupt it, the motion steers to
+where the navigator says its goal is now, and a refusal of the patient's motion stops it."""
 
 import json
 
@@ -11,7 +12,8 @@ import pytest
 
 from components.robot.interpolator import CartesianInterpolator
 from components.robot.lwr4 import HOME
-from components.supervisor.procedure import load_procedure
+from components.robot.navigation import pose_list
+from components.supervisor.procedure import pose_from
 from components.tracking.geometry import quat_to_matrix
 from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
@@ -21,7 +23,8 @@ from framework.messages import EventMessage, JointState, Pose
 from tests.conftest import REPO, drained, reader_port, writer_port
 
 PROCEDURE = REPO / "procedures" / "seeg.yaml"
-PROCEDURE_TARGET = load_procedure(PROCEDURE).target
+TARGET = pose_from((0.60, 0.0, 0.12), (0, 180, 0))  # where the navigator says it is
+HOME_GOAL = pose_from((0.54, 0.0, 0.37), (0, 180, 0))  # seeg.yaml's home (base frame)
 
 
 class Robot:
@@ -40,6 +43,7 @@ class Robot:
             ("joints", JointState),
             ("limits", EventMessage),
             ("halt", EventMessage),
+            ("goals", EventMessage),
         ]:
             self.writers[name] = writer_port(hub, f"test/{name}", kind)
             self.container.connect("interpolator", name, f"test/{name}")
@@ -55,6 +59,17 @@ class Robot:
         self.configured = self.interp.configure() and self.interp.start()
         self.q = np.array(HOME, dtype=float)
         self.lag = np.zeros(7)
+        self.navigate(target=TARGET)
+
+    def navigate(self, refused="", revisions=None, **goals):
+        """The navigator says where the goals are now (base frame), as it does each sample."""
+        payload = {
+            "goals": {name: pose_list(pose) for name, pose in {"home": HOME_GOAL, **goals}.items()},
+            "revisions": revisions or {},
+            "tracker": "certus",
+            "refused": refused,
+        }
+        self.writers["goals"].write(EventMessage(0.0, "goals", "navigator", payload))
 
     def cycle(self, n=1):
         for _ in range(n):
@@ -125,7 +140,7 @@ def test_it_moves_to_a_named_goal_and_says_when_it_is_there(robot):
     assert report["s"] == report["length"] > 0.1 and report["speed"] == 0.0
     command = robot.drain("command")[-1]  # the commanded TCP, for whoever records it
     assert command.position == pytest.approx((0.6, 0.0, 0.12), abs=1e-6)
-    assert np.allclose(quat_to_matrix(np.array(command.orientation)), PROCEDURE_TARGET[:3, :3])
+    assert np.allclose(quat_to_matrix(np.array(command.orientation)), TARGET[:3, :3])
     assert (command.rms, command.frame_number, command.valid, command.frame, command.tool) == (
         0.0,
         0,
@@ -170,7 +185,8 @@ def test_a_pose_and_a_new_target_are_reached_as_given(robot):
     robot.until("reached")
     assert robot.report()["goal"] == "pose"
     assert robot.report()["tcp"] == pytest.approx([0.55, 0.05, 0.3], abs=1e-6)
-    assert robot.interp.call("define_target", x=0.58, y=-0.02, z=0.2, roll=0, pitch=180, yaw=0)
+    robot.navigate(target=pose_from((0.58, -0.02, 0.2), (0, 180, 0)), revisions={"target": 1})
+    robot.cycle()
     robot.interp.call("go_to", goal="target")
     robot.until("reached")
     assert robot.report()["tcp"] == pytest.approx([0.58, -0.02, 0.2], abs=1e-6)
@@ -274,5 +290,85 @@ def test_a_procedure_that_cannot_be_read_stops_configuration(hub, tmp_path):
     robot = Robot(hub, bad)
     try:
         assert not robot.configured and "seeg.yaml" in robot.interp.last_error
+    finally:
+        robot.close()
+
+
+# --- the navigator's goals --------------------------------------------------------------
+
+
+def moved(pose, dx=0.0, dy=0.0, dz=0.0):
+    out = pose.copy()
+    out[:3, 3] += (dx, dy, dz)
+    return out
+
+
+def test_the_motion_ends_where_the_navigator_says_its_goal_is_now(robot):
+    robot.limits(velocity=0.075)
+    robot.interp.call("go_to", goal="target")
+    robot.cycle(500)
+    robot.navigate(target=moved(TARGET, dy=0.004))  # the head moved 4 mm
+    robot.until("reached")
+    robot.cycle(1000)
+    assert robot.report()["tcp"] == pytest.approx([0.60, 0.004, 0.12], abs=1e-6)
+    robot.navigate(target=moved(TARGET, dy=0.001))  # while holding: followed too
+    robot.cycle(1000)
+    assert robot.report()["tcp"] == pytest.approx([0.60, 0.001, 0.12], abs=1e-6)
+
+
+def test_a_target_defined_anew_is_not_followed_until_the_next_go_to(robot):
+    robot.limits(velocity=0.075)
+    robot.interp.call("go_to", goal="target")
+    robot.until("reached")
+    robot.navigate(target=moved(TARGET, dx=-0.02), revisions={"target": 1})
+    robot.cycle(2000)
+    assert robot.report()["tcp"] == pytest.approx([0.60, 0.0, 0.12], abs=1e-6)
+    robot.interp.call("go_to", goal="home")
+    robot.until("reached")
+    robot.interp.call("go_to", goal="target")
+    robot.until("reached")
+    assert robot.report()["tcp"] == pytest.approx([0.58, 0.0, 0.12], abs=1e-6)
+
+
+def test_a_refusal_of_the_patients_motion_stops_the_motion_and_a_go_to(robot):
+    robot.limits(velocity=0.075)
+    robot.interp.call("go_to", goal="target")
+    robot.cycle(300)
+    robot.navigate(target=moved(TARGET, dz=0.02), refused="the patient moved 20.0 mm")
+    robot.cycle()
+    assert robot.report()["phase"] == "stopping"
+    assert robot.report()["halted"] == "the patient moved 20.0 mm"
+    with pytest.raises(FwError, match=r"navigation refuses: the patient moved 20\.0 mm"):
+        robot.interp.call("go_to", goal="target")
+    robot.until("stopped")
+    robot.navigate(target=TARGET)  # registered again: go
+    robot.cycle()
+    assert robot.interp.call("go_to", goal="target")["phase"] == "moving"
+
+
+@pytest.mark.parametrize(
+    "payload",
+    [{"goals": {"target": [0.6, 0.0]}}, {"goals": {"target": [0.6, 0, 0.1, 2.0, 0, 0, 0]}}, {}],
+    ids=["short pose", "not a rotation", "no goals"],
+)
+def test_goals_that_are_not_poses_are_refused_and_change_nothing(robot, payload):
+    refusals = []
+    robot.interp.add_refusal_listener(lambda refusal: refusals.append(refusal))
+    robot.limits(velocity=0.075)
+    robot.interp.call("go_to", goal="target")
+    robot.writers["goals"].write(EventMessage(0.0, "goals", "navigator", payload))
+    robot.until("reached")
+    assert robot.report()["tcp"] == pytest.approx([0.60, 0.0, 0.12], abs=1e-6)
+    assert refusals and refusals[0].port == "goals"
+
+
+def test_a_goal_on_the_patient_needs_a_navigator(hub):
+    robot = Robot(hub)
+    try:
+        robot.writers["goals"].write(EventMessage(0.0, "goals", "navigator", {"goals": {}}))
+        robot.cycle()
+        with pytest.raises(FwError, match="'target' is on the patient and no navigator said"):
+            robot.interp.call("go_to", goal="target")
+        assert robot.interp.call("go_to", goal="home")["phase"] == "moving"  # in the base
     finally:
         robot.close()

@@ -7,6 +7,7 @@ far or too fast is refused (components/robot/navigation.py)."""
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import numpy as np
 import pytest
@@ -15,10 +16,16 @@ from hypothesis import strategies as st
 
 from components.robot.interpolator import InterpolatorCore, Phase
 from components.robot.lwr4 import HOME, Kinematics
-from components.robot.navigation import NavigatorCore, frames_of
+from components.robot.navigation import Navigator, NavigatorCore, frames_of
 from components.supervisor.procedure import pose_from
 from components.tracking.geometry import invert, pose_matrix
 from components.tracking.synthetic import rigid, sensors_config, standard_rigs
+from framework.activity import Activity, SteppedExecutor
+from framework.clock import SimulatedClock
+from framework.container import Container
+from framework.errors import FwError
+from framework.messages import EventMessage, JointState, Pose
+from tests.conftest import REPO, drained, reader_port, writer_port
 
 KIN = Kinematics()
 DT = 0.001
@@ -172,7 +179,7 @@ def test_a_swap_to_a_tracker_with_another_calibration_blends_the_goal_without_a_
     ("head", "refusal"),
     [
         (lambda t: np.array([0.004 * min(t, 1.0), 0.0, 0.0]), ""),  # 4 mm, slowly
-        (lambda t: np.array([0.012 * min(t / 3, 1.0), 0.0, 0.0]), "moved 12.0 mm"),
+        (lambda t: np.array([0.012 * min(t / 3, 1.0), 0.0, 0.0]), "(limit 10.0 mm)"),
         (lambda t: np.array([0.0, 0.0, 0.009 * min(max(t - 1, 0) / 0.3, 1.0)]), "moves at"),
     ],
     ids=["followed", "too far", "too fast"],
@@ -187,6 +194,28 @@ def test_a_patient_moved_too_far_or_too_fast_is_refused_until_registered_again(h
         assert np.linalg.norm(loop.nav.patient_offset) < 1e-3
 
 
+def test_a_reference_tool_slipped_on_the_clamp_holds_the_goals_and_is_not_refused_after_a_swap():
+    loop = Loop().go().run(3.0)
+    goal = loop.nav.goal(TARGET)
+    slipped = dataclasses.replace(
+        CERTUS, rto_from_base=rigid((0.02, 0.0, 0.0), (0, 0, 0)) @ CERTUS.rto_from_base
+    )
+    loop.run(0.2, rig=slipped)  # the Certus sees the patient 2 cm away, suddenly
+    assert "moved 20.0 mm" in loop.nav.suspect and loop.nav.refused == ""
+    assert np.allclose(loop.nav.goal(TARGET), goal)  # the robot does not chase it
+    loop.run(2.0, rig=VICRA)  # the Sensor Manager found the Certus out; the Vicra steers
+    assert loop.nav.refused == "" and loop.nav.suspect == ""
+    assert np.linalg.norm(loop.nav.patient_offset) < 1e-3
+
+
+def test_a_motion_beyond_the_limits_seen_for_the_confirmation_time_is_refused():
+    loop = Loop(head=lambda t: np.array([0.02 * (t > 1.0), 0.0, 0.0])).go()
+    loop.run(1.0 + loop.nav.confirm - 0.05)
+    assert loop.nav.suspect and loop.nav.refused == ""
+    loop.run(0.1)
+    assert "moved 20.0 mm" in loop.nav.refused
+
+
 def test_samples_of_an_unknown_tracker_change_nothing_and_without_any_the_goal_is_registered():
     nav = NavigatorCore(TRACKERS, REGISTRATION)
     assert np.allclose(nav.goal(TARGET), REGISTRATION @ TARGET)
@@ -194,3 +223,135 @@ def test_samples_of_an_unknown_tracker_change_nothing_and_without_any_the_goal_i
     assert nav.tracker is None and np.allclose(nav.goal(TARGET), REGISTRATION @ TARGET)
     with pytest.raises(ValueError, match="positive"):
         NavigatorCore(TRACKERS, REGISTRATION, smoothing=0.0)
+    with pytest.raises(ValueError, match="confirm not negative"):
+        NavigatorCore(TRACKERS, REGISTRATION, confirm=-0.1)
+
+
+# --- the Navigator component: ports in, goals out ---------------------------------------
+
+
+class NavigatorRig:
+    """A Navigator on the hub session, the test playing the robot interface (joints) and
+    the tracker connected to it (cto, rto); same session: delivered on `write`."""
+
+    def __init__(self, hub, stale=0.25):
+        self.container = Container("c", hub, SteppedExecutor(SimulatedClock()))
+        self.nav = self.container.add(Navigator("navigator"), Activity())
+        self.nav.set_property("procedure_file", str(REPO / "procedures" / "seeg.yaml"))
+        self.nav.set_property("sensors_file", str(REPO / "procedures" / "seeg" / "sensors.yaml"))
+        self.nav.set_property("stale", stale)
+        self.writers = {}
+        for name, kind in [("joints", JointState), ("cto", Pose), ("rto", Pose)]:
+            self.writers[name] = writer_port(hub, f"test/{name}", kind)
+            self.container.connect("navigator", name, f"test/{name}")
+        self.goals = reader_port(hub, "navigator/goals", EventMessage)
+        self.sources = reader_port(hub, "navigator/sources", EventMessage)
+        self.refusals = []
+        self.nav.add_refusal_listener(self.refusals.append)
+        self.container.start()
+        assert self.nav.configure() and self.nav.start(), self.nav.last_error
+        self.rng = np.random.default_rng(1)
+
+    def sample(self, rig=CERTUS, stamp=None, tcp_error=ARM_ERROR, head=BASE_FROM_RTO):
+        """The arm at HOME (its joints stamped now), seen by `rig`; the navigator runs."""
+        stamp = time.time() if stamp is None else stamp
+        self.writers["joints"].write(JointState(stamp, HOME))
+        real = tcp_error @ KIN.tcp(np.array(HOME))
+        cto, rto = dataclasses.replace(rig, noise=0.0).observe(
+            real, self.rng, stamp, base_from_rto=head
+        )
+        self.writers["rto"].write(rto)
+        self.writers["cto"].write(cto)
+        self.nav.update_hook()
+        return drained(self.goals)[-1].payload
+
+    def close(self):
+        self.container.shutdown()
+
+
+@pytest.fixture
+def navigator(hub):
+    rig = NavigatorRig(hub)
+    yield rig
+    rig.close()
+
+
+def goal_of(payload, name="target"):
+    from components.robot.interpolator import _pose_from_list
+
+    return _pose_from_list(payload["goals"][name])
+
+
+def test_before_any_sample_the_goals_are_where_the_registration_puts_them(navigator):
+    navigator.nav.idle_hook()
+    payload = drained(navigator.goals)[-1].payload
+    assert payload["tracker"] is None and payload["refused"] == ""
+    assert np.allclose(goal_of(payload)[:3, 3], [0.60, 0.0, 0.12], atol=1e-3)  # calibration
+    assert payload["goals"]["home"][:3] == [0.54, 0.0, 0.37]  # in the base frame: as given
+
+
+def test_the_tracker_in_use_places_the_target_where_the_arm_must_go_in_its_own_terms(navigator):
+    payload = navigator.sample()
+    assert payload["tracker"] == "certus"
+    # the real TCP is ARM_ERROR off the model: the goal is moved so the real TCP lands
+    wanted = invert(ARM_ERROR) @ BASE_FROM_RTO @ TARGET
+    assert np.linalg.norm(goal_of(payload)[:3, 3] - wanted[:3, 3]) < 1e-3  # calibration
+
+
+def test_the_first_sample_of_each_tracker_is_marked_as_its_source_once(navigator):
+    navigator.sample(stamp=time.time() - 0.01)
+    navigator.sample()
+    navigator.sample(rig=VICRA)
+    sources = [m.payload for m in drained(navigator.sources)]
+    assert [s["tracker"] for s in sources] == ["certus", "vicra"]
+
+
+def test_samples_of_an_unknown_tracker_or_of_two_trackers_mixed_are_not_used(navigator):
+    stranger = dataclasses.replace(CERTUS, name="optotrak")
+    payload = navigator.sample(rig=stranger)
+    assert payload["tracker"] is None
+    assert "'optotrak', a tracker the sensors file lacks" in navigator.refusals[0].reason
+    navigator.writers["rto"].write(dataclasses.replace(CERTUS).observe(np.eye(4), navigator.rng)[1])
+    cto = dataclasses.replace(VICRA).observe(np.eye(4), navigator.rng)[0]
+    navigator.writers["cto"].write(cto)  # a Vicra CTO with a Certus RTO: not a pair
+    navigator.nav.update_hook()
+    assert drained(navigator.goals)[-1].payload["tracker"] is None
+
+
+def test_a_tracker_whose_samples_stopped_no_longer_steers(hub):
+    rig = NavigatorRig(hub, stale=0.02)
+    try:
+        assert rig.sample()["tracker"] == "certus"
+        time.sleep(0.05)  # longer than `stale`
+        rig.nav.idle_hook()
+        assert drained(rig.goals)[-1].payload["tracker"] is None
+    finally:
+        rig.close()
+
+
+def test_a_patient_moved_too_far_is_refused_until_registered_again(navigator):
+    t0 = time.time() - 1.0
+    navigator.sample(stamp=t0)
+    moved = BASE_FROM_RTO.copy()
+    moved[:3, 3] += (0.0, 0.012, 0.0)
+    payload = navigator.sample(head=moved, stamp=t0 + 0.01)
+    assert payload["refused"] == "" and payload["holding"].startswith("the patient moved 12.0")
+    payload = navigator.sample(head=moved, stamp=t0 + 0.02 + navigator.nav.core.confirm)
+    assert payload["refused"].startswith("the patient moved 12.0 mm")
+    assert payload["patient_mm"] == pytest.approx([0.0, 12.0, 0.0], abs=1.0)  # calibration
+    registered = navigator.nav.call("register")
+    assert registered["refused"] == "" and registered["holding"] == ""
+    assert drained(navigator.goals)[-1].payload["refused"] == "", "said at once"
+
+
+def test_a_target_defined_anew_has_a_new_revision_and_a_bad_one_is_refused(navigator):
+    navigator.nav.idle_hook()
+    assert drained(navigator.goals)[-1].payload["revisions"] == {"target": 0, "home": 0}
+    report = navigator.nav.call("define_target", x=0.1, y=0.2, z=0.15, roll=180, pitch=0, yaw=0)
+    assert report["revisions"]["target"] == 1
+    with pytest.raises(FwError, match="frame 'skull'"):
+        navigator.nav.call("define_target", x=0, y=0, z=0, roll=0, pitch=0, yaw=0, frame="skull")
+    base = navigator.nav.call(
+        "define_target", x=0.6, y=0, z=0.2, roll=0, pitch=180, yaw=0, frame="base"
+    )
+    assert base["goals"]["target"][:3] == [0.6, 0.0, 0.2]

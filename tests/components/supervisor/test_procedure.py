@@ -13,8 +13,16 @@ from tests.conftest import REPO
 def test_the_seeg_procedure_loads_with_the_thesis_speeds():
     p = load_procedure(REPO / "procedures" / "seeg.yaml")
     assert p.speeds["certus"].fast == 0.075 and p.speeds["certus"].slow == 0.010
-    assert np.allclose(p.target[:3, 3], [0.60, 0.0, 0.12])
-    assert np.allclose(p.target[:3, 2], [0.0, 0.0, -1.0], atol=1e-9), "the tool points down"
+    assert p.frame("target") == "patient" and p.frame("home") == "base"
+    # on the patient where, at rest, the robot base has it 12 cm above the table, the
+    # tool pointing down: the reference tool at rest is the simulated head clamp's
+    from components.tracking.geometry import invert
+    from components.tracking.synthetic import standard_rigs
+
+    in_base = invert(standard_rigs()[0].rto_from_base) @ p.target
+    assert np.allclose(in_base[:3, 3], [0.60, 0.0, 0.12], atol=1e-6)
+    assert np.allclose(in_base[:3, 2], [0.0, 0.0, -1.0], atol=1e-6), "the tool points down"
+    assert p.navigation.max_patient_motion == 0.010
 
 
 GOALS = "procedure: x\ntarget: {position: [0, 0, 0]}\nhome: {position: [0, 0, 0]}\n"
@@ -72,3 +80,16 @@ def test_a_defined_target_replaces_the_goal_and_a_bad_one_is_refused():
 def test_roll_pitch_yaw_is_scipys_fixed_axis_xyz(rpy):
     expected = Rotation.from_euler("xyz", rpy, degrees=True).as_matrix()
     assert np.allclose(pose_from((0, 0, 0), rpy)[:3, :3], expected, atol=1e-12)
+
+
+def test_a_goal_frame_is_the_base_unless_said_and_must_be_a_known_one(write):
+    text = GOALS + "trackers: {certus: {fast: 0.1, slow: 0.01}}\n"
+    p = load_procedure(write(text, "p.yaml"))
+    assert p.frame("target") == "base" and p.navigation.smoothing == 0.1
+    bad = text.replace("target: {position", "target: {frame: skull, position")
+    with pytest.raises(ProcedureError, match=r"p.yaml:2.*frame"):
+        load_procedure(write(bad, "p.yaml"))
+    with pytest.raises(Exception, match="frame 'skull' is not one of base, patient"):
+        p.define_target((0, 0, 0), (0, 0, 0), "skull")
+    p.define_target((0.1, 0, 0), (0, 0, 0), "patient")
+    assert p.frame("target") == "patient" and p.target[0, 3] == 0.1

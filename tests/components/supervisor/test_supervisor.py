@@ -11,7 +11,9 @@ from framework.errors import FwError
 from tests.conftest import REPO
 
 PROCEDURE = load_procedure(REPO / "procedures" / "seeg.yaml")
-TARGET = tuple(PROCEDURE.target[:3, 3])
+TARGET = (0.60, 0.0, 0.12)  # where the navigator says the target on the patient is
+HOME = (0.54, 0.0, 0.37)
+GOALS = {"target": TARGET, "home": HOME}
 FAR = (TARGET[0], TARGET[1], TARGET[2] + 0.25)
 HEALTHY = {"certus": {"ok": True, "cause": ""}, "vicra": {"ok": True, "cause": ""}}
 
@@ -23,7 +25,13 @@ def names(events):
 def core(**kwargs) -> SupervisorCore:
     c = SupervisorCore(PROCEDURE, **kwargs)
     c.tracking("certus", HEALTHY)
+    c.navigation(None, GOALS)  # where the goals are, before any tracker steers
     return c
+
+
+def steer(c: SupervisorCore, tracker: str):
+    """The navigator's samples now come from `tracker` (the chart connected it)."""
+    return c.navigation(tracker, GOALS)
 
 
 def test_entering_and_leaving_the_critical_sphere_raise_area_events_once():
@@ -57,14 +65,14 @@ def test_a_possible_collision_stops_once_and_again_when_motion_restarts():
 
 def test_losing_the_tracker_in_use_is_a_fault_and_losing_all_is_no_tracker():
     c = core()
-    c.use_tracker("certus")
+    steer(c, "certus")
     sick = {"certus": {"ok": False, "cause": "cto_missing"}, "vicra": {"ok": True}}
     assert c.tracking("vicra", sick) == [
         ("e_TFAULT", {"tracker": "vicra", "failed": "certus", "fault": "cto_missing"})
     ]
     assert c.tracking("vicra", sick) == [], "reported once; the chart reselects"
     assert c.report_best_tracker() == ("e_TOK", {"tracker": "vicra"})
-    c.use_tracker("vicra")
+    steer(c, "vicra")
     assert c.tracking(None, {}) == [("e_NOTRACKER", {})]
     assert c.report_best_tracker() == ("e_NOTRACKER", {})
 
@@ -72,7 +80,7 @@ def test_losing_the_tracker_in_use_is_a_fault_and_losing_all_is_no_tracker():
 def test_a_better_tracker_coming_back_is_reported_as_a_swap():
     c = core()
     c.tracking("vicra", {"certus": {"ok": False, "cause": "stale"}})
-    c.use_tracker("vicra")
+    steer(c, "vicra")
     events = c.tracking("certus", HEALTHY)
     assert names(events) == ["e_TFAULT"] and events[0][1]["fault"] == "certus is better"
 
@@ -103,14 +111,14 @@ def test_a_safety_stop_the_robot_latched_by_itself_stops_the_task_once():
 
 def test_limits_follow_the_tracker_in_use_and_the_area():
     c = core()
-    c.use_tracker("certus")
+    steer(c, "certus")
     assert c.limits("fast")["velocity"] == 0.075 and c.limits("slow")["velocity"] == 0.010
-    c.use_tracker("vicra")
+    steer(c, "vicra")
     assert c.limits("fast")["velocity"] == 0.050
     with pytest.raises(FwError, match="fast' or 'slow"):
         c.limits("warp")
-    with pytest.raises(FwError, match="no speeds"):
-        c.use_tracker("kinect")
+    steer(c, "kinect")  # a tracker the procedure gives no speeds: the slowest
+    assert c.limits("fast")["velocity"] == 0.010
 
 
 def test_without_a_tracker_in_use_the_slowest_speed_is_used():
@@ -122,7 +130,7 @@ def test_without_a_tracker_in_use_the_slowest_speed_is_used():
 def test_the_sensor_managers_limits_cap_the_procedures_speeds():
     c = SupervisorCore(PROCEDURE)
     c.tracking("vicra", HEALTHY, {"max_velocity": 0.03, "max_acceleration": 0.1})
-    c.use_tracker("vicra")
+    steer(c, "vicra")
     assert c.limits("fast") == {"velocity": 0.03, "acceleration": 0.1}, "capped"
     assert c.limits("slow")["velocity"] == 0.010, "below the cap: the procedure's speed"
 
@@ -220,13 +228,13 @@ def test_a_different_robot_fault_while_the_first_holds_stops_again():
 
 def test_the_tracker_in_use_reported_best_again_is_no_fault():
     c = core()
-    c.use_tracker("certus")
+    steer(c, "certus")
     assert c.tracking(wire("certus"), HEALTHY) == []
 
 
 def test_speeds_are_chosen_by_name_as_they_arrive_from_the_chart():
     c = core()
-    c.use_tracker(wire("certus"))
+    steer(c, wire("certus"))
     assert c.limits(wire("fast"))["velocity"] == 0.075
     assert c.limits(wire("slow"))["velocity"] == 0.010
 
@@ -237,7 +245,7 @@ def test_without_a_tracker_in_use_the_slowest_slow_speed_of_any_tracker_is_used(
     c = SupervisorCore(load_procedure(write(text, "seeg.yaml")))
     assert c.limits("fast")["velocity"] == c.limits("slow")["velocity"] == 0.004
     c.tracking("certus", HEALTHY)
-    c.use_tracker("certus")
+    steer(c, "certus")
     assert c.limits("slow")["velocity"] == 0.010
 
 
@@ -261,3 +269,71 @@ def test_without_a_tracker_in_use_the_slowest_slow_speed_of_any_tracker_is_used(
 )
 def test_a_sensor_manager_decision_is_believed_only_when_it_makes_sense(payload, problem):
     assert _decision_problem(payload) == problem
+
+
+# --- the navigator's news: who steers, where the goals are, a refused patient motion -----
+
+
+def test_the_tracker_in_use_is_the_one_whose_samples_steer_the_navigator():
+    c = SupervisorCore(PROCEDURE)
+    c.tracking("certus", HEALTHY)
+    assert c.in_use is None
+    steer(c, "certus")
+    assert c.in_use == "certus"
+    sick = {"certus": {"ok": False, "cause": "stale"}, "vicra": {"ok": True}}
+    assert names(c.tracking("vicra", sick)) == ["e_TFAULT"]
+    steer(c, "certus")  # its last samples, before the swap: still no tracker in use
+    assert c.in_use is None and c.tracking("vicra", sick) == []
+    steer(c, "vicra")
+    assert c.in_use == "vicra"
+
+
+def test_the_same_tracker_connected_again_after_its_samples_stopped_is_in_use_again():
+    c = core()
+    steer(c, "certus")
+    assert c.tracking(None, {}) == [("e_NOTRACKER", {})]
+    c.navigation(None, GOALS)  # no_tracker disconnected it: its samples stopped
+    steer(c, "certus")  # RELEASE, reselected, connected again
+    assert c.in_use == "certus"
+
+
+def test_a_new_tracker_steering_asks_for_its_limits_once_a_speed_was_chosen():
+    c = core()
+    assert steer(c, "certus") == ([], False), "no speed chosen yet: nothing to resend"
+    c.limits("fast")
+    assert steer(c, "certus") == ([], False), "the same tracker: nothing new"
+    assert steer(c, "vicra") == ([], True)
+    assert c.limits(c.speed)["velocity"] == 0.050  # the Vicra's fast speed
+    assert c.navigation(None, GOALS) == ([], False), "samples stopped: no new limits"
+
+
+def test_a_refused_patient_motion_is_reported_once_per_refusal():
+    c = core()
+    events, _ = c.navigation("certus", GOALS, "the patient moved 12.0 mm")
+    assert events == [("e_PATIENT_MOVED", {"reason": "the patient moved 12.0 mm"})]
+    assert c.navigation("certus", GOALS, "the patient moved 12.5 mm")[0] == []
+    assert c.navigation("certus", GOALS, "")[0] == []
+    assert names(c.navigation("certus", GOALS, "the patient moves at 9 mm/s")[0]) == [
+        "e_PATIENT_MOVED"
+    ]
+
+
+def test_the_critical_area_and_the_arrival_follow_the_target_where_the_navigator_says_it_is():
+    c = core()
+    c.observe(tcp=TARGET)
+    assert c.area == "critical"
+    moved = (TARGET[0], TARGET[1] + 0.06, TARGET[2])  # the head moved (a large motion)
+    events, _ = c.navigation("certus", {"target": moved, "home": HOME})
+    assert names(events) == ["e_SAFE_AREA"]
+    c.motion("reached", "target")
+    events, _ = c.navigation("certus", {"target": TARGET, "home": HOME})
+    assert names(events) == ["e_CRITICAL_AREA", "e_TARGET"]
+
+
+def test_a_target_on_the_patient_is_nowhere_until_the_navigator_says_where():
+    c = SupervisorCore(PROCEDURE)
+    assert PROCEDURE.frame("target") == "patient"
+    assert c.observe(tcp=TARGET) == [] and c.area is None
+    c.motion("reached", "target")
+    assert c.observe(tcp=TARGET) == []
+    assert c.goal_position("home") == pytest.approx(HOME)  # in the base frame: known

@@ -1,10 +1,11 @@
 """Spec: the Supervisor believes only plausible samples. A distance that is not a number
 is taken as contact (the reflex halts), a Sensor Manager decision that cannot be read is
 taken as no tracker (e_NOTRACKER and the reflex), other garbage is refused and ignored;
-every refusal is said on fw/refused/supervisor, and the Supervisor keeps running."""
+every refusal is said on fw/refused/supervisor, and the Supervisor keeps running. The
+navigator's news (who steers, where the goals are, a refused patient motion) becomes
+limits and events."""
 
 import math
-import time
 
 import pytest
 
@@ -36,18 +37,18 @@ class Rig:
             ("users_near", Scalar),
             ("min_distance", Scalar),
             ("motion", EventMessage),
-            ("tracked", Pose),
+            ("navigation", EventMessage),
             ("robot", EventMessage),
         ]:
             self.writers[port] = writer_port(hub, f"test/{port}", kind)
             self.container.connect("supervisor", port, f"test/{port}")
-        self.events, self.halts, self.refused, self.sources = [], [], [], []
+        self.events, self.halts, self.refused, self.limits = [], [], [], []
         self.probed = set()
         self._subs = [
             peer.subscribe("supervisor/events", self._collect(self.events)),
             peer.subscribe("supervisor/halt", self._collect(self.halts)),
             peer.subscribe(keys.refused("supervisor"), self._collect(self.refused)),
-            peer.subscribe("supervisor/sources", self._collect(self.sources)),
+            peer.subscribe("supervisor/limits", self._collect(self.limits)),
         ]
         assert peer.wait_for_peers(1)
         self._routed(
@@ -56,7 +57,7 @@ class Rig:
                 "supervisor/events",
                 "supervisor/halt",
                 keys.refused("supervisor"),
-                "supervisor/sources",
+                "supervisor/limits",
             ],
         )
         assert self.supervisor.configure() and self.supervisor.start()
@@ -87,6 +88,12 @@ class Rig:
         self.writers[port].write(value)
         assert wait_until(lambda: port_in.stats.received > before)
         self.supervisor.update_hook()
+
+    def steer(self, tracker, target=(0.6, 0.0, 0.12), refused=""):
+        """The navigator says `tracker` steers and where the target is now."""
+        goals = {"target": [*target, 0.0, 1.0, 0.0, 0.0], "home": [0.54, 0.0, 0.37, 0, 1, 0, 0]}
+        payload = {"goals": goals, "tracker": tracker, "refused": refused}
+        self.feed("navigation", EventMessage(0.0, "goals", "navigator", payload))
 
     def close(self):
         for sub in self._subs:
@@ -126,7 +133,7 @@ def test_a_distance_that_is_not_a_number_is_taken_as_contact(rig):
     ],
 )
 def test_a_decision_that_cannot_be_believed_is_taken_as_no_tracker(rig, decision, why):
-    rig.supervisor.call("use_tracker", tracker="certus")
+    rig.steer("certus")
     rig.feed("tracking", EventMessage(0.0, "decision", "sensor_manager", decision))
     assert wait_until(lambda: any(e.name == "e_NOTRACKER" for e in rig.events))
     assert wait_until(lambda: rig.halts), "the reflex halted the interpolator too"
@@ -135,7 +142,7 @@ def test_a_decision_that_cannot_be_believed_is_taken_as_no_tracker(rig, decision
 
 
 def test_a_believable_decision_is_taken(rig):
-    rig.supervisor.call("use_tracker", tracker="certus")
+    rig.steer("certus")
     decision = {"best": "vicra", "health": {"certus": {"cause": "stale"}}, "limits": {"v": 0.1}}
     rig.feed("tracking", EventMessage(0.0, "decision", "sensor_manager", decision))
     assert wait_until(lambda: any(e.name == "e_TFAULT" for e in rig.events))
@@ -162,7 +169,10 @@ def test_the_tcp_alone_moves_the_area_and_the_report_says_where_things_are(rig):
     target = [0.6, 0.0, 0.12]
     report = rig.supervisor.call("report")
     assert report["area"] is None and report["min_distance"] is None
-    assert report["target"] == target and report["tracked"] is None
+    assert report["target"] is None, "on the patient: nowhere until the navigator says"
+    rig.steer(None)
+    report = rig.supervisor.call("report")
+    assert report["target"] == target and report["steering"] is None
     rig.feed("tcp", Pose(position=(0.6, 0.0, 0.12 + 0.2), valid=True))
     assert emitted(rig, "e_SAFE_AREA") == [{"distance": 0.2}]
     rig.feed("tcp", Pose(position=(0.6, 0.0, 0.12 + 0.01), valid=True))
@@ -180,6 +190,7 @@ def test_a_negative_people_count_however_small_is_not_taken(rig):
 
 
 def test_a_people_count_back_to_zero_is_taken(rig):
+    rig.steer(None)  # where the target is
     rig.feed("tcp", Pose(position=(0.6, 0.0, 0.5), valid=True))
     rig.feed("users_near", Scalar(0.0, 3.0))
     assert emitted(rig, "e_CRITICAL_AREA")[0]["why"] == "crowded"
@@ -195,6 +206,7 @@ def test_a_distance_that_is_not_a_number_is_reported_as_contact(rig):
 
 
 def test_motion_changes_reach_the_supervisor_arrival_and_collision(rig):
+    rig.steer(None)  # where the target is
     rig.feed("tcp", Pose(position=(0.6, 0.0, 0.12), valid=True))
     rig.feed("motion", EventMessage(0.0, "reached", "interpolator", {"goal": "target"}))
     assert emitted(rig, "e_TARGET") == [{"goal": "target"}]
@@ -214,30 +226,11 @@ def test_a_latched_robot_stop_reaches_the_chart_and_halts(rig):
 
 
 def test_all_trackers_lost_halts_the_interpolator_before_the_chart_hears_it(rig):
-    rig.supervisor.call("use_tracker", tracker="certus")
+    rig.steer("certus")
     rig.feed("tracking", EventMessage(0.0, "decision", "sensor_manager", {"best": None}))
     assert emitted(rig, "e_NOTRACKER") == [{}]
     assert wait_until(lambda: rig.halts)
     assert rig.halts[0].payload == {"reason": "no tracker sees the robot"}
-
-
-def test_the_first_valid_sample_of_each_tracker_marks_its_source_once(rig):
-    rig.feed("tracked", Pose(stamp=10.0, position=(0.1, 0.2, 0.3), valid=False, frame="certus"))
-    rig.feed("tracked", Pose(stamp=11.0, position=(0.1, 0.2, 0.3), valid=True, frame="certus"))
-    rig.feed("tracked", Pose(stamp=12.0, position=(0.1, 0.2, 0.3), valid=True, frame="certus"))
-    rig.feed("tracked", Pose(stamp=13.0, position=(0.1234567, 0.2, 0.3), valid=True, frame="vicra"))
-    assert wait_until(lambda: len(rig.sources) == 2)
-    assert [s.payload for s in rig.sources] == [
-        {"tracker": "certus", "sample_stamp": 11.0},
-        {"tracker": "vicra", "sample_stamp": 13.0},
-    ]
-    seen = rig.supervisor.call("report")["tracked"]
-    assert seen["tracker"] == "vicra" and seen["valid"] is True
-    assert seen["position"] == [0.12346, 0.2, 0.3], "to 10 micrometres"
-    assert seen["age_s"] == round(seen["age_s"], 3), "to the millisecond"
-    rig.feed("tracked", Pose(stamp=time.time() - 0.1234, valid=True, frame="vicra"))
-    age = rig.supervisor.call("report")["tracked"]["age_s"]
-    assert 0.1225 < age < 5.0, "its age when asked, in ms"
 
 
 def test_the_best_tracker_is_reported_as_an_event_when_asked(rig):
@@ -248,13 +241,42 @@ def test_the_best_tracker_is_reported_as_an_event_when_asked(rig):
 
 
 def test_speed_changes_send_the_interpolator_its_limits(rig):
-    rig.supervisor.call("use_tracker", tracker="vicra")
+    rig.steer("vicra")
     assert rig.supervisor.call("change_movement_parameters", speed="fast") == {
         "velocity": 0.05,
         "acceleration": 0.25,
     }
-    assert rig.supervisor.call("define_target", x=0.5, y=0.1, z=0.123456, roll=0, pitch=180, yaw=0)
+    assert wait_until(lambda: rig.limits)
+    rig.steer("certus")  # a swap: the new tracker's limits, without the chart asking
+    assert wait_until(lambda: len(rig.limits) == 2)
+    assert rig.limits[1].payload == {"velocity": 0.075, "acceleration": 0.25}
+    rig.steer("certus", target=(0.5, 0.1, 0.123456))
     assert rig.supervisor.call("report")["target"] == [0.5, 0.1, 0.1235]
+
+
+def test_a_refused_patient_motion_halts_the_interpolator_and_reaches_the_chart(rig):
+    rig.steer("certus", refused="the patient moved 12.0 mm from where it was registered")
+    assert emitted(rig, "e_PATIENT_MOVED") == [
+        {"reason": "the patient moved 12.0 mm from where it was registered"}
+    ]
+    assert wait_until(lambda: rig.halts)
+    assert rig.halts[0].payload["reason"].startswith("the patient moved 12.0 mm")
+    assert rig.supervisor.call("report")["patient_refused"].startswith("the patient moved")
+
+
+@pytest.mark.parametrize(
+    "payload, why",
+    [
+        ({"goals": {"target": [0.6, "up", 0.1]}, "tracker": "certus"}, "could not convert"),
+        ({"goals": {"target": [0.6, 0.1]}, "tracker": "certus"}, "finite position"),
+        ({"goals": {}, "tracker": 7}, "not a name"),
+        ({"tracker": "certus"}, "goals"),
+    ],
+)
+def test_navigator_news_that_cannot_be_believed_is_refused(rig, payload, why):
+    rig.feed("navigation", EventMessage(0.0, "goals", "navigator", payload))
+    assert why in refusals(rig, "navigation")[0]
+    assert rig.supervisor.core.in_use is None and rig.supervisor.state.value == "Running"
 
 
 def test_operators_tools_may_only_ask_for_reports():
@@ -262,8 +284,8 @@ def test_operators_tools_may_only_ask_for_reports():
 
     info = class_info(Supervisor)
     assert "report" in info.readonly
-    assert {"use_tracker", "define_target", "change_movement_parameters"}.isdisjoint(info.readonly)
-    assert {"report_best_tracker", "use_tracker", "report"} <= set(info.operations)
+    assert {"report_best_tracker", "change_movement_parameters"}.isdisjoint(info.readonly)
+    assert {"report_best_tracker", "change_movement_parameters", "report"} == set(info.operations)
 
 
 def test_a_supervisor_without_a_readable_procedure_does_not_configure(hub, tmp_path):
