@@ -104,18 +104,21 @@ def test_the_operator_drives_the_procedure_from_the_browser(seeg_console, page):
     # the target form: refused in the page, refused again by the server, then taken
     form = "#form-e_DEFINE_TARGET"
     page.wait_for_selector(f"{form} button:enabled", timeout=WAIT_MS)
-    for name, value in {"x": 0.58, "y": 0.02, "z": 0.13, "roll": 0, "pitch": 180, "yaw": 0}.items():
+    on_patient = {"x": 0.23, "y": 0.24, "z": 0.17, "roll": 180, "pitch": 0, "yaw": 163}
+    for name, value in on_patient.items():
         page.fill(f"{form} input[name={name}]", str(value))
     page.fill(f"{form} input[name=x]", "5")
     page.click(f"{form} button")
     text_is(page, "answer", "e_DEFINE_TARGET: refused: a value is missing or out of range")
     page.evaluate("send('e_DEFINE_TARGET', {x: 5, y: 0, z: 0.1, roll: 0, pitch: 180, yaw: 0})")
-    text_is(page, "answer", "e_DEFINE_TARGET: refused: e_DEFINE_TARGET.x must be at most 0.8 m")
-    page.fill(f"{form} input[name=x]", "0.58")
+    text_is(page, "answer", "e_DEFINE_TARGET: refused: e_DEFINE_TARGET.x must be at most 0.5 m")
+    page.fill(f"{form} input[name=x]", "0.23")
     page.click(f"{form} button")
     text_is(page, "answer", "e_DEFINE_TARGET: accepted")
     supervisor = RemoteComponent(deployment.hub, "supervisor")
-    assert wait_until(lambda: supervisor.call("report")["target"] == [0.58, 0.02, 0.13])
+    navigator = RemoteComponent(deployment.hub, "navigator")
+    assert wait_until(lambda: navigator.call("report")["revisions"]["target"] == 1)
+    assert wait_until(lambda: supervisor.call("report")["target"] is not None)
 
     page.click("#start")
     text_is(page, "answer", "e_START: accepted")
