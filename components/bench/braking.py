@@ -1,16 +1,20 @@
 """Behavioural control on the MuJoCo arm (thesis 3.6.3.C, Fig. 4.6-4.8).
 
-The interpolator drives the simulated LWR 4+ (MuJoCo, stiff joint servos) cycle by
-cycle on the simulated clock, exactly as in the robot process but without the
+The interpolator drives the simulated LWR 4+ (MuJoCo, the real arm's errors, joint
+impedance control as in the thesis: it trails a moving command) cycle by cycle on
+the simulated clock, exactly as in the robot process but without the
 network, so every run is repeatable. The TCP moves on a planar path (the thesis'
 x-y trajectory); at a random moment after it reaches cruise speed a STOP is
 asserted. Per trial:
 
-* displacement: the farthest the *actual* TCP (MuJoCo) gets from where it was when
-  the STOP was asserted (the braking distance the surgeon sees);
-* RMSE per axis of the actual TCP against the commanded one, from the STOP until
-  the arm stands still again (the thesis' Fig. 4.8 quantity);
-* return error: the actual TCP at rest against the commanded STOP point.
+* displacement: the farthest the arm's TCP (as its controller reports it: the
+  model at the encoders, like the thesis' FRI pose) gets from where the STOP was
+  asserted (the commanded position then: the interpolator returns there), the
+  thesis' "displacement ... can reach 6 mm at 10 cm/s";
+* RMSE per axis of the reported TCP against the command during the braking ramp
+  (from the STOP until the command stands still): the thesis' Fig. 4.8 quantity,
+  which is the arm's lag behind its command (about the speed x 70 ms);
+* return error: the TCP at rest against the commanded STOP point.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from components.robot import lwr4
 from components.robot.arm import SimulatedArm
 from components.robot.interpolator import InterpolatorCore, Phase
 from components.supervisor.procedure import load_procedure
@@ -59,7 +64,7 @@ class Rig:
 
     def __init__(self, speed: float):
         procedure = load_procedure(PROCEDURE_FILE)
-        self.arm = SimulatedArm()
+        self.arm = SimulatedArm(mode="impedance", errors=lwr4.LWR4_ERRORS)
         self.arm.release()
         self.core = InterpolatorCore(
             self.arm.q,
@@ -67,6 +72,7 @@ class Rig:
             acceleration=procedure.acceleration,
             brake_acceleration=procedure.brake_acceleration,
         )
+        self.kinematics = lwr4.Kinematics()
         self.trace = Trace()
         goal = self.core.pose.copy()
         goal[:3, 3] += PLANAR_PATH
@@ -79,8 +85,13 @@ class Rig:
         self.arm.step()
         self.trace.t.append(self.arm.time)
         self.trace.commanded.append(self.core.pose[:3, 3].tolist())
-        self.trace.actual.append(self.arm.tcp()[:3, 3].tolist())
+        self.trace.actual.append(self.measured()[:3].tolist())
         self.trace.speed.append(self.core.speed)
+
+    def measured(self) -> np.ndarray:
+        """The TCP as the arm's controller reports it (FRI's measured pose: the model
+        at the encoders' joints), the thesis' "actual" position."""
+        return self.kinematics.tcp(self.arm.q)[:3, 3]
 
     def mark(self, what: str) -> None:
         """Note an event (STOP, a speed change) at the current time."""
@@ -113,22 +124,22 @@ def stop_trial(speed: float, delay: float) -> dict[str, float]:
     rig.core.stop()
     rig.mark("STOP")
     start = len(rig.trace.t)
-    asserted_cmd = rig.core.pose[:3, 3].copy()
-    asserted_actual = rig.arm.tcp()[:3, 3].copy()
+    asserted = rig.core.pose[:3, 3].copy()
+    while rig.core.phase is Phase.STOPPING:
+        rig.step()
+    ramp = len(rig.trace.t)
     rig.run_until_still()
     _, commanded, actual, _ = rig.trace.arrays()
     after_cmd, after_actual = commanded[start:], actual[start:]
-    rmse = np.sqrt(np.mean((after_actual - after_cmd) ** 2, axis=0))
+    rmse = np.sqrt(np.mean((actual[start:ramp] - commanded[start:ramp]) ** 2, axis=0))
     return {
         "speed_cm_s": speed * 100,
-        "displacement_mm": float(np.max(np.linalg.norm(after_actual - asserted_actual, axis=1)))
-        * 1e3,
-        "command_overshoot_mm": float(np.max(np.linalg.norm(after_cmd - asserted_cmd, axis=1)))
-        * 1e3,
+        "displacement_mm": float(np.max(np.linalg.norm(after_actual - asserted, axis=1))) * 1e3,
+        "command_overshoot_mm": float(np.max(np.linalg.norm(after_cmd - asserted, axis=1))) * 1e3,
         "rmse_x_mm": float(rmse[0]) * 1e3,
         "rmse_y_mm": float(rmse[1]) * 1e3,
         "rmse_z_mm": float(rmse[2]) * 1e3,
-        "return_error_mm": float(np.linalg.norm(actual[-1] - asserted_cmd)) * 1e3,
+        "return_error_mm": float(np.linalg.norm(actual[-1] - asserted)) * 1e3,
     }
 
 

@@ -185,14 +185,25 @@ def run_braking(quick: bool, context: dict[str, Any]) -> list[Row]:
         "speed": trace.speed[::5],
         "events": trace.events,
     }
-    thesis_rmse = {1.0: 0.64, 10.0: 5.9}
-    targets = {1.0: 0.3, 10.0: 5.0}
+    # the arm is the thesis' (its lag is fitted to Fig. 4.8, docs/seeg.md): the actual
+    # TCP's figures are the arm's, reproduced within 30%; fw's own part is the
+    # command's return to the STOP point
+    thesis_rmse = {1.0: (0.64, 0.36), 10.0: (5.9, 3.4)}
+    thesis_displacement = {10.0: 6.0}
+    targets = {1.0: 1.0}  # sub-millimetric in the critical area (thesis 5)
     rows = []
     for speed in sorted({s["speed_cm_s"] for s in stops}):
         mine = [s for s in stops if s["speed_cm_s"] == speed]
+        rmse_x, rmse_y = thesis_rmse.get(speed, (None, None))
         for key, quantity, thesis, target in (
-            ("displacement_mm", "actual TCP displacement after STOP", None, targets.get(speed)),
-            ("rmse_x_mm", "RMSE actual vs command, x", thesis_rmse.get(speed), None),
+            (
+                "displacement_mm",
+                "actual TCP displacement after STOP",
+                thesis_displacement.get(speed),
+                targets.get(speed),
+            ),
+            ("rmse_x_mm", "RMSE actual vs command while braking, x", rmse_x, None),
+            ("rmse_y_mm", "RMSE actual vs command while braking, y", rmse_y, None),
         ):
             median = statistics.median(s[key] for s in mine)
             rows.append(

@@ -2,8 +2,14 @@
 
 `SimulatedArm` is the physics and the arm's own safety, without any I/O:
 
-* joint **position** mode (stiff servos) or **impedance** mode (soft servos,
-  the arm yields to contact), switched at run time;
+* joint **position** mode (stiff servos that track the commanded motion) or
+  **impedance** mode (the LWR's joint impedance control, as in the thesis: soft
+  springs with damping on the measured velocity and no velocity feed-forward from
+  FRI's position commands, so the arm trails a moving command by `kv/kp`, 70 ms; fitted to the thesis' Fig. 4.8, docs/seeg.md), switched at run time;
+* a **real arm**, not its model (`lwr4.ArmErrors`): the encoders read the link
+  angles minus the joints' zero offsets and plus the gears' twist under the torque
+  they carry; the bodies have the real link lengths. `q` is what the encoders say,
+  `tcp()` where the TCP truly is;
 * **brakes**: engaged, the joints are held rigidly where they stood (an ideal
   brake) and setpoints are refused until released;
 * a **watchdog**: when more than `watchdog_cycles` cycles in a row ran without a
@@ -27,8 +33,11 @@ import numpy as np
 from components.robot import lwr4
 from components.sim.scene import Scene
 
-MODES = {"position": (2500.0, 120.0), "impedance": (300.0, 25.0)}
+MODES = {"position": (2500.0, 120.0), "impedance": (300.0, 21.0)}
 """Servo stiffness (N m/rad) and damping (N m s/rad) per control mode."""
+FEED_FORWARD = {"position": True, "impedance": False}
+"""Whether the mode's servo is given the commanded velocity (position control tracks a
+moving command; joint impedance control only pulls toward the commanded position)."""
 
 
 @dataclass
@@ -50,13 +59,19 @@ class SimulatedArm:
         scene: Scene | None = None,
         watchdog_cycles: int = 5,
         mode: str = "position",
+        errors: lwr4.ArmErrors = lwr4.NOMINAL,
     ):
-        self.model = mujoco.MjModel.from_xml_string(lwr4.mjcf((scene or Scene()).bodies()))
+        self.errors = errors
+        self.model = mujoco.MjModel.from_xml_string(lwr4.mjcf((scene or Scene()).bodies(), errors))
         self.data = mujoco.MjData(self.model)
         self.dt = float(self.model.opt.timestep)
-        self.data.qpos[:7] = q0
-        self.data.ctrl[:7] = q0
-        mujoco.mj_forward(self.model, self.data)
+        self._offset = np.array(errors.joint_offset, dtype=float)
+        stiffness = errors.joint_stiffness
+        self._compliance = np.zeros(7) if stiffness is None else 1.0 / np.array(stiffness)
+        for _ in range(3):  # the links settle where the encoders read q0, servos idle
+            self.data.qpos[:7] = np.asarray(q0, dtype=float) + self._offset - self._twist()
+            self.data.ctrl[:7] = self.data.qpos[:7]
+            mujoco.mj_forward(self.model, self.data)
         self.tcp_site = self.model.site("tcp").id
         self.watchdog_cycles = watchdog_cycles
         self.velocity_limit = np.array(lwr4.VELOCITY_LIMIT)
@@ -68,7 +83,7 @@ class SimulatedArm:
         self._fresh = False
         self._commanded = False
         self._last_setpoint = np.array(q0, dtype=float)
-        self._held = np.array(q0, dtype=float)
+        self._held = self.data.qpos[:7].copy()  # link angles the brakes hold
 
     @property
     def commanded(self) -> bool:
@@ -82,8 +97,17 @@ class SimulatedArm:
 
     @property
     def q(self) -> np.ndarray:
-        """Measured joint positions (rad)."""
-        return self.data.qpos[:7].copy()
+        """Measured joint positions (rad): the encoders, on the motors' side."""
+        return self.data.qpos[:7] + self._twist() - self._offset
+
+    def _twist(self) -> np.ndarray:
+        """How far each motor is ahead of its link: the gear's twist under the torque
+        it carries (the servo's and the gravity compensation's)."""
+        return (self.data.actuator_force[:7] + self.data.qfrc_gravcomp[:7]) * self._compliance
+
+    def _servo_target(self, setpoint: np.ndarray) -> np.ndarray:
+        """The link angle the servo must aim at for the encoders to read `setpoint`."""
+        return setpoint + self._offset - self._twist()
 
     @property
     def qd(self) -> np.ndarray:
@@ -96,7 +120,8 @@ class SimulatedArm:
         return self.data.actuator_force[:7].copy()
 
     def tcp(self) -> np.ndarray:
-        """Measured TCP pose in the base frame (4x4)."""
+        """Where the TCP truly is, in the base frame (4x4): what a tracker sees, not
+        what the controller's model computes from `q`."""
         out = np.eye(4)
         out[:3, :3] = self.data.site_xmat[self.tcp_site].reshape(3, 3)
         out[:3, 3] = self.data.site_xpos[self.tcp_site]
@@ -116,7 +141,7 @@ class SimulatedArm:
         """Engage the brakes: hold the joints where they are now."""
         if not self.braked:
             self.braked, self.reason = True, reason
-            self._held = self.q
+            self._held = self.data.qpos[:7].copy()
             self.data.ctrl[:7] = self._held
         self._commanded = False
 
@@ -149,12 +174,16 @@ class SimulatedArm:
                 f"in {elapsed * 1e3:.0f} ms"
             )
             return False
-        # PD toward the setpoint with its velocity as reference: ctrl = q* + (kv/kp) qd*
-        # turns MuJoCo's kp (ctrl - q) - kv qd into kp (q* - q) + kv (qd* - qd), no lag
-        velocity = (setpoint - reference) / elapsed if self._commanded else 0.0
-        kp, kv = MODES[self.mode]
+        # in position mode, PD toward the setpoint with its velocity as reference:
+        # ctrl = q* + (kv/kp) qd* turns MuJoCo's kp (ctrl - q) - kv qd into
+        # kp (q* - q) + kv (qd* - qd), no lag; in impedance mode the damping acts on
+        # the measured velocity alone, and the arm trails the command
+        target = self._servo_target(setpoint)
+        if FEED_FORWARD[self.mode] and self._commanded:
+            kp, kv = MODES[self.mode]
+            target = target + (kv / kp) * (setpoint - reference) / elapsed
         limit = np.array(lwr4.POSITION_LIMIT)
-        self.data.ctrl[:7] = np.clip(setpoint + (kv / kp) * velocity, -limit, limit)
+        self.data.ctrl[:7] = np.clip(target, -limit, limit)
         self._last_setpoint = setpoint
         self._since_setpoint = 0
         self._fresh = True
@@ -179,3 +208,9 @@ class SimulatedArm:
     def status(self) -> ArmStatus:
         """Brakes, why, mode and time."""
         return ArmStatus(self.braked, self.reason, self.mode, self.time)
+
+
+def resting_tcp(q: np.ndarray, errors: lwr4.ArmErrors) -> np.ndarray:
+    """Where the TCP of a real arm (`errors`) rests when its encoders read `q` (4x4, base
+    frame): what a tracker sees while the controller's model says `Kinematics.tcp(q)`."""
+    return SimulatedArm(tuple(np.asarray(q, dtype=float)), errors=errors).tcp()

@@ -6,9 +6,10 @@ is that machine in simulation, hosted in a process of its own (topology process
 `arm`), so that killing or hanging the robot interface's process brakes the arm as
 pulling the FRI cable would:
 
-* every cycle (1 kHz) it steps `SimulatedArm` and publishes its `measured` state (joints, the
-  flange tool pose, brakes, latch) and, at `truth_rate`, the ground-truth `tcp` that
-  the simulated OR's trackers observe;
+* every cycle (1 kHz) it steps `SimulatedArm` and publishes its `measured` state (the
+  encoders' joints, the TCP its nominal model computes from them, brakes, latch) and,
+  at `truth_rate`, the ground-truth `tcp` that the simulated OR's trackers observe:
+  with `model_errors: lwr4` the two differ by a few millimetres, as a real arm's do;
 * joint setpoints arrive on `command`; brake, release, reset and mode requests on
   `request` (the FRI commands that switch the controller's mode);
 * **command watchdog**: released and being commanded, no setpoint for
@@ -33,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from components.robot.arm import MODES, SimulatedArm
-from components.robot.lwr4 import HOME
+from components.robot.lwr4 import HOME, LWR4_ERRORS, NOMINAL, Kinematics
 from components.tracking.geometry import matrix_to_quat
 from framework import keys
 from framework.component import Component, In, Out, operation
@@ -41,6 +42,9 @@ from framework.messages import ArmState, EventMessage, JointState, Pose
 from framework.ports import ReadStatus
 from framework.properties import prop
 
+MODEL_ERRORS = {"lwr4": LWR4_ERRORS, "none": NOMINAL}
+"""How the simulated arm differs from its model: as a real LWR 4+ (components/robot/lwr4.py),
+or not at all."""
 SELF_BRAKES = ("watchdog", "setpoint", "link")
 """Brake reasons of the controller's own safety: they latch."""
 
@@ -52,6 +56,12 @@ class ArmController(Component):
         int, 40, min=1, max=10000, doc="own cycles without a setpoint, while commanded, that brake"
     )
     mode = prop(str, "position", choices=list(MODES), doc="joint servo mode at power on")
+    model_errors = prop(
+        str,
+        "lwr4",
+        choices=list(MODEL_ERRORS),
+        doc="the arm vs its nominal model: a real LWR 4+'s errors, or none",
+    )
     commander = prop(str, "", doc="component whose lost link brakes the arm ('' for none)")
     lockstep_ms = prop(
         float, 2.0, unit="ms", min=0.0, max=100.0, doc="wait for a late setpoint (0: never)"
@@ -69,7 +79,13 @@ class ArmController(Component):
     tcp = Out(Pose, doc="ground-truth tool pose in the base frame (what trackers see)")
 
     def configure_hook(self) -> bool:
-        self.arm = SimulatedArm(HOME, watchdog_cycles=self.watchdog_cycles, mode=self.mode)
+        self.arm = SimulatedArm(
+            HOME,
+            watchdog_cycles=self.watchdog_cycles,
+            mode=self.mode,
+            errors=MODEL_ERRORS[self.model_errors],
+        )
+        self.kinematics = Kinematics()
         self.latched = ""
         self.releases = 0
         self.refused = ""
@@ -157,25 +173,27 @@ class ArmController(Component):
 
     def _publish(self) -> None:
         arm, stamp = self.arm, time.time()
-        tcp = arm.tcp()
-        position = tuple(float(v) for v in tcp[:3, 3])
-        quaternion = matrix_to_quat(tcp[:3, :3])
+        q = arm.q
+        nominal = self.kinematics.tcp(q)
         data = arm.data
         self.measured.write(
             ArmState(
                 stamp,
                 self.cycle,
                 self.served,
-                tuple(data.qpos[:7].tolist()),
+                tuple(q.tolist()),
                 tuple(data.qvel[:7].tolist()),
                 tuple(data.actuator_force[:7].tolist()),
-                (*position, *quaternion),
+                (*nominal[:3, 3].tolist(), *matrix_to_quat(nominal[:3, :3])),
                 arm.braked,
                 bool(self.latched),
                 self.latched or arm.reason,
             )
         )
         if self.cycle % max(1, round(1000.0 / self.truth_rate)) == 0:  # trackers sample slower
+            tcp = arm.tcp()
+            position = tuple(float(v) for v in tcp[:3, 3])
+            quaternion = matrix_to_quat(tcp[:3, :3])
             self.tcp.write(Pose(position, quaternion, stamp, 0.0, self.cycle, True, "base", "tcp"))  # type: ignore[arg-type]
 
     @operation(readonly=True)

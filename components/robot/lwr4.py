@@ -16,6 +16,10 @@ Sources:
 - Link radii and masses are approximations of the LBR 4+ outline drawing
   (total ~16 kg); they shape the collision capsules and the simulated dynamics,
   not the kinematics.
+
+The real arm is not its model. `ArmErrors` says how the simulated arm (MuJoCo)
+differs from the nominal table the controller, the interpolator and the navigator
+use; `LWR4_ERRORS` are the values of the simulated OR (docs/seeg.md, "The arm").
 """
 
 from __future__ import annotations
@@ -36,8 +40,52 @@ LINK_RADIUS = (0.07, 0.07, 0.065, 0.065, 0.06, 0.06, 0.045)
 TOOL_LENGTH = 0.10
 """Flange to TCP (the tip of the needle guide), m, along the flange's z."""
 JOINTS = tuple(f"a{i}" for i in range(1, 8))
+ARM_CONTACT = 'contype="2" conaffinity="1"'
+"""The arm's geoms touch the room's (contype 1) but not each other: the capsules
+overlap at every joint, and contacts there would be forces no real arm feels."""
 HOME = (0.0, -0.45, 0.0, 1.45, 0.0, -1.25, 0.0)
 """A comfortable pose above the table (rad): elbow up, tool pointing down."""
+
+
+@dataclass(frozen=True)
+class ArmErrors:
+    """How a real arm differs from its nominal kinematics: the errors a kinematic
+    calibration would identify, and the joints' elasticity.
+
+    * `joint_offset` (rad): the link's true angle is the encoder's reading plus this
+      (the zero of each joint, set when the arm was mastered);
+    * `link_error` (m): added to each link length `D`;
+    * `tool_error` (m): the true TCP is this far from the nominal one, in the flange frame;
+    * `joint_stiffness` (N m/rad, None: rigid): the gears twist under the torque the
+      motors carry (gravity included); the encoders sit on the motor side, so the
+      twist is not measured.
+    """
+
+    joint_offset: tuple[float, ...] = (0.0,) * 7
+    link_error: tuple[float, ...] = (0.0,) * 7
+    tool_error: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    joint_stiffness: tuple[float, ...] | None = None
+
+    def lengths(self) -> tuple[float, ...]:
+        """The true link lengths (m)."""
+        return tuple(d + e for d, e in zip(D, self.link_error, strict=True))
+
+
+NOMINAL = ArmErrors()
+"""An arm exactly as its model (unit tests of the physics, the model's own checks)."""
+
+LWR4_ERRORS = ArmErrors(
+    joint_offset=tuple(math.radians(v) for v in (0.06, -0.09, 0.05, 0.10, -0.08, 0.07, -0.05)),
+    link_error=(0.0006, 0.0, -0.0004, 0.0, 0.0005, 0.0, -0.0003),
+    tool_error=(0.0004, -0.0003, 0.0005),
+    joint_stiffness=(2.0e4, 2.0e4, 1.5e4, 1.5e4, 1.0e4, 1.0e4, 1.0e4),
+)
+"""The simulated OR's arm: mastering offsets of 0.05-0.1 deg, link lengths within
+0.6 mm, a TCP 0.7 mm off, harmonic-drive joints of 1-2 x 10^4 N m/rad. Together they
+put the TCP 2-4 mm off its nominal pose over the workspace, the size of error an
+uncalibrated serial arm shows (geometric errors ~90% of it: Klimchik et al.,
+"Optimization of measurement configurations for geometrical calibration of
+industrial robot", 2013). Assumed magnitudes, not measurements of one LWR 4+."""
 
 
 def _rx(angle: float) -> np.ndarray:
@@ -59,36 +107,48 @@ def link_offset(i: int) -> np.ndarray:
     return out
 
 
-def tool_offset() -> np.ndarray:
+def tool_offset(errors: ArmErrors = NOMINAL) -> np.ndarray:
     """Flange (frame 7) to TCP."""
     out = np.eye(4)
-    out[2, 3] = TOOL_LENGTH
+    out[:3, 3] = errors.tool_error
+    out[2, 3] += TOOL_LENGTH
     return out
 
 
-def dh_forward(q: np.ndarray) -> np.ndarray:
-    """Base to TCP by the DH product: the reference both models are checked against."""
+def dh_forward(q: np.ndarray, errors: ArmErrors = NOMINAL) -> np.ndarray:
+    """Base to TCP by the DH product for encoder readings `q`: the reference both models
+    are checked against (with `errors`: where the real arm's TCP is, gears rigid)."""
     out = np.eye(4)
+    lengths = errors.lengths()
     for i, angle in enumerate(q):
+        angle += errors.joint_offset[i]
         c, s = math.cos(angle), math.sin(angle)
         rz = np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
-        out = out @ rz @ link_offset(i)
-    return out @ tool_offset()
+        link = link_offset(i)
+        link[2, 3] = lengths[i]
+        out = out @ rz @ link
+    return out @ tool_offset(errors)
 
 
 def _fmt(values: object) -> str:
     return " ".join(f"{float(v):.9g}" for v in values)  # type: ignore[attr-defined]
 
 
-def robot_mjcf(kp: float = 2500.0, kv: float = 120.0) -> tuple[str, str]:
+def robot_mjcf(
+    kp: float = 2500.0, kv: float = 120.0, errors: ArmErrors = NOMINAL
+) -> tuple[str, str]:
     """The arm as MJCF: (its <body> tree, its <actuator> entries).
 
     Bodies link1..link7 sit at joint frames; each hinge turns about its body's z;
     each link's capsule runs from its joint to the next joint's origin. Joints are
     driven by position servos limited to the rated torques; gravity is compensated
     in the bodies (the KUKA controller does the same), brakes are the interface's job.
+    With `errors`, the bodies are the real arm's: the joints' zero offsets are the
+    simulated arm's business (`SimulatedArm`), the lengths and the tool are here.
     """
     lines: list[str] = []
+    D = errors.lengths()
+    tool = errors.tool_error
     indent = "    "
     for i in range(7):
         pad = indent * (i + 1)
@@ -105,15 +165,18 @@ def robot_mjcf(kp: float = 2500.0, kv: float = 120.0) -> tuple[str, str]:
         length = max(D[i], 0.02)
         lines.append(
             f'{pad}  <geom name="link{i + 1}_geom" type="capsule" fromto="0 0 0 0 0 {length:.6g}" '
-            f'size="{LINK_RADIUS[i]}" mass="{LINK_MASS[i]}" rgba="1 0.45 0.1 1"/>'
+            f'size="{LINK_RADIUS[i]}" mass="{LINK_MASS[i]}" rgba="1 0.45 0.1 1" {ARM_CONTACT}/>'
         )
     pad = indent * 8
     lines.append(f'{pad}<site name="flange" pos="0 0 {D[6]:.6g}" size="0.01"/>')
     lines.append(
         f'{pad}<geom name="tool_geom" type="capsule" fromto="0 0 {D[6]:.6g} 0 0 '
-        f'{D[6] + TOOL_LENGTH:.6g}" size="0.012" mass="0.2" rgba="0.8 0.8 0.85 1"/>'
+        f'{D[6] + TOOL_LENGTH:.6g}" size="0.012" mass="0.2" rgba="0.8 0.8 0.85 1" {ARM_CONTACT}/>'
     )
-    lines.append(f'{pad}<site name="tcp" pos="0 0 {D[6] + TOOL_LENGTH:.6g}" size="0.006"/>')
+    lines.append(
+        f'{pad}<site name="tcp" pos="{tool[0]:.6g} {tool[1]:.6g} '
+        f'{D[6] + TOOL_LENGTH + tool[2]:.6g}" size="0.006"/>'
+    )
     for i in reversed(range(7)):
         lines.append(f"{indent * (i + 1)}</body>")
     actuators = [
@@ -125,9 +188,10 @@ def robot_mjcf(kp: float = 2500.0, kv: float = 120.0) -> tuple[str, str]:
     return "\n".join(lines), "\n".join(actuators)
 
 
-def mjcf(scene_bodies: str = "") -> str:
-    """A complete MJCF document: the arm at the world origin plus `scene_bodies`."""
-    arm, actuators = robot_mjcf()
+def mjcf(scene_bodies: str = "", errors: ArmErrors = NOMINAL) -> str:
+    """A complete MJCF document: the arm (real, with `errors`) at the world origin plus
+    `scene_bodies`."""
+    arm, actuators = robot_mjcf(errors=errors)
     return f"""<mujoco model="lwr4plus">
   <compiler angle="degree" autolimits="true"/>
   <option timestep="0.001" integrator="implicitfast"/>
@@ -135,7 +199,7 @@ def mjcf(scene_bodies: str = "") -> str:
     <light pos="0 0 3" dir="0 0 -1"/>
     <geom name="floor" type="plane" pos="0 0 -0.8" size="3 3 0.1" rgba="0.85 0.85 0.85 1"/>
     <body name="base" pos="0 0 0">
-      <geom name="base_geom" type="cylinder" fromto="0 0 -0.05 0 0 0" size="0.09" rgba="0.4 0.4 0.4 1"/>
+      <geom name="base_geom" type="cylinder" fromto="0 0 -0.05 0 0 0" size="0.09" rgba="0.4 0.4 0.4 1" {ARM_CONTACT}/>
 {arm}
     </body>
 {scene_bodies}

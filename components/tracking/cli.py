@@ -1,9 +1,11 @@
 """`fw calibrate`: the robot-tracker calibration protocol (thesis 3.3.2, Table 3.4).
 
-Until the simulated operating room drives the MuJoCo robot (SEEG issue), the
-protocol runs on the synthetic tracking world (`components.tracking.synthetic`),
-whose true transforms are known: the output reports the residuals a real run
-would show and, because this is a simulation, the error against the truth.
+The robot stands at each protocol pose by its own model (the joints an inverse
+kinematics finds for it); the trackers of the synthetic tracking world
+(`components.tracking.synthetic`) see where the simulated OR's real arm
+(`lwr4.LWR4_ERRORS`) puts its tool then, a few millimetres away: the fit absorbs
+what is common to all poses, the residuals show the rest, as a real run's would.
+Because this is a simulation, the output also gives the error against the truth.
 """
 
 from __future__ import annotations
@@ -17,6 +19,9 @@ from typing import Any
 import numpy as np
 import yaml
 
+from components.robot.arm import resting_tcp
+from components.robot.ik import DifferentialIK
+from components.robot.lwr4 import HOME, LWR4_ERRORS
 from components.tracking.calibration import hand_eye, protocol_poses, tracker_to_tracker
 from components.tracking.geometry import invert, matrix_to_quat, pose_matrix, rotation_angle
 from components.tracking.synthetic import standard_rigs
@@ -40,11 +45,13 @@ def run(poses: int, seed: int) -> dict[str, Any]:
     rigs = standard_rigs()
     rng = np.random.default_rng(seed)
     robot = protocol_poses(poses, seed)
+    ik = DifferentialIK()
+    real = [resting_tcp(ik.solve(np.array(HOME), pose), LWR4_ERRORS) for pose in robot]
     results = {}
     references = {}
     for rig in rigs:
         a, seen = [], []
-        for pose in robot:
+        for pose in real:
             cto, rto = rig.observe(pose, rng)
             a.append(invert(pose_matrix(rto)) @ pose_matrix(cto))
             seen.append(pose_matrix(rto))

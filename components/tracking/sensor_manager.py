@@ -19,7 +19,11 @@ For every sensor, each cycle, the fault tree of 3.3.3 in its order:
      tracker pushed out of place is one. Sensors that pass must then agree with
      each other about where the patient is (their reference tools share the
      head clamp): one whose reference tool slipped on its mount is the odd one
-     out (of two, the one further from where the calibration found the patient);
+     out (of two, the one further from where the calibration found the patient),
+     and once it stayed so for two periods of the slowest of them (not a moment
+     when the head moved between two trackers' samples), it stays distrusted,
+     alone or not, until its calibration is redone (`trust`): a slipped reference
+     tool does not slip back;
    * without `S` (the thesis: a reference tool fixed to the table), the robot in
      the reference tool's frame: a moved reference tool is a fault.
 
@@ -243,6 +247,9 @@ class SensorManagerCore:
         )
         self._s_inv = invert(self._s)
         self._base_from_rto = invert(self._x)  # where each reference tool was at calibration
+        self._moved: dict[int, Health] = {}  # reference tools found moved, by sensor
+        self._odd_since: dict[int, float] = {}  # the odd one out about the patient since
+        self._now = 0.0
         self.last: Decision | None = None
 
     def offer(self, sensor: str, tool: str, pose: Pose, arrival: float) -> None:
@@ -351,6 +358,7 @@ class SensorManagerCore:
     def evaluate(self, now: float) -> Decision:
         """One cycle: every sensor's health, the best sensor, the robot pose (eq. 3.5)."""
         rows = self._rows
+        self._now = now
         codes = self._fault_codes(now, rows, self._before)
         candidates = np.flatnonzero(codes == 0)
         local = np.zeros((0, 4, 4))
@@ -436,7 +444,12 @@ class SensorManagerCore:
                 )
             agreed = np.flatnonzero(camera & ~bad)
             if len(agreed) >= 2:
-                failed.update(self._check_references(candidates[agreed]))
+                odd = self._check_references(candidates[agreed])
+                self._latch_moved(candidates[agreed], odd)
+                failed.update(odd)
+            for index in candidates.tolist():
+                if index in self._moved and index not in failed:
+                    failed[index] = self._moved[index]
             return failed
         if len(candidates) < 2:
             return failed
@@ -450,6 +463,22 @@ class SensorManagerCore:
                     False, "calibration", f"disagrees with {names} beyond tolerance"
                 )
         return failed
+
+    def _latch_moved(self, compared: np.ndarray, odd: dict[int, Health]) -> None:
+        """Keep the verdicts of sensors that stayed the odd one out about the patient for
+        two periods of the slowest sensor compared."""
+        settle = 2.0 * float(self._period[compared].max())
+        for index in compared.tolist():
+            if index not in odd:
+                self._odd_since.pop(index, None)
+            elif self._now - self._odd_since.setdefault(index, self._now) >= settle:
+                self._moved[index] = odd[index]
+
+    def trust(self, name: str) -> bool:
+        """Trust again a sensor whose reference tool was found moved (its calibration was
+        redone); False if it was not distrusted."""
+        self._odd_since.pop(self._index[name], None)
+        return self._moved.pop(self._index[name], None) is not None
 
     def _tool_matrices(self, sensors: np.ndarray, tool: int = 0) -> np.ndarray:
         """The latest CTO (tool 0) or RTO (tool 1) of these sensors, in their own frames."""
@@ -575,6 +604,16 @@ class SensorManager(Component):
                 for n, h in decision.health.items()
             },
         }
+
+    @operation
+    def trust(self, sensor: str) -> dict[str, Any]:
+        """Trust again a sensor found with its reference tool moved on the head clamp,
+        once its calibration was redone (`fw calibrate`); the latest decision."""
+        if sensor not in self.core.by_name:
+            raise FwError(f"no sensor {sensor!r}: one of {', '.join(self.core.by_name)}")
+        if not self.core.trust(sensor):
+            raise FwError(f"{sensor} is not distrusted for a moved reference tool")
+        return self.current()
 
     @operation(readonly=True)
     def current(self) -> dict[str, Any]:

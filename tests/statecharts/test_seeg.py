@@ -91,7 +91,7 @@ def test_a_tracker_fault_swaps_to_the_named_best_and_resumes_at_the_right_speed(
     calls = len([o for o in r.outputs if o.kind == "call"])
     r.send("e_CRITICAL_AREA", FAULT)
     assert task(r) == "Moving_Slow", "the area was remembered across the swap"
-    assert configured(r)[-3:] == ["tracker_2_up", "goto_target", "move_slow"]
+    assert configured(r)[-1] == "tracker_2_up", "one configuration: the motion goes on"
     assert r.interpreter.variables["tracker"] == "vicra"
     assert len([o for o in r.outputs if o.kind == "call"]) == calls, "no report round trip"
 
@@ -199,16 +199,13 @@ def test_a_lost_component_during_setup_aborts_it(seeg):
 TARGET = {"x": 0.55, "y": 0.05, "z": 0.15, "roll": 0.0, "pitch": 180.0, "yaw": 10.0}
 
 
-def test_a_target_defined_while_braked_goes_to_the_supervisor_and_the_interpolator(seeg):
+def test_a_target_defined_while_braked_goes_to_the_navigator_on_the_patient(seeg):
     r = Run(seeg, auto_ack=True)
     assert task(r) == "Wait_Start"
     r.send(("e_DEFINE_TARGET", TARGET))
     calls = [o for o in r.outputs if o.kind == "call"]
-    assert [c.operation for c in calls[-2:]] == [
-        "supervisor.define_target",
-        "interpolator.define_target",
-    ]
-    assert calls[-1].args == TARGET and task(r) == "Wait_Start"
+    assert calls[-1].operation == "navigator.define_target"
+    assert calls[-1].args == {**TARGET, "frame": "patient"} and task(r) == "Wait_Start"
 
 
 def test_a_target_is_not_redefined_while_moving(seeg):

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from components.robot import lwr4
-from components.robot.arm import SimulatedArm
+from components.robot.arm import SimulatedArm, resting_tcp
 from components.robot.ik import DifferentialIK
 
 KIN = lwr4.Kinematics()
@@ -119,3 +120,52 @@ def test_impedance_mode_yields_more_than_position_mode():
         return float(np.linalg.norm(arm.q - lwr4.HOME))
 
     assert sag("impedance") > 3 * sag("position")
+
+
+# --- the real arm is not its model ------------------------------------------------------
+
+RIGID = lwr4.ArmErrors(
+    joint_offset=lwr4.LWR4_ERRORS.joint_offset,
+    link_error=lwr4.LWR4_ERRORS.link_error,
+    tool_error=lwr4.LWR4_ERRORS.tool_error,
+)
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.tuples(*[st.floats(-0.4, 0.4)] * 7))
+def test_the_real_arms_tcp_is_where_its_geometric_errors_put_it(offset):
+    q = np.array(lwr4.HOME) + np.array(offset)
+    arm = SimulatedArm(tuple(q), errors=RIGID)
+    assert np.allclose(arm.q, q, atol=1e-9), "the encoders read what was asked"
+    assert np.allclose(arm.tcp(), lwr4.dh_forward(q, RIGID), atol=1e-9)
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.tuples(*[st.floats(-0.4, 0.4)] * 7))
+def test_by_its_model_the_simulated_ors_arm_is_a_few_millimetres_off(offset):
+    q = np.array(lwr4.HOME) + np.array(offset)
+    miss = np.linalg.norm(resting_tcp(q, lwr4.LWR4_ERRORS)[:3, 3] - KIN.tcp(q)[:3, 3])
+    assert 1.5e-3 < miss < 5e-3
+
+
+def test_the_gears_twist_under_gravity_where_the_encoders_cannot_see_it():
+    rigid = resting_tcp(np.array(lwr4.HOME), RIGID)
+    elastic = resting_tcp(np.array(lwr4.HOME), lwr4.LWR4_ERRORS)
+    sag = np.linalg.norm(elastic[:3, 3] - rigid[:3, 3])
+    assert 2e-4 < sag < 2e-3  # the shoulder carries the arm: tenths of a millimetre
+
+
+@pytest.mark.parametrize(
+    ("mode", "lag"), [("impedance", (0.06, 0.08)), ("position", (-0.002, 0.002))]
+)
+def test_joint_impedance_control_trails_a_moving_command_position_control_does_not(mode, lag):
+    arm = SimulatedArm(mode=mode, errors=lwr4.LWR4_ERRORS)
+    arm.release()
+    velocity = 0.1  # rad/s on every joint
+    setpoint = np.array(lwr4.HOME)
+    for _ in range(1500):  # 1.5 s: the lag has settled
+        setpoint = setpoint + velocity * arm.dt
+        assert arm.command(setpoint), arm.reason
+        arm.step()
+    behind = (setpoint - arm.q) / velocity  # s
+    assert lag[0] <= behind[1] <= lag[1], behind

@@ -66,7 +66,12 @@ class Cell:
         self.interp.call("sync")
 
     def tcp(self) -> np.ndarray:
+        """Where the TCP truly is (the real arm, not its model)."""
         return self.arm.arm.tcp()[:3, 3]
+
+    def model_tcp(self) -> np.ndarray:
+        """Where the arm's model puts the TCP, from the encoders."""
+        return self.arm.kinematics.tcp(self.arm.arm.q)[:3, 3]
 
     def close(self) -> None:
         self.container.shutdown()
@@ -92,7 +97,13 @@ def test_released_the_arm_reaches_the_target_through_the_ports(cell):
     cell.interp.call("go_to", goal="target")
     cell.run(6.0)
     assert cell.interp.call("report")["phase"] == "reached"
-    assert np.linalg.norm(cell.tcp() - target) < 1e-3  # the calibration's error, untracked
+    goal = cell.navigator.call("report")["goals"]["target"][:3]  # where the calibration says
+    assert np.linalg.norm(cell.model_tcp() - goal) < 1e-3
+    # by the joints alone the real arm is millimetres from where its model says; the
+    # calibration, made on this arm nearby, absorbs most of that: the real TCP misses
+    # the target by more than a tracker's accuracy, which only a tracker can correct
+    assert np.linalg.norm(cell.tcp() - cell.model_tcp()) > 1.5e-3
+    assert 0.5e-3 < np.linalg.norm(cell.tcp() - target) < 5e-3
     assert not cell.robot.call("report")["braked"]
 
 
@@ -107,7 +118,7 @@ def test_stop_brakes_along_the_path_returns_and_the_brakes_engage_when_still(cel
     report = cell.robot.call("report")
     assert report["braked"] and report["reason"] == "stop"
     assert cell.interp.call("report")["phase"] == "stopped"
-    assert np.linalg.norm(cell.tcp() - asserted) < 0.5e-3, "back where STOP was asserted"
+    assert np.linalg.norm(cell.model_tcp() - asserted) < 0.5e-3, "back where STOP was asserted"
 
 
 def test_the_supervisors_halt_brakes_the_motion_without_the_chart(hub):
@@ -221,7 +232,7 @@ def test_an_arm_that_stops_following_stops_the_commanded_motion(cell):
     report = cell.interp.call("report")
     assert report["phase"] == "stopped", report
     assert "lags the command" in cell.interp.last_error
-    assert np.allclose(report["tcp"], cell.tcp(), atol=1e-3), "the command is back at the arm"
+    assert np.allclose(report["tcp"], cell.model_tcp(), atol=1e-3), "the command is at the arm"
 
 
 def test_a_monitor_trip_stops_the_arm_on_its_path_then_brakes_latched(hub):

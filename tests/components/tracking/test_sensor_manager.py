@@ -802,6 +802,21 @@ def test_a_reference_tool_that_slipped_on_the_head_clamp_is_found_among_two_trac
     assert decision.best == other
 
 
+def test_a_tracker_whose_reference_slipped_stays_distrusted_alone_until_its_calibration_is_redone():
+    world = World(kinematics=True, camera=True)
+    world.run(0.5)
+    world.moved = rigid((0.02, 0.0, 0.0), (0.0, 0.0, 0.0))
+    world.faults["certus"] = "rto_moved"
+    assert world.run(0.1).best == "vicra"
+    world.faults["vicra"] = "silent"  # the only witness falls silent
+    decision = world.run(1.0)
+    assert decision.health["vicra"].cause == "stale"
+    assert decision.health["certus"].cause == "calibration", "no witness: still distrusted"
+    assert decision.best is None
+    assert world.core.trust("certus") and not world.core.trust("certus")
+    assert world.run(0.2).best == "certus"  # recalibrated: trusted after the hysteresis
+
+
 def test_a_tracker_pushed_out_of_place_disagrees_with_the_kinematics_in_its_own_frame():
     world = World(kinematics=True, camera=True)
     world.run(0.5)
