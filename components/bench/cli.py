@@ -32,6 +32,8 @@ experiments:
   collision   Collision Reaction x50 (Fig. 4.5)    repeated   30 x 50 swaps (Fig. 4.3)
   motion      swaps during the approach (Fig. 4.2)
   braking     STOP on the MuJoCo arm at 1-10 cm/s (Fig. 4.6-4.8)
+  navigation  the real arm's error on targets on the patient (joints alone, Certus,
+              Vicra), a 5 mm head bump, a swap during motion at 7.5 and 10 cm/s
   statechart  transition latency vs depth, beside sismic (Fig. 3.8)
   people      Tables 4.1/4.2, Kinect calibration (Fig. 4.4)
   scale       2-16 trackers, 2-8 cameras x 16 people

@@ -81,6 +81,7 @@ def run_swap(quick: bool, context: dict[str, Any]) -> list[Row]:
     ms = [t.latency * 1e3 for t in trials]
     s = stats(ms)
     context.setdefault("series", {})["swap_ms"] = ms
+    context["swap_latency_p50_ms"] = s["p50"]
     age = statistics.median(t.detail["sample_age"] * 1e3 for t in trials)
     return [
         Row("swap", "L p50", s["p50"], thesis=12.5, target=1.0, n=len(ms)),
@@ -402,6 +403,84 @@ def run_chaos(quick: bool, context: dict[str, Any]) -> list[Row]:
     return rows
 
 
+def run_navigation(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """Navigation on the patient (issue 17): the real arm's error at the target by who
+    steers, a head bump, a swap during motion; on the simulated clock."""
+    import numpy as np
+
+    from components.bench import navigation
+
+    count = 3 if quick else 20
+    errors = navigation.final_errors(count, _progress("navigation"))
+    bump = navigation.head_bump()
+    swaps = [navigation.swap_transient(v) for v in (0.075, 0.10)]
+    context.setdefault("series", {})["navigation"] = {
+        "final_errors_mm": errors,
+        "head_bump": bump,
+        "swaps": swaps,
+    }
+    target = {"joints": None, "certus": 0.5, "vicra": 1.0}
+    rows = []
+    for mode, values in errors.items():
+        s = stats(values)
+        who = "joints alone" if mode == "joints" else f"{mode}-guided"
+        rows.append(Row("navigation", f"target error, {who} p50", s["p50"], unit="mm", n=count))
+        rows.append(
+            Row(
+                "navigation",
+                f"target error, {who} p95",
+                float(np.percentile(values, 95)),  # type: ignore[arg-type]
+                target=target[mode],
+                unit="mm",
+                n=count,
+            )
+        )
+    rows.append(
+        Row(
+            "navigation",
+            "5 mm head bump: back within 0.5 mm of the error before",
+            bump["recovery_s"],
+            target=1.0,
+            unit="s",
+            n=1,
+        )
+    )
+    rows.append(
+        Row(
+            "navigation",
+            "5 mm head bump: fastest command (limit 1 cm/s)",
+            bump["fastest_command_m_s"] * 100,
+            target=1.0,
+            unit="cm/s",
+            n=1,
+        )
+    )
+    for swap in swaps:
+        rows.append(
+            Row(
+                "navigation",
+                f"swap at {swap['speed_cm_s']:g} cm/s: transient",
+                swap["transient_mm"],
+                target=0.3 if swap["speed_cm_s"] <= 7.5 else None,
+                unit="mm",
+                n=1,
+            )
+        )
+    latency = context.get("swap_latency_p50_ms")  # when the swap experiment ran before
+    if latency is not None:
+        rows.append(
+            Row(
+                "navigation",
+                "untracked motion at a swap, 10 cm/s",
+                navigation.untracked_motion(0.10, latency),
+                thesis=2.0,
+                unit="mm",
+                n=1,
+            )
+        )
+    return rows
+
+
 OPT_IN = ("chaos",)
 """Experiments run only when named (long and destructive: a deployment per case)."""
 
@@ -413,6 +492,7 @@ EXPERIMENTS: dict[str, Callable[[bool, dict[str, Any]], list[Row]]] = {
     "repeated": run_repeated,
     "motion": run_motion,
     "braking": run_braking,
+    "navigation": run_navigation,
     "statechart": run_statechart,
     "people": run_people,
     "scale": run_scale,

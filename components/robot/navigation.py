@@ -13,9 +13,15 @@ errors, calibration, the head's motion. A goal given on the patient is then
 `B T_goal` in the frame the interpolator plans in: steering the nominal TCP there
 puts the real TCP on the target, within the tracker's accuracy.
 
-* `B` is low-pass filtered (time constant `smoothing`), so neither a tracker's
-  noise nor the step between two trackers' calibrations (a swap) reaches the
-  robot as a step; the interpolator also rate-limits the correction.
+* `B` is low-pass filtered (time constant `smoothing`), so a tracker's noise does
+  not reach the robot as a step; the interpolator also rate-limits the correction.
+* **A swap is bumpless**: two trackers' calibrations differ by millimetres (each
+  hand-eye fit absorbs the arm's model errors its own way). At a swap, the new
+  tracker's view is carried by the offset that makes it agree with `B` as it was,
+  and the offset fades over `swap_settle` (10 s): the robot keeps the
+  previous tracker's registration across the swap and drifts to the new tracker's
+  own view at a tenth of their difference per second, while the new tracker's
+  samples follow the head from the first one.
 * **The patient's motion** is measured apart, independent of the arm's model
   errors: the reference tool placed in the base by the tracker's own calibration
   to the robot (`S`), against where the registration found it. Farther than
@@ -86,6 +92,7 @@ class NavigatorCore:
         max_motion: float = 0.01,
         max_speed: float = 0.008,
         confirm: float = 0.3,
+        swap_settle: float = 10.0,
     ):
         """`registration`: the patient frame in the robot base where the calibration
         found it (X^-1 of the master tracker)."""
@@ -99,6 +106,9 @@ class NavigatorCore:
         self.max_motion = max_motion
         self.max_speed = max_speed
         self.confirm = confirm
+        self.swap_settle = swap_settle
+        self._carry: np.ndarray | None = None  # offset carried from the previous tracker
+        self._carry_t = 0.0
         self.base_from_patient = self.registration.copy()  # B, filtered
         self.tracker: str | None = None  # whose samples steer now
         self.samples = 0
@@ -144,6 +154,7 @@ class NavigatorCore:
         frames = self.trackers.get(tracker)
         if frames is None:
             return False
+        swapped = tracker != self.tracker and self.tracker is not None
         if tracker != self.tracker:
             self._patient.clear()  # another tracker: its own view of the patient's motion
             self.suspect = ""
@@ -157,6 +168,11 @@ class NavigatorCore:
             return True  # the goals hold still: the robot does not chase a moved patient
         on_patient = frames.master_from_sensor @ invert(rto) @ cto @ frames.cto_from_ee
         measured = base_from_ee @ invert(on_patient)
+        if swapped:
+            self._carry, self._carry_t = self.base_from_patient @ invert(measured), t
+        if self._carry is not None:
+            fade = math.exp(-max(0.0, t - self._carry_t) / self.swap_settle)
+            measured = blend(np.eye(4), self._carry, fade) @ measured
         if self._last_t is None:
             weight = 1.0  # the first sample replaces the registration
         else:
