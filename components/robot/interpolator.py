@@ -82,7 +82,8 @@ class InterpolatorCore:
 
     ROTATION_RADIUS = 0.1  # m: a rotation of 1 rad counts as 0.1 m of path
     STEER_SHARE = 0.5  # of the velocity limit kept for a pending correction
-    STEER_DEADBAND = 1e-6  # m: a smaller correction is not pending
+    STEER_DEADBAND = 1e-6  # m: a smaller pending correction does not slow the path
+    STEER_RESOLUTION = 1e-12  # m: a smaller difference is float noise, not a correction
 
     def __init__(
         self,
@@ -236,7 +237,7 @@ class InterpolatorCore:
         )
 
     def _pending_correction(self) -> bool:
-        return self._correction_size(self._wanted - self.offset) > self.STEER_DEADBAND
+        return self._correction_size(self._wanted - self.offset) > self.STEER_RESOLUTION
 
     def _correct(self, path_step: float) -> None:
         """Move the offset toward the wanted correction with the speed left this cycle."""
