@@ -32,7 +32,7 @@ import numpy as np
 from components.robot import lwr4
 from components.robot.arm import SimulatedArm
 from components.robot.interpolator import InterpolatorCore, Phase
-from components.robot.navigation import NavigatorCore, frames_of
+from components.robot.navigation import core_for
 from components.supervisor.procedure import load_procedure, pose_from
 from components.tracking.geometry import invert, pose_matrix
 from components.tracking.sensor_manager import load_sensors
@@ -57,16 +57,7 @@ class Run:
 
     def __post_init__(self) -> None:
         procedure = load_procedure(PROCEDURE_FILE)
-        trackers, registration = frames_of(load_sensors(SENSORS_FILE))
-        n = procedure.navigation
-        self.nav = NavigatorCore(
-            trackers,
-            registration,
-            smoothing=n.smoothing,
-            max_motion=n.max_patient_motion,
-            max_speed=n.max_patient_speed,
-            confirm=n.confirm,
-        )
+        self.nav = core_for(procedure, load_sensors(SENSORS_FILE))
         self.arm = SimulatedArm(lwr4.HOME, errors=lwr4.LWR4_ERRORS)
         self.arm.release()
         self.kinematics = lwr4.Kinematics()

@@ -210,19 +210,15 @@ class SeegRun:
 
     def last_requested(self, tags: tuple[str, ...]) -> str:
         """The most recently requested of the configurations `tags` ("" if none yet)."""
-        with self._states.changed:
-            for tag, _ in reversed(self._states.requested):
-                if tag in tags:
-                    return tag
-        return ""
+        return self._last_of(self._states.requested, tags)
 
     def last_entered(self, names: tuple[str, ...]) -> str:
         """The most recently entered of `names` ("" if none yet)."""
+        return self._last_of(self._states.entered, names)
+
+    def _last_of(self, history: list[tuple[str, float]], names: tuple[str, ...]) -> str:
         with self._states.changed:
-            for state, _ in reversed(self._states.entered):
-                if state in names:
-                    return state
-        return ""
+            return next((name for name, _ in reversed(history) if name in names), "")
 
     def since(self, t: float, key: str) -> list[Sample]:
         """Samples of `key` received after time `t` (in order)."""

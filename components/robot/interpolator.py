@@ -45,6 +45,7 @@ from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ru
 
 from components.robot.ik import DifferentialIK
 from components.robot.interface import tcp_message
+from components.robot.navigation import pose_from_list
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError
 from framework.messages import EventMessage, JointState, Pose
@@ -329,20 +330,6 @@ class InterpolatorCore:
         return out
 
 
-def _pose_from_list(values: Any) -> np.ndarray:
-    """[x, y, z, qw, qx, qy, qz] to a 4x4 pose; ValueError unless finite, unit quaternion."""
-    v = [float(x) for x in values]
-    if len(v) != 7 or not all(map(math.isfinite, v)):
-        raise ValueError(f"a pose is 7 finite numbers, got {values!r}")
-    w, x, y, z = v[3:]
-    if abs(w * w + x * x + y * y + z * z - 1.0) > 1e-3:
-        raise ValueError("a pose's quaternion must be a unit one")
-    out = np.eye(4)
-    out[:3, :3] = pin.Quaternion(w, x, y, z).toRotationMatrix()
-    out[:3, 3] = v[:3]
-    return out
-
-
 class CartesianInterpolator(Component):
     """Feeds `InterpolatorCore` at 1 kHz: goals by name, limits by port, joint setpoints out.
 
@@ -431,7 +418,7 @@ class CartesianInterpolator(Component):
         """The navigator's goals: steer the motion toward its goal where it is now; a
         refusal (the patient moved too far or too fast) stops it at once, as a halt."""
         try:
-            goals = {str(k): _pose_from_list(v) for k, v in payload["goals"].items()}
+            goals = {str(k): pose_from_list(v) for k, v in payload["goals"].items()}
             revisions = {str(k): int(v) for k, v in (payload.get("revisions") or {}).items()}
             refused = str(payload.get("refused") or "")
         except (KeyError, TypeError, ValueError, AttributeError) as exc:

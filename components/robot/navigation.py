@@ -111,7 +111,6 @@ class NavigatorCore:
         self._carry_t = 0.0
         self.base_from_patient = self.registration.copy()  # B, filtered
         self.tracker: str | None = None  # whose samples steer now
-        self.samples = 0
         self._last_t: float | None = None
         self._times: list[float] = []
         self._joints: list[np.ndarray] = []
@@ -162,7 +161,6 @@ class NavigatorCore:
             patient = frames.base_from_sensor @ rto @ invert(frames.master_from_sensor)
             self._watch_patient(t, patient[:3, 3])
         self.tracker = tracker
-        self.samples += 1
         if self.suspect or self.refused:
             self._last_t = t
             return True  # the goals hold still: the robot does not chase a moved patient
@@ -239,9 +237,39 @@ def frames_of(sensors: SensorsConfig) -> tuple[dict[str, TrackerFrames], np.ndar
     return trackers, invert(master.rto_from_base)
 
 
+def core_for(procedure: Procedure, sensors: SensorsConfig) -> NavigatorCore:
+    """The navigation a procedure asks for (its `navigation:` limits), on the trackers
+    and registration of a sensors configuration."""
+    trackers, registration = frames_of(sensors)
+    n = procedure.navigation
+    return NavigatorCore(
+        trackers,
+        registration,
+        smoothing=n.smoothing,
+        max_motion=n.max_patient_motion,
+        max_speed=n.max_patient_speed,
+        confirm=n.confirm,
+    )
+
+
 def pose_list(pose: np.ndarray) -> list[float]:
     """A 4x4 pose as [x, y, z, qw, qx, qy, qz] (m), for a message."""
     return [round(float(v), 7) for v in (*pose[:3, 3], *matrix_to_quat(pose[:3, :3]))]
+
+
+def pose_from_list(values: Any) -> np.ndarray:
+    """`pose_list` read back: a 4x4 pose; ValueError unless 7 finite numbers with a unit
+    quaternion (a goal from a message is checked before the robot steers by it)."""
+    v = [float(x) for x in values]
+    if len(v) != 7 or not all(map(math.isfinite, v)):
+        raise ValueError(f"a pose is 7 finite numbers, got {values!r}")
+    w, x, y, z = v[3:]
+    if abs(w * w + x * x + y * y + z * z - 1.0) > 1e-3:
+        raise ValueError("a pose's quaternion must be a unit one")
+    out = np.eye(4)
+    out[:3, :3] = pin.Quaternion(w, x, y, z).toRotationMatrix()
+    out[:3, 3] = v[:3]
+    return out
 
 
 class Navigator(Component):
@@ -281,19 +309,10 @@ class Navigator(Component):
     def configure_hook(self) -> bool:
         try:
             self.procedure: Procedure = load_procedure(self.procedure_file)
-            trackers, registration = frames_of(load_sensors(self.sensors_file))
+            self.core = core_for(self.procedure, load_sensors(self.sensors_file))
         except FwError as exc:
             self.last_error = str(exc)
             return False
-        n = self.procedure.navigation
-        self.core = NavigatorCore(
-            trackers,
-            registration,
-            smoothing=n.smoothing,
-            max_motion=n.max_patient_motion,
-            max_speed=n.max_patient_speed,
-            confirm=n.confirm,
-        )
         self.kinematics = Kinematics()
         self._rto: Pose | None = None
         self._last_sample = -math.inf

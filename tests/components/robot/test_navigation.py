@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from components.robot.interpolator import InterpolatorCore, Phase
 from components.robot.lwr4 import HOME, Kinematics
-from components.robot.navigation import Navigator, NavigatorCore, frames_of
+from components.robot.navigation import Navigator, NavigatorCore, frames_of, pose_from_list
 from components.supervisor.procedure import pose_from
 from components.tracking.geometry import invert, pose_matrix
 from components.tracking.synthetic import rigid, sensors_config, standard_rigs
@@ -290,9 +290,7 @@ def navigator(hub):
 
 
 def goal_of(payload, name="target"):
-    from components.robot.interpolator import _pose_from_list
-
-    return _pose_from_list(payload["goals"][name])
+    return pose_from_list(payload["goals"][name])
 
 
 def test_before_any_sample_the_goals_are_where_the_registration_puts_them(navigator):
