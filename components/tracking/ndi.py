@@ -35,14 +35,47 @@ ERRORS = {
     "02": "command too long",
     "03": "command too short",
     "04": "invalid CRC calculated for command",
-    "05": "time-out on command execution",
-    "06": "unable to set up new communication parameters",
+    "05": "command timed out",
+    "06": "bad COMM settings",
     "07": "incorrect number of parameters",
     "08": "invalid port handle selected",
-    "0C": "invalid port description",
-    "0D": "invalid port handle",
-    "0E": "no port handle available",
+    "0C": "command invalid in the current mode",
+    "0D": "no tool is assigned to the selected port handle",
+    "0E": "selected port handle not initialized",
+    "0F": "selected port handle not enabled",
+    "10": "system not initialized",
+    "11": "unable to stop tracking",
+    "12": "unable to start tracking",
+    "13": "tool or SROM fault: unable to initialize",
+    "23": "command parameter out of range",
+    "28": "too many tools are enabled",
+    "2A": "no memory available for dynamic allocation",
+    "2B": "the requested port handle has not been allocated",
+    "2C": "the requested port handle is unoccupied",
+    "2D": "no more port handles available",
+    "2F": "invalid port description",
+    "30": "requested port is already assigned a port handle",
+    "32": "invalid operation on the requested port handle",
 }
+"""The device's error codes (`ERRORxx`) that the Polaris Vicra and the simulator use,
+numbered and named as in NDI's combined API (the same table as NDI's own CAPI sample
+and ndicapi)."""
+(
+    INVALID_COMMAND,
+    BAD_CRC,
+    BAD_PARAMETERS,
+    INVALID_MODE,
+    HANDLE_NOT_INITIALIZED,
+    NOT_INITIALIZED,
+    TOOL_INIT_FAILED,
+    OUT_OF_RANGE,
+    UNKNOWN_HANDLE,
+    NO_HANDLE_AVAILABLE,
+) = ("01", "04", "07", "0C", "0E", "10", "13", "23", "2B", "2D")
+
+PORT_OCCUPIED, PORT_INITIALIZED, PORT_ENABLED = 0x01, 0x10, 0x20
+PORT_OUT_OF_VOLUME, PORT_PARTLY_IN_VOLUME = 0x40, 0x80
+"""Port status bits, the same in PHSR (3 hex digits) and in BX/TX (32 bits)."""
 
 
 class NdiError(FwError):
@@ -110,6 +143,16 @@ def parse_reply(frame: bytes) -> str:
         code = decoded[5:7].upper()
         raise NdiError(f"device answered ERROR{code}: {ERRORS.get(code, 'unknown error')}")
     return decoded
+
+
+def freeze_tag(version: str) -> str:
+    """The firmware's Freeze Tag from a VER reply ('' if the reply has none): the line
+    NDI's tools read to know which firmware answers."""
+    for line in version.splitlines():
+        key, _, value = line.partition(":")
+        if key.strip().lower() == "freeze tag":
+            return value.strip()
+    return ""
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ from typing import Any
 import serial
 
 from components.tracking import ndi
-from components.tracking.vicra_sim import make_rom
+from components.tracking.ndi_rom import make_srom, read_tool_definition
 from framework import schema
 from framework.component import Component, Out, operation
 from framework.errors import FwError, LocatedError
@@ -59,25 +59,61 @@ class ToolSpec:
     rom: bytes
 
 
+MARKER_AGREEMENT_MM = 0.01
+"""How far a tools file's marker may be from the same marker in its `.rom` (float32)."""
+
+
 def load_tools(path: str | Path) -> list[ToolSpec]:
-    """Tools from YAML (`tools: {cto: {markers: [[x,y,z], ...], rom: file}}`), checked."""
+    """Tools from YAML (`tools: {cto: {markers: [[x,y,z], ...], rom: file}}`), checked.
+
+    A tool names its markers, its NDI tool definition (`rom`, geometry read from the
+    file), or both (they must agree). Without a `rom`, fw writes the SROM image."""
     doc = load_yaml(path)
     schema.require(doc, TOOLS_SCHEMA, ToolsFileError)
     out = []
     for name, spec in doc.data["tools"].items():
-        markers, rom_path = spec["markers"], spec.get("rom")
+        markers, rom_path = spec.get("markers"), spec.get("rom")
         if rom_path:
+            where = doc.location(("tools", name, "rom"))
             try:
                 rom = (Path(doc.file).parent / rom_path).read_bytes()
             except OSError as exc:
                 raise ToolsFileError(
-                    f"cannot read tool definition {rom_path!r}: {exc.strerror}",
-                    doc.location(("tools", name, "rom")),
+                    f"cannot read tool definition {rom_path!r}: {exc.strerror}", where
                 ) from None
+            try:
+                definition = read_tool_definition(rom)
+            except ValueError as exc:
+                raise ToolsFileError(f"tool definition {rom_path!r}: {exc}", where) from None
+            from_rom = [list(m) for m in definition.markers]
+            if markers is not None and not _same_markers(markers, from_rom):
+                raise ToolsFileError(
+                    f"the markers of tool {name!r} differ from its definition {rom_path!r} "
+                    f"({_marker_list(from_rom)}); correct one or leave the markers out",
+                    doc.location(("tools", name, "markers")),
+                )
+            markers = from_rom
+        elif markers is None:
+            raise ToolsFileError(
+                f"tool {name!r} needs its markers or its tool definition (rom: file.rom)",
+                doc.location(("tools", name)),
+            )
         else:
-            rom = make_rom(markers, name)
+            rom = make_srom(markers, name)
         out.append(ToolSpec(name, markers, rom))
     return out
+
+
+def _same_markers(a: list[list[float]], b: list[list[float]]) -> bool:
+    return len(a) == len(b) and all(
+        abs(x - y) <= MARKER_AGREEMENT_MM
+        for p, q in zip(a, b, strict=True)
+        for x, y in zip(p, q, strict=True)
+    )
+
+
+def _marker_list(markers: list[list[float]]) -> str:
+    return ", ".join("[" + ", ".join(f"{v:g}" for v in m) + "]" for m in markers)
 
 
 TOOLS_FILE = FileKind(
@@ -120,6 +156,7 @@ class NdiTracker(Component):
             "invalid_values": 0,
         }
         self.fault = "not connected"
+        self.firmware = ""  # the device's Freeze Tag (VER), once connected
         self._reported_fault: str | None = None
         self.tools: list[ToolSpec] = []
 
@@ -200,7 +237,7 @@ class NdiTracker(Component):
         self.fault = fault
         if fault != self._reported_fault:
             self._reported_fault = fault
-            message = {"ok": not fault, "fault": fault, **self.counters}
+            message = {"ok": not fault, "fault": fault, "firmware": self.firmware, **self.counters}
             self.health.write(EventMessage(time.time(), "health", self.name, message))
 
     # -- the device ------------------------------------------------------------------
@@ -238,6 +275,7 @@ class NdiTracker(Component):
         code = BAUD_TO_CODE[self.baud]
         self._command("COMM", f"{code}0000")  # OKAY comes at the old rate
         self.serial.baudrate = self.baud
+        self.firmware = ndi.freeze_tag(self._command("VER", "4"))
         self._free_stale_handles()
         self.handles = {}
         for tool in self.tools:
@@ -245,7 +283,10 @@ class NdiTracker(Component):
             for address in range(0, len(tool.rom), 64):
                 chunk = tool.rom[address : address + 64].ljust(64, b"\0")
                 self._command("PVWR", f"{handle:02X}{address:04X}{chunk.hex().upper()}")
-            self._command("PINIT", f"{handle:02X}")
+            try:
+                self._command("PINIT", f"{handle:02X}")
+            except ndi.NdiError as exc:
+                raise DriverError(f"the device refused tool {tool.name!r}: {exc}") from None
             self._command("PENA", f"{handle:02X}D")
             self.handles[handle] = tool.name
 
@@ -318,9 +359,10 @@ class NdiTracker(Component):
 
     @operation(readonly=True)
     def status(self) -> dict[str, Any]:
-        """Connected or not, counters, tool handles, last error."""
+        """Connected or not, the firmware's Freeze Tag, counters, tool handles, last error."""
         return {
             "connected": self.serial is not None,
+            "firmware": self.firmware,
             "ok": not self.fault,
             "fault": self.fault,
             **self.counters,

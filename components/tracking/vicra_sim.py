@@ -21,7 +21,6 @@ import math
 import os
 import random
 import select
-import struct
 import threading
 import time
 import tty
@@ -31,12 +30,21 @@ from typing import Any
 
 from components.tracking import ndi
 from components.tracking.geometry import pose_matrix
+from components.tracking.ndi_rom import read_tool_definition
 from framework.component import Component, In, operation
 from framework.messages import Pose
 from framework.ports import ReadStatus
 from framework.properties import prop
 
-ROM_MAGIC = b"FWROM1"
+VERSION = (
+    "Polaris Vicra Control Firmware\n"
+    "NDI S/N: P6-SIM00\n"
+    "Characterization Date: 01/01/26\n"
+    "Freeze Tag: Polaris Vicra Rev 007.000\n"
+    "Freeze Date: 01/01/26\n"
+    "(C) Northern Digital Inc.\n"
+)
+"""The VER reply, laid out as a Vicra's: clients read the firmware from its Freeze Tag."""
 CORRUPT_VALUES = {"nan": math.nan, "inf": math.inf, "huge": 3e35}
 """Value faults: the device marks the frame valid but sends this as a position (mm)."""
 
@@ -44,26 +52,6 @@ CORRUPT_VALUES = {"nan": math.nan, "inf": math.inf, "huge": 3e35}
 def in_field_of_view(translation_mm: tuple[float, float, float]) -> bool:
     """True if a point (sensor frame, mm, z along the optical axis) is in the pyramid."""
     return ndi.in_vicra_volume(translation_mm)
-
-
-def make_rom(markers_mm: list[list[float]], name: str = "") -> bytes:
-    """A tool definition in fw's stand-in for NDI's .rom format: a 16-byte part name
-    (as the real files carry a part number) and the markers in mm."""
-    data = ROM_MAGIC + name.encode("ascii")[:16].ljust(16, b"\0") + bytes([len(markers_mm)])
-    for marker in markers_mm:
-        data += struct.pack("<3f", *marker)
-    return data + bytes(-len(data) % 64)
-
-
-def read_rom(data: bytes) -> tuple[str, list[tuple[float, float, float]]]:
-    """(part name, markers) of a tool definition; ValueError if it is not one."""
-    if not data.startswith(ROM_MAGIC) or len(data) < 23:
-        raise ValueError("not a tool definition")
-    name = data[6:22].rstrip(b"\0").decode("ascii", "replace")
-    count = data[22]
-    if len(data) < 23 + 12 * count:
-        raise ValueError("truncated tool definition")
-    return name, [struct.unpack_from("<3f", data, 23 + 12 * i) for i in range(count)]
 
 
 @dataclass
@@ -76,6 +64,14 @@ class SimTool:
     markers: list[tuple[float, float, float]] = field(default_factory=list)
     initialized: bool = False
     enabled: bool = False
+
+    def port_status(self) -> int:
+        """The port status bits PHSR and BX/TX report for this tool."""
+        return (
+            ndi.PORT_OCCUPIED
+            | (ndi.PORT_INITIALIZED if self.initialized else 0)
+            | (ndi.PORT_ENABLED if self.enabled else 0)
+        )
 
 
 @dataclass
@@ -175,15 +171,19 @@ class VicraDevice:
         try:
             name, params, _ = ndi.parse_command(line)
         except ndi.NdiError:
-            return self._reply("ERROR04")
-        self.commands.append(name)
+            return self._error(ndi.BAD_CRC)
+        if name not in ("BX", "TX"):  # the setup, not the stream
+            self.commands.append(name)
         handler = getattr(self, f"_cmd_{name.lower()}", None)
         if handler is None:
-            return self._reply("ERROR01")
+            return self._error(ndi.INVALID_COMMAND)
         if not self.initialized and name not in ("INIT", "COMM", "VER", "BEEP"):
-            return self._reply("ERROR01")
+            return self._error(ndi.NOT_INITIALIZED)
         with self._lock:
             return handler(params)
+
+    def _error(self, code: str) -> bytes:
+        return self._reply(f"ERROR{code}")
 
     def _reply(self, text: str) -> bytes:
         frame = ndi.reply(text)
@@ -198,13 +198,15 @@ class VicraDevice:
         return self._reply("OKAY")
 
     def _cmd_comm(self, params: str) -> bytes:
-        if not params or params[0] not in ndi.BAUD_CODES:
-            return self._reply("ERROR07")
+        if not params:
+            return self._error(ndi.BAD_PARAMETERS)
+        if params[0] not in ndi.BAUD_CODES:
+            return self._error(ndi.OUT_OF_RANGE)
         self.baud = ndi.BAUD_CODES[params[0]]  # answered at the old rate, then switched
         return self._reply("OKAY")
 
     def _cmd_ver(self, params: str) -> bytes:
-        return self._reply("Polaris Vicra Control Firmware\nfw simulator 1.0\n")
+        return self._reply(VERSION)
 
     def _cmd_beep(self, params: str) -> bytes:
         return self._reply("1")
@@ -221,14 +223,13 @@ class VicraDevice:
             or (kind == "04" and t.enabled)
         ]
         text = f"{len(picked):02X}" + "".join(
-            f"{t.handle:02X}{(0x01 | (0x10 if t.initialized else 0) | (0x20 if t.enabled else 0)):03X}"
-            for t in picked
+            f"{t.handle:02X}{t.port_status():03X}" for t in picked
         )
         return self._reply(text)
 
     def _cmd_phrq(self, params: str) -> bytes:
         if len(self.tools) >= 6:  # the Vicra tracks at most 6 rigid bodies
-            return self._reply("ERROR0E")
+            return self._error(ndi.NO_HANDLE_AVAILABLE)
         handle = self._next_handle
         self._next_handle += 1
         self.tools[handle] = SimTool(handle)
@@ -243,14 +244,14 @@ class VicraDevice:
     def _cmd_pvwr(self, params: str) -> bytes:
         tool = self._tool(params)
         if tool is None:
-            return self._reply("ERROR0D")
+            return self._error(ndi.UNKNOWN_HANDLE)
         try:
             address = int(params[2:6], 16)
             data = bytes.fromhex(params[6:])
         except ValueError:
-            return self._reply("ERROR07")
+            return self._error(ndi.BAD_PARAMETERS)
         if len(data) != 64:
-            return self._reply("ERROR07")
+            return self._error(ndi.BAD_PARAMETERS)
         end = address + 64
         if len(tool.rom) < end:
             tool.rom.extend(bytes(end - len(tool.rom)))
@@ -260,32 +261,35 @@ class VicraDevice:
     def _cmd_pinit(self, params: str) -> bytes:
         tool = self._tool(params)
         if tool is None:
-            return self._reply("ERROR0D")
+            return self._error(ndi.UNKNOWN_HANDLE)
         try:
-            tool.name, tool.markers = read_rom(bytes(tool.rom))
+            definition = read_tool_definition(tool.rom)
         except ValueError:
-            return self._reply("ERROR0C")
+            return self._error(ndi.TOOL_INIT_FAILED)
+        tool.name, tool.markers = definition.part, definition.markers
         tool.initialized = True
         return self._reply("OKAY")
 
     def _cmd_pena(self, params: str) -> bytes:
         tool = self._tool(params)
-        if tool is None or not tool.initialized:
-            return self._reply("ERROR0D")
+        if tool is None:
+            return self._error(ndi.UNKNOWN_HANDLE)
+        if not tool.initialized:
+            return self._error(ndi.HANDLE_NOT_INITIALIZED)
         tool.enabled = True
         return self._reply("OKAY")
 
     def _cmd_pdis(self, params: str) -> bytes:
         tool = self._tool(params)
         if tool is None:
-            return self._reply("ERROR0D")
+            return self._error(ndi.UNKNOWN_HANDLE)
         tool.enabled = False
         return self._reply("OKAY")
 
     def _cmd_phf(self, params: str) -> bytes:
         tool = self._tool(params)
         if tool is None:
-            return self._reply("ERROR0D")
+            return self._error(ndi.UNKNOWN_HANDLE)
         del self.tools[tool.handle]
         return self._reply("OKAY")
 
@@ -322,7 +326,9 @@ class VicraDevice:
                 hidden = pose.occluded if pose is not None else False
                 pose = None if seen is None else ScenePose(seen[0], seen[1], hidden)
             if pose is None or pose.occluded or not in_field_of_view(pose.translation):
-                out.append(ndi.ToolFrame(handle, ndi.MISSING, port_status=0x01, frame=frame))
+                outside = pose is not None and not in_field_of_view(pose.translation)
+                status = tool.port_status() | (ndi.PORT_OUT_OF_VOLUME if outside else 0)
+                out.append(ndi.ToolFrame(handle, ndi.MISSING, port_status=status, frame=frame))
                 continue
             noise = self._noise.get(handle, (0.0, 0.0, 0.0))
             position = tuple(p + n for p, n in zip(pose.translation, noise, strict=True))
@@ -330,14 +336,20 @@ class VicraDevice:
                 position = (CORRUPT_VALUES[self.fault], position[1], position[2])
             out.append(
                 ndi.ToolFrame(
-                    handle, ndi.VALID, pose.quaternion, position, self.noise_mm, 0x31, frame
+                    handle,
+                    ndi.VALID,
+                    pose.quaternion,
+                    position,
+                    self.noise_mm,
+                    tool.port_status(),
+                    frame,
                 )
             )
         return out
 
     def _cmd_bx(self, params: str) -> bytes:
         if not self.tracking:
-            return self._reply("ERROR01")
+            return self._error(ndi.INVALID_MODE)
         frame = ndi.encode_bx(self._frames())
         if self.fault == "bad_crc":
             frame = frame[:-2] + bytes([frame[-2] ^ 0xFF, frame[-1]])
@@ -345,7 +357,7 @@ class VicraDevice:
 
     def _cmd_tx(self, params: str) -> bytes:
         if not self.tracking:
-            return self._reply("ERROR01")
+            return self._error(ndi.INVALID_MODE)
         return self._reply(ndi.encode_tx(self._frames()))
 
 
@@ -454,11 +466,12 @@ class VicraSimulator(Component):
 
     @operation(readonly=True)
     def device_state(self) -> dict[str, Any]:
-        """What the device believes: initialised, tracking, baud, tools."""
+        """What the device believes: initialised, tracking, baud, tools, and the commands
+        it received since it was made (the first 100; BX and TX are not listed)."""
         return {
             "initialized": self.device.initialized,
             "tracking": self.device.tracking,
             "baud": self.device.baud,
             "tools": len(self.device.tools),
-            "commands": self.device.commands[-20:],
+            "commands": self.device.commands[:100],
         }

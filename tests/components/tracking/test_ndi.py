@@ -25,8 +25,10 @@ def test_commands_with_and_without_crc():
 
 def test_replies_are_checked_and_errors_named():
     assert ndi.parse_reply(ndi.reply("OKAY")) == "OKAY"
-    with pytest.raises(ndi.NdiError, match="ERROR0D: invalid port handle"):
-        ndi.parse_reply(ndi.reply("ERROR0D"))
+    with pytest.raises(
+        ndi.NdiError, match="ERROR2B: the requested port handle has not been allocated"
+    ):
+        ndi.parse_reply(ndi.reply("ERROR2B"))
     with pytest.raises(ndi.NdiError, match="bad reply CRC"):
         ndi.parse_reply(b"OKAY0000\r")
 

@@ -67,7 +67,8 @@ def test_setup_follows_the_protocol_and_switches_baud(driver, vicra):
     started(driver)
     state = vicra.call("device_state")
     assert state["initialized"] and state["tracking"] and state["baud"] == 115200
-    assert state["commands"][:4] == ["INIT", "COMM", "PHSR", "PHRQ"]
+    assert state["commands"][:5] == ["INIT", "COMM", "VER", "PHSR", "PHRQ"]
+    assert driver.firmware == "Polaris Vicra Rev 007.000"
     assert {"PVWR", "PINIT", "PENA", "TSTART"} <= set(state["commands"])
     assert state["tools"] == 2
 
@@ -81,6 +82,75 @@ def test_stale_handles_are_found_with_phsr_and_freed(driver, vicra):
     assert vicra.call("device_state")["tools"] == 3
     driver._free_stale_handles()
     assert vicra.call("device_state")["tools"] == 2, "PHSR:01 listed it, PHF freed it"
+
+
+def ask(driver, name, params=""):
+    """One command on the driver's open link: the reply's text, or the error it names."""
+    from components.tracking import ndi
+
+    try:
+        return driver._command(name, params)
+    except ndi.NdiError as exc:
+        return str(exc)
+
+
+def test_errors_are_numbered_as_ndi_numbers_them(driver):
+    """NDI's own clients act on the code: a handle never allocated is 2B, no handle
+    left is 2D, streaming while not tracking is 0C, an unknown command is 01."""
+    started(driver)
+    assert "ERROR2B" in ask(driver, "PENA", "7FD")
+    assert "ERROR2B" in ask(driver, "PVWR", "7F0000" + "00" * 64)
+    requested = [ask(driver, "PHRQ", "*********1****") for _ in range(5)]
+    assert all(len(r) == 2 for r in requested[:4]), "the Vicra has 6 handles, 2 are in use"
+    assert "ERROR2D: no more port handles available" in requested[4]
+    assert "ERROR0E" in ask(driver, "PENA", f"{requested[0]}D"), "not initialised yet"
+    assert ask(driver, "TSTOP") == "OKAY"
+    assert "ERROR0C: command invalid in the current mode" in ask(driver, "TX", "0801")
+    assert "ERROR01" in ask(driver, "FOO")
+
+
+def test_the_version_reply_carries_its_freeze_tag(driver):
+    started(driver)
+    lines = ask(driver, "VER", "4").splitlines()
+    assert lines[0] == "Polaris Vicra Control Firmware"
+    assert "Freeze Tag: Polaris Vicra Rev 007.000" in lines
+    assert driver.status()["firmware"] == "Polaris Vicra Rev 007.000"
+    driver.update()
+    assert driver.health.last.payload["firmware"] == "Polaris Vicra Rev 007.000"
+
+
+def test_port_status_in_the_stream_agrees_with_phsr(driver, vicra):
+    """Seen, occluded or out of the volume, an enabled tool's port is occupied,
+    initialised and enabled (0x31) in both; out of the volume adds 0x40."""
+    started(driver)
+    listed = ask(driver, "PHSR", "04")
+    phsr = {
+        int(listed[2 + 5 * i : 4 + 5 * i], 16): int(listed[4 + 5 * i : 7 + 5 * i], 16)
+        for i in range(int(listed[:2], 16))
+    }
+    assert sorted(phsr.values()) == [0x31, 0x31]
+    vicra.call("occlude", tool="rto")
+    vicra.call("place", tool="cto", translation=[10.0, 20.0, 2000.0])  # beyond 1336 mm
+    frames = {f.handle: f for f in driver._poll()}
+    names = {n: h for h, n in driver.handles.items()}
+    assert frames[names["rto"]].port_status == phsr[names["rto"]]
+    assert frames[names["cto"]].port_status == phsr[names["cto"]] | 0x40
+
+
+def test_real_tool_definition_files_are_used(driver, vicra, tmp_path):
+    """A tools file may name NDI .rom files only: their geometry is read from them."""
+    from components.tracking.ndi_driver import load_tools
+    from components.tracking.ndi_rom import make_srom
+
+    for name in ("cto", "rto"):
+        spec = next(t for t in load_tools(TOOLS) if t.name == name)
+        (tmp_path / f"{name}.rom").write_bytes(make_srom(spec.markers, name, "NDI"))
+    (tmp_path / "tools.yaml").write_text("tools: {cto: {rom: cto.rom}, rto: {rom: rto.rom}}\n")
+    driver.tools_file = str(tmp_path / "tools.yaml")
+    started(driver)
+    driver.update()
+    assert driver.cto.last.valid and driver.rto.last.valid
+    assert driver.cto.last.position == pytest.approx((0.010, 0.020, 0.900), abs=0.002)
 
 
 @pytest.mark.parametrize("binary", [True, False], ids=["BX", "TX"])
@@ -177,6 +247,10 @@ def test_bad_configuration_is_explained(tmp_path):
         d.device = path
         assert not d.configure()
         assert message in d.last_error and d.state.value == "PreOperational"
+    from components.tracking.ndi_rom import make_srom
+
+    (tmp_path / "junk.rom").write_bytes(b"hello")
+    (tmp_path / "cto.rom").write_bytes(make_srom([[0, 0, 0], [1, 0, 0], [0, 1, 0]], "cto"))
     bad = tmp_path / "tools.yaml"
     for text, message in [
         ("tools: {wand: {markers: [[0,0,0],[1,0,0],[0,1,0]]}}", "unknown key 'wand'"),
@@ -187,6 +261,12 @@ def test_bad_configuration_is_explained(tmp_path):
             "cannot read tool definition 'x.rom'",
         ),
         ("nothing: here", "'tools' is required"),
+        ("tools: {cto: {}}", "needs its markers or its tool definition"),
+        ("tools: {cto: {rom: junk.rom}}", "tool definition 'junk.rom': not an NDI tool"),
+        (
+            "tools: {cto: {markers: [[0,0,0],[1,0,0],[0,2,0]], rom: cto.rom}}",
+            "differ from its definition 'cto.rom' ([0, 0, 0], [1, 0, 0], [0, 1, 0])",
+        ),
     ]:
         bad.write_text(text)
         d.tools_file = str(bad)
