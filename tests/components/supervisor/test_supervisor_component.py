@@ -252,6 +252,9 @@ def test_speed_changes_send_the_interpolator_its_limits(rig):
     assert rig.limits[1].payload == {"velocity": 0.075, "acceleration": 0.25}
     rig.steer("certus", target=(0.5, 0.1, 0.123456))
     assert rig.supervisor.call("report")["target"] == [0.5, 0.1, 0.1235]
+    rig.steer("vicra")  # the same tracker in new news sent nothing; this swap does
+    assert wait_until(lambda: len(rig.limits) >= 3)
+    assert [m.payload["velocity"] for m in rig.limits] == [0.05, 0.075, 0.05]
 
 
 def test_a_refused_patient_motion_halts_the_interpolator_and_reaches_the_chart(rig):
@@ -270,6 +273,9 @@ def test_a_refused_patient_motion_halts_the_interpolator_and_reaches_the_chart(r
         ({"goals": {"target": [0.6, "up", 0.1]}, "tracker": "certus"}, "could not convert"),
         ({"goals": {"target": [0.6, 0.1]}, "tracker": "certus"}, "finite position"),
         ({"goals": {}, "tracker": 7}, "not a name"),
+        ({"goals": {}, "tracker": ""}, "not a name"),
+        ({"goals": {}, "tracker": "x" * 65}, f"tracker {'x' * 40!r} is not a name"),
+        ({"goals": {"y" * 99: [0.6, 0.1]}, "tracker": "certus"}, f"goal {'y' * 40!r} is not"),
         ({"tracker": "certus"}, "goals"),
     ],
 )
@@ -277,6 +283,12 @@ def test_navigator_news_that_cannot_be_believed_is_refused(rig, payload, why):
     rig.feed("navigation", EventMessage(0.0, "goals", "navigator", payload))
     assert why in refusals(rig, "navigation")[0]
     assert rig.supervisor.core.in_use is None and rig.supervisor.state.value == "Running"
+
+
+@pytest.mark.parametrize("name", ["v", "x" * 64])
+def test_a_tracker_named_with_one_to_64_characters_is_believed(rig, name):
+    rig.steer(name)
+    assert rig.supervisor.core.in_use == name and not rig.refused
 
 
 def test_operators_tools_may_only_ask_for_reports():
