@@ -86,6 +86,44 @@ def motion(series: dict[str, Any], out: Path) -> Path | None:
     return _save(fig, out, "fig4_2_swap_during_motion.png")
 
 
+def navigation(series: dict[str, Any], out: Path) -> Path | None:
+    """Fig. 4.2 in the patient frame: the real TCP around the target, with and without a
+    Certus-to-Vicra swap at 7.5 cm/s; and the error after a 5 mm head bump by who
+    steers."""
+    data = series.get("navigation")
+    runs = (data or {}).get("swaps", {}).get("7.5 cm/s", [])
+    swap = next((run["trace"] for run in runs if "trace" in run), None)
+    if swap is None:
+        return None
+    fig, axes = plt.subplots(4, 1, figsize=(7, 7.5))
+    for i, axis in enumerate("xyz"):
+        ax = axes[i]
+        ax.plot(
+            swap["t"],
+            [p[i] for p in swap["without_swap_mm"]],
+            color="tab:blue",
+            label="Certus throughout",
+        )
+        ax.plot(
+            swap["t"],
+            [p[i] for p in swap["with_swap_mm"]],
+            color="tab:red",
+            ls="--",
+            label="swap to the Vicra",
+        )
+        ax.axvline(swap["swap_t"], color="grey", lw=0.8)
+        ax.set_ylabel(f"{axis} (mm)")
+    axes[0].set_title("Real TCP relative to the target, patient frame (7.5 cm/s); grey: swap")
+    axes[0].legend(fontsize=7)
+    axes[2].set_xlabel("time (s)")
+    for who, bump in data.get("head_bump", {}).items():
+        axes[3].plot(bump["t"], bump["error_mm"], label=f"{who}-guided")
+    axes[3].set_xlabel("time after a 5 mm head bump (s)")
+    axes[3].set_ylabel("error (mm)")
+    axes[3].legend(fontsize=7)
+    return _save(fig, out, "fig4_2_navigation_patient_frame.png")
+
+
 def behaviour(series: dict[str, Any], out: Path) -> Path | None:
     """Fig. 4.6/4.7: commanded and actual TCP and the commanded speed, with the speed
     changes and the STOP."""
@@ -197,7 +235,7 @@ def calibration(series: dict[str, Any], out: Path) -> Path | None:
     return _save(fig, out, "fig4_4_kinect_calibration.png")
 
 
-FIGURES = (latencies, repeated, motion, behaviour, braking, statechart, calibration)
+FIGURES = (latencies, repeated, motion, navigation, behaviour, braking, statechart, calibration)
 
 
 def draw(series: dict[str, Any], out: Path) -> list[Path]:

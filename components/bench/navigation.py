@@ -10,14 +10,15 @@ head truly is:
 
 * `final_errors`: targets spread over the head, reached by the joints alone (the
   calibration's registration), Certus-guided and Vicra-guided;
-* `head_bump`: a 5 mm bump of the head at the target, Certus-guided at the slow
-  speed: the error over time, the time until it is back within 0.5 mm of the
+* `head_bump`: a 5 mm bump of the head at the target, Certus- or Vicra-guided at
+  the slow speed: the error over time, the time until it is back within 0.5 mm of the
   error it had before the bump (that error is the calibration's floor, ~0.5 mm),
   the fastest command step;
 * `swap_transient`: the Certus gives way to the Vicra mid-path at 7.5 and 10 cm/s;
   the transient is the farthest the real TCP gets from the path the same run
   without the swap took (same noise), over the second after the swap (a distance
-  to the path, not between equal times: being ahead or behind along it is none).
+  to the path, not between equal times: being ahead or behind along it is none);
+  over several seeds, as the Vicra's noise makes each swap different.
 """
 
 from __future__ import annotations
@@ -91,7 +92,8 @@ class Run:
     def _sample(self, rig: Rig) -> None:
         cto, rto = rig.observe(self.arm.tcp(), self.rng, self.t, base_from_rto=self.base_from_rto())
         base_from_ee = self.kinematics.tcp(self.arm.q)
-        self.nav.offer(rig.name, pose_matrix(cto), pose_matrix(rto), base_from_ee, self.t)
+        noise = float(np.hypot(cto.rms, rto.rms))
+        self.nav.offer(rig.name, pose_matrix(cto), pose_matrix(rto), base_from_ee, self.t, noise)
 
     def start(self) -> Run:
         self.core.go_to(self.nav.goal(self.target))
@@ -155,12 +157,12 @@ def final_errors(count: int, progress: Any = None) -> dict[str, list[float]]:
     return out
 
 
-def head_bump(seed: int = 0, bump: float = 0.005) -> dict[str, Any]:
-    """Certus-guided approach, slow near the target; the head is bumped `bump` m
-    sideways once the TCP is there: the error over time and how long it took to be
+def head_bump(seed: int = 0, bump: float = 0.005, tracker: str = "certus") -> dict[str, Any]:
+    """An approach guided by `tracker`, slow near the target; the head is bumped `bump`
+    m sideways once the TCP is there: the error over time and how long it took to be
     back within 0.5 mm of the error before the bump."""
     target = targets(1)[0]
-    run = Run(target, "certus", 0.075, seed=seed)
+    run = Run(target, tracker, 0.075, seed=seed)
     run.start().run(2.0)
     run.core.set_limits(0.01)  # the critical area's speed
     run.until_reached().run(0.5)
@@ -184,10 +186,12 @@ def head_bump(seed: int = 0, bump: float = 0.005) -> dict[str, Any]:
     }
 
 
-def swap_transient(velocity: float, seed: int = 0) -> dict[str, float]:
+def swap_transient(velocity: float, seed: int = 0, trace: bool = False) -> dict[str, Any]:
     """The Certus gives way to the Vicra 1 s into a motion at `velocity`: how far the
     real TCP gets from the path of the same run without the swap, over the next
-    second (mm)."""
+    second (mm). The swap-free run goes on half a second longer, so that a swapped run
+    ahead along the path is not counted as off it. With `trace`, both runs' real TCP
+    on the patient (the target's frame, mm) every 10 ms, for the figure."""
     target = pose_from(TARGET_IN_BASE, (0, 180, 0))
     on_patient = standard_rigs()[0].rto_from_base @ target
     runs = []
@@ -196,16 +200,36 @@ def swap_transient(velocity: float, seed: int = 0) -> dict[str, float]:
         mark = len(run.real)
         if swap:
             run.tracker = "vicra"
-        run.run(1.0)
+        run.run(1.0 if swap else 1.5)
         runs.append((run, mark))
     (plain, mark), (swapped, _) = runs
     path = np.array(plain.real[mark - 200 :])  # the path the swap-free run took
     apart = np.array([np.linalg.norm(path - point, axis=1).min() for point in swapped.real[mark:]])
-    return {
+    out: dict[str, Any] = {
         "speed_cm_s": velocity * 100,
+        "seed": seed,
         "transient_mm": float(apart.max()) * 1e3,
         "fastest_command_m_s": swapped.fastest_command(),
     }
+    if trace:
+        target_from_base = invert(plain.true_target())  # the head does not move here
+
+        def on_target(points: list[np.ndarray]) -> list[list[float]]:
+            return [
+                [
+                    round(float(v) * 1e3, 4)
+                    for v in target_from_base[:3, :3] @ p + target_from_base[:3, 3]
+                ]
+                for p in points[: len(swapped.real) : 10]
+            ]
+
+        out["trace"] = {
+            "t": [round(i * 0.001, 3) for i in range(0, len(swapped.real), 10)],
+            "swap_t": mark * 0.001,
+            "without_swap_mm": on_target(plain.real),
+            "with_swap_mm": on_target(swapped.real),
+        }
+    return out
 
 
 def untracked_motion(velocity: float, swap_latency_ms: float, rate: float = 100.0) -> float:

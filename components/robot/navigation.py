@@ -15,6 +15,11 @@ puts the real TCP on the target, within the tracker's accuracy.
 
 * `B` is low-pass filtered (time constant `smoothing`), so a tracker's noise does
   not reach the robot as a step; the interpolator also rate-limits the correction.
+  A noisy tracker is filtered more: each sample's weight is capped so that at most
+  `jitter` (RMS) of its noise reaches the goals, from the RMS the tracker reports
+  for its two tools (an exponential filter of weight w passes sigma*sqrt(w/(2-w))
+  of white noise sigma). The Vicra (0.25 mm per tool, 20 Hz) then steers with a
+  0.3 s time constant, the Certus (0.1 mm, 100 Hz) with `smoothing`.
 * **A swap is bumpless**: two trackers' calibrations differ by millimetres (each
   hand-eye fit absorbs the arm's model errors its own way). At a swap, the new
   tracker's view is carried by the offset that makes it agree with `B` as it was,
@@ -93,12 +98,13 @@ class NavigatorCore:
         max_speed: float = 0.008,
         confirm: float = 0.3,
         swap_settle: float = 10.0,
+        jitter: float = math.inf,
     ):
         """`registration`: the patient frame in the robot base where the calibration
         found it (X^-1 of the master tracker)."""
-        if not (smoothing > 0 and max_motion > 0 and max_speed > 0 and confirm >= 0):
+        if not (smoothing > 0 and max_motion > 0 and max_speed > 0 and jitter > 0 and confirm >= 0):
             raise ValueError(
-                "smoothing, max_motion and max_speed must be positive, confirm not negative"
+                "smoothing, max_motion, max_speed and jitter must be positive, confirm not negative"
             )
         self.trackers = trackers
         self.registration = np.asarray(registration, dtype=float).copy()
@@ -107,6 +113,7 @@ class NavigatorCore:
         self.max_speed = max_speed
         self.confirm = confirm
         self.swap_settle = swap_settle
+        self.jitter = jitter
         self._carry: np.ndarray | None = None  # offset carried from the previous tracker
         self._carry_t = 0.0
         self.base_from_patient = self.registration.copy()  # B, filtered
@@ -147,9 +154,11 @@ class NavigatorCore:
         rto: np.ndarray,
         base_from_ee: np.ndarray,
         t: float,
+        noise: float = 0.0,
     ) -> bool:
         """A tracker's sample (CTO and RTO in its frame) with the nominal end-effector
-        pose at the sample's stamp; False if the tracker is unknown (nothing changes)."""
+        pose at the sample's stamp and its noise (m RMS, both tools together); False if
+        the tracker is unknown (nothing changes)."""
         frames = self.trackers.get(tracker)
         if frames is None:
             return False
@@ -175,9 +184,18 @@ class NavigatorCore:
             weight = 1.0  # the first sample replaces the registration
         else:
             weight = 1.0 - math.exp(-max(0.0, t - self._last_t) / self.smoothing)
+            weight = min(weight, self.noise_weight(noise))
         self.base_from_patient = blend(self.base_from_patient, measured, weight)
         self._last_t = t
         return True
+
+    def noise_weight(self, noise: float) -> float:
+        """The largest weight a sample of this noise (m RMS) may have in the filter so
+        that at most `jitter` of it reaches the goals (1: no cap)."""
+        if not noise > self.jitter:
+            return 1.0
+        x = (self.jitter / noise) ** 2
+        return 2.0 * x / (1.0 + x)
 
     def register(self) -> None:
         """The patient is where the tracking sees it now (the surgeon re-registered):
@@ -249,6 +267,7 @@ def core_for(procedure: Procedure, sensors: SensorsConfig) -> NavigatorCore:
         max_motion=n.max_patient_motion,
         max_speed=n.max_patient_speed,
         confirm=n.confirm,
+        jitter=n.jitter,
     )
 
 
@@ -338,6 +357,7 @@ class Navigator(Component):
                 pose_matrix(self._rto),  # type: ignore[arg-type]
                 self.kinematics.tcp(q),
                 cto.stamp,
+                math.hypot(cto.rms, self._rto.rms),  # type: ignore[union-attr]
             ):
                 self._last_sample = time.time()
                 if cto.frame != steered:

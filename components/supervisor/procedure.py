@@ -44,6 +44,7 @@ class Navigation:
     max_patient_motion: float = 0.01  # m from where the patient was registered
     max_patient_speed: float = 0.008  # m/s, over the last second
     confirm: float = 0.3  # s a motion beyond the limits persists before it is refused
+    jitter: float = 0.0001  # m RMS of a tracker's noise let through to the goals
 
 
 @dataclass
@@ -192,6 +193,7 @@ def load_procedure(path: str | Path) -> Procedure:
             float(navigation.get("max_patient_motion", defaults.max_patient_motion)),
             float(navigation.get("max_patient_speed", defaults.max_patient_speed)),
             float(navigation.get("confirm", defaults.confirm)),
+            float(navigation.get("jitter", defaults.jitter)),
         ),
     )
 
