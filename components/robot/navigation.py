@@ -34,6 +34,10 @@ puts the real TCP on the target, within the tracker's accuracy.
   of more than `max_speed` x 1 s within a second: a 5 mm bump is 5 mm/s), the
   navigation refuses until the patient is registered again: the robot must not
   chase a patient who is being moved.
+* **A sample that cannot be** is not steered by either: one that puts the patient
+  farther from the registration than `max_motion` plus `max_model_error` (what the
+  arm's model may be off by, 5 mm) is held, then refused like a patient's motion: a
+  tool loose on the arm or a wrong tracker must not drag the goals.
 * Without any sample (no tracker), `B` is the registration: the goals are where
   the calibration put the patient (the arm's model errors stay uncorrected).
 
@@ -64,6 +68,7 @@ from framework.ports import ReadStatus
 from framework.properties import prop
 
 SPEED_WINDOW = 1.0  # s over which the patient's speed is averaged
+LEVER = 0.25  # m: the goals lie within this of the reference tool on the head clamp
 JOINT_MEMORY = 0.5  # s of joint states kept to match the samples' stamps
 
 
@@ -99,6 +104,7 @@ class NavigatorCore:
         confirm: float = 0.3,
         swap_settle: float = 10.0,
         jitter: float = math.inf,
+        max_model_error: float = 0.005,
     ):
         """`registration`: the patient frame in the robot base where the calibration
         found it (X^-1 of the master tracker)."""
@@ -114,6 +120,7 @@ class NavigatorCore:
         self.confirm = confirm
         self.swap_settle = swap_settle
         self.jitter = jitter
+        self.max_model_error = max_model_error
         self._carry: np.ndarray | None = None  # offset carried from the previous tracker
         self._carry_t = 0.0
         self.base_from_patient = self.registration.copy()  # B, filtered
@@ -166,15 +173,17 @@ class NavigatorCore:
         if tracker != self.tracker:
             self._patient.clear()  # another tracker: its own view of the patient's motion
             self.suspect = ""
+        reason = ""
         if frames.base_from_sensor is not None:
             patient = frames.base_from_sensor @ rto @ invert(frames.master_from_sensor)
-            self._watch_patient(t, patient[:3, 3])
+            reason = self._watch_patient(t, patient[:3, 3])
+        on_patient = frames.master_from_sensor @ invert(rto) @ cto @ frames.cto_from_ee
+        measured = base_from_ee @ invert(on_patient)
+        self._judge(t, reason or self._implausible(measured))
         self.tracker = tracker
         if self.suspect or self.refused:
             self._last_t = t
             return True  # the goals hold still: the robot does not chase a moved patient
-        on_patient = frames.master_from_sensor @ invert(rto) @ cto @ frames.cto_from_ee
-        measured = base_from_ee @ invert(on_patient)
         if swapped:
             self._carry, self._carry_t = self.base_from_patient @ invert(measured), t
         if self._carry is not None:
@@ -212,7 +221,8 @@ class NavigatorCore:
         return self.base_from_patient @ on_patient
 
     # --- internals ---------------------------------------------------------------------
-    def _watch_patient(self, t: float, position: np.ndarray) -> None:
+    def _watch_patient(self, t: float, position: np.ndarray) -> str:
+        """Why the patient's motion is beyond the limits ("" if it is not)."""
         self.patient_offset = position - self.registration[:3, 3]
         window = self._patient
         window.append((t, position))
@@ -231,6 +241,30 @@ class NavigatorCore:
                 f"(limit {self.max_speed * 1e3:.1f} mm/s)"
             )
         else:
+            reason = ""
+        return reason
+
+    def _implausible(self, measured: np.ndarray) -> str:
+        """Why a sample's view of the patient cannot be (""  if it can): farther from the
+        registration than the patient may move plus what the arm's model may be off by,
+        at any point within `LEVER` of the reference tool. A tool loose on the arm or a
+        wrong tracker must not steer the robot."""
+        shift = float(np.linalg.norm(measured[:3, 3] - self.registration[:3, 3]))
+        turn = float(np.linalg.norm(pin.log3(self.registration[:3, :3].T @ measured[:3, :3])))
+        off = shift + turn * LEVER
+        limit = self.max_motion + self.max_model_error
+        if off <= limit:
+            return ""
+        return (
+            f"the tracked end-effector puts the patient {off * 1e3:.1f} mm from where it "
+            f"was registered (limit {limit * 1e3:.1f} mm: its motion plus the arm's model "
+            "error): a tool moved on the arm, or a tracker is wrong"
+        )
+
+    def _judge(self, t: float, reason: str) -> None:
+        """Hold the goals while a motion beyond the limits lasts; refuse it once it
+        lasted `confirm`, as seen by the same tracker."""
+        if not reason:
             self.suspect = ""
             return
         if not self.suspect:
@@ -268,6 +302,7 @@ def core_for(procedure: Procedure, sensors: SensorsConfig) -> NavigatorCore:
         max_speed=n.max_patient_speed,
         confirm=n.confirm,
         jitter=n.jitter,
+        max_model_error=n.max_model_error,
     )
 
 

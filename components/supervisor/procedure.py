@@ -45,6 +45,7 @@ class Navigation:
     max_patient_speed: float = 0.008  # m/s, over the last second
     confirm: float = 0.3  # s a motion beyond the limits persists before it is refused
     jitter: float = 0.0001  # m RMS of a tracker's noise let through to the goals
+    max_model_error: float = 0.005  # m the arm's model may be off, beyond the patient's motion
 
 
 @dataclass
@@ -194,6 +195,7 @@ def load_procedure(path: str | Path) -> Procedure:
             float(navigation.get("max_patient_speed", defaults.max_patient_speed)),
             float(navigation.get("confirm", defaults.confirm)),
             float(navigation.get("jitter", defaults.jitter)),
+            float(navigation.get("max_model_error", defaults.max_model_error)),
         ),
     )
 

@@ -247,6 +247,35 @@ def test_a_reference_tool_slipped_on_the_clamp_holds_the_goals_and_is_not_refuse
     assert np.linalg.norm(loop.nav.patient_offset) < 1e-3
 
 
+def test_a_tool_loosened_on_the_arm_does_not_drag_the_goals_and_is_refused():
+    """Its view puts the patient 3 cm off although the reference tool did not move:
+    beyond the patient's 10 mm plus the arm model's 5 mm."""
+    loop = Loop().go().run(3.0)
+    goal = loop.nav.goal(TARGET)
+    loose = dataclasses.replace(
+        CERTUS, ee_from_cto=CERTUS.ee_from_cto @ rigid((0.03, 0, 0), (0, 0, 0))
+    )
+    loop.run(0.01, rig=loose)  # one sample: held, not yet refused
+    assert "a tool moved on the arm" in loop.nav.suspect and loop.nav.refused == ""
+    assert np.allclose(loop.nav.goal(TARGET), goal)
+    loop.run(0.5)  # the glitch is over
+    assert loop.nav.suspect == "" and loop.nav.refused == ""
+    loop.run(loop.nav.confirm + 0.05, rig=loose)  # loose for good
+    assert "(limit 15.0 mm" in loop.nav.refused
+    assert np.allclose(loop.nav.goal(TARGET), goal, atol=1e-4)
+
+
+def test_the_arms_own_model_error_is_steered_out_not_refused():
+    """A few millimetres between the model and the arm are what navigation corrects."""
+    bent = rigid((0.004, -0.003, 0.0), (0.004, 0.0, 0.0))  # 5 mm and 0.23 deg
+    nav = NavigatorCore(TRACKERS, REGISTRATION)
+    rig = dataclasses.replace(CERTUS, noise=0.0)
+    tcp = KIN.tcp(np.array(HOME))
+    cto, rto = rig.observe(bent @ tcp, np.random.default_rng(0), 0.0)
+    nav.offer("certus", pose_matrix(cto), pose_matrix(rto), tcp, 0.0)
+    assert nav.suspect == "" and not np.allclose(nav.goal(TARGET), REGISTRATION @ TARGET)
+
+
 def test_a_motion_beyond_the_limits_seen_for_the_confirmation_time_is_refused():
     loop = Loop(head=lambda t: np.array([0.02 * (t > 1.0), 0.0, 0.0])).go()
     loop.run(1.0 + loop.nav.confirm - 0.05)
