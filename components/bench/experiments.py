@@ -454,7 +454,7 @@ def run_navigation(quick: bool, context: dict[str, Any]) -> list[Row]:
             Row(
                 "navigation",
                 f"5 mm head bump, {who}: fastest command (limit 1 cm/s)",
-                bump["fastest_command_m_s"] * 100,
+                round(bump["fastest_command_m_s"] * 100, 9),  # the limit itself, not float noise
                 target=1.0,
                 unit="cm/s",
                 n=1,
