@@ -49,7 +49,8 @@ class Bump:
         """The part of the offset done at time `t`."""
         if t <= self.start:
             return np.zeros(3)
-        u = min(1.0, (t - self.start) / self.duration) if self.duration > 0 else 1.0
+        elapsed = t - self.start
+        u = 1.0 if elapsed >= self.duration else elapsed / self.duration
         return np.asarray(self.offset) * (0.5 - 0.5 * math.cos(math.pi * u))
 
 
