@@ -212,7 +212,7 @@ class InterpolatorCore:
             elif result not in (Result.Working,):
                 raise RuntimeError(f"ruckig failed: {result}")
             if steering:  # the straight path's translation this cycle
-                share = abs(self.s - before) / self.length if self.length > 1e-12 else 0.0
+                share = abs(self.s - before) / self.length  # a path moved on is >= 1 nm
                 self._correct(share * float(np.linalg.norm(self._delta_p)))
             self.pose = self._offset_pose(self._pose_at(self.s))
         elif steering and self._pending_correction():

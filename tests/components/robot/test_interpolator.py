@@ -393,3 +393,22 @@ def test_steering_is_ignored_when_not_heading_for_a_goal():
     assert np.array_equal(c.pose, before) and c.phase is Phase.IDLE
     with pytest.raises(ValueError, match="finite 4x4"):
         c.steer(np.full((4, 4), np.nan))
+
+
+def test_a_turned_goal_is_followed_at_a_tenth_of_a_metre_per_radian():
+    """A correction that is a rotation costs its angle times 0.1 m of the speed budget:
+    0.05 rad at 1 cm/s takes half a second."""
+    import pinocchio as pin
+
+    c = core(velocity=0.01)
+    goal = goal_at((0.0, 0.0, -0.01))
+    c.go_to(goal)
+    run(c, Phase.REACHED)
+    turned = goal.copy()
+    turned[:3, :3] = goal[:3, :3] @ pin.exp3(np.array([0.05, 0.0, 0.0]))
+    c.steer(turned)
+    cycles = 0
+    while np.linalg.norm(pin.log3(c.pose[:3, :3].T @ turned[:3, :3])) > 1e-9 and cycles < 2000:
+        c.step()
+        cycles += 1
+    assert 495 <= cycles <= 505
