@@ -784,11 +784,16 @@ def test_a_head_that_moves_the_reference_tools_is_a_fault_only_without_the_robot
 
 
 @pytest.mark.parametrize("slipped", ["certus", "vicra"])
-def test_a_reference_tool_that_slipped_on_the_head_clamp_is_found_among_two_trackers(slipped):
+@pytest.mark.parametrize(
+    "slip", [(0.02, 0.0, 0.0), (-0.02, 0.0, 0.0), (0.0, 0.02, 0.0), (0.0, 0.0, -0.02)]
+)
+def test_a_reference_tool_that_slipped_on_the_head_clamp_is_found_among_two_trackers(slipped, slip):
+    """Of two that disagree, the one further from where the calibration found the
+    patient is blamed, whichever way its tool slipped."""
     world = World(kinematics=True, camera=True)
     world.head = moved_head(world, 0.003)  # the head moved too: that alone is no fault
     world.run(0.5)
-    world.moved = rigid((0.02, 0.0, 0.0), (0.0, 0.0, 0.0))
+    world.moved = rigid(slip, (0.0, 0.0, 0.0))
     world.faults[slipped] = "rto_moved"
     decision = world.run(0.1)
     other = "vicra" if slipped == "certus" else "certus"
@@ -826,6 +831,37 @@ def test_a_tracker_pushed_out_of_place_disagrees_with_the_kinematics_in_its_own_
     assert decision.health["certus"].cause == "calibration"
     assert "10.0 mm" in decision.health["certus"].detail, decision.health["certus"].detail
     assert decision.best == "vicra"
+
+
+def test_two_of_four_references_slipped_alike_lack_a_majority_and_so_do_the_others():
+    """Each of four must agree with at least half of the three others about where the
+    patient is: two slipped alike agree only with each other, the two good ones too;
+    nobody has a majority, so only the steadiest (nearest the registration) is kept."""
+    vicra = standard_rigs()[1]
+    rigs = [*standard_rigs(), *(dataclasses.replace(vicra, name=f"vicra{i}") for i in (2, 3))]
+    world = World(rigs, kinematics=True, camera=True)
+    world.run(0.5)
+    world.moved = rigid((0.0, 0.0, 0.01), (0.0, 0.0, 0.0))
+    world.faults["vicra2"] = world.faults["vicra3"] = "rto_moved"
+    decision = world.run(0.1)
+    trusted = [n for n, h in decision.health.items() if h.ok]
+    assert len(trusted) == 1 and trusted[0] in ("certus", "vicra"), decision.health
+    assert {decision.health[n].cause for n in ("vicra2", "vicra3")} == {"calibration"}
+
+
+@pytest.mark.parametrize(("odd_for", "latched"), [(0.075, False), (0.125, True)])
+def test_a_slipped_reference_is_latched_once_odd_for_two_periods_of_the_slowest(odd_for, latched):
+    """The Vicra's period is 50 ms: odd for 1.5 periods and back is a glitch, trusted
+    again; odd for 2.5 periods stays distrusted until its calibration is redone."""
+    world = World(kinematics=True, camera=True)
+    world.run(0.5)
+    world.moved = rigid((0.02, 0.0, 0.0), (0.0, 0.0, 0.0))
+    world.faults["certus"] = "rto_moved"
+    assert world.run(odd_for).health["certus"].cause == "calibration"
+    del world.faults["certus"]
+    decision = world.run(0.3)
+    assert (decision.health["certus"].cause == "calibration") is latched, decision.health
+    assert decision.best == ("vicra" if latched else "certus")
 
 
 def test_three_trackers_calibrated_to_the_robot_outvote_the_one_whose_reference_slipped():
