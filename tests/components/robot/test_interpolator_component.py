@@ -330,6 +330,19 @@ def test_a_target_defined_anew_is_not_followed_until_the_next_go_to(robot):
     assert robot.report()["tcp"] == pytest.approx([0.58, 0.0, 0.12], abs=1e-6)
 
 
+def test_a_goal_whose_revision_went_back_does_not_steer_the_motion(robot):
+    """A restarted navigator counts from 0 again: its target is the procedure's, not the
+    one defined anew that the motion heads for."""
+    robot.limits(velocity=0.075)
+    robot.navigate(target=moved(TARGET, dx=-0.02), revisions={"target": 1})
+    robot.cycle()
+    robot.interp.call("go_to", goal="target")
+    robot.until("reached")
+    robot.navigate(target=moved(TARGET, dy=0.004), revisions={"target": 0})
+    robot.cycle(2000)
+    assert robot.report()["tcp"] == pytest.approx([0.58, 0.0, 0.12], abs=1e-6)
+
+
 def test_a_refusal_of_the_patients_motion_stops_the_motion_and_a_go_to(robot):
     robot.limits(velocity=0.075)
     robot.interp.call("go_to", goal="target")
