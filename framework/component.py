@@ -96,6 +96,18 @@ class Refusal:
     stamp: float
 
 
+@dataclass(frozen=True)
+class FileInput:
+    """An input port a component opens from its own configuration file (one per
+    tracker, per camera): `fw validate` checks that a component of the topology
+    publishes on its key, with its type, and `fw ls --links` names it."""
+
+    port: str
+    type: str  # the message type's name
+    key: str
+    source: str  # where the file names the key, for messages
+
+
 class In:
     """Declare an input port on a Component class."""
 
@@ -225,6 +237,12 @@ class Component:
             known = ", ".join(sorted([*self.inputs, *self.outputs])) or "none"
             raise FwError(f"component {self.name!r} has no port {name!r} (ports: {known})")
         return found
+
+    @classmethod
+    def file_inputs(cls, properties: dict[str, Any]) -> list[FileInput]:
+        """The inputs this component will open from its configuration files, given its
+        topology properties (none by default); FwError if a file cannot be read."""
+        return []
 
     def add_input(
         self, name: str, kind: type, key: str, policy: ConnPolicy | None = None

@@ -20,7 +20,7 @@ from typing import Any
 from framework import keys, schema
 from framework.activity import Activity, ActivityError
 from framework.bus import BusConfig
-from framework.component import Component, In, Out, declarations
+from framework.component import Component, FileInput, In, Out, declarations
 from framework.durations import parse_duration
 from framework.errors import Finding, FindingsError, FwError, Location
 from framework.messages import type_name
@@ -134,6 +134,9 @@ class Topology:
     """What the robot-side monitor watches (None: the topology declares no monitor)."""
     hosts: dict[str, str] = field(default_factory=dict)
     """Other machines -> the address their processes listen on (`hosts:`)."""
+    file_links: list[tuple[str, FileInput]] = field(default_factory=list)
+    """(component, input) of the inputs components open from their configuration files
+    (a tracker per line of sensors.yaml, a camera per line of cameras.yaml)."""
 
     def addresses(self) -> list[str]:
         """Every address a process of this deployment listens on (a certificate of the
@@ -323,6 +326,66 @@ class _Loader:
                 info,
             )
         return out
+
+    def file_links(self, topo: Topology) -> None:
+        """The inputs components open from their own files: each must have a writer of its
+        type in the topology, or its data never comes (a typo in sensors.yaml)."""
+        for spec in topo.components.values():
+            if spec.info is None:
+                continue
+            where = ("components", spec.name, "properties")
+            try:
+                wanted = spec.info.cls.file_inputs(spec.properties)
+            except FwError as exc:
+                missing = [
+                    v
+                    for v in spec.properties.values()
+                    if isinstance(v, str) and v.endswith(".yaml") and not Path(v).exists()
+                ]
+                if missing:
+                    self.findings.append(
+                        Finding(
+                            "warning",
+                            "file-links",
+                            f"cannot check the inputs {spec.name!r} opens from {missing[0]!r}: "
+                            f"not found from {Path.cwd()}",
+                            self.doc.location(where),
+                            "run fw validate from the folder fw deploy runs in",
+                        )
+                    )
+                else:
+                    self.error("file-links", f"{spec.name}: {exc}", where)
+                continue
+            for link in wanted:
+                writers = topo.writers_of(link.key)
+                if not writers:
+                    self.error(
+                        "file-links",
+                        f"{spec.name}.{link.port} listens on {link.key!r} ({link.source}), "
+                        "where no component of the topology publishes",
+                        where,
+                        self.close(link.key, self._keys_of(topo, link.type)),
+                    )
+                    continue
+                wrong = [f"{w} ({kind})" for w, kind in writers if kind != link.type]
+                if wrong:
+                    self.error(
+                        "file-links",
+                        f"{spec.name}.{link.port} expects {link.type} on {link.key!r} "
+                        f"({link.source}); {', '.join(wrong)} publish there",
+                        where,
+                    )
+                topo.file_links.append((spec.name, link))
+
+    @staticmethod
+    def _keys_of(topo: Topology, kind: str) -> list[str]:
+        return [
+            spec.output_key(port)
+            for spec in topo.components.values()
+            if spec.info is not None
+            for port, declared in spec.info.outputs.items()
+            if declared == kind
+        ]
 
     def port(
         self, topo: Topology, ref: str, where: tuple[Any, ...], direction: str = ""
@@ -677,6 +740,7 @@ def check_topology(path: str | Path) -> tuple[Topology | None, list[Finding]]:
         hosts={name: spec["address"] for name, spec in (data.get("hosts") or {}).items()},
     )
     topo.components = loader.components(data)
+    loader.file_links(topo)
     for i, spec in enumerate(data.get("connections") or []):
         step = loader.connection(topo, spec, ("connections", i), DEFAULT_STEP_TIMEOUT)
         if step is not None:

@@ -26,7 +26,7 @@ from components.people.kinect_sim import from_message
 from components.people.skeleton import body_center
 from components.tracking.geometry import as_matrix
 from framework import schema
-from framework.component import Component, In, Out, operation
+from framework.component import Component, FileInput, In, Out, operation
 from framework.errors import FwError, LocatedError
 from framework.filekinds import FileKind, schema_then
 from framework.messages import EventMessage, JointState, Scalar, Skeletons
@@ -89,6 +89,14 @@ CAMERAS_FILE = FileKind(
 )
 
 
+def _camera_inputs(keys: dict[str, str], file: str) -> dict[str, FileInput]:
+    """Every camera's input, by camera name."""
+    return {
+        name: FileInput(f"camera_{name}", "Skeletons", key, f"{file}: cameras.{name}.key")
+        for name, key in keys.items()
+    }
+
+
 class WorkspacePeopleDetector(Component):
     """Feeds `PeopleDetectorCore` from the cameras' ports and publishes people."""
 
@@ -98,6 +106,12 @@ class WorkspacePeopleDetector(Component):
     min_distance = Out(Scalar, doc="closest robot-person distance (m; inf without a robot)")
     joints = In(JointState, doc="robot joints: link capsules by Pinocchio forward kinematics")
 
+    @classmethod
+    def file_inputs(cls, properties: dict[str, Any]) -> list[FileInput]:
+        """A `camera_<name>` Skeletons input per camera of the cameras file."""
+        file = str(properties.get("cameras_file", ""))
+        return list(_camera_inputs(load_cameras(file)[1], file).values())
+
     def configure_hook(self) -> bool:
         try:
             config, keys = load_cameras(self.cameras_file)
@@ -106,8 +120,8 @@ class WorkspacePeopleDetector(Component):
             return False
         self.core = PeopleDetectorCore(config)
         self.camera_ports: dict[str, InputPort[Skeletons]] = {}
-        for name, key in keys.items():
-            self.camera_ports[name] = self.add_input(f"camera_{name}", Skeletons, key)
+        for name, wanted in _camera_inputs(keys, self.cameras_file).items():
+            self.camera_ports[name] = self.add_input(wanted.port, Skeletons, wanted.key)
         self.last: dict[str, Any] = {}
         self.kinematics: Any = None
         self.robot: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None

@@ -57,7 +57,7 @@ from components.tracking.geometry import (
     rotation_angle,
 )
 from framework import schema
-from framework.component import Component, In, Out, operation
+from framework.component import Component, FileInput, In, Out, operation
 from framework.errors import FwError, LocatedError
 from framework.filekinds import FileKind, schema_then
 from framework.messages import EventMessage, Pose
@@ -530,6 +530,19 @@ class SensorManagerCore:
         return offset <= cfg.tolerance_position and angle <= cfg.tolerance_angle
 
 
+def _tracker_inputs(config: SensorsConfig, file: str) -> list[tuple[str, str, FileInput]]:
+    """(sensor, tool, input) of every tracker tool the sensors file names."""
+    return [
+        (
+            sensor.name,
+            tool,
+            FileInput(f"{sensor.name}_{tool}", "Pose", key, f"{file}: {sensor.name}.keys.{tool}"),
+        )
+        for sensor in config.sensors
+        for tool, key in sensor.keys.items()
+    ]
+
+
 class SensorManager(Component):
     """Feeds `SensorManagerCore` from the trackers' ports and publishes its decisions,
     once per cycle of its activity (the topology's `periodic:` rate)."""
@@ -541,6 +554,12 @@ class SensorManager(Component):
     robot_pose = Out(Pose, doc="end-effector in the master frame (eq. 3.5), best sensor")
     status = Out(EventMessage, doc="best sensor, its limits, every sensor's health")
 
+    @classmethod
+    def file_inputs(cls, properties: dict[str, Any]) -> list[FileInput]:
+        """A `<sensor>_<tool>` Pose input per tracker tool of the sensors file."""
+        file = str(properties.get("sensors_file", ""))
+        return [wanted for _, _, wanted in _tracker_inputs(load_sensors(file), file)]
+
     def configure_hook(self) -> bool:
         try:
             config = load_sensors(self.sensors_file)
@@ -549,10 +568,9 @@ class SensorManager(Component):
             return False
         self.core = SensorManagerCore(config)
         self.tracker_ports: list[tuple[str, str, InputPort[Pose]]] = []
-        for sensor in config.sensors:
-            for tool, key in sensor.keys.items():
-                port = self.add_input(f"{sensor.name}_{tool}", Pose, key, ConnPolicy("buffer", 64))
-                self.tracker_ports.append((sensor.name, tool, port))
+        for sensor, tool, wanted in _tracker_inputs(config, self.sensors_file):
+            port = self.add_input(wanted.port, Pose, wanted.key, ConnPolicy("buffer", 64))
+            self.tracker_ports.append((sensor, tool, port))
         self._last_status = -math.inf  # the first cycle says where tracking stands
         return True
 

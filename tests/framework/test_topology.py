@@ -189,3 +189,49 @@ def test_hosts_give_the_addresses_processes_listen_on_and_certificates_name(writ
     assert topology.listen_address("cart") == "10.0.0.7"
     assert topology.listen_address("local") == ""
     assert topology.addresses() == ["127.0.0.1", "10.0.0.1", "10.0.0.7"]
+
+
+def seeg_with(tmp_path, sensors_text=None, cameras_text=None):
+    """The SEEG topology, its sensors or cameras file replaced by the given text."""
+    text = (REPO / "topologies" / "seeg.yaml").read_text(encoding="utf-8")
+    text = text.replace("../statecharts/", f"{REPO}/statecharts/")
+    text = text.replace("procedure: ../procedures", f"procedure: {REPO}/procedures")
+    for name, replaced in (("sensors", sensors_text), ("cameras", cameras_text)):
+        if replaced is not None:
+            (tmp_path / f"{name}.yaml").write_text(replaced, encoding="utf-8")
+            text = text.replace(f"procedures/seeg/{name}.yaml", str(tmp_path / f"{name}.yaml"))
+    (tmp_path / "seeg.yaml").write_text(text, encoding="utf-8")
+    return tmp_path / "seeg.yaml"
+
+
+def test_inputs_opened_from_configuration_files_are_links_the_topology_checks(tmp_path):
+    """The Sensor Manager opens a port per tracker tool, the detector one per camera,
+    from their own files: each has its writer, or fw validate says which key is wrong."""
+    topo = load_topology(seeg_with(tmp_path))
+    links = {(name, link.port): link.key for name, link in topo.file_links}
+    assert links[("sensor_manager", "certus_cto")] == "certus/calibration_tool_optical"
+    assert links[("people_detector", "camera_kinect_1")] == "kinect/1/users"
+    sensors = (REPO / "procedures" / "seeg" / "sensors.yaml").read_text(encoding="utf-8")
+    _, found = check_topology(
+        seeg_with(
+            tmp_path, sensors.replace("vicra/reference_tool_optical", "vicra/reference_tool_optica")
+        )
+    )
+    wrong = [f for f in found if f.code == "file-links"]
+    assert len(wrong) == 1 and wrong[0].severity == "error"
+    assert "sensor_manager.vicra_rto listens on 'vicra/reference_tool_optica'" in wrong[0].message
+    assert "no component of the topology publishes" in wrong[0].message
+    assert "vicra/reference_tool_optical" in wrong[0].hint
+
+
+def test_a_camera_key_with_the_wrong_message_type_is_an_error(tmp_path):
+    cameras = (REPO / "procedures" / "seeg" / "cameras.yaml").read_text(encoding="utf-8")
+    _, found = check_topology(
+        seeg_with(
+            tmp_path,
+            cameras_text=cameras.replace("kinect/1/users", "certus/calibration_tool_optical"),
+        )
+    )
+    wrong = [f for f in found if f.code == "file-links"]
+    assert len(wrong) == 1
+    assert wrong[0].message.startswith("people_detector.camera_kinect_1 expects Skeletons")
