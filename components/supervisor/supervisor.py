@@ -14,7 +14,9 @@ interpolator, and raises the events the SEEG chart reacts to:
   best one (its fault, or a better one recovered); `tracker` is the one to use now (as
   in `e_TOK`), so the chart swaps without asking; `e_NOTRACKER` if none is left. The
   tracker in use is the one whose samples steer the navigator (its `navigation`
-  news), not a name handed back by the chart;
+  news), not a name handed back by the chart; until the tracker `e_TFAULT` named
+  steers, it is watched all the same (a fault of it in between is reported at once,
+  not at the Sensor Manager's next status), while the limits stay the slowest;
 * `e_PATIENT_MOVED {reason}`: the navigator refuses the patient's motion (moved too
   far or too fast from where it was registered);
 * `e_TARGET {goal}`: the interpolator reached the goal and the measured TCP is
@@ -75,6 +77,7 @@ class SupervisorCore:
     sensor_limits: dict[str, dict[str, float]] = field(default_factory=dict)
     robot_fault: str = ""
     steering: str | None = None  # whose samples steer the navigator (None: they stopped)
+    swapping_to: str | None = None  # named by the last e_TFAULT, until it steers
     speed: str = ""  # the speed the chart last asked for (fast, slow)
     goal_positions: dict[str, tuple[float, float, float]] = field(default_factory=dict)
     patient_refused: str = ""
@@ -87,14 +90,16 @@ class SupervisorCore:
         self.best, self.health = best, health
         if best is not None and limits is not None:
             self.sensor_limits[best] = dict(limits)
-        if self.in_use is None or best == self.in_use:
+        # A tracker the chart is swapping to is watched before its first sample steers:
+        # one that fails in between is not lost until the next status (0.5 s later).
+        current = self.in_use or self.swapping_to
+        if current is None or best == current:
             return []
-        lost = self.in_use
-        self.in_use = None
+        self.in_use, self.swapping_to = None, best
         if best is None:
             return [("e_NOTRACKER", {})]
-        cause = (health.get(lost) or {}).get("cause") or f"{best} is better"
-        return [("e_TFAULT", {"tracker": best, "failed": lost, "fault": cause})]
+        cause = (health.get(current) or {}).get("cause") or f"{best} is better"
+        return [("e_TFAULT", {"tracker": best, "failed": current, "fault": cause})]
 
     def observe(
         self,
@@ -137,10 +142,10 @@ class SupervisorCore:
         own speeds)."""
         self.goal_positions = dict(goals)
         resend = False
-        if tracker != self.steering:
+        if tracker != self.steering or (tracker is not None and tracker == self.swapping_to):
             self.steering = tracker
             if tracker is not None:
-                self.in_use = tracker
+                self.in_use, self.swapping_to = tracker, None
                 resend = bool(self.speed)
         events = []
         if refused and not self.patient_refused:

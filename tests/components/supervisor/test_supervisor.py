@@ -77,6 +77,26 @@ def test_losing_the_tracker_in_use_is_a_fault_and_losing_all_is_no_tracker():
     assert c.report_best_tracker() == ("e_NOTRACKER", {})
 
 
+def test_a_tracker_failing_right_after_the_swap_to_it_is_reported_at_once():
+    """Between e_TFAULT and the new tracker's first sample at the navigator, a verdict
+    against the new tracker is not lost (it used to wait for the next status, 0.5 s)."""
+    c = core()
+    steer(c, "certus")
+    sick = {"certus": {"ok": False, "cause": "cto_missing"}, "vicra": {"ok": True}}
+    assert names(c.tracking("vicra", sick)) == ["e_TFAULT"]
+    assert c.tracking(None, {}) == [("e_NOTRACKER", {})], "the Vicra failed before it steered"
+    c = core()
+    steer(c, "vicra")
+    assert names(c.tracking("certus", HEALTHY)) == ["e_TFAULT"]  # back to the Certus...
+    events = c.tracking("vicra", sick)  # ...which fails before its first sample steers
+    assert events == [
+        ("e_TFAULT", {"tracker": "vicra", "failed": "certus", "fault": "cto_missing"})
+    ]
+    assert c.limits("fast")["velocity"] == PROCEDURE.slowest, "no tracker steers yet"
+    steer(c, "vicra")
+    assert c.in_use == "vicra" and c.tracking("vicra", sick) == []
+
+
 def test_a_better_tracker_coming_back_is_reported_as_a_swap():
     c = core()
     c.tracking("vicra", {"certus": {"ok": False, "cause": "stale"}})
