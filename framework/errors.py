@@ -46,6 +46,10 @@ class YamlError(LocatedError):
     """The file is not well-formed YAML, or uses a construct fw refuses."""
 
 
+class MissingFileError(YamlError):
+    """A file that is not there (as opposed to one that is there and wrong)."""
+
+
 class SchemaError(LocatedError):
     """The YAML is well-formed but does not follow fw's schema for that file."""
 

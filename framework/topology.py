@@ -22,7 +22,7 @@ from framework.activity import Activity, ActivityError
 from framework.bus import BusConfig
 from framework.component import Component, FileInput, In, Out, declarations
 from framework.durations import parse_duration
-from framework.errors import Finding, FindingsError, FwError, Location
+from framework.errors import Finding, FindingsError, FwError, Location, MissingFileError
 from framework.messages import type_name
 from framework.ports import ConnPolicy, PortError
 from framework.properties import Property, PropertyError, load_property_file
@@ -167,16 +167,18 @@ class Topology:
         """Components hosted by one process, in topology order."""
         return [c for c in self.components.values() if c.process == process]
 
+    def published(self) -> list[tuple[str, str, str]]:
+        """(component.port, key, message type) of every output port of the topology."""
+        return [
+            (f"{spec.name}.{port}", spec.output_key(port), kind)
+            for spec in self.components.values()
+            if spec.info is not None
+            for port, kind in spec.info.outputs.items()
+        ]
+
     def writers_of(self, key: str) -> list[tuple[str, str]]:
         """(component.port, message type) of every output port publishing on `key`."""
-        out = []
-        for spec in self.components.values():
-            if spec.info is None:
-                continue
-            for port, kind in spec.info.outputs.items():
-                if spec.output_key(port) == key:
-                    out.append((f"{spec.name}.{port}", kind))
-        return out
+        return [(writer, kind) for writer, at, kind in self.published() if at == key]
 
 
 def class_info(cls: type[Component]) -> ClassInfo:
@@ -336,25 +338,20 @@ class _Loader:
             where = ("components", spec.name, "properties")
             try:
                 wanted = spec.info.cls.file_inputs(spec.properties)
-            except FwError as exc:
-                missing = [
-                    v
-                    for v in spec.properties.values()
-                    if isinstance(v, str) and v.endswith(".yaml") and not Path(v).exists()
-                ]
-                if missing:
-                    self.findings.append(
-                        Finding(
-                            "warning",
-                            "file-links",
-                            f"cannot check the inputs {spec.name!r} opens from {missing[0]!r}: "
-                            f"not found from {Path.cwd()}",
-                            self.doc.location(where),
-                            "run fw validate from the folder fw deploy runs in",
-                        )
+            except MissingFileError as exc:
+                self.findings.append(
+                    Finding(
+                        "warning",
+                        "file-links",
+                        f"cannot check the inputs {spec.name!r} opens from "
+                        f"{exc.location.file!r}: not found from {Path.cwd()}",
+                        self.doc.location(where),
+                        "run fw validate from the folder fw deploy runs in",
                     )
-                else:
-                    self.error("file-links", f"{spec.name}: {exc}", where)
+                )
+                continue
+            except FwError as exc:
+                self.error("file-links", f"{spec.name}: {exc}", where)
                 continue
             for link in wanted:
                 writers = topo.writers_of(link.key)
@@ -364,7 +361,9 @@ class _Loader:
                         f"{spec.name}.{link.port} listens on {link.key!r} ({link.source}), "
                         "where no component of the topology publishes",
                         where,
-                        self.close(link.key, self._keys_of(topo, link.type)),
+                        self.close(
+                            link.key, [k for _, k, kind in topo.published() if kind == link.type]
+                        ),
                     )
                     continue
                 wrong = [f"{w} ({kind})" for w, kind in writers if kind != link.type]
@@ -376,16 +375,6 @@ class _Loader:
                         where,
                     )
                 topo.file_links.append((spec.name, link))
-
-    @staticmethod
-    def _keys_of(topo: Topology, kind: str) -> list[str]:
-        return [
-            spec.output_key(port)
-            for spec in topo.components.values()
-            if spec.info is not None
-            for port, declared in spec.info.outputs.items()
-            if declared == kind
-        ]
 
     def port(
         self, topo: Topology, ref: str, where: tuple[Any, ...], direction: str = ""

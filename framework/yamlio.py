@@ -28,7 +28,7 @@ from typing import Any
 
 import yaml
 
-from framework.errors import Location, YamlError
+from framework.errors import Location, MissingFileError, YamlError
 
 try:  # the C parser is ~10x faster; fall back to pure Python where libyaml is absent
     from yaml import CSafeLoader as _Loader
@@ -365,7 +365,7 @@ def load_yaml(path: str | Path, limits: Limits = DEFAULT_LIMITS) -> Document:
         with open(path, "rb") as handle:
             raw = handle.read(limits.max_bytes + 1)
     except FileNotFoundError:
-        raise YamlError("file not found", Location(name)) from None
+        raise MissingFileError("file not found", Location(name)) from None
     except OSError as exc:
         raise YamlError(f"cannot read file: {exc.strerror or exc}", Location(name)) from None
     if len(raw) > limits.max_bytes:

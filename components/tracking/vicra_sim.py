@@ -325,8 +325,8 @@ class VicraDevice:
                 seen = self.world(tool.name, time.monotonic() - self._t0)
                 hidden = pose.occluded if pose is not None else False
                 pose = None if seen is None else ScenePose(seen[0], seen[1], hidden)
-            if pose is None or pose.occluded or not in_field_of_view(pose.translation):
-                outside = pose is not None and not in_field_of_view(pose.translation)
+            outside = pose is not None and not in_field_of_view(pose.translation)
+            if pose is None or pose.occluded or outside:
                 status = tool.port_status() | (ndi.PORT_OUT_OF_VOLUME if outside else 0)
                 out.append(ndi.ToolFrame(handle, ndi.MISSING, port_status=status, frame=frame))
                 continue
