@@ -98,14 +98,24 @@ class Refusal:
 
 @dataclass(frozen=True)
 class FileInput:
-    """An input port a component opens from its own configuration file (one per
-    tracker, per camera): `fw validate` checks that a component of the topology
-    publishes on its key, with its type, and `fw ls --links` names it."""
+    """An input port a component's configuration file declares (one per tracker of a
+    sensors file, one per camera of a cameras file). It is created when the component
+    is hosted and wired like any other input, by the topology's `connections:`, so
+    `fw validate`, `fw ls` and the Configurator see it; `fw validate` checks that each
+    one is connected."""
 
     port: str
-    type: str  # the message type's name
-    key: str
-    source: str  # where the file names the key, for messages
+    type: type
+    source: str  # where the file declares it, for messages: "sensors.yaml: certus"
+    suggest: str = ""  # the output that usually feeds it ("certus.cto"), for hints
+    policy: ConnPolicy | None = None
+
+    @property
+    def type_name(self) -> str:
+        """The message type's name, as the topology's checks compare it."""
+        from framework.messages import type_name
+
+        return type_name(self.type)
 
 
 class In:
@@ -244,20 +254,22 @@ class Component:
         topology properties (none by default); FwError if a file cannot be read."""
         return []
 
-    def add_input(
-        self, name: str, kind: type, key: str, policy: ConnPolicy | None = None
-    ) -> InputPort[Any]:
-        """An input port decided at configure time (one per sensor or camera of a config
-        file), connected to `key`; configuring again reuses the same port."""
-        if self.bus is None:
-            raise FwError(f"{self.name}: add_input needs the component to be hosted by a container")
-        port = self.inputs.get(name)
-        if port is None:
-            port = InputPort(name, kind, policy=policy)
-            port.owner, port.bus = self.name, self.bus
-            self.inputs[name] = port
-        port.connect(key)
-        return port
+    def file_ports(self) -> list[InputPort[Any]]:
+        """The input ports the configuration files declare, given the properties now
+        (`file_inputs`), in their order; a port not declared yet is created (unconnected:
+        the topology's `connections:` wire it), one declared before is kept with its
+        connections. FwError if a file cannot be read."""
+        ports = []
+        for wanted in type(self).file_inputs(self._values):
+            port = self.inputs.get(wanted.port)
+            if port is None:
+                port = InputPort(
+                    wanted.port, wanted.type, f"declared by {wanted.source}", wanted.policy
+                )
+                port.owner, port.bus = self.name, self.bus
+                self.inputs[wanted.port] = port
+            ports.append(port)
+        return ports
 
     def get_property(self, name: str) -> Any:
         """The value of a declared property."""

@@ -111,6 +111,8 @@ class Container:
             )
         for port in (*component.inputs.values(), *component.outputs.values()):
             port.bus = self.bus
+        with contextlib.suppress(FwError):  # a file that cannot be read fails configure
+            component.file_ports()  # wired like the class's own inputs
         for port in component.outputs.values():
             key = (outputs or {}).get(port.name, keys.default_output(name, port.name))
             self._connect_output(component, port.name, key)

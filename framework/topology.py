@@ -68,6 +68,8 @@ class ComponentSpec:
     initial: str
     location: Location
     info: ClassInfo | None = None
+    file_inputs: dict[str, FileInput] = field(default_factory=dict)
+    """Input ports its configuration files declare (port -> declaration)."""
 
     def output_key(self, port: str) -> str:
         """The key an output port publishes on."""
@@ -135,8 +137,9 @@ class Topology:
     hosts: dict[str, str] = field(default_factory=dict)
     """Other machines -> the address their processes listen on (`hosts:`)."""
     file_links: list[tuple[str, FileInput]] = field(default_factory=list)
-    """(component, input) of the inputs components open from their configuration files
-    (a tracker per line of sensors.yaml, a camera per line of cameras.yaml)."""
+    """(component, input) of the input ports components declare in their configuration
+    files (a tracker's tools per sensor of sensors.yaml, a camera per camera of
+    cameras.yaml); `connections:` wires them like any other."""
 
     def addresses(self) -> list[str]:
         """Every address a process of this deployment listens on (a certificate of the
@@ -175,6 +178,15 @@ class Topology:
             if spec.info is not None
             for port, kind in spec.info.outputs.items()
         ]
+
+    def key_of(self, source: str) -> str:
+        """The key of `component.port` if that is an output of the topology, else
+        `source` itself (a key)."""
+        name, _, port = source.partition(".")
+        spec = self.components.get(name)
+        if spec is not None and spec.info is not None and port in spec.info.outputs:
+            return spec.output_key(port)
+        return source
 
     def writers_of(self, key: str) -> list[tuple[str, str]]:
         """(component.port, message type) of every output port publishing on `key`."""
@@ -329,9 +341,10 @@ class _Loader:
             )
         return out
 
-    def file_links(self, topo: Topology) -> None:
-        """The inputs components open from their own files: each must have a writer of its
-        type in the topology, or its data never comes (a typo in sensors.yaml)."""
+    def file_inputs(self, topo: Topology) -> None:
+        """The input ports components declare from their own files (a tracker per sensor
+        of sensors.yaml, a camera per camera of cameras.yaml): ports like the class's own,
+        wired by `connections:` (checked by `file_links` once those are read)."""
         for spec in topo.components.values():
             if spec.info is None:
                 continue
@@ -343,7 +356,7 @@ class _Loader:
                     Finding(
                         "warning",
                         "file-links",
-                        f"cannot check the inputs {spec.name!r} opens from "
+                        f"cannot check the inputs {spec.name!r} declares in "
                         f"{exc.location.file!r}: not found from {Path.cwd()}",
                         self.doc.location(where),
                         "run fw validate from the folder fw deploy runs in",
@@ -354,27 +367,54 @@ class _Loader:
                 self.error("file-links", f"{spec.name}: {exc}", where)
                 continue
             for link in wanted:
-                writers = topo.writers_of(link.key)
-                if not writers:
+                if link.port in spec.info.inputs or link.port in spec.info.outputs:
                     self.error(
                         "file-links",
-                        f"{spec.name}.{link.port} listens on {link.key!r} ({link.source}), "
-                        "where no component of the topology publishes",
+                        f"{spec.name}.{link.port} ({link.source}) has the name of a port "
+                        f"{spec.info.cls.__name__} declares itself",
                         where,
-                        self.close(
-                            link.key, [k for _, k, kind in topo.published() if kind == link.type]
-                        ),
                     )
                     continue
-                wrong = [f"{w} ({kind})" for w, kind in writers if kind != link.type]
-                if wrong:
-                    self.error(
-                        "file-links",
-                        f"{spec.name}.{link.port} expects {link.type} on {link.key!r} "
-                        f"({link.source}); {', '.join(wrong)} publish there",
-                        where,
-                    )
+                spec.file_inputs[link.port] = link
                 topo.file_links.append((spec.name, link))
+
+    def file_links(self, topo: Topology, data: dict[str, Any]) -> None:
+        """Every input a component's file declares is connected by `connections:`, or its
+        data never comes (a sensor added to sensors.yaml, not to the topology)."""
+        wired = {(step.component, step.target): step for step in topo.connections}
+        for name, link in topo.file_links:
+            step = wired.get((name, link.port))
+            if step is not None:
+                writers = [writer for writer, _ in topo.writers_of(step.key)]
+                if link.suggest and writers and link.suggest not in writers:
+                    self.findings.append(
+                        Finding(
+                            "warning",
+                            "file-links",
+                            f"{name}.{link.port} ({link.source}) reads {', '.join(writers)}, "
+                            f"not {link.suggest}: is the file's entry another device?",
+                            step.location,
+                            f"connect it from {link.suggest}, or name the entry as its component",
+                        )
+                    )
+                continue
+            known = [writer for writer, _, kind in topo.published() if kind == link.type_name]
+            suggest = link.suggest
+            if suggest not in known:
+                match = difflib.get_close_matches(suggest or link.port, known, n=1, cutoff=0.0)
+                suggest = match[0] if match else ""
+            hint = (
+                f"add to connections: {{port: {name}.{link.port}, from: {suggest}}}"
+                if suggest
+                else f"no output of the topology publishes {link.type_name}"
+            )
+            self.error(
+                "file-links",
+                f"{name}.{link.port} ({link.type_name}, declared by {link.source}) is not "
+                "connected: its data never comes",
+                ("connections",) if "connections" in data else ("components", name),
+                hint,
+            )
 
     def port(
         self, topo: Topology, ref: str, where: tuple[Any, ...], direction: str = ""
@@ -392,8 +432,9 @@ class _Loader:
             return None, port, ""
         if comp.info is None:
             return None, port, ""
-        table = {"in": comp.info.inputs, "out": comp.info.outputs}.get(direction)
-        ports = table if table is not None else {**comp.info.inputs, **comp.info.outputs}
+        inputs = {**comp.info.inputs, **{p: f.type_name for p, f in comp.file_inputs.items()}}
+        table = {"in": inputs, "out": comp.info.outputs}.get(direction)
+        ports = table if table is not None else {**inputs, **comp.info.outputs}
         if port not in ports:
             what = {"in": "input port", "out": "output port"}.get(direction, "port")
             self.error(
@@ -729,15 +770,16 @@ def check_topology(path: str | Path) -> tuple[Topology | None, list[Finding]]:
         hosts={name: spec["address"] for name, spec in (data.get("hosts") or {}).items()},
     )
     topo.components = loader.components(data)
-    loader.file_links(topo)
+    loader.file_inputs(topo)
     for i, spec in enumerate(data.get("connections") or []):
         step = loader.connection(topo, spec, ("connections", i), DEFAULT_STEP_TIMEOUT)
         if step is not None:
             topo.connections.append(step)
+    loader.file_links(topo, data)
     for ref, candidates in (data.get("prepare") or {}).items():
         comp, _port, _ = loader.port(topo, ref, ("prepare", ref), "in")
         if comp is not None:
-            topo.prepare[ref] = list(candidates)
+            topo.prepare[ref] = [topo.key_of(c) for c in candidates]
     topo.configurations = loader.configurations(topo, data)
     topo.safety = loader.safety(topo, data)
     for process, settings in topo.processes.items():

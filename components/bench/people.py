@@ -73,9 +73,7 @@ def detector(
             for c in cams
         ]
     else:
-        rig = [
-            SimulatedCamera(c.name, c.name, KinectModel(c.name, c.world_from_camera)) for c in cams
-        ]
+        rig = [SimulatedCamera(c.name, KinectModel(c.name, c.world_from_camera)) for c in cams]
         doc, _ = calibration_protocol(rig, cams[0].name, 4, 16, calibrate, 0.05, area)
         master = as_matrix(doc["base_from_master"])
         configs = [

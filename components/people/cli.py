@@ -57,10 +57,9 @@ class CameraCalibrationError(FwError):
 
 @dataclass
 class SimulatedCamera:
-    """A camera of the topology: its name, bus key and (simulated) optics."""
+    """A camera of the topology: its name and (simulated) optics."""
 
     name: str
-    key: str
     model: KinectModel
 
 
@@ -76,10 +75,7 @@ def cameras_of(topology_path: str) -> list[SimulatedCamera]:
         props = spec.properties
         position = tuple(props.get("position", (0.0, -2.5, 2.2)))
         target = tuple(props.get("target", (0.0, 0.0, 1.0)))
-        key = spec.outputs.get("users", f"{spec.name}/users")
-        out.append(
-            SimulatedCamera(spec.name, key, KinectModel(spec.name, look_at(position, target)))
-        )
+        out.append(SimulatedCamera(spec.name, KinectModel(spec.name, look_at(position, target))))
     if not out:
         raise CameraCalibrationError(f"{topology_path}: no {KINECT_CLASS} components to calibrate")
     return out
@@ -231,7 +227,7 @@ def run(
             },
         }
     }
-    entries: dict[str, Any] = {master: {"key": by_name[master].key}}
+    entries: dict[str, Any] = {master: {}}
     for camera in cameras:
         if camera.name == master:
             continue
@@ -247,7 +243,6 @@ def run(
         median = float(np.median(residuals))
         truth = np.linalg.inv(main.world_from_camera) @ other.world_from_camera
         entries[camera.name] = {
-            "key": camera.key,
             "calibration": _transform(fit),
             "verified": median <= max_residual,
         }

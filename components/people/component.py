@@ -6,9 +6,12 @@ Cameras come from a YAML file (any number, no code change):
     base_from_master: {position: [x, y, z], quaternion: [w, x, y, z]}   # eq. 3.10
     area: {center: [0.0, 0.0], radius: 1.5}                             # around the table
     cameras:
-      k0: {key: kinect/0/users}                                         # the master
-      k1: {key: kinect/1/users, calibration: {position: [...], quaternion: [...]},  # eq. 3.8
+      k0: {}                                                            # the master
+      k1: {calibration: {position: [...], quaternion: [...]},           # eq. 3.8
            verified: true}   # agreed with the master at calibration (fw calibrate-cameras)
+
+Each camera is named as its component, and arrives on the detector's input port
+`camera_<name>`, which the topology's `connections:` wire (usually from `<name>.users`).
 
 A camera whose data stops (no new frame) simply contributes nothing; robot link
 capsules join with the SEEG robot model (Pinocchio forward kinematics).
@@ -41,23 +44,31 @@ class CameraConfigError(LocatedError):
     """A cameras file is wrong (file:line:column and the field)."""
 
 
-def load_cameras(path: str) -> tuple[DetectorConfig, dict[str, str]]:
-    """The detector configuration and each camera's bus key, from YAML."""
+def load_cameras(path: str) -> DetectorConfig:
+    """The detector configuration, from YAML."""
     doc = load_yaml(path)
+    for name, spec in ((doc.data or {}).get("cameras") or {}).items():
+        if isinstance(spec, dict) and "key" in spec:
+            raise CameraConfigError(
+                f"camera {name!r}: 'key' is no longer read: the topology wires the "
+                f"detector's port camera_{name} (connections:), so fw validate and fw ls "
+                "see it; delete 'key' here",
+                doc.location(("cameras", name, "key")),
+            )
     schema.require(doc, SCHEMA, CameraConfigError)
     data = doc.data
     master = data.get("master", next(iter(data["cameras"])))
     if master not in data["cameras"]:
         raise CameraConfigError(f"master {master!r} is not a camera", doc.location(("master",)))
-    cameras, keys = [], {}
+    cameras = []
     for name, spec in data["cameras"].items():
+        spec = spec or {}
         try:
             calibration = as_matrix(spec.get("calibration", np.eye(4).tolist()))
         except ValueError as exc:
             raise CameraConfigError(
                 str(exc), doc.location(("cameras", name, "calibration"))
             ) from None
-        keys[name] = spec["key"]
         cameras.append(
             CameraConfig(
                 name,
@@ -78,7 +89,7 @@ def load_cameras(path: str) -> tuple[DetectorConfig, dict[str, str]]:
         )
     except (TypeError, ValueError) as exc:
         raise CameraConfigError(str(exc), doc.location(())) from None
-    return config, keys
+    return config
 
 
 CAMERAS_FILE = FileKind(
@@ -89,18 +100,23 @@ CAMERAS_FILE = FileKind(
 )
 
 
-def _camera_inputs(keys: dict[str, str], file: str) -> dict[str, FileInput]:
-    """Every camera's input, by camera name."""
+def _camera_inputs(config: DetectorConfig, file: str) -> dict[str, FileInput]:
+    """Every camera's input port, by camera name."""
     return {
-        name: FileInput(f"camera_{name}", "Skeletons", key, f"{file}: cameras.{name}.key")
-        for name, key in keys.items()
+        camera.name: FileInput(
+            f"camera_{camera.name}",
+            Skeletons,
+            f"{file}: cameras.{camera.name}",
+            f"{camera.name}.users",
+        )
+        for camera in config.cameras
     }
 
 
 class WorkspacePeopleDetector(Component):
     """Feeds `PeopleDetectorCore` from the cameras' ports and publishes people."""
 
-    cameras_file = prop(str, "", doc="cameras YAML (keys, calibration, area)", required=True)
+    cameras_file = prop(str, "", doc="cameras YAML (cameras, calibration, area)", required=True)
     people = Out(EventMessage, doc="tracks: id, confirmed, cameras, torso position")
     users_near = Out(Scalar, doc="confirmed people inside the area around the table")
     min_distance = Out(Scalar, doc="closest robot-person distance (m; inf without a robot)")
@@ -108,29 +124,28 @@ class WorkspacePeopleDetector(Component):
 
     @classmethod
     def file_inputs(cls, properties: dict[str, Any]) -> list[FileInput]:
-        """A `camera_<name>` Skeletons input per camera of the cameras file."""
+        """A `camera_<name>` Skeletons input per camera of the cameras file (the topology
+        connects it, usually from the camera's `users`)."""
         file = str(properties.get("cameras_file", ""))
-        return list(_camera_inputs(load_cameras(file)[1], file).values())
+        return list(_camera_inputs(load_cameras(file), file).values())
 
     def configure_hook(self) -> bool:
         try:
-            config, keys = load_cameras(self.cameras_file)
+            config = load_cameras(self.cameras_file)
+            ports = {port.name: port for port in self.file_ports()}
         except FwError as exc:
             self.last_error = str(exc)
             return False
         self.core = PeopleDetectorCore(config)
-        self.camera_ports: dict[str, InputPort[Skeletons]] = {}
-        for name, wanted in _camera_inputs(keys, self.cameras_file).items():
-            self.camera_ports[name] = self.add_input(wanted.port, Skeletons, wanted.key)
+        self.camera_ports: dict[str, InputPort[Skeletons]] = {
+            name: ports[wanted.port]
+            for name, wanted in _camera_inputs(config, self.cameras_file).items()
+        }
         self.last: dict[str, Any] = {}
         self.kinematics: Any = None
         self.robot: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._people: list[Any] = []
         return True
-
-    def cleanup_hook(self) -> None:
-        for port in getattr(self, "camera_ports", {}).values():
-            port.close()
 
     def update_hook(self) -> None:
         users = {}

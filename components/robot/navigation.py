@@ -6,6 +6,7 @@ clamp (the master tracker's, thesis eq. 3.5). The robot moves by its own model
 arm, and the head may move. Each tracker sample closes that loop:
 
     E = C_i RTO_i^-1 CTO_i Y_i^-1      the end-effector on the patient, as tracked
+                                       (the TCP where pivoting found it in the CTO)
     B = K(q(t_sample)) E^-1            the patient in the robot's nominal base frame
 
 `B` absorbs everything between the model and the patient: joint offsets, link
@@ -277,14 +278,16 @@ class NavigatorCore:
 def frames_of(sensors: SensorsConfig) -> tuple[dict[str, TrackerFrames], np.ndarray]:
     """Every tracker's frames from a sensors configuration, and the registration (the
     patient frame in the robot base, from the master's X)."""
-    trackers = {
-        s.name: TrackerFrames(
+    trackers = {}
+    for s in sensors.sensors:
+        cto_from_ee = invert(s.ee_from_cto)
+        if s.tip is not None:
+            cto_from_ee[:3, 3] = s.tip  # the TCP where pivoting found it, not the hand-eye fit
+        trackers[s.name] = TrackerFrames(
             s.master_from_sensor,
-            invert(s.ee_from_cto),
+            cto_from_ee,
             None if s.sensor_from_base is None else invert(s.sensor_from_base),
         )
-        for s in sensors.sensors
-    }
     master = next(s for s in sensors.sensors if s.name == sensors.master)
     return trackers, invert(master.rto_from_base)
 

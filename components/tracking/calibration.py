@@ -252,3 +252,21 @@ def protocol_poses(count: int, seed: int = 0, half: float = 0.075) -> list[np.nd
         tilt[1] += np.pi  # the tool points down at the table (as at the target)
         poses.append(rigid(tuple(position), tuple(tilt)))
     return poses
+
+
+def pivot_poses(count: int, seed: int = 0, tilt: float = 0.5) -> list[np.ndarray]:
+    """Poses of a tool (its tip frame, base frame) pivoted by hand about a divot on the
+    table: the tip stays in the divot while the tool is tilted up to `tilt` rad about two
+    axes and turned about its own; the pivot's shape, never the arm's kinematics."""
+    from components.tracking.synthetic import rigid
+
+    rng = np.random.default_rng(seed)
+    divot = np.array([0.55, 0.10, 0.05])
+    poses = []
+    for _ in range(count):
+        tilt_xy = rng.uniform(-tilt, tilt, 2)
+        turn = rng.uniform(-np.pi / 2, np.pi / 2)
+        down = rigid((0.0, 0.0, 0.0), (np.pi, 0.0, 0.0))  # pointing at the table
+        pose = rigid(tuple(divot), (tilt_xy[0], tilt_xy[1], 0.0)) @ down
+        poses.append(pose @ rigid((0.0, 0.0, 0.0), (0.0, 0.0, turn)))
+    return poses

@@ -22,7 +22,13 @@ import yaml
 from components.robot.arm import resting_tcp
 from components.robot.ik import DifferentialIK
 from components.robot.lwr4 import HOME, LWR4_ERRORS
-from components.tracking.calibration import hand_eye, protocol_poses, tracker_to_tracker
+from components.tracking.calibration import (
+    hand_eye,
+    pivot_calibration,
+    pivot_poses,
+    protocol_poses,
+    tracker_to_tracker,
+)
 from components.tracking.geometry import invert, matrix_to_quat, pose_matrix, rotation_angle
 from components.tracking.synthetic import standard_rigs
 
@@ -31,6 +37,10 @@ examples:
   fw calibrate -o procedures/seeg/sensors.yaml           8 poses per tracker (the thesis)
   fw calibrate --poses 20 --seed 3 -o /tmp/calibration.yaml
 """
+
+
+PIVOT_POSES = 40
+"""Tool poses of the pivot calibration (a hand pivots the tool for a few seconds)."""
 
 
 def _transform(t: np.ndarray) -> dict[str, list[float]]:
@@ -49,7 +59,12 @@ def run(poses: int, seed: int) -> dict[str, Any]:
     real = [resting_tcp(ik.solve(np.array(HOME), pose), LWR4_ERRORS) for pose in robot]
     results = {}
     references = {}
+    pivots = {}
+    pivot_rng = np.random.default_rng([seed, 1])  # its own draws: the hand-eye's stay as they were
     for rig in rigs:
+        # the tool pivoted by hand in a divot: its tip in the CTO frame, whatever the arm
+        seen = [rig.observe(tip, pivot_rng)[0] for tip in pivot_poses(PIVOT_POSES, seed)]
+        pivots[rig.name] = pivot_calibration([pose_matrix(cto) for cto in seen])
         a, seen = [], []
         for pose in real:
             cto, rto = rig.observe(pose, rng)
@@ -73,10 +88,6 @@ def run(poses: int, seed: int) -> dict[str, Any]:
             # stale after 4 periods and at least 50 ms: a Python host under load can miss a
             # 10 ms frame without the tracker being at fault
             "stale_periods": max(4, math.ceil(0.05 * rig.rate)),
-            "keys": {
-                "cto": f"{rig.name}/calibration_tool_optical",
-                "rto": f"{rig.name}/reference_tool_optical",
-            },
             # what the robot may do while navigated by this sensor: the procedure's
             # speeds are capped by these (the slower, noisier sensor allows less)
             "limits": {
@@ -88,12 +99,14 @@ def run(poses: int, seed: int) -> dict[str, Any]:
                 "X": _transform(fit.x),
                 "Y": _transform(fit.y),
                 "S": _transform(references[rig.name] @ fit.x),
+                "tip": [round(float(v), 7) for v in pivots[rig.name].tip],
             },
         }
         report[rig.name] = {
             "poses": fit.poses,
             "translation_residual_m": [round(float(v), 6) for v in fit.translation_residual],
             "rotation_residual_deg": [round(float(v), 4) for v in fit.rotation_residual_deg],
+            "pivot": {"poses": PIVOT_POSES, "rms_mm": round(pivots[rig.name].rms * 1e3, 3)},
             "simulation_truth_error": {
                 "X_mm": round(
                     float(np.linalg.norm(fit.x[:3, 3] - rig.rto_from_base[:3, 3])) * 1e3, 3
@@ -104,6 +117,11 @@ def run(poses: int, seed: int) -> dict[str, Any]:
                 ),
                 "Y_mm": round(
                     float(np.linalg.norm(fit.y[:3, 3] - rig.ee_from_cto[:3, 3])) * 1e3, 3
+                ),
+                "tip_mm": round(
+                    float(np.linalg.norm(pivots[rig.name].tip - invert(rig.ee_from_cto)[:3, 3]))
+                    * 1e3,
+                    3,
                 ),
                 "S_mm": round(
                     float(
@@ -131,14 +149,16 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     out = Path(args.output)
     out.parent.mkdir(parents=True, exist_ok=True)
     header = (
-        "# Written by `fw calibrate` (simulation, hand-eye AX=YB per tracker, eq. 3.3).\n"
+        "# Written by `fw calibrate` (simulation, hand-eye AX=YB per tracker, eq. 3.3; the\n"
+        "# TCP in the calibration tool by pivoting it in a divot, thesis Fig. 3.10).\n"
         "# Residuals per axis, like the thesis's Table 3.4:\n"
     )
     for name, row in report.items():
         header += (
             f"#   {name}: {row['poses']} poses, translation residual [m] "
             f"{row['translation_residual_m']}, rotation residual [deg] "
-            f"{row['rotation_residual_deg']}; error vs simulation truth: "
+            f"{row['rotation_residual_deg']}; pivot {row['pivot']['poses']} poses, "
+            f"{row['pivot']['rms_mm']} mm RMS; error vs simulation truth: "
             f"{row['simulation_truth_error']}\n"
         )
     out.write_text(header + yaml.safe_dump(result, sort_keys=False), encoding="utf-8")

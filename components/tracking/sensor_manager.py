@@ -84,7 +84,6 @@ class SensorConfig:
     name: str
     priority: int
     rate: float
-    keys: dict[str, str]
     stale_periods: float = 2.0
     max_speed: float = 1.0
     tolerance_position: float = 0.005
@@ -94,6 +93,7 @@ class SensorConfig:
     rto_from_base: np.ndarray = field(default_factory=lambda: np.eye(4))  # X_i
     ee_from_cto: np.ndarray = field(default_factory=lambda: np.eye(4))  # Y_i
     sensor_from_base: np.ndarray | None = None  # S_i: the tracker's calibration to the robot
+    tip: np.ndarray | None = None  # the TCP in the CTO frame, from pivoting (m)
 
 
 @dataclass
@@ -108,6 +108,14 @@ class SensorsConfig:
 def load_sensors(path: str | Path) -> SensorsConfig:
     """Read a sensors YAML; every error names file:line and the field."""
     doc = load_yaml(path)
+    for name, spec in ((doc.data or {}).get("sensors") or {}).items():
+        if isinstance(spec, dict) and "keys" in spec:
+            raise SensorConfigError(
+                f"sensor {name!r}: 'keys' are no longer read: the topology wires the "
+                f"Sensor Manager's ports {name}_cto and {name}_rto (connections:), so "
+                "fw validate and fw ls see them; delete 'keys' here",
+                doc.location(("sensors", name, "keys")),
+            )
     schema.require(doc, SCHEMA, SensorConfigError)
     data = doc.data
 
@@ -128,12 +136,14 @@ def load_sensors(path: str | Path) -> SensorsConfig:
             except ValueError as exc:
                 raise fail(str(exc), (*here, "calibration", frame)) from None
         tolerance = spec.get("tolerance") or {}
+        tip = calibration.get("tip")
+        if tip is not None and not all(math.isfinite(v) for v in tip):
+            raise fail("the tip must be finite (m)", (*here, "calibration", "tip"))
         sensors.append(
             SensorConfig(
                 name=name,
                 priority=spec["priority"],
                 rate=float(spec["rate"]),
-                keys=dict(spec["keys"]),
                 stale_periods=float(spec.get("stale_periods", SensorConfig.stale_periods)),
                 max_speed=float(spec.get("max_speed", SensorConfig.max_speed)),
                 tolerance_position=float(
@@ -147,6 +157,7 @@ def load_sensors(path: str | Path) -> SensorsConfig:
                 rto_from_base=frames["X"],
                 ee_from_cto=frames["Y"],
                 sensor_from_base=frames["S"],
+                tip=None if tip is None else np.array(tip, dtype=float),
             )
         )
     priorities = [s.priority for s in sensors]
@@ -163,7 +174,7 @@ def load_sensors(path: str | Path) -> SensorsConfig:
 SENSORS_FILE = FileKind(
     "sensors",
     "sensors",
-    "the trackers the Sensor Manager chooses from (keys, limits, calibration)",
+    "the trackers the Sensor Manager chooses from (limits, calibration)",
     schema_then(SCHEMA, load_sensors, "sensors"),
 )
 
@@ -530,16 +541,27 @@ class SensorManagerCore:
         return offset <= cfg.tolerance_position and angle <= cfg.tolerance_angle
 
 
+TOOLS = ("cto", "rto")
+"""The tools of every tracker: the calibration tool on the robot, the reference tool."""
+
+
 def _tracker_inputs(config: SensorsConfig, file: str) -> list[tuple[str, str, FileInput]]:
-    """(sensor, tool, input) of every tracker tool the sensors file names."""
+    """(sensor, tool, input) of every tracker tool the sensors file names: the port
+    `<sensor>_<tool>`, usually fed by the tracker component's `<tool>` output."""
     return [
         (
             sensor.name,
             tool,
-            FileInput(f"{sensor.name}_{tool}", "Pose", key, f"{file}: {sensor.name}.keys.{tool}"),
+            FileInput(
+                f"{sensor.name}_{tool}",
+                Pose,
+                f"{file}: sensors.{sensor.name}",
+                f"{sensor.name}.{tool}",
+                ConnPolicy("buffer", 64),
+            ),
         )
         for sensor in config.sensors
-        for tool, key in sensor.keys.items()
+        for tool in TOOLS
     ]
 
 
@@ -548,7 +570,7 @@ class SensorManager(Component):
     once per cycle of its activity (the topology's `periodic:` rate)."""
 
     sensors_file = prop(
-        str, "", doc="sensors YAML (priorities, keys, calibration, limits)", required=True
+        str, "", doc="sensors YAML (priorities, calibration, limits)", required=True
     )
     ee_pose = In(Pose, doc="end-effector in the robot base frame, from joints (optional)")
     robot_pose = Out(Pose, doc="end-effector in the master frame (eq. 3.5), best sensor")
@@ -556,27 +578,25 @@ class SensorManager(Component):
 
     @classmethod
     def file_inputs(cls, properties: dict[str, Any]) -> list[FileInput]:
-        """A `<sensor>_<tool>` Pose input per tracker tool of the sensors file."""
+        """A `<sensor>_cto` and `<sensor>_rto` Pose input per sensor of the sensors file
+        (the topology connects them, usually from the tracker's `cto` and `rto`)."""
         file = str(properties.get("sensors_file", ""))
         return [wanted for _, _, wanted in _tracker_inputs(load_sensors(file), file)]
 
     def configure_hook(self) -> bool:
         try:
             config = load_sensors(self.sensors_file)
+            ports = {port.name: port for port in self.file_ports()}
         except FwError as exc:
             self.last_error = str(exc)
             return False
         self.core = SensorManagerCore(config)
-        self.tracker_ports: list[tuple[str, str, InputPort[Pose]]] = []
-        for sensor, tool, wanted in _tracker_inputs(config, self.sensors_file):
-            port = self.add_input(wanted.port, Pose, wanted.key, ConnPolicy("buffer", 64))
-            self.tracker_ports.append((sensor, tool, port))
+        self.tracker_ports: list[tuple[str, str, InputPort[Pose]]] = [
+            (sensor, tool, ports[wanted.port])
+            for sensor, tool, wanted in _tracker_inputs(config, self.sensors_file)
+        ]
         self._last_status = -math.inf  # the first cycle says where tracking stands
         return True
-
-    def cleanup_hook(self) -> None:
-        for _, _, port in getattr(self, "tracker_ports", []):
-            port.close()
 
     def update_hook(self) -> None:
         now = self.clock.now()

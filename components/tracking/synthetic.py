@@ -112,7 +112,6 @@ def sensors_config(
                 name=rig.name,
                 priority=priority,
                 rate=rig.rate,
-                keys={"cto": f"{rig.name}/cto", "rto": f"{rig.name}/rto"},
                 master_from_sensor=master.rto_from_base @ invert(rig.rto_from_base),
                 rto_from_base=rig.rto_from_base,
                 ee_from_cto=rig.ee_from_cto,

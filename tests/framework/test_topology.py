@@ -204,34 +204,66 @@ def seeg_with(tmp_path, sensors_text=None, cameras_text=None):
     return tmp_path / "seeg.yaml"
 
 
-def test_inputs_opened_from_configuration_files_are_links_the_topology_checks(tmp_path):
-    """The Sensor Manager opens a port per tracker tool, the detector one per camera,
-    from their own files: each has its writer, or fw validate says which key is wrong."""
+def test_ports_declared_by_configuration_files_are_wired_by_the_topology(tmp_path):
+    """The Sensor Manager has two ports per sensor of its sensors file, the detector one
+    per camera of its cameras file: the topology's connections wire them like any other
+    port, so validate sees who feeds them."""
     topo = load_topology(seeg_with(tmp_path))
-    links = {(name, link.port): link.key for name, link in topo.file_links}
-    assert links[("sensor_manager", "certus_cto")] == "certus/calibration_tool_optical"
-    assert links[("people_detector", "camera_kinect_1")] == "kinect/1/users"
+    declared = {(name, link.port): link for name, link in topo.file_links}
+    assert set(declared) == {
+        ("sensor_manager", "certus_cto"),
+        ("sensor_manager", "certus_rto"),
+        ("sensor_manager", "vicra_cto"),
+        ("sensor_manager", "vicra_rto"),
+        ("people_detector", "camera_kinect_0"),
+        ("people_detector", "camera_kinect_1"),
+    }
+    wired = {(s.component, s.target): s.key for s in topo.connections}
+    assert wired[("sensor_manager", "vicra_rto")] == "vicra/reference_tool_optical"
+    assert wired[("people_detector", "camera_kinect_1")] == "kinect/1/users"
+
+
+def test_a_sensor_added_to_the_file_but_not_wired_is_an_error_that_says_what_to_add(tmp_path):
     sensors = (REPO / "procedures" / "seeg" / "sensors.yaml").read_text(encoding="utf-8")
-    _, found = check_topology(
-        seeg_with(
-            tmp_path, sensors.replace("vicra/reference_tool_optical", "vicra/reference_tool_optica")
-        )
-    )
+    third = sensors + "  polaris: {priority: 3, rate: 60.0}\n"
+    _, found = check_topology(seeg_with(tmp_path, third))
     wrong = [f for f in found if f.code == "file-links"]
-    assert len(wrong) == 1 and wrong[0].severity == "error"
-    assert "sensor_manager.vicra_rto listens on 'vicra/reference_tool_optica'" in wrong[0].message
-    assert "no component of the topology publishes" in wrong[0].message
-    assert "vicra/reference_tool_optical" in wrong[0].hint
+    assert [f.severity for f in wrong] == ["error", "error"], wrong
+    assert wrong[0].message.startswith("sensor_manager.polaris_cto (Pose, declared by")
+    assert "is not connected: its data never comes" in wrong[0].message
+    assert "{port: sensor_manager.polaris_cto, from: " in wrong[0].hint
 
 
-def test_a_camera_key_with_the_wrong_message_type_is_an_error(tmp_path):
-    cameras = (REPO / "procedures" / "seeg" / "cameras.yaml").read_text(encoding="utf-8")
-    _, found = check_topology(
-        seeg_with(
-            tmp_path,
-            cameras_text=cameras.replace("kinect/1/users", "certus/calibration_tool_optical"),
-        )
+def test_a_file_port_fed_by_another_device_than_the_file_names_is_a_warning(tmp_path):
+    path = seeg_with(tmp_path)
+    text = path.read_text().replace(
+        "{port: sensor_manager.certus_rto, from: certus.rto}",
+        "{port: sensor_manager.certus_rto, from: vicra.rto}",
     )
+    path.write_text(text)
+    _, found = check_topology(path)
     wrong = [f for f in found if f.code == "file-links"]
+    assert [f.severity for f in wrong] == ["warning"]
+    assert "sensor_manager.certus_rto" in wrong[0].message and "reads vicra.rto" in wrong[0].message
+
+
+def test_a_file_port_wired_to_the_wrong_message_type_is_an_error(tmp_path):
+    path = seeg_with(tmp_path)
+    text = path.read_text().replace(
+        "{port: people_detector.camera_kinect_1, from: kinect_1.users}",
+        "{port: people_detector.camera_kinect_1, from: certus.cto}",
+    )
+    path.write_text(text)
+    _, found = check_topology(path)
+    wrong = [f for f in found if f.code == "type-mismatch"]
     assert len(wrong) == 1
-    assert wrong[0].message.startswith("people_detector.camera_kinect_1 expects Skeletons")
+    assert wrong[0].message.startswith("people_detector.camera_kinect_1 (Skeletons)")
+
+
+def test_a_file_that_still_names_bus_keys_is_refused_with_what_to_do(tmp_path):
+    sensors = (REPO / "procedures" / "seeg" / "sensors.yaml").read_text(encoding="utf-8")
+    old = sensors.replace("    rate: 20.0\n", "    rate: 20.0\n    keys: {cto: a, rto: b}\n")
+    _, found = check_topology(seeg_with(tmp_path, old))
+    wrong = [f for f in found if f.code == "file-links"]
+    assert len(wrong) == 1 and "'keys' are no longer read" in wrong[0].message
+    assert "vicra_cto and vicra_rto" in wrong[0].message

@@ -99,6 +99,27 @@ class Loop:
         return float(np.linalg.norm(self.real_tcp()[:3, 3] - self.true_target()[:3, 3]))
 
 
+def test_the_tracked_tcp_is_where_pivoting_found_the_tip_not_where_the_hand_eye_fit_put_it():
+    """The hand-eye Y absorbs the arm's model error into the tool; the tip found by
+    pivoting the tool in a divot does not: steered by it, the real TCP ends on the target
+    even when Y's translation is half a millimetre off."""
+    config = sensors_config(RIGS, camera=True)
+    certus = config.sensors[0]
+    off_y = certus.ee_from_cto.copy()
+    off_y[:3, 3] += (0.0004, -0.0003, 0.0)  # a hand-eye Y 0.5 mm off, as fw calibrate's is
+    errors = {}
+    for tip in (None, invert(CERTUS.ee_from_cto)[:3, 3]):
+        config.sensors[0] = dataclasses.replace(certus, ee_from_cto=off_y, tip=tip)
+        trackers, registration = frames_of(config)
+        loop = Loop()
+        loop.nav = NavigatorCore(trackers, registration)
+        loop.go().run(8.0)
+        assert loop.core.phase is Phase.REACHED
+        errors["tip" if tip is not None else "Y"] = loop.error()
+    assert errors["tip"] < 1e-5
+    assert errors["Y"] > 4e-4
+
+
 def test_by_the_joints_alone_the_real_tcp_misses_the_target_by_the_arms_model_error():
     loop = Loop()
     loop.core.go_to(REGISTRATION @ TARGET)  # no tracker: where the calibration puts it

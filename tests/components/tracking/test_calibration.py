@@ -146,6 +146,10 @@ def test_fw_calibrate_writes_a_loadable_sensors_file(tmp_path, capsys):
     truth = rigs[0].rto_from_base @ invert(rigs[1].rto_from_base)
     c = config.sensors[1].master_from_sensor
     assert np.linalg.norm(c[:3, 3] - truth[:3, 3]) < 0.002
+    for sensor, rig in zip(config.sensors, rigs, strict=True):
+        tip_truth = invert(rig.ee_from_cto)[:3, 3]  # the TCP in the calibration tool's frame
+        assert np.linalg.norm(sensor.tip - tip_truth) < 2e-4, "pivoting finds the tip"
+    assert "pivot 40 poses" in text
     assert "certus" in capsys.readouterr().out
 
 

@@ -204,9 +204,9 @@ def test_sensor_files_are_checked_with_locations(write):
     good = write(
         """
         sensors:
-          certus: {priority: 1, rate: 100, keys: {cto: certus/cto, rto: certus/rto},
+          certus: {priority: 1, rate: 100,
                    limits: {max_velocity: 0.1, max_acceleration: 0.5}}
-          vicra: {priority: 2, rate: 20, keys: {cto: vicra/cto, rto: vicra/rto},
+          vicra: {priority: 2, rate: 20,
                   calibration: {C: {position: [0.1, 0, 0], quaternion: [1, 0, 0, 0]}}}
         """,
         "sensors.yaml",
@@ -215,28 +215,24 @@ def test_sensor_files_are_checked_with_locations(write):
     assert [s.name for s in config.sensors] == ["certus", "vicra"]
     assert config.sensors[1].master_from_sensor[0, 3] == 0.1
     cases = [
-        ("sensors: {a: {priority: 1, rate: 100}}", "'keys' is required"),
-        ("sensors: {a: {priority: 1, rate: 0, keys: {cto: x, rto: y}}}", "more than 0"),
-        ("sensors: {a: {priority: 1, rate: 5, keys: {cto: x}}}", "'rto' is required"),
+        ("sensors: {a: {rate: 100}}", "'priority' is required"),
+        ("sensors: {a: {priority: 1, rate: 0}}", "more than 0"),
+        ("sensors: {a: {priority: 1, rate: 5, keys: {cto: x}}}", "'keys' are no longer read"),
         (
-            "sensors: {a: {priority: 1, rate: 5, keys: {cto: x, rto: y}, "
-            "calibration: {X: {quaternion: [0, 0, 0, 0]}}}}",
+            "sensors: {a: {priority: 1, rate: 5, calibration: {X: {quaternion: [0, 0, 0, 0]}}}}",
             "unit length",
         ),
         (
-            "sensors: {a: {priority: 1, rate: 5, keys: {cto: x, rto: y}, "
-            "calibration: {X: {quaternion: }}}}",
+            "sensors: {a: {priority: 1, rate: 5, calibration: {X: {quaternion: }}}}",
             "expected a list",
         ),
-        ("sensors: {a: {priority: 1, rate: .nan, keys: {cto: x, rto: y}}}", "finite"),
+        ("sensors: {a: {priority: 1, rate: .nan}}", "finite"),
         (
-            "sensors: {a: {priority: 1, rate: 5, keys: {cto: x, rto: y}, "
-            "calibration: {C: [[1, 0], [0, 1]]}}}",
+            "sensors: {a: {priority: 1, rate: 5, calibration: {C: [[1, 0], [0, 1]]}}}",
             "needs at least 4 items",
         ),
         (
-            "sensors: {a: {priority: 1, rate: 5, keys: {cto: x, rto: y}}, "
-            "b: {priority: 1, rate: 5, keys: {cto: x, rto: y}}}",
+            "sensors: {a: {priority: 1, rate: 5}, b: {priority: 1, rate: 5}}",
             "share a priority",
         ),
         ("nothing: 1", "'sensors' is required"),
@@ -434,7 +430,7 @@ def test_hysteresis_is_a_whole_number_of_samples_from_one(write, value, error):
         f"""
         hysteresis: {value}
         sensors:
-          a: {{priority: 1, rate: 5, keys: {{cto: x, rto: y}}}}
+          a: {{priority: 1, rate: 5}}
         """,
         "sensors.yaml",
     )
@@ -449,8 +445,8 @@ def test_a_sensors_file_without_the_optional_fields_gets_the_documented_defaults
     path = write(
         """
         sensors:
-          vicra: {priority: 2, rate: 20, keys: {cto: v/cto, rto: v/rto}}
-          certus: {priority: 1, rate: 100, keys: {cto: c/cto, rto: c/rto}}
+          vicra: {priority: 2, rate: 20}
+          certus: {priority: 1, rate: 100}
         """,
         "sensors.yaml",
     )
@@ -559,7 +555,7 @@ def test_a_frame_after_a_missing_one_is_not_judged_against_the_missing_ones_posi
         write(
             """
             sensors:
-              certus: {priority: 1, rate: 100, keys: {cto: c/cto, rto: c/rto}}
+              certus: {priority: 1, rate: 100}
             """,
             "sensors.yaml",
         )
@@ -568,7 +564,7 @@ def test_a_frame_after_a_missing_one_is_not_judged_against_the_missing_ones_posi
     config.sensors[0].ee_from_cto = rig.ee_from_cto
     config.hysteresis = 1
     core = SensorManagerCore(config)
-    cto_name, rto_name = list(config.sensors[0].keys)
+    cto_name, rto_name = "cto", "rto"
     rng = np.random.default_rng(0)
     cto, rto = rig.observe(ee_path(0.0), rng, 0.0)
     core.offer("certus", cto_name, cto, 0.0)
