@@ -423,18 +423,28 @@ def run_navigation(quick: bool, context: dict[str, Any]) -> list[Row]:
         "head_bump": bumps,
         "swaps": {f"{v * 100:g} cm/s": runs for v, runs in swaps.items()},
     }
-    target = {"joints": None, "certus": 0.5, "vicra": 1.0}
     rows = []
     for mode, values in errors.items():
         s = stats(values)
         who = "joints alone" if mode == "joints" else f"{mode}-guided"
-        rows.append(Row("navigation", f"target error, {who} p50", s["p50"], unit="mm", n=count))
+        joints = mode == "joints"  # the realistic arm: at least 2 mm off, p50
+        rows.append(
+            Row(
+                "navigation",
+                f"target error, {who} p50",
+                s["p50"],
+                target=2.0 if joints else None,
+                unit="mm",
+                n=count,
+                at_least=True,
+            )
+        )
         rows.append(
             Row(
                 "navigation",
                 f"target error, {who} p95",
                 float(np.percentile(values, 95)),  # type: ignore[arg-type]
-                target=target[mode],
+                target={"joints": None, "certus": 0.5, "vicra": 1.0}[mode],
                 unit="mm",
                 n=count,
             )
@@ -476,6 +486,18 @@ def run_navigation(quick: bool, context: dict[str, Any]) -> list[Row]:
                     n=len(runs),
                 )
             )
+    quiet = [
+        navigation.swap_transient(0.075, seed, quiet=True)["transient_mm"] for seed in range(seeds)
+    ]
+    rows.append(
+        Row(
+            "navigation",
+            "swap at 7.5 cm/s, noise-free Vicra (the swap's own part): transient worst",
+            float(max(quiet)),
+            unit="mm",
+            n=len(quiet),
+        )
+    )
     latency = context.get("swap_latency_p50_ms")  # when the swap experiment ran before
     if latency is not None:
         rows.append(

@@ -18,7 +18,13 @@ head truly is:
   the transient is the farthest the real TCP gets from the path the same run
   without the swap took (same noise), over the second after the swap (a distance
   to the path, not between equal times: being ahead or behind along it is none);
-  over several seeds, as the Vicra's noise makes each swap different.
+  over several seeds, as the Vicra's noise makes each swap different; with a
+  noise-free Vicra (`quiet`), what the swap itself adds.
+
+The simulated trackers' accuracy is white noise per frame, which the navigator's
+filter averages away; a real tracker's volumetric accuracy (0.1 mm RMS Certus,
+0.25 mm Vicra) is partly a bias over its volume that no filter removes, so real
+guided errors would be larger by up to about those figures.
 """
 
 from __future__ import annotations
@@ -55,6 +61,7 @@ class Run:
     velocity: float
     seed: int = 0
     head: Callable[[float], np.ndarray] | None = None  # t -> head offset (m, base)
+    quiet: tuple[str, ...] = ()  # trackers whose noise is left out
 
     def __post_init__(self) -> None:
         procedure = load_procedure(PROCEDURE_FILE)
@@ -68,7 +75,10 @@ class Run:
             acceleration=procedure.acceleration,
             brake_acceleration=procedure.brake_acceleration,
         )
-        self.rigs = {rig.name: rig for rig in standard_rigs()}
+        self.rigs = {
+            rig.name: dataclasses.replace(rig, noise=0.0) if rig.name in self.quiet else rig
+            for rig in standard_rigs()
+        }
         self.rng = np.random.default_rng(self.seed)
         self.t = 0.0
         self.commands: list[np.ndarray] = []
@@ -186,7 +196,9 @@ def head_bump(seed: int = 0, bump: float = 0.005, tracker: str = "certus") -> di
     }
 
 
-def swap_transient(velocity: float, seed: int = 0, trace: bool = False) -> dict[str, Any]:
+def swap_transient(
+    velocity: float, seed: int = 0, trace: bool = False, quiet: bool = False
+) -> dict[str, Any]:
     """The Certus gives way to the Vicra 1 s into a motion at `velocity`: how far the
     real TCP gets from the path of the same run without the swap, over the next
     second (mm). The swap-free run goes on half a second longer, so that a swapped run
@@ -196,7 +208,8 @@ def swap_transient(velocity: float, seed: int = 0, trace: bool = False) -> dict[
     on_patient = standard_rigs()[0].rto_from_base @ target
     runs = []
     for swap in (False, True):
-        run = Run(on_patient, "certus", velocity, seed=seed).start().run(1.0)
+        run = Run(on_patient, "certus", velocity, seed=seed, quiet=("vicra",) if quiet else ())
+        run.start().run(1.0)
         mark = len(run.real)
         if swap:
             run.tracker = "vicra"

@@ -28,6 +28,7 @@ class Row:
     target: float | None = None
     unit: str = "ms"
     n: int = 0
+    at_least: bool = False  # the target is a minimum (a simulation's realism), not a maximum
 
     @property
     def ratio(self) -> float | None:
@@ -37,7 +38,9 @@ class Row:
     @property
     def met(self) -> bool | None:
         """Is the target met (None: no target)?"""
-        return None if self.target is None else self.fw <= self.target
+        if self.target is None:
+            return None
+        return self.fw >= self.target if self.at_least else self.fw <= self.target
 
 
 def stats(values: list[float]) -> dict[str, float]:
@@ -77,7 +80,8 @@ def report(rows: list[Row], context: dict[str, Any], quick: bool) -> str:
     for r in rows:
         times_hop = r.fw / hop if hop and r.unit == "ms" and r.experiment in ON_DEPLOYMENT else None
         unit = f" ({r.unit})" if r.unit else ""
-        target = "" if r.target is None else f"<= {r.target:g} {'met' if r.met else 'MISSED'}"
+        bound = ">=" if r.at_least else "<="
+        target = "" if r.target is None else f"{bound} {r.target:g} {'met' if r.met else 'MISSED'}"
         lines.append(
             f"| {r.experiment} | {r.quantity}{unit} | {_fmt(r.thesis)} | {_fmt(r.fw)} | "
             f"{_fmt(r.ratio)} | {_fmt(times_hop)} | {target} | {r.n} |"

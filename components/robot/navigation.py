@@ -27,7 +27,10 @@ puts the real TCP on the target, within the tracker's accuracy.
   and the offset fades over `swap_settle` (10 s): the robot keeps the
   previous tracker's registration across the swap and drifts to the new tracker's
   own view at a tenth of their difference per second, while the new tracker's
-  samples follow the head from the first one.
+  samples follow the head from the first one. The offset is averaged over the new
+  tracker's first `swap_average` (0.5 s: ten Vicra samples), not taken from one
+  sample, which would carry that sample's whole noise for seconds; head motion in
+  that half second is followed in part at once and in full as the offset fades.
 * **The patient's motion** is measured apart, independent of the arm's model
   errors: the reference tool placed in the base by the tracker's own calibration
   to the robot (`S`), against where the registration found it. Farther than
@@ -104,6 +107,7 @@ class NavigatorCore:
         max_speed: float = 0.008,
         confirm: float = 0.3,
         swap_settle: float = 10.0,
+        swap_average: float = 0.5,
         jitter: float = math.inf,
         max_model_error: float = 0.005,
     ):
@@ -120,10 +124,14 @@ class NavigatorCore:
         self.max_speed = max_speed
         self.confirm = confirm
         self.swap_settle = swap_settle
+        self.swap_average = swap_average
         self.jitter = jitter
         self.max_model_error = max_model_error
         self._carry: np.ndarray | None = None  # offset carried from the previous tracker
         self._carry_t = 0.0
+        self._carry_base = np.eye(4)  # B when the swap came
+        self._carry_samples = 0  # how many of the new tracker's samples the carry averages
+        self._carry_until = -math.inf  # the carry is averaged until then
         self.base_from_patient = self.registration.copy()  # B, filtered
         self.tracker: str | None = None  # whose samples steer now
         self._last_t: float | None = None
@@ -186,7 +194,17 @@ class NavigatorCore:
             self._last_t = t
             return True  # the goals hold still: the robot does not chase a moved patient
         if swapped:
-            self._carry, self._carry_t = self.base_from_patient @ invert(measured), t
+            self._carry_t, self._carry_base, self._carry_samples = t, self.base_from_patient, 0
+            self._carry_until = t + self.swap_average
+        if t <= self._carry_until:
+            # the offset between the trackers' views, averaged over the new tracker's first
+            # samples (one sample carries its whole noise into the goals for seconds)
+            self._carry_samples += 1
+            offset = self._carry_base @ invert(measured)
+            if self._carry_samples == 1:
+                self._carry = offset
+            else:
+                self._carry = blend(self._carry, offset, 1.0 / self._carry_samples)
         if self._carry is not None:
             fade = math.exp(-max(0.0, t - self._carry_t) / self.swap_settle)
             measured = blend(np.eye(4), self._carry, fade) @ measured

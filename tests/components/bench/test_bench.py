@@ -51,3 +51,14 @@ def test_an_unknown_experiment_is_refused_with_the_list(capsys):
     assert main(["bench", "swapp"]) == 2
     err = capsys.readouterr().err
     assert "unknown experiment(s) swapp: one of zenoh, swap, nosensor, collision" in err
+
+
+def test_a_target_that_is_a_minimum_is_met_at_or_above_it_and_says_so():
+    """The realistic arm must be at least 2 mm off by its joints alone: a minimum."""
+    from components.bench.report import Row, report
+
+    low = Row("navigation", "target error, joints alone p50", 0.9, target=2.0, at_least=True)
+    high = Row("navigation", "target error, joints alone p50", 2.4, target=2.0, at_least=True)
+    assert (low.met, high.met) == (False, True)
+    assert ">= 2 MISSED" in report([low], {}, quick=True)
+    assert Row("x", "y", 0.4, target=0.5).met, "a maximum by default"
