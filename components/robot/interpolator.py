@@ -24,7 +24,11 @@ limit at constant acceleration) and a new goal may arrive at any time.
   over by the path this cycle (the commanded TCP never exceeds the velocity
   limit; a step in the goal never gives a step in the command). While a
   correction is pending the path cruises at `1 - STEER_SHARE` of the limit, so
-  the correction always has a share. A STOP freezes the offset.
+  the correction always has a share. A STOP freezes the offset. The correction is
+  cut at `max_correction` from the planned goal (the component sets the
+  procedure's `max_patient_motion + max_model_error`, 15 mm, and says the refusal):
+  a steering source gone wrong cannot pull the arm farther than the patient may move
+  plus what the arm's model may be off by.
 
 Each cycle the Cartesian setpoint goes through differential IK (`ik.py`) to the
 joint setpoint the robot interface receives. `InterpolatorCore` is the logic
@@ -116,6 +120,9 @@ class InterpolatorCore:
         self.offset = np.zeros(6)  # applied correction: translation (m), rotation vector (rad)
         self._wanted = np.zeros(6)  # the correction the goal asks for
         self._slowed = False
+        self.max_correction = math.inf
+        """How far (m; a rotation counts at `ROTATION_RADIUS`) a steered goal may lie
+        from the goal the motion was planned to: farther, the correction stops there."""
         self.sync(q0)
 
     # --- state -------------------------------------------------------------------------
@@ -158,19 +165,27 @@ class InterpolatorCore:
             return
         self._begin(goal)
 
-    def steer(self, goal: np.ndarray) -> None:
+    def steer(self, goal: np.ndarray) -> float:
         """Where the goal of the current motion is now (4x4, base frame): the command
         converges on it at the speed the path leaves over (module docstring). Ignored
-        unless moving to a goal or holding one."""
+        unless moving to a goal or holding one. Returns how far (m) the goal lies from
+        the planned one beyond `max_correction` (0: within it); the correction is cut
+        there, so a steering source gone wrong cannot pull the arm far."""
         goal = np.asarray(goal, dtype=float)
         if goal.shape != (4, 4) or not np.all(np.isfinite(goal)):
             raise ValueError("a goal is a finite 4x4 pose")
         if self.phase not in (Phase.MOVING, Phase.REACHED) or self.goal is None:
-            return
+            return 0.0
         planned = self.goal
-        self._wanted = np.concatenate(
+        wanted = np.concatenate(
             [goal[:3, 3] - planned[:3, 3], pin.log3(goal[:3, :3] @ planned[:3, :3].T)]
         )
+        size = self._correction_size(wanted)
+        beyond = size - self.max_correction
+        if beyond > 0.0:
+            wanted = wanted * (self.max_correction / size)
+        self._wanted = wanted
+        return max(0.0, beyond)
 
     def set_limits(self, velocity: float, acceleration: float | None = None) -> None:
         """New maximum path velocity (m/s) and acceleration (m/s^2), effective at once."""
@@ -385,6 +400,8 @@ class CartesianInterpolator(Component):
                     acceleration=p.acceleration,
                     brake_acceleration=p.brake_acceleration,
                 )
+                n = p.navigation  # what the patient may move plus what the model may be off
+                self.core.max_correction = n.max_patient_motion + n.max_model_error
             core = self.core
             status, limits = self.limits.read()
             if status is ReadStatus.NEW:
@@ -433,7 +450,15 @@ class CartesianInterpolator(Component):
         goal = goals.get(self._goal_name)
         same = revisions.get(self._goal_name, 0) == self._revision  # not defined anew
         if goal is not None and same and not refused:
-            core.steer(goal)
+            beyond = core.steer(goal)
+            if beyond > 0.0:
+                self.refuse(
+                    "goals",
+                    f"the navigator's {self._goal_name} is "
+                    f"{(beyond + core.max_correction) * 1e3:.1f} mm from where the motion "
+                    f"was planned to go; corrected {core.max_correction * 1e3:.0f} mm at most "
+                    "(the patient's motion plus the arm's model error): is the navigator wrong?",
+                )
 
     def _take_limits(self, core: InterpolatorCore, payload: Any) -> None:
         """Apply limits from the port unless they exceed what the procedure allows (its

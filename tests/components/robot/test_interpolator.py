@@ -326,6 +326,21 @@ def test_the_command_ends_on_the_goal_where_it_is_now(when, jump):
     assert np.linalg.norm(KIN.tcp(c.q)[:3, 3] - now[:3, 3]) < 1e-4  # the joints follow
 
 
+def test_a_correction_is_cut_at_the_largest_one_allowed_and_says_by_how_much():
+    c = core(velocity=0.05)
+    c.max_correction = 0.015
+    goal = goal_at((0.02, -0.01, -0.04))
+    c.go_to(goal)
+    commanded_speeds(c, 300)
+    assert c.steer(moved(goal, (0.0, 0.04, 0.0))) == pytest.approx(0.025)
+    commanded_speeds(c, 5000)
+    assert c.phase is Phase.REACHED
+    assert np.allclose(c.pose[:3, 3], goal[:3, 3] + (0.0, 0.015, 0.0), atol=1e-9)
+    assert c.steer(moved(goal, (0.0, 0.01, 0.0))) == 0.0, "within it: followed in full"
+    commanded_speeds(c, 2000)
+    assert np.allclose(c.pose[:3, 3], goal[:3, 3] + (0.0, 0.01, 0.0), atol=1e-9)
+
+
 def test_a_correction_pending_slows_the_path_to_keep_it_a_share_of_the_speed():
     c = core(velocity=0.05)
     goal = goal_at((0.0, 0.0, -0.15))

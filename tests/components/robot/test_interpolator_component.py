@@ -343,6 +343,22 @@ def test_a_goal_whose_revision_went_back_does_not_steer_the_motion(robot):
     assert robot.report()["tcp"] == pytest.approx([0.58, 0.0, 0.12], abs=1e-6)
 
 
+def test_a_goal_farther_than_the_patient_and_the_arm_can_explain_is_followed_only_so_far(robot):
+    """A navigator gone wrong cannot pull the arm far: the correction stops at the
+    procedure's max_patient_motion plus max_model_error (15 mm), and the refusal is said."""
+    refusals = []
+    robot.interp.add_refusal_listener(lambda refusal: refusals.append(refusal))
+    robot.limits(velocity=0.075)
+    robot.interp.call("go_to", goal="target")
+    robot.cycle(300)
+    robot.navigate(target=moved(TARGET, dy=0.05))
+    robot.until("reached")
+    robot.cycle(2000)
+    assert robot.report()["tcp"] == pytest.approx([0.60, 0.015, 0.12], abs=1e-6)
+    assert refusals[0].port == "goals" and "50.0 mm from where the motion" in refusals[0].reason
+    assert "corrected 15 mm at most" in refusals[0].reason
+
+
 def test_a_refusal_of_the_patients_motion_stops_the_motion_and_a_go_to(robot):
     robot.limits(velocity=0.075)
     robot.interp.call("go_to", goal="target")
