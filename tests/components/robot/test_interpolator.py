@@ -357,6 +357,18 @@ def test_a_correction_pending_slows_the_path_to_keep_it_a_share_of_the_speed():
     assert c.speed == pytest.approx(0.05)  # the path cruises at the limit again
 
 
+def test_a_correction_asked_before_the_path_starts_keeps_its_share_of_the_speed():
+    c = core(velocity=0.05)
+    goal = goal_at((0.0, 0.0, -0.15))
+    c.go_to(goal)
+    c.steer(moved(goal, (0.01, 0.0, 0.0)))  # before the first cycle
+    commanded_speeds(c, 300)
+    assert c.speed == pytest.approx(0.025), "the path leaves the correction half the limit"
+    assert c.pose[0, 3] - goal[0, 3] > 0.002, "the correction is under way"
+    assert c.pose.shape == (4, 4) and np.allclose(c.pose[3], [0, 0, 0, 1])
+    assert np.allclose(c.pose[:3, :3] @ c.pose[:3, :3].T, np.eye(3), atol=1e-12)
+
+
 def test_holding_a_goal_follows_it_when_it_moves_at_the_limit_and_no_faster():
     c = core(velocity=0.01)
     goal = goal_at((0.0, 0.0, -0.01))

@@ -330,6 +330,28 @@ def test_a_target_defined_anew_is_not_followed_until_the_next_go_to(robot):
     assert robot.report()["tcp"] == pytest.approx([0.58, 0.0, 0.12], abs=1e-6)
 
 
+def test_a_target_defined_anew_many_times_is_followed_like_the_first(robot):
+    """Revisions are counters that grow over a long procedure: compared by value."""
+    robot.limits(velocity=0.075)
+    robot.navigate(target=TARGET, revisions={"target": 100000})
+    robot.cycle()
+    robot.interp.call("go_to", goal="target")
+    robot.cycle(300)
+    robot.navigate(target=moved(TARGET, dy=0.0041234), revisions=json.loads('{"target": 100000}'))
+    robot.until("reached")
+    robot.cycle(1000)
+    tcp = robot.report()["tcp"]
+    assert tcp[1] == 0.004123, "the report gives the TCP to the micrometre"
+    assert robot.report()["speed"] == 0.0
+
+
+def test_the_report_gives_the_speed_to_the_micrometre_per_second(robot):
+    robot.limits(velocity=0.0123456)
+    robot.interp.call("go_to", goal="target")
+    robot.cycle(1500)  # cruising
+    assert robot.report()["speed"] == 0.012346
+
+
 def test_a_goal_whose_revision_went_back_does_not_steer_the_motion(robot):
     """A restarted navigator counts from 0 again: its target is the procedure's, not the
     one defined anew that the motion heads for."""
