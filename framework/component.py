@@ -210,6 +210,9 @@ class Component:
         self.clock: Clock = MonotonicClock()
         """The time of the hosting executor: monotonic, or a test's simulated clock."""
         self.heartbeat: Heartbeat | None = None
+        self.file_error = ""
+        """Why the ports its configuration files declare could not be (see file_ports)."""
+        self._awaited: dict[str, tuple[str, ConnPolicy | None]] = {}
         """Set by the container when the topology watches this component."""
         self.safety: Any = None
         """The `SafetyMonitor` the container attaches if the topology names this component
@@ -260,7 +263,13 @@ class Component:
         the topology's `connections:` wire it), one declared before is kept with its
         connections. FwError if a file cannot be read."""
         ports = []
-        for wanted in type(self).file_inputs(self._values):
+        try:
+            declared = type(self).file_inputs(self._values)
+        except FwError as exc:
+            self.file_error = str(exc)
+            raise
+        self.file_error = ""
+        for wanted in declared:
             port = self.inputs.get(wanted.port)
             if port is None:
                 port = InputPort(
@@ -268,8 +277,17 @@ class Component:
                 )
                 port.owner, port.bus = self.name, self.bus
                 self.inputs[wanted.port] = port
+                awaited = self._awaited.pop(wanted.port, None)
+                if awaited is not None:
+                    port.connect(*awaited)
             ports.append(port)
         return ports
+
+    def await_connection(self, port: str, key: str, policy: ConnPolicy | None = None) -> None:
+        """Wire a port its file will declare once the file can be read (the topology's
+        connection of a component whose file failed: `configure` says why, and connects
+        it if the file is fixed)."""
+        self._awaited[port] = (key, policy)
 
     def get_property(self, name: str) -> Any:
         """The value of a declared property."""

@@ -179,6 +179,10 @@ class Container:
     ) -> dict[str, Any]:
         """Connect a port of a hosted component to a key (checking the key's type)."""
         comp = self._component(component)
+        if comp.file_error and port not in comp.inputs and port not in comp.outputs:
+            # a port its unreadable file would declare: wired when configure reads it
+            comp.await_connection(port, key, ConnPolicy.from_spec(policy) if policy else None)
+            return {"port": f"{component}.{port}", "key": key, "awaiting": comp.file_error}
         target = comp.port(port)
         if isinstance(target, InputPort):
             self._check_type(target, key)

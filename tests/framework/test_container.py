@@ -4,13 +4,18 @@ orderly shutdown, and clear errors for every bad request."""
 import os
 import signal
 import subprocess
+from pathlib import Path
 
 import pytest
 
 from components.demo import Sink
 from framework import keys
 from framework.activity import Activity
+from framework.component import FileInput
 from framework.container import Container, spawn_container
+from framework.errors import FwError
+from framework.messages import Scalar
+from framework.properties import prop
 from framework.remote import RemoteComponent, RemoteError
 from tests.conftest import wait_until
 
@@ -223,5 +228,47 @@ def test_a_batch_stops_at_the_first_step_that_would_start_late(hub):
         )
         assert answer["failed"] == 1 and "deadline passed" in answer["error"]
         assert component.get_property("mark") == 0.0, "the late step did not run"
+    finally:
+        container.shutdown()
+
+
+class PerLine(Sink):
+    """A component with an input port per line of its file (as the Sensor Manager has
+    one per tracker of its sensors file)."""
+
+    lines_file = prop(str, "", doc="a name per line")
+
+    @classmethod
+    def file_inputs(cls, properties):
+        path = Path(str(properties.get("lines_file", "")))
+        if not path.is_file():
+            raise FwError(f"{path}: no such file")
+        return [FileInput(n, Scalar, str(path)) for n in path.read_text().split()]
+
+    def configure_hook(self):
+        try:
+            self.file_ports()
+        except FwError as exc:
+            self.last_error = str(exc)
+            return False
+        return True
+
+
+def test_a_port_a_file_declares_is_wired_even_when_the_file_comes_late(hub, tmp_path):
+    """An unreadable file fails configure, not the deployment: the topology's connection
+    of its port waits, and is made once configure reads the file."""
+    lines = tmp_path / "lines.txt"
+    container = Container("c", hub)
+    try:
+        component = container.add(PerLine("per_line"), properties={"lines_file": str(lines)})
+        answer = container.connect("per_line", "left", "x/left")
+        assert "no such file" in answer["awaiting"]
+        assert not component.configure() and "no such file" in component.last_error
+        lines.write_text("left right\n")
+        assert component.configure(), component.last_error
+        assert component.inputs["left"].key == "x/left"
+        assert not component.inputs["right"].connected
+        with pytest.raises(Exception, match="has no port 'middle'"):
+            container.connect("per_line", "middle", "x/middle")
     finally:
         container.shutdown()
