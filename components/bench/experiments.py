@@ -486,6 +486,16 @@ def run_navigation(quick: bool, context: dict[str, Any]) -> list[Row]:
                     n=len(runs),
                 )
             )
+    for who in ("certus", "vicra"):
+        rows.append(
+            Row(
+                "navigation",
+                f"head breathing 1 mm / 4 s, {who}: largest error",
+                navigation.breathing(who),
+                unit="mm",
+                n=1,
+            )
+        )
     quiet = [
         navigation.swap_transient(0.075, seed, quiet=True)["transient_mm"] for seed in range(seeds)
     ]

@@ -267,10 +267,13 @@ def _stages(start: float, marks: list[tuple[str, float | None]]) -> dict[str, fl
 
 
 def _healthy(run: SeegRun, tracker: str, timeout: float = 10.0) -> None:
+    """Wait until `tracker` is healthy and in use again: a recovered tracker is used only
+    after the Sensor Manager's hysteresis, and a trial started in between sees "no
+    tracker" before its own fault (a STOP before its cause: a negative latency)."""
     deadline = time.monotonic() + timeout
     while True:
         status = run.call("sensor_manager.current")
-        if status.get("health", {}).get(tracker, {}).get("ok"):
+        if status.get("health", {}).get(tracker, {}).get("ok") and status.get("best") == tracker:
             return
         if time.monotonic() > deadline:
             raise BenchError(f"{tracker} did not recover in {timeout:g} s")

@@ -30,6 +30,7 @@ guided errors would be larger by up to about those figures.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -194,6 +195,21 @@ def head_bump(seed: int = 0, bump: float = 0.005, tracker: str = "certus") -> di
         "fastest_command_m_s": run.fastest_command(before),
         "refused": run.nav.refused,
     }
+
+
+def breathing(tracker: str, seed: int = 0, amplitude: float = 0.001, period: float = 4.0) -> float:
+    """Holding the target, guided by `tracker`, while the head rises and falls
+    `amplitude` m every `period` s: the largest error over the last 4 s of 8 (mm), the
+    price of the filter that keeps the tracker's noise from the goals."""
+    run = Run(targets(1)[0], tracker, 0.075, seed=seed)
+    run.start().run(2.0)
+    run.core.set_limits(0.01)
+    run.until_reached().run(0.5)
+    t0 = run.t
+    run.head = lambda t: np.array([0.0, 0.0, amplitude * math.sin(2 * math.pi * (t - t0) / period)])
+    start = len(run.errors)
+    run.run(8.0)
+    return float(max(run.errors[start + 4000 :])) * 1e3
 
 
 def swap_transient(

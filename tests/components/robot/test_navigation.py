@@ -195,6 +195,31 @@ def test_a_sample_quieter_than_the_jitter_allowed_is_not_held_back():
     assert nav.noise_weight(2e-4) == pytest.approx(2 * 0.25 / 1.25)
 
 
+def test_a_noisy_trackers_sample_far_beyond_its_noise_is_news_and_not_held_back():
+    """The jitter cap filters a noisy tracker heavily; a sample more than three times its
+    noise from the filtered view is the head moving, and moves the goals at the
+    smoothing's pace."""
+    nav = NavigatorCore(TRACKERS, REGISTRATION, smoothing=0.1, jitter=7e-5)
+    cto, rto = CERTUS.observe(KIN.tcp(np.array(HOME)), np.random.default_rng(0))
+    cto, rto = pose_matrix(cto), pose_matrix(rto)
+    nominal = KIN.tcp(np.array(HOME))
+    noise = 3.5e-4  # the Vicra's, both tools
+    nav.offer("certus", cto, rto, nominal, 0.0, noise)
+    start = nav.base_from_patient[:3, 3].copy()
+    full = 1.0 - np.exp(-0.05 / 0.1)  # a 20 Hz sample's weight without the cap
+
+    def moved_by(shift, t):
+        shifted = rto.copy()
+        shifted[:3, 3] += (shift, 0.0, 0.0)  # the reference tool moved: the patient moved
+        before = nav.base_from_patient[:3, 3].copy()
+        nav.offer("certus", cto, shifted, nominal, t, noise)
+        return np.linalg.norm(nav.base_from_patient[:3, 3] - before) / shift
+
+    assert moved_by(0.0005, 0.05) == pytest.approx(nav.noise_weight(noise), rel=0.05)
+    nav.base_from_patient[:3, 3] = start
+    assert moved_by(0.005, 0.10) == pytest.approx(full, rel=0.05)
+
+
 def test_the_head_bumped_by_5_mm_is_followed_back_onto_the_target_within_a_second():
     loop = Loop(noise=True, head=lambda t: np.array([0.0, 0.005 * (t > 9.05), 0.0]))
     loop.go().run(8.0)
