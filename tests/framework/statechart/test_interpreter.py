@@ -986,3 +986,91 @@ def test_time_events_due_at_different_times_fire_at_their_own_time(run):
     )
     r.interpreter.advance(3.0)
     assert r.leaves == ["C"], "B at 1 s, C at 2 s"
+
+
+def test_a_snapshot_keeps_the_history_and_the_events_still_queued(chart):
+    """A restored Coordinator resumes where it was: the shallow history it recorded and
+    the external events queued but not yet processed."""
+    from framework.clock import SimulatedClock
+
+    c = chart(HISTORY, validate=False)
+    a = Interpreter(c, SimulatedClock())
+    a.start()
+    a.dispatch("next")
+    a.dispatch("out")  # M left from B: its shallow history is B
+    a.queue("back")
+    a.queue("next")
+    b = Interpreter(c, SimulatedClock())
+    b.restore(a.snapshot())
+    assert b.leaves == ["Away"]
+    b.run()
+    a.run()
+    assert b.leaves == a.leaves == ["M.B.B2"], "back to B (history), then on to B2"
+
+
+def test_a_snapshot_keeps_the_variables_and_the_configuration_still_awaited(chart):
+    from framework.clock import SimulatedClock
+
+    c = chart(CONFIG_OK)
+    a = Interpreter(c, SimulatedClock())
+    a.start()
+    a.dispatch("config.done", {"tag": "setup"})
+    a.dispatch("go")  # A again: `setup` requested anew, its ack awaited
+    assert a.variables["done"] == 1 and a.leaves == ["Top.A"]
+    b = Interpreter(c, SimulatedClock())
+    b.restore(a.snapshot())
+    assert b.variables == {"done": 1}
+    b.dispatch("config.done", {"tag": "setup"})
+    assert b.variables == {"done": 2} and b.leaves == ["Top.B"], "the awaited ack is taken"
+
+
+def test_listeners_hear_internal_transitions_and_outputs(run):
+    from framework.statechart.events import Trace
+
+    r = run(
+        """
+        statechart: l
+        events: {e: null}
+        initial: A
+        states:
+          - name: A
+            transitions:
+              - event: e
+                effect: [{call: {operation: robot.brake}}]
+        """,
+        validate=False,
+    )
+    trace = Trace()
+    r.interpreter.listeners.append(trace)
+    r.send("e")
+    assert ("transition", "A", None, "e") in trace.records, "an internal transition is heard"
+    assert ("output", "call", "robot.brake") in trace.records
+
+
+def test_a_snapshot_keeps_an_effects_configuration_still_awaited(chart):
+    """A configuration an effect asked for is awaited across a restore: its ack is
+    taken, not reported as unhandled."""
+    from framework.clock import SimulatedClock
+    from framework.statechart.events import Trace
+
+    c = chart(
+        """
+        statechart: a
+        events: {e: null}
+        initial: A
+        states:
+          - name: A
+            transitions: [{event: e, effect: [{configure: extra}]}]
+        """,
+        validate=False,
+    )
+    a = Interpreter(c, SimulatedClock())
+    a.start()
+    a.dispatch("e")
+    trace = Trace()
+    b = Interpreter(c, SimulatedClock(), [trace])
+    b.restore(a.snapshot())
+    b.dispatch("config.done", {"tag": "extra"})
+    assert not [r for r in trace.records if r[0] == "unhandled"]
+    b.dispatch("config.done", {"tag": "extra"})
+    assert [r[1] for r in trace.records if r[0] == "unhandled"] == ["config.done"], "once only"
