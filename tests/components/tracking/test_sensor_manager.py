@@ -141,6 +141,17 @@ def test_two_sensors_that_disagree_are_both_distrusted():
     assert {h.cause for h in decision.health.values()} == {"calibration"}
 
 
+@pytest.mark.parametrize(("degrees", "ok"), [(2.0, True), (5.0, False)])
+def test_two_sensors_whose_views_differ_by_more_than_the_angle_tolerance_disagree(degrees, ok):
+    """The position tolerance set out of the way (1 m): the angle alone decides."""
+    world = World(tolerance_position=1.0)
+    world.run(0.5)
+    world.moved = rigid((0.0, 0.0, 0.0), (0.0, 0.0, math.radians(degrees)))
+    world.faults["certus"] = "rto_moved"
+    health = world.run(0.1).health
+    assert (health["certus"].ok, health["vicra"].ok) == (ok, ok), health
+
+
 def test_no_sensor_means_no_best():
     world = World()
     world.run(0.3)
@@ -479,9 +490,33 @@ def test_at_start_a_sensor_is_used_after_exactly_hysteresis_healthy_samples():
 def test_a_sensor_configured_without_calibration_is_taken_as_the_identity():
     from components.tracking.sensor_manager import SensorConfig
 
-    plain = SensorConfig("a", 1, 10.0, {"cto": "a/cto", "rto": "a/rto"})
+    plain = SensorConfig("a", 1, 10.0)
     for frame in (plain.master_from_sensor, plain.rto_from_base, plain.ee_from_cto):
         assert np.array_equal(frame, np.eye(4))
+
+
+def test_a_calibration_may_give_some_frames_the_rest_are_the_identity_and_the_tip_is_kept(
+    tmp_path,
+):
+    path = tmp_path / "sensors.yaml"
+    path.write_text(
+        "sensors:\n"
+        "  a: {priority: 1, rate: 10, calibration: {C: {position: [0.1, 0, 0]}, "
+        "tip: [0.001, -0.02, -0.08]}}\n"
+        "  b: {priority: 2, rate: 10}\n"
+    )
+    a, b = load_sensors(path).sensors
+    assert a.master_from_sensor[0, 3] == 0.1
+    assert np.array_equal(a.ee_from_cto, np.eye(4)) and np.array_equal(a.rto_from_base, np.eye(4))
+    assert a.sensor_from_base is None, "no S: not calibrated to the robot"
+    assert a.tip.tolist() == [0.001, -0.02, -0.08]
+    assert b.tip is None, "no pivot: navigation uses Y"
+    path.write_text("sensors:\n  a: {priority: 1, rate: 10, calibration: {tip: [0, .nan, 0]}}\n")
+    with pytest.raises(
+        SensorConfigError,
+        match=r"sensors.yaml:2:53: sensors.a.calibration.tip\[1\]: must be a finite number",
+    ):
+        load_sensors(path)
 
 
 def step_taken(step, max_speed, rms):

@@ -238,3 +238,13 @@ def test_the_ports_the_sensors_file_declares_stay_wired_through_cleanup_like_any
     stepped.tick(5)
     assert stepped.best() == "certus"
     assert manager.call("current")["health"]["vicra"]["ok"]
+
+
+def test_trusting_again_is_refused_for_an_unknown_sensor_or_one_not_distrusted(stepped):
+    from framework.errors import FwError
+
+    stepped.tick(5)
+    with pytest.raises(FwError, match=r"no sensor 'polaris': one of certus, vicra"):
+        stepped.manager.call("trust", sensor="polaris")
+    with pytest.raises(FwError, match="certus is not distrusted for a moved reference tool"):
+        stepped.manager.call("trust", sensor="certus")
