@@ -899,6 +899,31 @@ def test_an_initial_junction_chooses_the_first_entered_child(run):
     assert r.leaves == ["P.Two"] and logs(r) == ["chose two"]
 
 
+def test_an_initial_junction_takes_its_first_enabled_branch_quietly(run):
+    r = run(INITIAL_JUNCTION.replace("mode: 2", "mode: 1"), validate=False)
+    assert r.leaves == ["P.One"] and logs(r) == ["chose one"]
+    assert not [rec for rec in r.trace.records if rec[0] == "error"]
+
+
+def test_the_configuration_names_a_parallel_states_regions_and_their_states(run):
+    r = run(
+        """
+        statechart: pr
+        events: {e: null}
+        initial: P
+        states:
+          - name: P
+            type: parallel
+            states:
+              - {name: R1, initial: A, states: [{name: A}]}
+              - {name: R2, initial: B, states: [{name: B}]}
+        """,
+        validate=False,
+    )
+    assert r.interpreter.configuration == ["P", "P.R1", "P.R1.A", "P.R2", "P.R2.B"]
+    assert r.leaves == ["P.R1.A", "P.R2.B"]
+
+
 def test_an_initial_junction_with_no_branch_enabled_takes_its_last_and_says_so(run):
     r = run(INITIAL_JUNCTION.replace("mode: 2", "mode: 3"), validate=False)
     assert r.leaves == ["P.Two"]
