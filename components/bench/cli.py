@@ -25,9 +25,12 @@ examples:
   fw bench --quick                         every experiment, a few trials each (< 2 min)
   fw bench swap nosensor --out docs/results full runs of two experiments
   fw bench zenoh                           just the inter-process hop baseline
+  fw bench cost --load 3                   what the simulated OR costs on a busy host
 
 experiments:
   zenoh       the raw inter-process Zenoh hop (always run: the baseline)
+  cost        cores per process braked and moving, the 1 kHz loop's real-time factor
+              and cycle intervals (with --load N busy loops on the host)
   swap        Sensor Swap x50 (Fig. 4.1)          nosensor   No Sensor To Stop x50
   collision   Collision Reaction x50 (Fig. 4.5)    repeated   30 x 50 swaps (Fig. 4.3)
   motion      swaps during the approach (Fig. 4.2)
@@ -77,12 +80,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
         names.insert(0, "zenoh")  # every run carries its own baseline
     # the deployment's experiments first; it is shut down before the compute-only
     # ones, so its load does not disturb them
-    names.sort(key=lambda n: (n != "zenoh", n not in ON_DEPLOYMENT))
+    names.sort(key=lambda n: (n != "zenoh", n not in ON_DEPLOYMENT, n != "cost"))
     context: dict[str, Any] = {
         "quick": args.quick,
         "repetitions": args.repetitions,
         "chaos_repetitions": args.chaos_repetitions,
         "bus": args.bus,
+        "load": args.load,
     }
     rows: list[Row] = []
     try:
@@ -132,6 +136,13 @@ def add_commands(sub: Any) -> None:
     )
     p.add_argument("names", nargs="*", metavar="NAME", help="experiments to run (default: all)")
     p.add_argument("--quick", action="store_true", help="a few trials each: a smoke run")
+    p.add_argument(
+        "--load",
+        type=int,
+        default=0,
+        metavar="N",
+        help="`cost`: N busy loops on the host while it measures (a shared machine)",
+    )
     p.add_argument("--out", default="out/bench", metavar="DIR", help="report folder")
     p.add_argument(
         "--repetitions",

@@ -92,6 +92,62 @@ def run_swap(quick: bool, context: dict[str, Any]) -> list[Row]:
     ]
 
 
+def run_cost(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """What the simulated OR costs (issue 18): cores per process braked and waiting, then
+    moving with people in the room; the 1 kHz arm loop's real-time factor and cycle
+    intervals; with `--load N` busy loops on the host."""
+    from components.bench import cost
+
+    load = int(context.get("load", 0))
+    windows = cost.idle_and_moving(
+        _seeg(context), 3.0 if quick else 20.0, 2.0 if quick else 5.0, load
+    )
+    context.setdefault("series", {})["cost"] = {
+        "load": load,
+        **{name: cost.summary(w) for name, w in windows.items()},
+    }
+    under = f" ({load} busy loops)" if load else ""
+    rows = []
+    for name, window in windows.items():
+        what = "braked, waiting" if name == "idle" else "moving"
+        for process, cores in sorted(window.cores.items()):
+            rows.append(Row("cost", f"{what}{under}: {process}", cores, unit="cores", n=1))
+        rows.append(
+            Row(
+                "cost",
+                f"{what}{under}: total",
+                window.total,
+                target=0.30 if name == "idle" else 0.45,
+                unit="cores",
+                n=1,
+            )
+        )
+        rows.append(
+            Row(
+                "cost",
+                f"{what}{under}: arm loop real-time factor",
+                window.realtime,
+                target=0.99,
+                unit="x",
+                n=1,
+                at_least=True,
+            )
+        )
+        cycles = window.cycle_ms or [0.0]
+        s = stats(cycles)
+        rows.append(Row("cost", f"{what}{under}: arm cycle interval p50", s["p50"], n=len(cycles)))
+        rows.append(
+            Row(
+                "cost",
+                f"{what}{under}: arm cycle interval p99",
+                s["p99"],
+                target=1.5,
+                n=len(cycles),
+            )
+        )
+    return rows
+
+
 def run_nosensor(quick: bool, context: dict[str, Any]) -> list[Row]:
     """No Sensor To Stop (eq. 3.13, Fig. 4.1): the only tracker occluded while moving."""
     from components.bench import latency
@@ -528,6 +584,7 @@ OPT_IN = ("chaos",)
 
 EXPERIMENTS: dict[str, Callable[[bool, dict[str, Any]], list[Row]]] = {
     "zenoh": run_zenoh,
+    "cost": run_cost,  # first on the deployment: it measures the robot waiting for START
     "swap": run_swap,
     "nosensor": run_nosensor,
     "collision": run_collision,

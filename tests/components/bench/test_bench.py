@@ -15,6 +15,15 @@ def test_quick_bench_runs_every_experiment_and_writes_report_summary_and_figures
     assert rows[("nosensor", "L p50")]["n"] == 3
     assert rows[("collision", "L p50")]["thesis"] == 1.1
     assert rows[("zenoh", "hop p50")]["fw"] > 0
+    # what it costs: every process's cores, braked and moving, and the arm loop's pace
+    for what in ("braked, waiting", "moving"):
+        processes = [q for e, q in rows if e == "cost" and q.startswith(f"{what}: ")]
+        assert {f"{what}: {p}" for p in ("arm", "robot", "supervision", "control")} <= set(
+            processes
+        )
+        assert rows[("cost", f"{what}: total")]["fw"] > 0
+        assert 0 < rows[("cost", f"{what}: arm loop real-time factor")]["fw"] < 1.5
+    assert summary["series"]["cost"]["idle"]["cycle_ms"]["n"] > 100
     series = summary["series"]
     # every reaction ends after its cause, and braking begins after the STOP is sent
     for key in ("swap_ms", "nosensor_ms", "collision_ms"):
@@ -50,7 +59,7 @@ def test_quick_bench_runs_every_experiment_and_writes_report_summary_and_figures
 def test_an_unknown_experiment_is_refused_with_the_list(capsys):
     assert main(["bench", "swapp"]) == 2
     err = capsys.readouterr().err
-    assert "unknown experiment(s) swapp: one of zenoh, swap, nosensor, collision" in err
+    assert "unknown experiment(s) swapp: one of zenoh, cost, swap, nosensor, collision" in err
 
 
 def test_a_target_that_is_a_minimum_is_met_at_or_above_it_and_says_so():

@@ -1,0 +1,145 @@
+"""What the simulated OR costs (issue 18): CPU per process, and whether the 1 kHz loop
+keeps real time.
+
+On the running SEEG deployment (`SeegRun`), over a window each: the robot braked and
+waiting for START (idle), then moving toward the target with the people of the
+scene in the room. For every process of the deployment, and for this one (the
+Coordinator and Configurator, with the bench's own listener), the CPU it used
+(user + system, from /proc/<pid>/stat) divided by the window: the cores it took.
+The arm's loop: how many 1 ms cycles it ran per millisecond of wall time (its
+real-time factor, from `arm.report` at both ends of the window), and the intervals
+between the stamps its cycles put on `arm/measured` (the stamps are taken in the
+arm's own process, so delivery does not blur them). `load` busy loops run on the
+host meanwhile, as other jobs of a shared machine would.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from components.bench.seeg_run import BenchError, SeegRun
+from framework.messages import ArmState
+
+TICK = os.sysconf("SC_CLK_TCK")
+BUSY_LOOP = "while True: pass"
+TASK_STATES = (
+    "Wait_Start",
+    "Moving_Fast",
+    "Moving_Slow",
+    "Target_Reached",
+    "Stopped",
+    "No_Tracker",
+)
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time a process (all its threads) has used so far (s)."""
+    with open(f"/proc/{pid}/stat", encoding="ascii") as stat:
+        fields = stat.read().rsplit(")", 1)[1].split()  # after the command's name
+    return (int(fields[11]) + int(fields[12])) / TICK  # utime, stime (fields 14, 15)
+
+
+@dataclass
+class Window:
+    """One measured window."""
+
+    seconds: float
+    cores: dict[str, float]  # process -> cores used
+    realtime: float  # arm cycles per millisecond of wall time
+    cycle_ms: list[float] = field(default_factory=list)  # intervals between cycle stamps
+
+    @property
+    def total(self) -> float:
+        """Cores used by the whole deployment (this process included)."""
+        return sum(self.cores.values())
+
+
+def processes(run: SeegRun) -> dict[str, int]:
+    """Process name -> pid of every running process of the deployment, and `control`
+    (this process: the Coordinator and the Configurator)."""
+    assert run.deployment is not None
+    out = {p.name: p.popen.pid for p in run.deployment.processes if p.popen is not None}
+    out["control"] = os.getpid()
+    return out
+
+
+def measure(run: SeegRun, seconds: float, jitter_seconds: float) -> Window:
+    """CPU per process and the arm's real-time factor over `seconds`, then the arm's
+    cycle intervals over `jitter_seconds` (a subscriber of its 1 kHz output costs
+    something, so it is not there while the CPU is counted)."""
+    pids = processes(run)
+    before = {name: cpu_seconds(pid) for name, pid in pids.items()}
+    first = run.call("arm.report")
+    t0 = time.monotonic()
+    time.sleep(seconds)
+    elapsed = time.monotonic() - t0
+    last = run.call("arm.report")
+    after = {name: cpu_seconds(pid) for name, pid in pids.items()}
+    cores = {name: (after[name] - before[name]) / elapsed for name in pids}
+    realtime = (last["cycle"] - first["cycle"]) / (elapsed * 1000.0)
+    subscription = run.watch("arm/measured", ArmState)
+    start = time.time()
+    time.sleep(jitter_seconds)
+    run.unwatch(subscription)
+    stamps = [s.message.stamp for s in run.since(start, "arm/measured")]
+    intervals = np.diff(np.array(stamps)) * 1e3 if len(stamps) > 1 else np.array([])
+    return Window(elapsed, cores, realtime, [float(v) for v in intervals])
+
+
+def busy_loops(count: int) -> list[subprocess.Popen[bytes]]:
+    """`count` processes that each keep a core busy (at the host's normal priority)."""
+    return [subprocess.Popen([sys.executable, "-c", BUSY_LOOP]) for _ in range(count)]
+
+
+def stop(loops: list[subprocess.Popen[bytes]]) -> None:
+    """End the busy loops."""
+    for loop in loops:
+        loop.kill()
+    for loop in loops:
+        loop.wait()
+
+
+def idle_and_moving(
+    run: SeegRun, seconds: float, jitter_seconds: float, load: int = 0
+) -> dict[str, Window]:
+    """The deployment braked and waiting for START, then moving toward the target, each
+    measured over `seconds`, with `load` busy loops on the host. Leaves the robot
+    moving (the next experiment takes it from there)."""
+    run.wait_state("Wait_Start", 60.0)
+    state = run.last_entered(TASK_STATES)
+    if state != "Wait_Start":
+        raise BenchError(f"cost measures the robot waiting for START first; it is in {state}")
+    loops = busy_loops(load)
+    try:
+        idle = measure(run, seconds, jitter_seconds)
+        mark = run.mark()
+        run.send("e_START")
+        run.wait_state("Moving_Fast", 30.0, since=mark)
+        moving = measure(run, seconds, jitter_seconds)
+    finally:
+        stop(loops)
+    return {"idle": idle, "moving": moving}
+
+
+def summary(window: Window) -> dict[str, Any]:
+    """A window as plain data (for the JSON summary)."""
+    cycles = np.array(window.cycle_ms) if window.cycle_ms else np.array([0.0])
+    return {
+        "seconds": round(window.seconds, 3),
+        "cores": {k: round(v, 4) for k, v in sorted(window.cores.items())},
+        "total_cores": round(window.total, 4),
+        "realtime": round(window.realtime, 4),
+        "cycle_ms": {
+            "p50": round(float(np.percentile(cycles, 50)), 4),
+            "p99": round(float(np.percentile(cycles, 99)), 4),
+            "max": round(float(cycles.max()), 4),
+            "n": len(window.cycle_ms),
+        },
+    }
