@@ -356,9 +356,7 @@ class Interpreter:
         if name in self._root.subtree_events:
             self._select(self._root, name, env, chosen)
         if chosen:
-            for chain in chosen:
-                if chain[0].source.active:
-                    self._fire(chain, event, env)
+            self._fire_all(chosen, event, env)
         elif not settled:
             self._unhandled(event, "no enabled transition")
         if self._root.subtree_completion:
@@ -500,15 +498,23 @@ class Interpreter:
             self._select_completion(self._root, env, chosen)
             if not chosen:
                 return
-            for chain in chosen:
-                if chain[0].source.active:
-                    self._fire(chain, None, env)
+            self._fire_all(chosen, None, env)
         self._error(
             f"more than {MAX_MICROSTEPS} completion transitions in one step (a livelock); stopped",
             None,
         )
 
     # -- firing ------------------------------------------------------------------
+    def _fire_all(self, chosen: list[tuple[_Arc, ...]], event: Event | None, env: Env) -> None:
+        """Fire the transitions selected in one step, in order; one whose source an
+        earlier one left in this step does not fire, even if that source was entered
+        again (a region's transition to its own parallel state re-enters the others)."""
+        epochs = [chain[0].source.epoch for chain in chosen]
+        for chain, epoch in zip(chosen, epochs, strict=True):
+            source = chain[0].source
+            if source.active and source.epoch == epoch:
+                self._fire(chain, event, env)
+
     def _fire(self, chain: tuple[_Arc, ...], event: Event | None, env: Env) -> None:
         first, last = chain[0], chain[-1]
         if last.target is None:  # internal transition: effect only

@@ -1099,3 +1099,31 @@ def test_a_snapshot_keeps_an_effects_configuration_still_awaited(chart):
     assert not [r for r in trace.records if r[0] == "unhandled"]
     b.dispatch("config.done", {"tag": "extra"})
     assert [r[1] for r in trace.records if r[0] == "unhandled"] == ["config.done"], "once only"
+
+
+def test_a_regions_transition_whose_source_was_left_in_the_same_step_does_not_fire(run):
+    """R1's transition on e re-enters the parallel state P: R2's source was left in this
+    step (and entered anew), so R2's own transition on e does not fire (issue 20)."""
+    r = run(
+        """
+        statechart: reenter
+        events: {e: null}
+        initial: P
+        states:
+          - name: P
+            type: parallel
+            states:
+              - name: R1
+                initial: A
+                states: [{name: A, transitions: [{event: e, target: P}]}]
+              - name: R2
+                initial: B
+                states:
+                  - {name: B, transitions: [{event: e, target: C, effect: [{log: R2 fired}]}]}
+                  - {name: C}
+        """,
+        validate=False,
+    )
+    r.send("e")
+    assert r.leaves == ["P.R1.A", "P.R2.B"]
+    assert logs(r) == []
