@@ -201,6 +201,9 @@ def test_a_goal_that_is_not_a_4x4_pose_is_refused(shape):
     with pytest.raises(ValueError, match="finite 4x4 pose"):
         c.go_to(np.ones(shape))
     assert c.phase is Phase.IDLE
+    c.go_to(goal_at((0.0, 0.0, -0.02)))
+    with pytest.raises(ValueError, match="finite 4x4 pose"):
+        c.steer(np.ones(shape))
 
 
 def test_a_new_goal_before_the_motion_has_started_replaces_the_old_one_without_braking():
@@ -414,10 +417,19 @@ def test_a_new_goal_starts_from_the_command_with_its_correction():
 
 def test_steering_is_ignored_when_not_heading_for_a_goal():
     c = core()
+    c.max_correction = 0.005
     before = c.pose.copy()
-    c.steer(moved(before, (0.01, 0.0, 0.0)))
+    assert c.steer(moved(before, (0.01, 0.0, 0.0))) == 0.0, "ignored: nothing beyond"
     commanded_speeds(c, 100)
     assert np.array_equal(c.pose, before) and c.phase is Phase.IDLE
+    c.go_to(goal_at((0.0, 0.0, -0.02)))
+    commanded_speeds(c, 100)
+    c.stop()
+    run(c, Phase.STOPPED)
+    here = c.pose.copy()
+    assert c.steer(moved(here, (0.01, 0.0, 0.0))) == 0.0, "stopped: ignored too"
+    commanded_speeds(c, 100)
+    assert np.array_equal(c.pose, here)
     with pytest.raises(ValueError, match="finite 4x4"):
         c.steer(np.full((4, 4), np.nan))
 
