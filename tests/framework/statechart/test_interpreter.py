@@ -1127,3 +1127,53 @@ def test_a_regions_transition_whose_source_was_left_in_the_same_step_does_not_fi
     r.send("e")
     assert r.leaves == ["P.R1.A", "P.R2.B"]
     assert logs(r) == []
+
+
+def test_a_state_left_is_no_longer_active_for_a_guard_in_another_region(run):
+    """`active('A')` reads the configuration now: once R1 left A, a guard on it in R2 is
+    false (a left state must not keep answering as active)."""
+    r = run(
+        """
+        statechart: g
+        events: {leave: null, check: null}
+        initial: P
+        states:
+          - name: P
+            type: parallel
+            states:
+              - name: R1
+                initial: A
+                states: [{name: A, transitions: [{event: leave, target: A2}]}, {name: A2}]
+              - name: R2
+                initial: B
+                states:
+                  - name: B
+                    transitions:
+                      - {event: check, guard: "active('A')", target: C}
+                  - {name: C}
+        """,
+        validate=False,
+    )
+    assert r.interpreter.is_active("A")
+    r.send("leave", "check")
+    assert not r.interpreter.is_active("A")
+    assert r.leaves == ["P.R1.A2", "P.R2.B"], "the guard saw A left"
+
+
+def test_a_snapshot_keeps_the_time_left_for_an_awaited_configuration(chart):
+    """The configuration's timeout counts on after a restore, from where it was."""
+    from framework.clock import SimulatedClock
+    from framework.statechart.events import Trace
+
+    c = chart(CONFIG_OK)
+    a = Interpreter(c, SimulatedClock(50.0))
+    a.start()
+    a.advance(1.0)  # 2 s left of setup's 3 s
+    trace = Trace()
+    b = Interpreter(c, SimulatedClock(200.0), [trace])
+    b.restore(a.snapshot())
+    assert b.snapshot()["pending"] == {"Top.A": ["setup", pytest.approx(2.0)]}
+    b.advance(1.99)
+    assert b.leaves == ["Top.A"], "not timed out yet"
+    b.advance(0.02)
+    assert b.leaves == ["Failed"], "timed out 2 s after the restore"
