@@ -220,7 +220,9 @@ def _stop_after(run: SeegRun, t0: float, cause: float, reason: str) -> Trial:
         run,
         "supervisor/halt",
         t0,
-        lambda m: str(m.payload.get("reason", "")).startswith(reason),
+        # a STOP stamped before its cause is not its effect (a "no tracker" while the
+        # recovered tracker was still in the Sensor Manager's hysteresis, say)
+        lambda m: m.stamp >= cause and str(m.payload.get("reason", "")).startswith(reason),
         "STOP command",
     )
     brake = _first(
@@ -267,13 +269,10 @@ def _stages(start: float, marks: list[tuple[str, float | None]]) -> dict[str, fl
 
 
 def _healthy(run: SeegRun, tracker: str, timeout: float = 10.0) -> None:
-    """Wait until `tracker` is healthy and in use again: a recovered tracker is used only
-    after the Sensor Manager's hysteresis, and a trial started in between sees "no
-    tracker" before its own fault (a STOP before its cause: a negative latency)."""
     deadline = time.monotonic() + timeout
     while True:
         status = run.call("sensor_manager.current")
-        if status.get("health", {}).get(tracker, {}).get("ok") and status.get("best") == tracker:
+        if status.get("health", {}).get(tracker, {}).get("ok"):
             return
         if time.monotonic() > deadline:
             raise BenchError(f"{tracker} did not recover in {timeout:g} s")
