@@ -77,7 +77,7 @@ class SupervisorCore:
     sensor_limits: dict[str, dict[str, float]] = field(default_factory=dict)
     robot_fault: str = ""
     steering: str | None = None  # whose samples steer the navigator (None: they stopped)
-    swapping_to: str | None = None  # named by the last e_TFAULT, until it steers
+    swapping_to: str | None = None  # named by the last e_TFAULT or e_TOK, until it steers
     speed: str = ""  # the speed the chart last asked for (fast, slow)
     goal_positions: dict[str, tuple[float, float, float]] = field(default_factory=dict)
     patient_refused: str = ""
@@ -167,9 +167,13 @@ class SupervisorCore:
 
     # --- answers and commands --------------------------------------------------------
     def report_best_tracker(self) -> Event:
-        """e_TOK with the best tracker, or e_NOTRACKER."""
+        """e_TOK with the best tracker, or e_NOTRACKER. The tracker e_TOK names is the
+        one the chart connects: it is watched from now on, before its first sample
+        steers (one that fails in between is no tracker, not silence)."""
         if self.best is None:
             return ("e_NOTRACKER", {})
+        if self.in_use != self.best:
+            self.swapping_to = self.best
         return ("e_TOK", {"tracker": self.best})
 
     def limits(self, speed: str) -> dict[str, float]:

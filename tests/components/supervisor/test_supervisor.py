@@ -97,6 +97,25 @@ def test_a_tracker_failing_right_after_the_swap_to_it_is_reported_at_once():
     assert c.in_use == "vicra" and c.tracking("vicra", sick) == []
 
 
+def test_a_tracker_failing_after_e_tok_and_before_its_first_sample_steers_is_no_tracker():
+    """After No_Tracker and RELEASE the chart asks for the best tracker and connects the
+    one e_TOK names; if it fails before its first sample reaches the navigator, the robot
+    would move with no tracker and nobody saying so (found by the bench)."""
+    c = core()
+    steer(c, "certus")
+    assert c.tracking(None, {}) == [("e_NOTRACKER", {})]
+    c.navigation(None, {})  # its samples stopped
+    assert c.tracking("certus", HEALTHY) == [], "no tracker in use: nothing to swap"
+    assert c.report_best_tracker() == ("e_TOK", {"tracker": "certus"})
+    assert c.tracking(None, {"certus": {"ok": False, "cause": "cto_missing"}}) == [
+        ("e_NOTRACKER", {})
+    ]
+    c = core()
+    steer(c, "certus")
+    assert c.report_best_tracker() == ("e_TOK", {"tracker": "certus"})
+    assert c.tracking("certus", HEALTHY) == [], "the tracker in use, still in use"
+
+
 def test_a_better_tracker_coming_back_is_reported_as_a_swap():
     c = core()
     c.tracking("vicra", {"certus": {"ok": False, "cause": "stale"}})
