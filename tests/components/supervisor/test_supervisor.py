@@ -336,6 +336,33 @@ def test_the_same_tracker_connected_again_after_its_samples_stopped_is_in_use_ag
     assert c.in_use == "certus"
 
 
+def decoded(name: str) -> str:
+    """A tracker name as it arrives from the bus: equal to, not the same object as, any
+    other copy of it (each message decodes its own string)."""
+    copy = json.loads(json.dumps(name))
+    assert copy == name and copy is not name
+    return copy
+
+
+def test_tracker_names_from_different_messages_are_the_same_tracker():
+    """The Sensor Manager's status and the navigator's samples each carry their own copy
+    of a name: the Supervisor compares names, never string objects."""
+    c = core()
+    steer(c, decoded("certus"))
+    assert c.tracking(None, {}) == [("e_NOTRACKER", {})]
+    c.tracking(decoded("certus"), HEALTHY)
+    assert c.report_best_tracker() == ("e_TOK", {"tracker": "certus"})
+    steer(c, decoded("certus"))  # its samples steer again, under the same name
+    assert c.in_use == "certus" and c.swapping_to is None
+    c = core()
+    steer(c, decoded("certus"))
+    c.limits("fast")
+    c.tracking(decoded("certus"), HEALTHY)
+    assert c.report_best_tracker() == ("e_TOK", {"tracker": "certus"})
+    assert c.swapping_to is None, "the tracker in use is not a swap"
+    assert steer(c, decoded("certus")) == ([], False), "nothing new: no limits to resend"
+
+
 def test_a_new_tracker_steering_asks_for_its_limits_once_a_speed_was_chosen():
     c = core()
     assert steer(c, "certus") == ([], False), "no speed chosen yet: nothing to resend"
