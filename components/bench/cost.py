@@ -29,14 +29,6 @@ from framework.messages import ArmState
 
 TICK = os.sysconf("SC_CLK_TCK")
 BUSY_LOOP = "while True: pass"
-TASK_STATES = (
-    "Wait_Start",
-    "Moving_Fast",
-    "Moving_Slow",
-    "Target_Reached",
-    "Stopped",
-    "No_Tracker",
-)
 
 
 def cpu_seconds(pid: int) -> float:
@@ -113,7 +105,7 @@ def idle_and_moving(
     measured over `seconds`, with `load` busy loops on the host. Leaves the robot
     moving (the next experiment takes it from there)."""
     run.wait_state("Wait_Start", 60.0)
-    state = run.last_entered(TASK_STATES)
+    state = run.task_state()
     if state != "Wait_Start":
         raise BenchError(f"cost measures the robot waiting for START first; it is in {state}")
     loops = busy_loops(load)

@@ -42,16 +42,6 @@ class Trial:
     detail: dict[str, Any] = field(default_factory=dict)
 
 
-TASK_STATES = (
-    "Wait_Start",
-    "Moving_Fast",
-    "Moving_Slow",
-    "Target_Reached",
-    "Stopped",
-    "No_Tracker",
-)
-
-
 def _first(
     run: SeegRun, key: str, after: float, test: Any, what: str, timeout: float = 10.0
 ) -> Sample:
@@ -74,16 +64,12 @@ def _failed(tracker: str) -> Any:
     return test
 
 
-def _last_task_state(run: SeegRun) -> str:
-    return run.last_entered(TASK_STATES)
-
-
 def keep_moving(run: SeegRun, goal: list[str]) -> None:
     """Make sure the robot is on its way: START, or Go To the other goal once there
     (`goal` holds the current goal and is flipped)."""
     deadline = time.monotonic() + MOVE_TIMEOUT
     while True:
-        state = _last_task_state(run)
+        state = run.task_state()
         if state in ("Moving_Fast", "Moving_Slow"):
             return
         if time.monotonic() > deadline:
@@ -99,7 +85,7 @@ def keep_moving(run: SeegRun, goal: list[str]) -> None:
             run.send("e_RELEASE")
         for _ in range(100):
             time.sleep(0.01)
-            if _last_task_state(run) != state:
+            if run.task_state() != state:
                 break
 
 
@@ -283,7 +269,7 @@ def _back_to(run: SeegRun, tracker: str, timeout: float = 10.0) -> None:
     """Wait until the chart navigates with `tracker` again (or left Moving)."""
     deadline = time.monotonic() + timeout
     while _tracker_in_use(run) != tracker:
-        if _last_task_state(run) not in ("Moving_Fast", "Moving_Slow"):
+        if run.task_state() not in ("Moving_Fast", "Moving_Slow"):
             return
         if time.monotonic() > deadline:
             raise BenchError(f"the chart did not return to {tracker}")

@@ -30,6 +30,15 @@ from framework.topology import load_topology
 
 REPO = Path(__file__).resolve().parents[2]
 TOPOLOGY = REPO / "topologies" / "seeg.yaml"
+TASK_STATES = (
+    "Wait_Start",
+    "Moving_Fast",
+    "Moving_Slow",
+    "Target_Reached",
+    "Stopped",
+    "No_Tracker",
+)
+"""The SEEG chart's task states: where the procedure stands between experiments."""
 
 WATCHED: dict[str, type] = {
     "sensor_manager/status": EventMessage,  # t_trackerfail: the verdict's stamp
@@ -215,6 +224,10 @@ class SeegRun:
     def last_entered(self, names: tuple[str, ...]) -> str:
         """The most recently entered of `names` ("" if none yet)."""
         return self._last_of(self._states.entered, names)
+
+    def task_state(self) -> str:
+        """The task state the chart entered last ("" before any)."""
+        return self.last_entered(TASK_STATES)
 
     def _last_of(self, history: list[tuple[str, float]], names: tuple[str, ...]) -> str:
         with self._states.changed:

@@ -47,14 +47,17 @@ class CameraConfigError(LocatedError):
 def load_cameras(path: str) -> DetectorConfig:
     """The detector configuration, from YAML."""
     doc = load_yaml(path)
-    for name, spec in ((doc.data or {}).get("cameras") or {}).items():
-        if isinstance(spec, dict) and "key" in spec:
-            raise CameraConfigError(
-                f"camera {name!r}: 'key' is no longer read: the topology wires the "
-                f"detector's port camera_{name} (connections:), so fw validate and fw ls "
-                "see it; delete 'key' here",
-                doc.location(("cameras", name, "key")),
-            )
+    schema.refuse_retired(
+        doc,
+        "cameras",
+        "key",
+        CameraConfigError,
+        lambda name: (
+            f"camera {name!r}: 'key' is no longer read: the topology wires the "
+            f"detector's port camera_{name} (connections:), so fw validate and fw ls "
+            "see it; delete 'key' here"
+        ),
+    )
     schema.require(doc, SCHEMA, CameraConfigError)
     data = doc.data
     master = data.get("master", next(iter(data["cameras"])))

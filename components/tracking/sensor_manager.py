@@ -108,14 +108,17 @@ class SensorsConfig:
 def load_sensors(path: str | Path) -> SensorsConfig:
     """Read a sensors YAML; every error names file:line and the field."""
     doc = load_yaml(path)
-    for name, spec in ((doc.data or {}).get("sensors") or {}).items():
-        if isinstance(spec, dict) and "keys" in spec:
-            raise SensorConfigError(
-                f"sensor {name!r}: 'keys' are no longer read: the topology wires the "
-                f"Sensor Manager's ports {name}_cto and {name}_rto (connections:), so "
-                "fw validate and fw ls see them; delete 'keys' here",
-                doc.location(("sensors", name, "keys")),
-            )
+    schema.refuse_retired(
+        doc,
+        "sensors",
+        "keys",
+        SensorConfigError,
+        lambda name: (
+            f"sensor {name!r}: 'keys' are no longer read: the topology wires the "
+            f"Sensor Manager's ports {name}_cto and {name}_rto (connections:), so "
+            "fw validate and fw ls see them; delete 'keys' here"
+        ),
+    )
     schema.require(doc, SCHEMA, SensorConfigError)
     data = doc.data
 

@@ -201,6 +201,21 @@ def require(document: Document, name: str, error: type[LocatedError], finite: bo
         raise error(first.message + more, first.location, first.hint)
 
 
+def refuse_retired(
+    document: Document,
+    section: str,
+    field: str,
+    error: type[LocatedError],
+    why: Callable[[str], str],
+) -> None:
+    """Raise `error` at the first entry of `section` that still sets `field`, a field an
+    earlier version read and this one would silently ignore; `why(entry)` says what
+    replaced it. Checked before the schema, whose "unknown field" would not say why."""
+    for entry, spec in ((document.data or {}).get(section) or {}).items():
+        if isinstance(spec, dict) and field in spec:
+            raise error(why(str(entry)), document.location((section, entry, field)))
+
+
 def check(document: Document, name: str) -> list[Finding]:
     """Every violation of schema `name` in the document, located (empty if valid)."""
     if is_valid(document.data, name):

@@ -191,9 +191,13 @@ def test_hosts_give_the_addresses_processes_listen_on_and_certificates_name(writ
     assert topology.addresses() == ["127.0.0.1", "10.0.0.1", "10.0.0.7"]
 
 
-def seeg_with(tmp_path, sensors_text=None, cameras_text=None):
-    """The SEEG topology, its sensors or cameras file replaced by the given text."""
+def seeg_with(tmp_path, sensors_text=None, cameras_text=None, rewire=None):
+    """The SEEG topology, its sensors or cameras file replaced by the given text; with
+    `rewire` (old, new), one of its connection lines replaced."""
     text = (REPO / "topologies" / "seeg.yaml").read_text(encoding="utf-8")
+    if rewire is not None:
+        assert rewire[0] in text, rewire[0]
+        text = text.replace(*rewire)
     text = text.replace("../statecharts/", f"{REPO}/statecharts/")
     text = text.replace("procedure: ../procedures", f"procedure: {REPO}/procedures")
     for name, replaced in (("sensors", sensors_text), ("cameras", cameras_text)):
@@ -235,26 +239,22 @@ def test_a_sensor_added_to_the_file_but_not_wired_is_an_error_that_says_what_to_
 
 
 def test_a_file_port_fed_by_another_device_than_the_file_names_is_a_warning(tmp_path):
-    path = seeg_with(tmp_path)
-    text = path.read_text().replace(
+    rewired = (
         "{port: sensor_manager.certus_rto, from: certus.rto}",
         "{port: sensor_manager.certus_rto, from: vicra.rto}",
     )
-    path.write_text(text)
-    _, found = check_topology(path)
+    _, found = check_topology(seeg_with(tmp_path, rewire=rewired))
     wrong = [f for f in found if f.code == "file-links"]
     assert [f.severity for f in wrong] == ["warning"]
     assert "sensor_manager.certus_rto" in wrong[0].message and "reads vicra.rto" in wrong[0].message
 
 
 def test_a_file_port_wired_to_the_wrong_message_type_is_an_error(tmp_path):
-    path = seeg_with(tmp_path)
-    text = path.read_text().replace(
+    rewired = (
         "{port: people_detector.camera_kinect_1, from: kinect_1.users}",
         "{port: people_detector.camera_kinect_1, from: certus.cto}",
     )
-    path.write_text(text)
-    _, found = check_topology(path)
+    _, found = check_topology(seeg_with(tmp_path, rewire=rewired))
     wrong = [f for f in found if f.code == "type-mismatch"]
     assert len(wrong) == 1
     assert wrong[0].message.startswith("people_detector.camera_kinect_1 (Skeletons)")
