@@ -88,9 +88,10 @@ class Activity:
         )
 
     def check(self, component: Component) -> None:
-        """Refuse event ports the component does not have."""
+        """Refuse event ports the component does not have (a port its unreadable file
+        would declare is let through: its configure fails and says why)."""
         for name in self.ports:
-            if name not in component.inputs:
+            if name not in component.inputs and not component.file_error:
                 known = ", ".join(sorted(component.inputs)) or "none"
                 raise ActivityError(
                     f"{component.name}: event activity names unknown input "
@@ -147,8 +148,7 @@ class RealTimeExecutor:
             self._followers.setdefault(activity.master, []).append(component)
         if activity.kind == "event":
             wake = self._wake[component.name] = threading.Event()
-            for name in activity.ports:
-                component.inputs[name].on_data = lambda _port, w=wake: w.set()
+            component.wake_on(activity.ports, lambda _port, w=wake: w.set())
         if self._threads:
             self._spawn(component, activity)
 
@@ -174,7 +174,7 @@ class RealTimeExecutor:
             component.update()
             for follower in self._followers.get(component.name, ()):
                 follower.update()
-            deadline += period
+            deadline += period * max(1, int(component.periods_per_update))
             delay = deadline - time.monotonic()
             if delay < 0:  # overrun: skip missed periods instead of bunching them up
                 missed = int(-delay // period) + 1
@@ -185,13 +185,14 @@ class RealTimeExecutor:
 
     def _event(self, component: Component, activity: Activity) -> None:
         wake = self._wake[component.name]
-        ports = [component.inputs[name] for name in activity.ports]
         idle = _idle_period(component, activity)
         while not self._stop.is_set():
-            if not wake.wait(idle):
+            within = component.idle_within
+            if not wake.wait(idle if within is None else min(idle, max(within, 0.0005))):
                 component.idle()
                 continue
             wake.clear()
+            ports = [component.inputs[n] for n in activity.ports if n in component.inputs]
             while any(p.pending() for p in ports) and not self._stop.is_set():
                 before = sum(p.pending() for p in ports)
                 component.update()
@@ -250,7 +251,11 @@ class SteppedExecutor:
         """Update event-driven components that have unread data, until none has."""
         updates = 0
         for _ in range(limit):
-            ready = [c for c, ports in self._event if any(c.inputs[p].pending() for p in ports)]
+            ready = [
+                c
+                for c, ports in self._event
+                if any(c.inputs[p].pending() for p in ports if p in c.inputs)
+            ]
             if not ready:
                 break
             for component in ready:
@@ -274,8 +279,10 @@ class SteppedExecutor:
             if period < 0:  # an event-driven component's idle beat (see `add`)
                 component.idle()
                 updates += self.run_pending()
+                step = abs(period)
             else:
                 updates += self._update(component) + self.run_pending()
-            heapq.heappush(self._periodic, (deadline + abs(period), order, component, period))
+                step = period * max(1, int(component.periods_per_update))
+            heapq.heappush(self._periodic, (deadline + step, order, component, period))
         self.clock.set(max(end, self.clock.now()))  # a deadline within rounding of `end` ran
         return updates

@@ -237,6 +237,9 @@ class Bus:
         """Subscribe to `key`; with `history`, the last cached sample arrives at once;
         `remote_only` ignores this session's own publications."""
         where = zenoh.Locality.REMOTE if remote_only else None
+        # On Zenoh's network thread: a port's delivery is short (decode, queue, wake),
+        # and the default thread per subscriber cost a hand-over per sample.
+        callback = zenoh.handlers.Callback(callback, indirect=False)
         if history:
             return zenoh.ext.declare_advanced_subscriber(
                 self.session,

@@ -189,6 +189,14 @@ class Component:
     hosts_safety_monitor = False
     """True if the component runs a `SafetyMonitor` in its control loop (see
     framework/safety.py): a topology may then name it as its `safety: monitor:`."""
+    idle_within: float | None = None
+    """An event-driven component's next idle tick comes at most this long after its last
+    update (s; None: the activity's `idle`): a component that knows when its inputs fall
+    due (a tracker's staleness deadline) wakes then, not on a fixed beat."""
+    periods_per_update = 1
+    """A periodic component's next update comes this many periods later (it then does
+    that many periods' work): a controller in monitor mode wakes less often than in
+    command mode (RTT: an activity's period changed at run time)."""
 
     def __init__(self, name: str):
         if not name.isidentifier():
@@ -213,6 +221,7 @@ class Component:
         self.file_error = ""
         """Why the ports its configuration files declare could not be (see file_ports)."""
         self._awaited: dict[str, tuple[str, ConnPolicy | None]] = {}
+        self._wakes: dict[str, Callable[[Any], None]] = {}
         """Set by the container when the topology watches this component."""
         self.safety: Any = None
         """The `SafetyMonitor` the container attaches if the topology names this component
@@ -276,12 +285,21 @@ class Component:
                     wanted.port, wanted.type, f"declared by {wanted.source}", wanted.policy
                 )
                 port.owner, port.bus = self.name, self.bus
+                port.on_data = self._wakes.get(wanted.port)
                 self.inputs[wanted.port] = port
                 awaited = self._awaited.pop(wanted.port, None)
                 if awaited is not None:
                     port.connect(*awaited)
             ports.append(port)
         return ports
+
+    def wake_on(self, ports: tuple[str, ...], callback: Callable[[Any], None]) -> None:
+        """Call `callback(port)` when any of these inputs receives a sample (an event
+        activity's wake); a port its file declares later gets it when created."""
+        for name in ports:
+            self._wakes[name] = callback
+            if name in self.inputs:
+                self.inputs[name].on_data = callback
 
     def await_connection(self, port: str, key: str, policy: ConnPolicy | None = None) -> None:
         """Wire a port its file will declare once the file can be read (the topology's

@@ -91,9 +91,11 @@ class Container:
         if name in self.components:
             raise ContainerError(f"container {self.name!r} already hosts {name!r}")
         activity = activity or Activity()
-        activity.check(component)
         if properties:
             component.set_properties(properties)
+        with contextlib.suppress(FwError):  # a file that cannot be read fails configure
+            component.file_ports()  # wired like the class's own inputs
+        activity.check(component)
         component.bus = self.bus
         component.clock = self.executor.clock
         if heartbeat:
@@ -111,8 +113,6 @@ class Container:
             )
         for port in (*component.inputs.values(), *component.outputs.values()):
             port.bus = self.bus
-        with contextlib.suppress(FwError):  # a file that cannot be read fails configure
-            component.file_ports()  # wired like the class's own inputs
         for port in component.outputs.values():
             key = (outputs or {}).get(port.name, keys.default_output(name, port.name))
             self._connect_output(component, port.name, key)

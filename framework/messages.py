@@ -55,13 +55,16 @@ class Pose:
 
 @dataclass(frozen=True, slots=True)
 class JointState:
-    """Joint positions (rad), velocities (rad/s) and torques (N·m) of the arm."""
+    """Joint positions (rad), velocities (rad/s) and torques (N·m) of the arm, and how
+    many of the controller's cycles passed since the previous state (1 in command mode,
+    more in monitor mode; 0: not said): a follower keeps the arm's time by it."""
 
-    LAYOUT: ClassVar[str] = "stamp:f64 position:f64[] velocity:f64[] effort:f64[]"
+    LAYOUT: ClassVar[str] = "stamp:f64 position:f64[] velocity:f64[] effort:f64[] cycles:i64"
     stamp: float = 0.0
     position: tuple[float, ...] = ()
     velocity: tuple[float, ...] = ()
     effort: tuple[float, ...] = ()
+    cycles: int = 0
 
 
 @dataclass(frozen=True, slots=True)

@@ -55,6 +55,11 @@ class ClassInfo:
     """Operations that change nothing (`@operation(readonly=True)`)."""
 
 
+def _declares_file_inputs(cls: type) -> bool:
+    """True if a component class declares input ports from its own files."""
+    return getattr(cls.file_inputs, "__func__", None) is not Component.file_inputs.__func__
+
+
 @dataclass
 class ComponentSpec:
     """One component of the topology."""
@@ -261,7 +266,8 @@ class _Loader:
             info = self.import_class(spec["class"], (*here, "class"))
             try:
                 activity = Activity.from_spec(spec.get("activity"))
-                if info is not None:
+                declares_own = info is not None and _declares_file_inputs(info.cls)
+                if info is not None and not declares_own:  # else: once its files are read
                     for port in activity.ports:
                         if port not in info.inputs:
                             raise ActivityError(
@@ -377,6 +383,18 @@ class _Loader:
                     continue
                 spec.file_inputs[link.port] = link
                 topo.file_links.append((spec.name, link))
+        for spec in topo.components.values():
+            if spec.info is None or not _declares_file_inputs(spec.info.cls):
+                continue
+            for port in spec.activity.ports:
+                if port not in spec.info.inputs and port not in spec.file_inputs:
+                    known = sorted([*spec.info.inputs, *spec.file_inputs])
+                    self.error(
+                        "activity",
+                        f"event activity names unknown input port {port!r} of {spec.name!r} "
+                        f"(inputs: {', '.join(known) or 'none'})",
+                        ("components", spec.name, "activity"),
+                    )
 
     def file_links(self, topo: Topology, data: dict[str, Any]) -> None:
         """Every input a component's file declares is connected by `connections:`, or its

@@ -10,6 +10,9 @@ pulling the FRI cable would:
   encoders' joints, the TCP its nominal model computes from them, brakes, latch) and,
   at `truth_rate`, the ground-truth `tcp` that the simulated OR's trackers observe:
   with `model_errors: lwr4` the two differ by a few millimetres, as a real arm's do;
+  while braked it runs `monitor_cycles` cycles per update and publishes once per
+  update (FRI's monitor mode: nothing is commanded, nothing moves), which is what
+  keeps the idle deployment cheap; released, every cycle again (command mode);
 * joint setpoints arrive on `command`; brake, release, reset and mode requests on
   `request` (the FRI commands that switch the controller's mode);
 * **command watchdog**: released and being commanded, no setpoint for
@@ -65,6 +68,13 @@ class ArmController(Component):
     commander = prop(str, "", doc="component whose lost link brakes the arm ('' for none)")
     lockstep_ms = prop(
         float, 2.0, unit="ms", min=0.0, max=100.0, doc="wait for a late setpoint (0: never)"
+    )
+    monitor_cycles = prop(
+        int,
+        10,
+        min=1,
+        max=40,
+        doc="while braked (FRI monitor mode), cycles per update and per measured state",
     )
     truth_rate = prop(
         float, 200.0, unit="Hz", min=1.0, max=1000.0, doc="how often the ground-truth tcp goes out"
@@ -146,11 +156,16 @@ class ArmController(Component):
         if self._link_lost:
             reason, self._link_lost = self._link_lost, ""
             self._brake(reason, latch=True)
-        arm.step()  # the command watchdog may brake
+        steps = self.periods_per_update  # the cycles since the last update
+        for _ in range(steps):
+            arm.step()  # the command watchdog may brake
         if arm.braked and not was_braked and arm.reason.startswith(SELF_BRAKES):
             self.latched = self.latched or arm.reason
-        self.cycle += 1
-        self._publish()
+        self.cycle += steps
+        # Braked, nothing moves and nothing is commanded: report every few cycles (FRI's
+        # monitor mode); released, every cycle again (command mode).
+        self.periods_per_update = self.monitor_cycles if arm.braked else 1
+        self._publish(steps)
 
     def _serve(self, request: EventMessage) -> None:
         payload = request.payload or {}
@@ -171,7 +186,7 @@ class ArmController(Component):
             except ValueError as exc:
                 self.refused = str(exc)
 
-    def _publish(self) -> None:
+    def _publish(self, steps: int = 1) -> None:
         arm, stamp = self.arm, time.time()
         q = arm.q
         nominal = self.kinematics.tcp(q)
@@ -190,7 +205,8 @@ class ArmController(Component):
                 self.latched or arm.reason,
             )
         )
-        if self.cycle % max(1, round(1000.0 / self.truth_rate)) == 0:  # trackers sample slower
+        every = max(1, round(1000.0 / self.truth_rate))
+        if self.cycle % every < steps:  # a multiple of `every` was passed: trackers sample slower
             tcp = arm.tcp()
             position = tuple(float(v) for v in tcp[:3, 3])
             quaternion = matrix_to_quat(tcp[:3, :3])

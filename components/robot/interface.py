@@ -103,6 +103,7 @@ class RobotInterface(Component):
         self._still_cycles = 0
         self._reported: tuple[Any, ...] | None = None
         self._last_status = -math.inf
+        self._published_cycle = 0
         self.peak_step = 0.0  # the largest setpoint step seen, in rated joint velocities
         return True
 
@@ -232,7 +233,10 @@ class RobotInterface(Component):
 
     def _publish(self, state: ArmState) -> None:
         stamp = time.time()
-        self.joints.write(JointState(stamp, state.position, state.velocity, state.effort))
+        previous = self._published_cycle
+        cycles = state.cycle - previous if 0 < previous < state.cycle else 1
+        self._published_cycle = state.cycle
+        self.joints.write(JointState(stamp, state.position, state.velocity, state.effort, cycles))
         x, y, z, qw, qx, qy, qz = state.tcp
         self.tcp.write(Pose((x, y, z), (qw, qx, qy, qz), stamp, 0.0, 0, True, "base", "tcp"))
         self._publish_status(state)

@@ -56,6 +56,10 @@ from framework.messages import EventMessage, JointState, Pose
 from framework.ports import ReadStatus
 from framework.properties import prop
 
+MAX_STEPS_PER_STATE = 40
+"""At most this many 1 ms steps for one measured state (the arm's monitor mode reports
+every 10 cycles; a longer gap is a stall, not time to catch up on)."""
+
 
 class Phase(Enum):
     """What the interpolator is doing."""
@@ -421,7 +425,10 @@ class CartesianInterpolator(Component):
                 self.last_error = f"the arm lags the command by {np.degrees(lag):.1f} deg"
                 core.sync(np.asarray(measured.position))
                 core.stop()
-            q = core.step()
+            # one step per cycle of the arm: braked, its controller reports every few
+            # cycles (monitor mode) and a motion nobody executes still lags at once
+            for _ in range(min(max(1, measured.cycles), MAX_STEPS_PER_STATE)):
+                q = core.step()
             phase = core.phase
         stamp = time.time()
         self.setpoint.write(JointState(stamp, tuple(q.tolist())))
@@ -548,7 +555,9 @@ class CartesianInterpolator(Component):
         tracker swap re-applies the goto configuration: it must not cut the motion
         short) unless `force`: after a stop the robot side imposed, whatever motion the
         interpolator was still playing is void, and its next setpoint must be where the
-        arm stands, or the arm's setpoint guard brakes again at once."""
+        arm stands, or the arm's setpoint guard brakes again at once. That setpoint goes
+        out now, not at the next update: the release that follows may reach the arm
+        first, and the robot interface must then find this one, not the void motion's."""
         with self._core_lock:
             core = self._core()
             if force or not core.moving:
@@ -556,6 +565,7 @@ class CartesianInterpolator(Component):
                 if status is not ReadStatus.NO_DATA:
                     core.sync(np.asarray(measured.position))
                     self._goal_name = ""
+                    self.setpoint.write(JointState(time.time(), tuple(core.q.tolist())))
             return self.report()
 
     @operation(readonly=True)

@@ -67,6 +67,9 @@ from framework.yamlio import load_yaml
 
 KINEMATICS_MEMORY = 1.0  # s of robot poses kept to match the samples' stamps
 STATUS_PERIOD = 0.5  # s between tracking statuses when nothing changes (a change: at once)
+STALE_MARGIN = 0.001
+"""Event-driven, the Sensor Manager looks again this long after a staleness deadline (s):
+a sample exactly at the limit is not stale yet."""
 CAUSES = ("no_data", "cto_missing", "rto_missing", "stale", "corrupt", "calibration")
 
 
@@ -367,6 +370,16 @@ class SensorManagerCore:
             )
         raise AssertionError(code)  # calibration verdicts are built by _check_calibration
 
+    def due_in(self, now: float) -> float | None:
+        """How long until a sensor that is not stale yet becomes stale if nothing more
+        arrives (s; None: every sensor is stale or has never sent): when to look again
+        without a sample to wake on."""
+        n = self._n
+        at = self._rows[:, 8]
+        deadlines = np.minimum(at[:n], at[n:]) + self._stale_limit
+        ahead = deadlines[deadlines >= now]
+        return float(ahead.min() - now) if len(ahead) else None
+
     def evaluate(self, now: float) -> Decision:
         """One cycle: every sensor's health, the best sensor, the robot pose (eq. 3.5)."""
         rows = self._rows
@@ -568,7 +581,9 @@ def _tracker_inputs(config: SensorsConfig, file: str) -> list[tuple[str, str, Fi
 
 class SensorManager(Component):
     """Feeds `SensorManagerCore` from the trackers' ports and publishes its decisions,
-    once per cycle of its activity (the topology's `periodic:` rate)."""
+    once per cycle of its activity: periodic, or (cheaper) event-driven on the trackers'
+    ports, when it also wakes by itself just after the next staleness deadline, so a
+    tracker that falls silent is found as soon as its limit has passed."""
 
     sensors_file = prop(
         str, "", doc="sensors YAML (priorities, calibration, limits)", required=True
@@ -630,6 +645,13 @@ class SensorManager(Component):
             self.status.write(
                 EventMessage(time.time(), "tracking", self.name, self.describe_decision(decision))
             )
+        due = self.core.due_in(now)
+        status_due = self._last_status + STATUS_PERIOD - now
+        self.idle_within = status_due if due is None else min(due + STALE_MARGIN, status_due)
+
+    def idle_hook(self) -> None:
+        """No sample for a while (event-driven): a staleness deadline or the status is due."""
+        self.update_hook()
 
     def describe_decision(self, decision: Decision) -> dict[str, Any]:
         """The decision as plain data."""

@@ -44,6 +44,21 @@ def test_stepped_periodic_updates_happen_exactly_at_their_deadlines():
     assert clock.now() == pytest.approx(0.1)
 
 
+def test_a_periodic_component_may_ask_for_its_next_update_several_periods_later():
+    """A controller in monitor mode wakes every n periods and does n periods' work then;
+    back in command mode, every period again (the request is read after each update)."""
+    clock = SimulatedClock()
+    ex = SteppedExecutor(clock)
+    arm = Stamper("arm", clock)
+    ex.add(running(arm), Activity.periodic(100))
+    ex.advance(0.02)
+    arm.periods_per_update = 5
+    ex.advance(0.1)
+    arm.periods_per_update = 1
+    ex.advance(0.02)
+    assert arm.times == [0.01, 0.02, 0.03, 0.08, 0.13, 0.14]
+
+
 def test_stepped_runs_are_repeatable():
     def run():
         clock = SimulatedClock()

@@ -280,6 +280,10 @@ def test_a_forced_sync_restarts_from_where_the_arm_stands(robot):
     robot.cycle()
     report = robot.interp.call("sync", force=True)
     assert report["phase"] == "idle" and report["goal"] == "" and report["s"] == 0.0
+    said = robot.drain("setpoint")
+    assert said and np.allclose(said[-1].position, stands, atol=1e-9), (
+        "where it stands goes out at once: the release may reach the arm before the next update"
+    )
     robot.cycle()
     assert np.allclose(robot.q, stands, atol=1e-6), "the next setpoint is where it stands"
 

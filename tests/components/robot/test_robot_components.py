@@ -20,6 +20,9 @@ from tests.conftest import REPO, writer_port
 PROCEDURE = REPO / "procedures" / "seeg.yaml"
 SENSORS = REPO / "procedures" / "seeg" / "sensors.yaml"
 TARGET = np.array([0.60, 0.0, 0.12])  # on the patient at rest, in the robot base
+SERVED = 0.011
+"""Braked, the controller serves a request at its next update: within its monitor mode's
+10 cycles."""
 
 
 class Cell:
@@ -62,7 +65,7 @@ class Cell:
     def release(self) -> None:
         """What the goto configurations do before a motion."""
         self.robot.call("release")
-        self.run(0.003)  # the controller serves the request at its next cycle
+        self.run(SERVED)
         self.interp.call("sync")
 
     def tcp(self) -> np.ndarray:
@@ -186,7 +189,7 @@ def test_a_latched_stop_opens_only_with_acknowledge_then_release(cell):
     cell.run(0.5)
     assert cell.arm.call("report")["braked"], "a link that comes back restarts nothing"
     cell.robot.call("acknowledge")
-    cell.run(0.003)
+    cell.run(SERVED)
     assert cell.arm.call("report")["braked"], "acknowledge clears the latch, not the brakes"
     assert not cell.arm.call("report")["latched"]
     cell.release()
@@ -376,3 +379,22 @@ def test_limits_beyond_the_procedure_are_refused_and_the_old_ones_stay(cell, pee
     assert "over the procedure's 0.075" in said[0]["reason"]
     with pytest.raises(FwError, match="over the procedure"):
         cell.interp.call("set_limits", velocity=0.2)
+
+
+def test_a_braked_arm_reports_every_ten_cycles_and_every_cycle_once_released(cell):
+    """FRI's monitor mode: braked, nothing is commanded and nothing moves, so the
+    controller reports every 10 of its cycles (what keeps the idle deployment cheap);
+    its time still runs at one cycle per millisecond, and the robot interface says how
+    many cycles each state stands for, so the interpolator keeps the arm's time."""
+    assert cell.arm.call("report")["braked"]
+    cycle, written = cell.arm.call("report")["cycle"], cell.arm.measured.stats.written
+    cell.run(0.1)
+    assert cell.arm.call("report")["cycle"] - cycle == 100
+    assert cell.arm.measured.stats.written - written == 10
+    assert cell.robot.joints.last.cycles == 10
+    cell.release()
+    cycle, written = cell.arm.call("report")["cycle"], cell.arm.measured.stats.written
+    cell.run(0.1)
+    assert cell.arm.call("report")["cycle"] - cycle == 100
+    assert cell.arm.measured.stats.written - written == 100
+    assert cell.robot.joints.last.cycles == 1

@@ -177,6 +177,25 @@ def test_stale_detection_waits_the_configured_periods():
     assert world.run(0.010).health["certus"].cause == "stale"
 
 
+def test_it_says_when_a_silent_tracker_will_be_stale_so_it_need_not_poll():
+    """Event-driven, the Sensor Manager wakes on samples; with none coming it must still
+    look again once the earliest staleness limit has passed, and only then."""
+    world = World(stale_periods=2.0)
+    assert world.core.due_in(0.0) is None, "no sample yet: nothing falls due"
+    world.run(0.5)
+    world.faults["certus"] = "silent"
+    world.faults["vicra"] = "silent"
+    now = world.t
+    due = world.core.due_in(now)
+    assert 0.0 < due <= 0.0201, "the Certus (2 x 10 ms) falls due first"
+    assert world.core.evaluate(now + due - 0.001).best == "certus"
+    late = world.core.evaluate(now + due + 0.001)
+    assert late.health["certus"].cause == "stale"
+    vicra_due = world.core.due_in(now + due + 0.001)
+    assert vicra_due is not None and vicra_due > 0.0, "the Vicra (2 x 50 ms) is due later"
+    assert world.core.due_in(now + 1.0) is None, "every tracker stale: nothing more falls due"
+
+
 @settings(max_examples=60, deadline=None)
 @given(
     script=st.lists(

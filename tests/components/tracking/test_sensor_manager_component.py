@@ -45,14 +45,22 @@ def write_sensors(tmp_path, hysteresis=3):
     return path
 
 
-@pytest.fixture
-def rig(hub, peer, tmp_path):
+TRACKER_PORTS = ("certus_cto", "certus_rto", "vicra_cto", "vicra_rto")
+
+
+@pytest.fixture(
+    params=[Activity.periodic(200), Activity.event(*TRACKER_PORTS, idle=0.1)],
+    ids=["periodic", "event-driven"],
+)
+def rig(hub, peer, tmp_path, request):
+    """Two trackers and the Sensor Manager, polling at 200 Hz or woken by the ports its
+    sensors file declares (and by its own staleness deadlines)."""
     path = write_sensors(tmp_path)
     trackers, manager_side = Container("trackers", hub), Container("manager", peer)
     certus = trackers.add(TrackerSim("certus"), Activity.periodic(100), {"rig": "certus"})
     vicra = trackers.add(TrackerSim("vicra"), Activity.periodic(20), {"rig": "vicra", "seed": 1})
     manager = manager_side.add(
-        SensorManager("sensor_manager"), Activity.periodic(200), {"sensors_file": str(path)}
+        SensorManager("sensor_manager"), request.param, {"sensors_file": str(path)}
     )
     for tracker in ("certus", "vicra"):  # as the topology's connections wire them
         for tool in ("cto", "rto"):
@@ -90,7 +98,7 @@ def test_the_component_chooses_the_master_then_swaps_on_a_fault(rig):
     )
     vicra.call("corrupt_data")
     assert wait_until(lambda: best(manager) is None, timeout=5)
-    assert manager.robot_pose.stats.written > 10
+    assert manager.robot_pose.stats.written > 0, "the best sensor's view was published"
 
 
 def test_a_sensors_file_that_cannot_be_read_stops_configuration_with_its_location(hub, tmp_path):
