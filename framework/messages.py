@@ -148,6 +148,19 @@ class ConfigAck:
 
 
 @dataclass(frozen=True, slots=True)
+class Envelopes:
+    """Capsules around people (segments a-b as flat xyz triples, radii, base frame, m),
+    stamped with the oldest camera frame they come from: the robot keeps its distance
+    from them, and pays their age in distance."""
+
+    LAYOUT: ClassVar[str] = "stamp:f64 a:f64[] b:f64[] radius:f64[]"
+    stamp: float = 0.0
+    a: tuple[float, ...] = ()
+    b: tuple[float, ...] = ()
+    radius: tuple[float, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
 class Scalar:
     """One number with a time stamp (speeds, distances, counts)."""
 
@@ -168,6 +181,7 @@ CATALOG: dict[str, type] = {
         ConfigRequest,
         ConfigAck,
         Scalar,
+        Envelopes,
     )
 }
 BUILTINS: dict[str, type] = {"float": float, "int": int, "bool": bool, "str": str}

@@ -32,7 +32,7 @@ from framework import schema
 from framework.component import Component, FileInput, In, Out, operation
 from framework.errors import FwError, LocatedError
 from framework.filekinds import FileKind, schema_then
-from framework.messages import EventMessage, JointState, Scalar, Skeletons
+from framework.messages import Envelopes, EventMessage, JointState, Scalar, Skeletons
 from framework.ports import InputPort, ReadStatus
 from framework.properties import prop
 from framework.yamlio import load_yaml
@@ -123,6 +123,10 @@ class WorkspacePeopleDetector(Component):
     people = Out(EventMessage, doc="tracks: id, confirmed, cameras, torso position")
     users_near = Out(Scalar, doc="confirmed people inside the area around the table")
     min_distance = Out(Scalar, doc="closest robot-person distance (m; inf without a robot)")
+    envelopes = Out(
+        Envelopes,
+        doc="capsules the robot keeps its distance from, stamped with their oldest camera frame",
+    )
     joints = In(JointState, doc="robot joints: link capsules by Pinocchio forward kinematics")
 
     @classmethod
@@ -148,14 +152,18 @@ class WorkspacePeopleDetector(Component):
         self.kinematics: Any = None
         self.robot: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._people: list[Any] = []
+        self._seen_at = 0.0  # the oldest camera frame of the latest that arrived
         return True
 
     def update_hook(self) -> None:
-        users = {}
+        users, stamps = {}, []
         for name, port in self.camera_ports.items():
             status, message = port.read()
             if status is ReadStatus.NEW:  # a stopped camera contributes nothing
                 users[name] = from_message(message)
+                stamps.append(message.stamp)
+        if stamps:
+            self._seen_at = min(stamps)
         status, joints = self.joints.read()
         if status is ReadStatus.NEW:
             if self.kinematics is None:
@@ -168,7 +176,18 @@ class WorkspacePeopleDetector(Component):
         frame = self.core.process(users, now, self.robot)
         self._people = list(frame.people)
         stamp = time.time()
-        # the safety-relevant values go out first: the Supervisor stops on the distance
+        # the safety-relevant values go out first: the robot keeps its distance from the
+        # envelopes (their age is what it was seen, not now), the Supervisor stops on
+        # the distance
+        a, b, radius = self.core.envelopes(frame.guarded)
+        self.envelopes.write(
+            Envelopes(
+                self._seen_at,
+                tuple(a.ravel().tolist()),
+                tuple(b.ravel().tolist()),
+                tuple(radius.tolist()),
+            )
+        )
         self.min_distance.write(Scalar(stamp, frame.min_distance))
         self.users_near.write(Scalar(stamp, float(frame.users_near)))
         self.last = {

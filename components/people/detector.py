@@ -62,6 +62,9 @@ class Frame:
     rejected_joints: int
     suspects: list[Track] = field(default_factory=list)
     """Lasting single-camera detections from an unverified or suspect camera."""
+    guarded: list[Track] = field(default_factory=list)
+    """Whom the robot keeps its distance from (speed and separation monitoring): the
+    people (two cameras seeing someone confirm them in that frame) and the suspects."""
 
 
 Group = tuple[frozenset[str], np.ndarray, np.ndarray]
@@ -181,7 +184,21 @@ class PeopleDetectorCore:
         distance, closest = float("inf"), None
         if robot is not None and (confirmed or suspects):
             distance, closest = self._distances(confirmed + suspects, robot)
-        return Frame(tracks, confirmed, near, distance, closest, rejected, suspects)
+        guarded = confirmed + suspects
+        return Frame(tracks, confirmed, near, distance, closest, rejected, suspects, guarded)
+
+    def envelopes(self, guarded: list[Track]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The envelope capsules (p, q, radius; base frame, m) of `guarded` tracks, their
+        noise margin in the radii (an unknown sigma counts as 5 cm)."""
+        if not guarded:
+            empty = np.zeros((0, 3))
+            return empty, empty, np.zeros(0)
+        joints = np.stack([t.joints for t in guarded])
+        sigma = np.stack([t.sigma for t in guarded])
+        p, q, r, _, _ = envelopes(
+            joints, np.where(np.isnan(sigma), 0.05, sigma), self.config.margin_sigmas
+        )
+        return p, q, r
 
     def _update_trust(self, grouped: list[Group]) -> None:
         """Cameras seen fusing with a verified camera become verified; a verified camera

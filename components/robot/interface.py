@@ -18,7 +18,12 @@ Safety, fastest first (docs/safety.md):
 * the latch opens only through `acknowledge` (the operator's RELEASE, applied by the
   chart's `release` configuration) with every watched input healthy; `release` and
   every setpoint are refused while latched, so nothing but RELEASE restarts motion;
-* if this process dies or hangs, the arm's controller brakes by itself.
+* if this process dies or hangs, the arm's controller brakes by itself;
+* with people's `envelopes` wired, **speed and separation monitoring** runs every
+  cycle the arm is released (`separation.py`, ISO/TS 15066's protective separation
+  distance): a separation under it is a protective stop, latched like a trip, taken
+  in the cycle that measured it; before that, `speed_cap` slows the motion as people
+  approach (the interpolator takes it).
 
 `brake` and `release` are the procedure's brakes (waiting for START, holding at a
 goal): they do not latch.
@@ -33,12 +38,13 @@ from typing import Any
 
 import numpy as np
 
-from components.robot.lwr4 import POSITION_LIMIT, VELOCITY_LIMIT
+from components.robot.lwr4 import POSITION_LIMIT, VELOCITY_LIMIT, Kinematics
 from components.robot.safe_stop import SafeStop
+from components.robot.separation import CLEAR, SeparationMonitor, SsmParams, Verdict
 from components.tracking.geometry import matrix_to_quat
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError
-from framework.messages import ArmState, EventMessage, JointState, Pose
+from framework.messages import ArmState, Envelopes, EventMessage, JointState, Pose, Scalar
 from framework.ports import ReadStatus
 from framework.properties import prop
 
@@ -51,6 +57,7 @@ STILL_RAD_S = 2e-3  # rad/s: every joint slower than this...
 STILL_CYCLES = 50  # ...for this many cycles: the arm stands still (brake when still)
 STILL_TIMEOUT_CYCLES = 2000  # brake when still brakes anyway after 2 s
 STATUS_PERIOD = 0.5  # s between statuses when nothing changes (a change: at once)
+CAP_CHANGE = 0.02  # a speed cap that moved by less than this share is not sent again
 
 
 def tcp_message(tcp: np.ndarray, stamp: float, frame: str = "base") -> Pose:
@@ -82,7 +89,24 @@ class RobotInterface(Component):
         max=100.0,
         doc="joint deceleration of a protective stop",
     )
+    person_speed = prop(
+        float, 1.6, unit="m/s", min=0.1, max=5.0, doc="v_h of the protective distance (ISO 13855)"
+    )
+    detection_uncertainty = prop(
+        float, 0.02, unit="m", min=0.0, max=1.0, doc="Z_d: the envelopes' registration error"
+    )
+    robot_uncertainty = prop(
+        float, 0.005, unit="m", min=0.0, max=1.0, doc="Z_r: the arm's model error"
+    )
+    slow_band = prop(
+        float, 0.4, unit="m", min=0.0, max=5.0, doc="beyond S_p(0): the speed cap falls in it"
+    )
+    max_speed = prop(
+        float, 0.075, unit="m/s", min=0.001, max=0.25, doc="the cap far from everyone's band"
+    )
     measured = In(ArmState, doc="the controller's measured state, every cycle")
+    envelopes = In(Envelopes, doc="people's envelopes (speed and separation monitoring)")
+    speed_cap = Out(Scalar, doc="the TCP speed people allow (m/s; inf: none), on change")
     setpoint = In(JointState, doc="joint position setpoints (rad) from the interpolator")
     command = Out(JointState, doc="joint setpoints for the controller, one per cycle")
     arm_request = Out(EventMessage, doc="brake {reason, latch}, release, reset, mode {mode}")
@@ -105,6 +129,21 @@ class RobotInterface(Component):
         self._last_status = -math.inf
         self._published_cycle = 0
         self.peak_step = 0.0  # the largest setpoint step seen, in rated joint velocities
+        params = SsmParams(
+            person_speed=self.person_speed,
+            detection_uncertainty=self.detection_uncertainty,
+            robot_uncertainty=self.robot_uncertainty,
+            slow_band=self.slow_band,
+        )
+        self._ssm = SeparationMonitor(params, self.max_speed)
+        self._kinematics: Kinematics | None = None
+        self._people: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._seen_at = 0.0
+        self._tcp_before: tuple[np.ndarray, int] | None = None
+        self.verdict: Verdict = CLEAR
+        self.closest = math.inf  # the least separation while released (m)
+        self._cap_sent = math.inf
+        self._quiet = 0  # cycles the separation need not be checked
         return True
 
     def stop_hook(self) -> None:
@@ -120,6 +159,7 @@ class RobotInterface(Component):
             self._commanding = False
             self._sent.clear()
         self._guard(state)
+        self._separation(state)
         if self._stop is not None:
             self._send(self._stop.step())
             if self._stop.done:
@@ -168,6 +208,70 @@ class RobotInterface(Component):
             reason = f"no setpoint for {self._since_setpoint} cycles (the interpolator stopped)"
         if reason:
             self._trip(reason, state)
+
+    def _separation(self, state: ArmState) -> None:
+        """Speed and separation monitoring, every cycle the arm is released: the stop
+        in this very cycle, the speed cap on change (module docstring)."""
+        status, message = self.envelopes.read()
+        if status is ReadStatus.NEW:
+            shape = (-1, 3)
+            self._people = (
+                np.asarray(message.a, dtype=float).reshape(shape),
+                np.asarray(message.b, dtype=float).reshape(shape),
+                np.asarray(message.radius, dtype=float),
+            )
+            self._seen_at = message.stamp
+            self._quiet = 0  # news: check now
+        if self._people is None or (state.braked and not self._commanding):
+            self._tcp_before = None
+            return
+        if len(self._people[2]) == 0:  # nobody in the room
+            self.verdict = CLEAR
+            self._send_cap(math.inf)
+            return
+        if self._quiet > 0:  # everyone far: nothing can change before the next check
+            self._quiet -= 1
+            return
+        if self._kinematics is None:
+            self._kinematics = Kinematics()
+        capsules = self._kinematics.capsules(np.asarray(state.position, dtype=float))
+        now = state.cycle * CYCLE
+        age = time.time() - self._seen_at
+        verdict = self._ssm.check((capsules.a, capsules.b, capsules.radius), self._people, age, now)
+        self.verdict = verdict
+        self.closest = min(self.closest, verdict.separation)
+        self._quiet = self._ssm.quiet_cycles(verdict, age, CYCLE)
+        if verdict.stop and not self.latched:
+            self._trip(
+                f"protective stop: a person {verdict.separation * 100:.1f} cm away, under "
+                f"the protective distance {verdict.protective * 100:.1f} cm at "
+                f"{verdict.robot_speed * 100:.1f} cm/s (envelope {age * 1000:.0f} ms old)",
+                state,
+            )
+        self._send_cap(self._tcp_cap(verdict, state))
+
+    def _tcp_cap(self, verdict: Verdict, state: ArmState) -> float:
+        """The cap in TCP speed: the link point the cap is for may move faster than the
+        TCP the interpolator paces (an elbow swinging), so it shrinks by their ratio."""
+        tcp = np.asarray(state.tcp[:3], dtype=float)
+        before, self._tcp_before = self._tcp_before, (tcp, state.cycle)
+        if not math.isfinite(verdict.cap) or before is None or state.cycle <= before[1]:
+            return verdict.cap
+        tcp_speed = float(np.linalg.norm(tcp - before[0])) / ((state.cycle - before[1]) * CYCLE)
+        if tcp_speed < 1e-4 or verdict.robot_speed <= tcp_speed:
+            return verdict.cap
+        return verdict.cap * tcp_speed / verdict.robot_speed
+
+    def _send_cap(self, cap: float) -> None:
+        """Say a new cap; one within `CAP_CHANGE` of the last said is not news (0 and
+        no cap always are)."""
+        sent = self._cap_sent
+        if cap == sent or (
+            0.0 < cap < math.inf and 0.0 < sent < math.inf and abs(cap - sent) <= CAP_CHANGE * sent
+        ):
+            return
+        self._cap_sent = cap
+        self.speed_cap.write(Scalar(time.time(), cap))
 
     def _trip(self, reason: str, state: ArmState) -> None:
         self.latched = reason
@@ -337,7 +441,17 @@ class RobotInterface(Component):
             "time": round(state.cycle * CYCLE, 4),
             "q": [round(v, 5) for v in state.position],
             "peak_step": round(self.peak_step, 3),
+            "separation": _cm(self.verdict.separation),
+            "protective_distance": _cm(self.verdict.protective),
+            "link_speed": _cm(self.verdict.robot_speed),
+            "closest": _cm(self.closest),
+            "speed_cap": _cm(self._cap_sent),
         }
         if self.safety is not None:
             out["safety"] = self.safety.report()
         return out
+
+
+def _cm(metres: float) -> float | None:
+    """A distance or speed for a report, to the millimetre (None: unbounded)."""
+    return round(metres, 3) if math.isfinite(metres) else None

@@ -52,7 +52,7 @@ from components.robot.interface import tcp_message
 from components.robot.navigation import pose_from_list
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError
-from framework.messages import EventMessage, JointState, Pose
+from framework.messages import EventMessage, JointState, Pose, Scalar
 from framework.ports import ReadStatus
 from framework.properties import prop
 
@@ -124,6 +124,9 @@ class InterpolatorCore:
         self.offset = np.zeros(6)  # applied correction: translation (m), rotation vector (rad)
         self._wanted = np.zeros(6)  # the correction the goal asks for
         self._slowed = False
+        self.cap = math.inf
+        """The speed people nearby allow (m/s; speed and separation monitoring)."""
+        self._held = False  # moving, but standing on a cap of 0 until it rises
         self.max_correction = math.inf
         """How far (m; a rotation counts at `ROTATION_RADIUS`) a steered goal may lie
         from the goal the motion was planned to: farther, the correction stops there."""
@@ -197,8 +200,38 @@ class InterpolatorCore:
         if acceleration is not None:
             self.acceleration = _check_limit("acceleration", acceleration, self.MAX_ACCELERATION)
         if self.phase is Phase.MOVING:
-            self._in.max_velocity = [self._cruise()]
-            self._in.max_acceleration = [self.acceleration]
+            self._pace()
+
+    def set_cap(self, cap: float) -> None:
+        """The speed people nearby allow (m/s; inf: no cap; NaN counts as 0), effective
+        at once within the acceleration limit: under the Supervisor's limit it slows the
+        motion, at 0 the motion stands (unbraked) until the cap rises again."""
+        self.cap = max(0.0, cap) if not math.isnan(cap) else 0.0
+        if self.phase is Phase.MOVING:
+            self._pace()
+
+    def _allowed(self) -> float:
+        """The path's speed limit: the Supervisor's, or less where people are near."""
+        return min(self.velocity, self.cap)
+
+    def _pace(self) -> None:
+        """Apply the allowed speed to the motion under way: to 0 at the acceleration
+        limit and stand, or head on for the goal at that speed."""
+        if self._allowed() <= 0.0:
+            if not self._held:
+                self._held = True
+                self._in.control_interface = ControlInterface.Velocity
+                self._in.target_velocity = [0.0]
+                self._in.target_acceleration = [0.0]
+                self._in.max_acceleration = [self.acceleration]
+            return
+        if self._held:
+            self._held = False
+            slowed = self._slowed
+            self._position_control(self.length, self._allowed(), self.acceleration)
+            self._slowed = slowed
+        self._in.max_velocity = [self._cruise()]
+        self._in.max_acceleration = [self.acceleration]
 
     def stop(self) -> None:
         """Brake at full deceleration, then return to where the STOP was asserted.
@@ -248,7 +281,8 @@ class InterpolatorCore:
     # --- internals ---------------------------------------------------------------------
     def _cruise(self) -> float:
         """The path's velocity limit: less while a correction is pending."""
-        return self.velocity * (1.0 - self.STEER_SHARE) if self._slowed else self.velocity
+        allowed = self._allowed()
+        return allowed * (1.0 - self.STEER_SHARE) if self._slowed else allowed
 
     def _correction_size(self, error: np.ndarray) -> float:
         return max(
@@ -263,13 +297,13 @@ class InterpolatorCore:
         """Move the offset toward the wanted correction with the speed left this cycle."""
         error = self._wanted - self.offset
         size = self._correction_size(error)
-        budget = max(0.0, self.velocity * self.dt - path_step)
+        budget = max(0.0, self._allowed() * self.dt - path_step)
         if size > 0.0:
             self.offset = self.offset + error * min(1.0, budget / size)
         slowed = size > self.STEER_DEADBAND and self.phase is Phase.MOVING
         if slowed != self._slowed:
             self._slowed = slowed
-            if self.phase is Phase.MOVING:
+            if self.phase is Phase.MOVING and not self._held:
                 self._in.max_velocity = [self._cruise()]
 
     def _offset_pose(self, path: np.ndarray) -> np.ndarray:
@@ -302,8 +336,11 @@ class InterpolatorCore:
         if self.length < 1e-9:
             self.phase = Phase.REACHED
             return
-        self._position_control(self.length, self.velocity, self.acceleration)
+        self._held = False
+        self._position_control(self.length, max(self._allowed(), 1e-9), self.acceleration)
         self.phase = Phase.MOVING
+        if self._allowed() <= 0.0:
+            self._pace()
 
     def _position_control(self, target: float, velocity: float, acceleration: float) -> None:
         self._in.control_interface = ControlInterface.Position
@@ -316,6 +353,7 @@ class InterpolatorCore:
         self._slowed = False
 
     def _brake(self, phase: Phase) -> None:
+        self._held = False
         self._in.control_interface = ControlInterface.Velocity
         self._in.target_velocity = [0.0]
         self._in.target_acceleration = [0.0]
@@ -324,6 +362,8 @@ class InterpolatorCore:
         self.phase = phase
 
     def _finished(self) -> None:
+        if self.phase is Phase.MOVING and self._held:
+            return  # standing on a cap of 0, not at the goal
         if self.phase is Phase.MOVING:
             self.phase = Phase.REACHED
         elif self.phase is Phase.STOPPING:
@@ -333,8 +373,12 @@ class InterpolatorCore:
                 goal, self._pending = self._pending, None
                 self.pose = self._offset_pose(self._pose_at(self.s))
                 self._begin(goal)
-            elif self._return_after_stop and abs(self.s - self.stop_s) > 1e-9:
-                self._position_control(self.stop_s, self.velocity, self.acceleration)
+            elif (
+                self._return_after_stop
+                and abs(self.s - self.stop_s) > 1e-9
+                and self._allowed() > 0.0
+            ):
+                self._position_control(self.stop_s, self._allowed(), self.acceleration)
                 self.phase = Phase.RETURNING
             else:
                 self.phase = Phase.STOPPED
@@ -363,6 +407,7 @@ class CartesianInterpolator(Component):
     joints = In(JointState, doc="measured joints (from the robot interface)")
     limits = In(EventMessage, doc="new limits: payload {velocity, acceleration} (m/s, m/s^2)")
     halt = In(EventMessage, doc="STOP now (the Supervisor's reflex): any sample brakes")
+    speed_cap = In(Scalar, doc="the TCP speed people nearby allow (m/s; inf: none), robot side")
     goals = In(
         EventMessage,
         doc="where the goals are now (the navigator): the motion steers toward its goal; "
@@ -410,6 +455,9 @@ class CartesianInterpolator(Component):
             status, limits = self.limits.read()
             if status is ReadStatus.NEW:
                 self._take_limits(core, limits.payload)
+            status, cap = self.speed_cap.read()
+            if status is ReadStatus.NEW:
+                core.set_cap(float(cap.value))
             status, halt = self.halt.read()
             if status is ReadStatus.NEW:
                 core.stop()

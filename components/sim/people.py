@@ -5,6 +5,13 @@ robot, leave) at walking speed; `PeopleWorld` publishes their true skeletons
 (robot base frame, z up, floor at `floor`) on `sim/people`, and each `KinectSim`
 observes that truth through its own noise model. Scenarios move people with the
 `walk`, `lean`, `place` and `leave` operations.
+
+It is also the **referee** of speed and separation monitoring: from the truth (the
+people's true limbs, the arm's link capsules at its measured joints) it keeps, while
+the arm moves, how far the true separation ever fell short of the room the arm needs
+to stand still before a person walking at 1.6 m/s reaches it (the monitor's own
+stopping model: 10 ms, then 2 m/s^2). `report` says it; a scenario's invariant
+`max: {shortfall: 0}` checks it independently of the monitor that keeps it.
 """
 
 from __future__ import annotations
@@ -16,10 +23,13 @@ from typing import Any
 
 import numpy as np
 
-from components.people.skeleton import JOINTS, standing
-from framework.component import Component, Out, operation
+from components.people.distance import capsule_distances
+from components.people.skeleton import JOINTS, envelopes, standing
+from components.robot.separation import SsmParams
+from framework.component import Component, In, Out, operation
 from framework.errors import FwError
-from framework.messages import Skeleton, Skeletons
+from framework.messages import JointState, Skeleton, Skeletons
+from framework.ports import ReadStatus
 from framework.properties import prop
 
 WALK_SPEED = 1.0  # m/s, a calm walk in an OR
@@ -71,10 +81,15 @@ class PeopleWorld(Component):
 
     floor = prop(float, -0.8, unit="m", doc="floor height in the robot base frame")
     people = Out(Skeletons, doc="true skeletons of everyone in the room (base frame)")
+    joints = In(JointState, doc="the arm's joints, for the referee (unconnected: no referee)")
 
     def configure_hook(self) -> bool:
         self.crowd: dict[int, Person] = {}
         self._last = time.monotonic()
+        self._kinematics: Any = None
+        self._links: tuple[np.ndarray, np.ndarray, float] | None = None  # a, b, time
+        self.shortfall = 0.0
+        self.closest_moving = math.inf
         return True
 
     def start_hook(self) -> bool:
@@ -86,11 +101,50 @@ class PeopleWorld(Component):
         dt, self._last = min(now - self._last, 0.1), now
         for person in self.crowd.values():
             person.advance(dt)
+        truth = [p.skeleton(self.floor) for _, p in sorted(self.crowd.items())]
         users = tuple(
-            Skeleton(pid, tuple(p.skeleton(self.floor).ravel().tolist()), (1.0,) * len(JOINTS))
-            for pid, p in sorted(self.crowd.items())
+            Skeleton(pid, tuple(joints.ravel().tolist()), (1.0,) * len(JOINTS))
+            for pid, joints in zip(sorted(self.crowd), truth, strict=True)
         )
         self.people.write(Skeletons(time.time(), "world", users))
+        self._referee(truth, now)
+
+    def _referee(self, truth: list[np.ndarray], now: float) -> None:
+        """The true separation against the room the moving arm needs (module docstring)."""
+        status, joints = self.joints.read()
+        if status is ReadStatus.NO_DATA:
+            return
+        if self._kinematics is None:
+            from components.robot.lwr4 import Kinematics
+
+            self._kinematics = Kinematics()
+        links = self._kinematics.capsules(np.asarray(joints.position, dtype=float))
+        before, self._links = self._links, (links.a, links.b, now)
+        if before is None or now <= before[2] or not truth:
+            return
+        moved = max(
+            float(np.max(np.linalg.norm(links.a - before[0], axis=1))),
+            float(np.max(np.linalg.norm(links.b - before[1], axis=1))),
+        )
+        speed = moved / (now - before[2])
+        if speed < 1e-4:  # standing: a person may touch a robot that stands
+            return
+        p, q, r, _, _ = envelopes(np.stack(truth), np.zeros((len(truth), len(JOINTS))))
+        separation = float(np.min(capsule_distances(links.a, links.b, links.radius, p, q, r)))
+        model = SsmParams()
+        need = model.person_speed * model.stopping_time(speed) + model.stopping_distance(speed)
+        self.closest_moving = min(self.closest_moving, separation)
+        self.shortfall = max(self.shortfall, need - separation)
+
+    @operation(readonly=True)
+    def report(self) -> dict[str, Any]:
+        """The referee: the least true separation while the arm moved (m; None: never
+        near anyone) and the most it fell short of the room to stop (m; 0: never)."""
+        closest = self.closest_moving
+        return {
+            "closest_moving": round(closest, 4) if math.isfinite(closest) else None,
+            "shortfall": round(self.shortfall, 4),
+        }
 
     def _person(self, person: int) -> Person:
         if person not in self.crowd:

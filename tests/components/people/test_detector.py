@@ -213,3 +213,17 @@ def test_a_person_whose_torso_is_hidden_still_counts_near_the_table():
         }
         frame = core.process(users, k * FRAME)
     assert np.isnan(frame.people[0].joints[2]).all() and frame.users_near == 1
+
+
+def test_the_robot_keeps_its_distance_from_someone_two_cameras_see_from_that_frame():
+    """Speed and separation monitoring cannot wait a confirmation second (1.6 m at a
+    walk): a person both cameras see in the same frame is guarded from that frame, and
+    the envelope holds every limb of the guarded."""
+    cams, core = setup()
+    frame = run(cams, core, {1: standing((0.5, 0.0))}, 1)
+    assert [t.id for t in frame.guarded] == [t.id for t in frame.tracks] != []
+    a, b, radius = core.envelopes(frame.guarded)
+    assert a.shape == b.shape == (len(radius), 3) and len(radius) >= 10
+    assert np.all(radius > 0.0)
+    empty = core.envelopes([])
+    assert empty[0].shape == (0, 3) and empty[2].shape == (0,)

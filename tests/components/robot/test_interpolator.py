@@ -451,3 +451,56 @@ def test_a_turned_goal_is_followed_at_a_tenth_of_a_metre_per_radian():
         c.step()
         cycles += 1
     assert 495 <= cycles <= 505
+
+
+def test_a_speed_cap_from_people_slows_the_motion_and_a_cap_of_zero_stands_it():
+    """Speed and separation monitoring caps the path speed under the Supervisor's
+    limit: the motion slows within the acceleration limit, stands (still moving, not
+    at the goal) on a cap of 0, heads on when the cap rises, and reaches the goal."""
+    c = core()
+    goal = goal_at((0.06, 0.0, -0.20))
+    c.go_to(goal)
+    for _ in range(600):
+        c.step()
+    assert c.speed == pytest.approx(0.075, abs=1e-9)
+    c.set_cap(0.02)
+    speeds = []
+    for _ in range(400):
+        c.step()
+        speeds.append(c.speed)
+    assert np.all(np.abs(np.diff(speeds)) / DT <= 0.25 + 1e-6), "within the acceleration"
+    assert c.speed == pytest.approx(0.02, abs=1e-9)
+    c.set_cap(0.0)
+    for _ in range(200):
+        c.step()
+    s = c.s
+    for _ in range(500):
+        c.step()
+    assert c.phase is Phase.MOVING and c.speed == 0.0 and c.s == s, "it stands, unbraked"
+    c.set_cap(float("nan"))
+    assert c.cap == 0.0, "a cap that is not a number is no speed"
+    c.set_cap(float("inf"))
+    trace = run(c, Phase.REACHED)
+    assert max(v for _, v in trace) == pytest.approx(0.075, abs=1e-9)
+    assert np.allclose(c.pose, goal, atol=1e-9)
+
+
+def test_a_motion_begun_under_a_cap_of_zero_waits_for_the_cap_to_rise():
+    c = core()
+    c.set_cap(0.0)
+    c.go_to(goal_at((0.0, 0.0, -0.05)))
+    for _ in range(300):
+        c.step()
+    assert c.phase is Phase.MOVING and c.s == 0.0
+    c.set_cap(0.01)
+    trace = run(c, Phase.REACHED)
+    assert max(v for _, v in trace) == pytest.approx(0.01, abs=1e-9)
+
+
+def test_the_supervisors_limit_under_a_cap_still_rules():
+    c = core()
+    c.set_cap(0.05)
+    c.go_to(goal_at((0.06, 0.0, -0.20)))
+    c.set_limits(0.01)
+    trace = run(c, Phase.REACHED)
+    assert max(v for _, v in trace) == pytest.approx(0.01, abs=1e-9)

@@ -3,6 +3,8 @@
 stepped clock: one millisecond of physics per update, setpoints and measured states
 through real ports, deterministic runs."""
 
+import time
+
 import numpy as np
 import pytest
 
@@ -15,6 +17,7 @@ from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
 from framework.container import Container
 from framework.errors import FwError
+from framework.messages import Envelopes
 from tests.conftest import REPO, writer_port
 
 PROCEDURE = REPO / "procedures" / "seeg.yaml"
@@ -398,3 +401,48 @@ def test_a_braked_arm_reports_every_ten_cycles_and_every_cycle_once_released(cel
     assert cell.arm.call("report")["cycle"] - cycle == 100
     assert cell.arm.measured.stats.written - written == 100
     assert cell.robot.joints.last.cycles == 1
+
+
+def test_people_approaching_the_moving_arm_slow_it_then_a_protective_stop_latches(hub):
+    """Speed and separation monitoring in the robot interface's own cycle: a person's
+    envelope inside the slowing band caps the interpolator's speed; one under the
+    protective distance stops the arm in that cycle, latched like any trip (only the
+    operator's RELEASE opens it); the report says how close and why."""
+    cell = Cell(hub)
+    try:
+        people = writer_port(hub, "test/envelopes", Envelopes)
+        cell.container.connect("robot", "envelopes", "test/envelopes")
+        cell.container.connect("interpolator", "speed_cap", "robot/speed_cap")
+        cell.release()
+        cell.interp.call("go_to", goal="target")
+        cell.run(1.0)
+        assert cell.interp.call("report")["speed"] == pytest.approx(0.075, abs=1e-6)
+
+        def person_at(gap):
+            """A standing torso `gap` metres beyond the TCP's side, 15 cm thick."""
+            x, y, z = cell.model_tcp()
+            a, b = (x, y + 0.15 + gap, z - 0.5), (x, y + 0.15 + gap, z + 0.5)
+            people.write(Envelopes(time.time(), (*a,), (*b,), (0.15,)))
+            cell.run(0.002)
+
+        person_at(1.0)
+        cell.run(0.3)
+        report = cell.robot.call("report")
+        assert report["speed_cap"] is None, "far away: no cap"
+        assert 0.075 <= report["link_speed"] < 0.15, "the fastest link point, near the TCP's"
+        person_at(0.45)
+        cell.run(0.3)
+        report = cell.robot.call("report")
+        assert 0.0 < report["speed_cap"] < 0.075
+        assert cell.interp.call("report")["speed"] < 0.075 / 2, "it slowed down"
+        assert not report["latched"]
+        person_at(0.10)
+        report = cell.robot.call("report")
+        assert report["latched"] and report["reason"].startswith("protective stop: a person")
+        assert report["separation"] < report["protective_distance"]
+        cell.run(1.0)
+        assert cell.arm.call("report")["braked"]
+        with pytest.raises(FwError, match="latched"):
+            cell.robot.call("release")
+    finally:
+        cell.close()

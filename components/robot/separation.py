@@ -1,0 +1,188 @@
+"""Speed and separation monitoring (SSM) in the spirit of ISO/TS 15066, for the robot's
+own control loop.
+
+The people detector publishes everyone's envelope (capsules around the limbs, their
+3-sigma position noise already in the radii) with the camera frame's stamp. Every
+cycle the robot side measures the separation S between those capsules and its own
+link capsules at the current joints, and the speed v_r of its fastest link point (a
+point on a rigid link moves no faster than the faster end of its segment). It must
+keep, while it moves, the protective separation distance
+
+    S_p(v_r) = v_h (T_r + T_s) + v_r T_r + S_s + C + Z_d + Z_r
+
+* v_h: the person's speed toward the robot, 1.6 m/s (ISO 13855's walking speed), for
+  every capsule, hands included;
+* T_r: the reaction time: the envelope's age (camera frame to now, measured on every
+  sample, so a late or stalled detector is paid for in distance) plus the robot's own
+  `reaction` (the cycle that decides and the cycle that engages the brakes);
+* T_s, S_s: the time and distance to stand still from v_r: `engage` (the brakes'
+  engagement) then a deceleration of at least `deceleration`;
+* C: the intrusion distance, 0 here: the cameras track the arms and hands, which are
+  capsules of the envelope (ISO 13855's reach allowance is for sensors that do not);
+* Z_d: what the envelope may be off beyond its noise margin (the cameras' registration
+  to the robot base); Z_r: the robot's position uncertainty (its model errors).
+
+Two answers per cycle: `stop` when S < S_p(v_r) (the robot side brakes in that very
+cycle), and a speed `cap` for the motion, which slows the arm down in a band of
+`slow_band` beyond S_p(0) and is 0 (stand still, unbraked) at S_p(0): as a person
+approaches, the arm slows and stands before the protective stop is needed; the stop
+is the backstop for a person faster than the slowing.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from components.people.distance import capsule_distances
+
+
+@dataclass(frozen=True)
+class SsmParams:
+    """The terms of the protective separation distance (module docstring), SI units."""
+
+    person_speed: float = 1.6
+    """v_h (m/s), ISO 13855's walking speed."""
+    reaction: float = 0.002
+    """The robot's part of T_r (s): the cycle that decides and the cycle that brakes."""
+    engage: float = 0.010
+    """Time from the brake request until the arm decelerates (s)."""
+    deceleration: float = 2.0
+    """The least deceleration of a protective stop (m/s^2): the procedure's STOP."""
+    intrusion: float = 0.0
+    """C (m): 0, the envelope holds the tracked arms and hands."""
+    detection_uncertainty: float = 0.02
+    """Z_d (m): the cameras' registration to the robot base, beyond the noise margin."""
+    robot_uncertainty: float = 0.005
+    """Z_r (m): the arm's model errors (docs/seeg.md: a few millimetres)."""
+    slow_band: float = 0.4
+    """Beyond S_p(0) by this much (m) the cap is the full speed; it falls linearly to 0."""
+
+    def stopping_time(self, v_r: float) -> float:
+        """T_s (s) from speed v_r."""
+        return self.engage + v_r / self.deceleration
+
+    def stopping_distance(self, v_r: float) -> float:
+        """S_s (m) from speed v_r."""
+        return v_r * self.engage + v_r * v_r / (2.0 * self.deceleration)
+
+    def protective_distance(self, v_r: float, age: float) -> float:
+        """S_p (m) for a robot at speed v_r (m/s) and an envelope `age` seconds old."""
+        t_r = max(age, 0.0) + self.reaction
+        return (
+            self.person_speed * (t_r + self.stopping_time(v_r))
+            + v_r * t_r
+            + self.stopping_distance(v_r)
+            + self.intrusion
+            + self.detection_uncertainty
+            + self.robot_uncertainty
+        )
+
+    def allowed_speed(self, separation: float, age: float) -> float:
+        """The largest v_r with S_p(v_r) <= separation (0 if even standing is too close):
+        S_p is a quadratic in v_r with positive coefficients."""
+        a = 1.0 / (2.0 * self.deceleration)
+        t_r = max(age, 0.0) + self.reaction
+        b = self.person_speed / self.deceleration + t_r + self.engage
+        c = self.protective_distance(0.0, age) - separation
+        if c >= 0.0:
+            return 0.0
+        return (-b + math.sqrt(b * b - 4.0 * a * c)) / (2.0 * a)
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """One cycle's answer: the separation (m; inf without anyone), the robot's fastest
+    link point (m/s), the protective distance at that speed, the speed cap for the
+    motion (m/s; inf: none) and whether to stop now."""
+
+    separation: float
+    robot_speed: float
+    protective: float
+    cap: float
+    stop: bool
+
+
+CLEAR = Verdict(math.inf, 0.0, 0.0, math.inf, False)
+
+
+FASTEST_LINK = 0.25
+"""m/s: a bound on any link point's speed in a surgical approach (the interpolator's
+sanity ceiling), for how long a far person may go unchecked."""
+SPEED_WINDOW = 0.01
+"""s: the robot's speed is its link points' displacement over this long."""
+MAX_QUIET = 100
+"""Cycles a far person may go unchecked, at most (new envelopes are checked at once)."""
+
+
+class SeparationMonitor:
+    """Separation, robot speed and S_p cycle by cycle (module docstring). Stateful only
+    in the link capsules of the last `SPEED_WINDOW`, for the robot's speed."""
+
+    def __init__(self, params: SsmParams, max_speed: float):
+        """`max_speed`: the fastest the motion may go (m/s), the cap far from everyone."""
+        self.params = params
+        self.max_speed = max_speed
+        self._history: deque[tuple[np.ndarray, np.ndarray, float]] = deque()
+
+    def robot_speed(self, a: np.ndarray, b: np.ndarray, now: float) -> float:
+        """The fastest link capsule end over the last `SPEED_WINDOW` (m/s; 0 on the
+        first call): a release's settling jolt of a fraction of a millimetre in one
+        cycle is not a speed the arm has to stop from."""
+        history = self._history
+        while len(history) > 1 and now - history[1][2] >= SPEED_WINDOW:
+            history.popleft()
+        speed = 0.0
+        if history and now > history[0][2]:
+            pa, pb, then = history[0]
+            moved = max(
+                float(np.max(np.linalg.norm(a - pa, axis=1))),
+                float(np.max(np.linalg.norm(b - pb, axis=1))),
+            )
+            speed = moved / (now - then)
+        history.append((a.copy(), b.copy(), now))
+        return speed
+
+    def check(
+        self,
+        robot: tuple[np.ndarray, np.ndarray, np.ndarray],
+        people: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+        age: float,
+        now: float,
+    ) -> Verdict:
+        """The verdict for the robot's capsules (a, b, radius) at time `now` and the
+        people's envelope capsules, `age` seconds old (None or empty: nobody)."""
+        a, b, radius = robot
+        speed = self.robot_speed(a, b, now)
+        if people is None or len(people[0]) == 0:
+            return Verdict(math.inf, speed, 0.0, math.inf, False)
+        separation = float(np.min(capsule_distances(a, b, radius, *people)))
+        p = self.params
+        protective = p.protective_distance(speed, age)
+        standing = p.protective_distance(0.0, age)
+        share = (separation - standing) / p.slow_band if p.slow_band > 0 else 1.0
+        cap = min(self.max_speed * min(max(share, 0.0), 1.0), p.allowed_speed(separation, age))
+        if share >= 1.0 and cap >= self.max_speed:
+            cap = math.inf
+        return Verdict(separation, speed, protective, cap, separation < protective)
+
+    def quiet_cycles(self, verdict: Verdict, age: float, dt: float) -> int:
+        """How many cycles of `dt` may pass before the next check changes anything: none
+        inside the slowing band or near S_p at the fastest link speed; beyond them, as
+        many as it takes the person (toward the robot, and by the envelope's ageing) and
+        the robot (at `FASTEST_LINK`) to close the margin, at most `MAX_QUIET`."""
+        if not math.isfinite(verdict.separation):
+            return 0
+        p = self.params
+        guard = max(
+            p.protective_distance(FASTEST_LINK, age),
+            p.protective_distance(0.0, age) + p.slow_band,
+        )
+        margin = verdict.separation - guard
+        if margin <= 0.0:
+            return 0
+        closing = 2.0 * p.person_speed + FASTEST_LINK
+        return min(MAX_QUIET, int(margin / (closing * dt)))
