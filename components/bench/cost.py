@@ -8,13 +8,15 @@ Coordinator and Configurator, with the bench's own listener), the CPU it used
 (user + system, from /proc/<pid>/stat) divided by the window: the cores it took.
 The arm's loop: how many 1 ms cycles it ran per millisecond of wall time (its
 real-time factor, from `arm.report` at both ends of the window), and the intervals
-between the stamps its cycles put on `arm/measured` (the stamps are taken in the
-arm's own process, so delivery does not blur them). `load` busy loops run on the
+between the stamps its cycles put on `arm/measured`, per cycle they cover (the
+stamps are taken in the arm's own process, so delivery does not blur them; braked,
+the arm reports every 10 cycles). `load` busy loops run on the
 host meanwhile, as other jobs of a shared machine would.
 """
 
 from __future__ import annotations
 
+import itertools
 import os
 import subprocess
 import sys
@@ -45,7 +47,7 @@ class Window:
     seconds: float
     cores: dict[str, float]  # process -> cores used
     realtime: float  # arm cycles per millisecond of wall time
-    cycle_ms: list[float] = field(default_factory=list)  # intervals between cycle stamps
+    cycle_ms: list[float] = field(default_factory=list)  # wall ms per arm cycle, per state
 
     @property
     def total(self) -> float:
@@ -80,9 +82,20 @@ def measure(run: SeegRun, seconds: float, jitter_seconds: float) -> Window:
     start = time.time()
     time.sleep(jitter_seconds)
     run.unwatch(subscription)
-    stamps = [s.message.stamp for s in run.since(start, "arm/measured")]
-    intervals = np.diff(np.array(stamps)) * 1e3 if len(stamps) > 1 else np.array([])
-    return Window(elapsed, cores, realtime, [float(v) for v in intervals])
+    states = [s.message for s in run.since(start, "arm/measured")]
+    return Window(elapsed, cores, realtime, cycle_intervals(states))
+
+
+def cycle_intervals(states: list[ArmState]) -> list[float]:
+    """The wall time (ms) per arm cycle between consecutive states: braked, the arm
+    reports once per `monitor_cycles` cycles (FRI's monitor mode), so an interval
+    counts for the cycles it covers; a state repeated or out of order is skipped."""
+    out = []
+    for before, after in itertools.pairwise(states):
+        cycles = after.cycle - before.cycle
+        if cycles > 0:
+            out.append((after.stamp - before.stamp) * 1e3 / cycles)
+    return out
 
 
 def busy_loops(count: int) -> list[subprocess.Popen[bytes]]:

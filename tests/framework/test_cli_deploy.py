@@ -144,6 +144,21 @@ def test_topology_errors_are_one_line_each_and_nothing_starts(tmp_path):
     assert "starting" not in result.stderr
 
 
+def test_a_second_deploy_on_a_port_in_use_says_so_and_returns(topology, bus_config):
+    """The hub's port is taken (the same topology already running, or anything else):
+    one clear line naming the port and what to do, exit 1, no traceback, no hang."""
+    import socket
+
+    with socket.socket() as taken:
+        taken.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        taken.bind(("127.0.0.1", bus_config.hub_port))
+        taken.listen()
+        result = fw("deploy", str(topology), "--headless", "--duration", "5", timeout=60)
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert f"port {bus_config.hub_port} on 127.0.0.1 is in use" in result.stderr
+    assert "already running" in result.stderr and "tcp.rs" not in result.stderr
+
+
 def test_validate_checks_a_topology_with_its_chart(tmp_path):
     assert fw("validate", str(TOY / "toy.yaml")).returncode == 0
     (tmp_path / "toy_chart.yaml").write_text((TOY / "toy_chart.yaml").read_text())
