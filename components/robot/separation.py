@@ -118,6 +118,18 @@ MAX_QUIET = 100
 """Cycles a far person may go unchecked, at most (new envelopes are checked at once)."""
 
 
+def link_speed(
+    before: tuple[np.ndarray, np.ndarray], after: tuple[np.ndarray, np.ndarray], dt: float
+) -> float:
+    """The fastest capsule end (m/s) between two sets of link capsule ends `dt` apart:
+    a point of a rigid link moves no faster than its faster end."""
+    moved = max(
+        float(np.max(np.linalg.norm(after[0] - before[0], axis=1))),
+        float(np.max(np.linalg.norm(after[1] - before[1], axis=1))),
+    )
+    return moved / dt
+
+
 class SeparationMonitor:
     """Separation, robot speed and S_p cycle by cycle (module docstring). Stateful only
     in the link capsules of the last `SPEED_WINDOW`, for the robot's speed."""
@@ -138,11 +150,7 @@ class SeparationMonitor:
         speed = 0.0
         if history and now > history[0][2]:
             pa, pb, then = history[0]
-            moved = max(
-                float(np.max(np.linalg.norm(a - pa, axis=1))),
-                float(np.max(np.linalg.norm(b - pb, axis=1))),
-            )
-            speed = moved / (now - then)
+            speed = link_speed((pa, pb), (a, b), now - then)
         history.append((a.copy(), b.copy(), now))
         return speed
 

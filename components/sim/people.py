@@ -25,7 +25,7 @@ import numpy as np
 
 from components.people.distance import capsule_distances
 from components.people.skeleton import JOINTS, envelopes, standing
-from components.robot.separation import SsmParams
+from components.robot.separation import SsmParams, link_speed
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError
 from framework.messages import JointState, Skeleton, Skeletons
@@ -122,11 +122,7 @@ class PeopleWorld(Component):
         before, self._links = self._links, (links.a, links.b, now)
         if before is None or now <= before[2] or not truth:
             return
-        moved = max(
-            float(np.max(np.linalg.norm(links.a - before[0], axis=1))),
-            float(np.max(np.linalg.norm(links.b - before[1], axis=1))),
-        )
-        speed = moved / (now - before[2])
+        speed = link_speed(before[:2], (links.a, links.b), now - before[2])
         if speed < 1e-4:  # standing: a person may touch a robot that stands
             return
         p, q, r, _, _ = envelopes(np.stack(truth), np.zeros((len(truth), len(JOINTS))))
