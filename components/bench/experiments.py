@@ -188,6 +188,27 @@ def run_collision(quick: bool, context: dict[str, Any]) -> list[Row]:
     ]
 
 
+def run_ssm(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """Protective stops (issue 18): a person appears beside the moving arm; speed and
+    separation monitoring stops it in the robot interface's own cycle."""
+    from components.bench import latency
+
+    trials = latency.protective_stops(_seeg(context), 3 if quick else 30, _progress("ssm"))
+    ms = [t.latency * 1e3 for t in trials]
+    check = [t.detail["check"] * 1e3 for t in trials]
+    command = [t.detail["command"] * 1e3 for t in trials]
+    s, c, d = stats(ms), stats(check), stats(command)
+    context.setdefault("series", {})["ssm_ms"] = ms
+    return [
+        Row("ssm", "envelopes received -> braking cycle p50", s["p50"], n=len(ms)),
+        Row("ssm", "envelopes received -> braking cycle p99", s["p99"], target=2.0, n=len(ms)),
+        Row("ssm", "the separation check p50", c["p50"], n=len(check)),
+        Row("ssm", "the separation check p99", c["p99"], n=len(check)),
+        Row("ssm", "detection -> stop command p50", d["p50"], target=0.1, n=len(command)),
+        Row("ssm", "detection -> stop command p99", d["p99"], target=1.0, n=len(command)),
+    ]
+
+
 def run_repeated(quick: bool, context: dict[str, Any]) -> list[Row]:
     """Repeated Sensor Failure (eq. 3.14, Fig. 4.3): repetitions of consecutive swaps."""
     from components.bench import latency
@@ -588,6 +609,7 @@ EXPERIMENTS: dict[str, Callable[[bool, dict[str, Any]], list[Row]]] = {
     "swap": run_swap,
     "nosensor": run_nosensor,
     "collision": run_collision,
+    "ssm": run_ssm,
     "repeated": run_repeated,
     "motion": run_motion,
     "braking": run_braking,

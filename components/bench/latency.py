@@ -14,7 +14,12 @@ timestamp is taken (all `time.time()` on this host):
   announcing the `stopping` phase, stamped in the robot process on the 1 kHz control
   cycle the motion starts braking (so it adds up to one cycle of waiting);
 * t_collision: the people detector's minimum-distance sample under the procedure's
-  collision distance (its stamp: when the detector computed it).
+  collision distance (its stamp: when the detector computed it);
+* protective stops (speed and separation monitoring, in the robot interface's own
+  cycle): from the arrival here of the envelopes sample that decided it (one hop, as
+  for the robot process) to the robot's status announcing it, stamped in the cycle
+  that sent the stop's first command; and, inside that cycle, from the start of the
+  separation check to that command (the interface's own clock).
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from components.bench.seeg_run import REPO, BenchError, Sample, SeegRun
-from framework.messages import Pose
+from framework.messages import Envelopes, EventMessage, Pose
 
 MOVE_TIMEOUT = 60.0
 
@@ -431,3 +436,63 @@ def _jump(poses: list[tuple[float, ...]], at: float, span: float = 0.08) -> floa
         coeffs = np.polyfit(t, side[:, 1:4], 1)  # per axis: slope, intercept
         ends.append(coeffs[1])
     return float(np.linalg.norm(ends[1] - ends[0]))
+
+
+WALKER = 2
+"""The person of `people_world` who walks at the arm in the protective stop trials."""
+
+
+def protective_stops(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
+    """A person appears against the moving arm (steps out of a blind spot: placed
+    there in one frame, well inside the protective distance), and the robot interface's speed and separation monitoring stops it.
+    L = the braking cycle's status stamp - the arrival of the envelopes that decided
+    it (the last before); `detail`: the separation check's own time and its verdict ->
+    the stop's first command, inside that cycle. Then the person leaves and RELEASE
+    resumes the motion. (The walk at 1.6 m/s is the `walk_in` scenario: there the stop
+    comes as the envelope ages, by design, not on a frame's arrival.)"""
+    envelopes = run.watch("people_detector/envelopes", Envelopes)
+    statuses = run.watch("robot/status", EventMessage)
+    goal = ["target"]
+
+    def protective(message: Any) -> bool:
+        return str(message.payload.get("reason", "")).startswith("protective stop")
+
+    def trial() -> Trial:
+        keep_moving(run, goal)
+        time.sleep(0.3)
+        t0 = time.time()
+        run.call("people_world.place", person=WALKER, x=0.7, y=0.0, facing_deg=180.0)
+        try:
+            stop = _first(run, "robot/status", t0, protective, "protective stop")
+            timing = run.call("robot.report").get("protective_stop") or {}
+            # the envelopes that decided: the last before the braking cycle (the first
+            # that shows the person may be one camera's, not yet guarded)
+            shown = [
+                s
+                for s in run.since(t0, "people_detector/envelopes")
+                if s.message.radius and s.received <= stop.message.stamp
+            ]
+            if not shown or "check_ms" not in timing:
+                raise BenchError("a protective stop without its envelopes or its timing")
+            cause, braked = shown[-1].received, stop.message.stamp
+            detail = {
+                "check": timing["check_ms"] / 1e3,
+                "command": timing["detected_to_command_ms"] / 1e3,
+            }
+            return Trial(braked - cause, cause, braked, detail)
+        finally:
+            run.call("people_world.leave", person=WALKER)
+
+    run.call("people_world.leave", person=WALKER)
+    try:
+        return _repeat(
+            "protective stop",
+            trials,
+            trial,
+            progress,
+            lambda: run.call("people_world.leave", person=WALKER),
+        )
+    finally:
+        run.unwatch(envelopes)
+        run.unwatch(statuses)
+        _no_collision(run)

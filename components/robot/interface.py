@@ -144,6 +144,9 @@ class RobotInterface(Component):
         self.closest = math.inf  # the least separation while released (m)
         self._cap_sent = math.inf
         self._quiet = 0  # cycles the separation need not be checked
+        self._check_started = 0.0  # perf_counter of the check that decided a stop
+        self._detected = 0.0  # ...and of its verdict
+        self.protective_stop: dict[str, float] = {}  # the last one's timing (bench)
         return True
 
     def stop_hook(self) -> None:
@@ -162,6 +165,7 @@ class RobotInterface(Component):
         self._separation(state)
         if self._stop is not None:
             self._send(self._stop.step())
+            self._reacted()
             if self._stop.done:
                 self._stop = None
                 self._request("brake", reason=self.latched, latch=True)
@@ -212,6 +216,7 @@ class RobotInterface(Component):
     def _separation(self, state: ArmState) -> None:
         """Speed and separation monitoring, every cycle the arm is released: the stop
         in this very cycle, the speed cap on change (module docstring)."""
+        started = time.perf_counter()
         status, message = self.envelopes.read()
         if status is ReadStatus.NEW:
             shape = (-1, 3)
@@ -242,13 +247,28 @@ class RobotInterface(Component):
         self.closest = min(self.closest, verdict.separation)
         self._quiet = self._ssm.quiet_cycles(verdict, age, CYCLE)
         if verdict.stop and not self.latched:
+            self._check_started, self._detected = started, time.perf_counter()
             self._trip(
                 f"protective stop: a person {verdict.separation * 100:.1f} cm away, under "
                 f"the protective distance {verdict.protective * 100:.1f} cm at "
                 f"{verdict.robot_speed * 100:.1f} cm/s (envelope {age * 1000:.0f} ms old)",
                 state,
             )
+            return  # the stop's first command goes out before anything else
         self._send_cap(self._tcp_cap(verdict, state))
+
+    def _reacted(self) -> None:
+        """After the first stop command of a protective stop: how long the separation
+        check that decided it took, and from its verdict to that command (`fw bench
+        ssm`)."""
+        started, self._check_started = self._check_started, 0.0
+        if started:
+            now = time.perf_counter()
+            self.protective_stop = {
+                "stamp": time.time(),
+                "check_ms": round((self._detected - started) * 1e3, 4),
+                "detected_to_command_ms": round((now - self._detected) * 1e3, 4),
+            }
 
     def _tcp_cap(self, verdict: Verdict, state: ArmState) -> float:
         """The cap in TCP speed: the link point the cap is for may move faster than the
@@ -288,6 +308,7 @@ class RobotInterface(Component):
             self._stop = SafeStop(last, velocity, np.full(7, self.stop_deceleration), CYCLE)
         else:
             self._request("brake", reason=reason, latch=True)
+            self._reacted()
 
     def _implausible(self, q: np.ndarray, state: ArmState) -> str:
         """Why a setpoint must not reach the arm ("" if it may): not 7 finite joints,
@@ -446,6 +467,7 @@ class RobotInterface(Component):
             "link_speed": _cm(self.verdict.robot_speed),
             "closest": _cm(self.closest),
             "speed_cap": _cm(self._cap_sent),
+            "protective_stop": self.protective_stop,
         }
         if self.safety is not None:
             out["safety"] = self.safety.report()

@@ -1,5 +1,5 @@
 """Spec: `fw bench --quick` runs every thesis experiment (latencies on the real SEEG
-deployment, braking on the MuJoCo arm, statechart, people, scale) and writes a
+deployment, protective stops, braking on the MuJoCo arm, statechart, people, scale) and writes a
 report, a JSON summary and the figures; stamps are causal (effect after cause)."""
 
 import json
@@ -14,6 +14,7 @@ def test_quick_bench_runs_every_experiment_and_writes_report_summary_and_figures
     assert rows[("swap", "L p50")]["thesis"] == 12.5 and rows[("swap", "L p50")]["n"] == 5
     assert rows[("nosensor", "L p50")]["n"] == 3
     assert rows[("collision", "L p50")]["thesis"] == 1.1
+    assert rows[("ssm", "detection -> stop command p50")]["n"] == 3, "protective stops"
     assert rows[("zenoh", "hop p50")]["fw"] > 0
     # what it costs: every process's cores, braked and moving, and the arm loop's pace
     for what in ("braked, waiting", "moving"):
@@ -26,7 +27,7 @@ def test_quick_bench_runs_every_experiment_and_writes_report_summary_and_figures
     assert summary["series"]["cost"]["idle"]["cycle_ms"]["n"] > 100
     series = summary["series"]
     # every reaction ends after its cause, and braking begins after the STOP is sent
-    for key in ("swap_ms", "nosensor_ms", "collision_ms"):
+    for key in ("swap_ms", "nosensor_ms", "collision_ms", "ssm_ms"):
         assert series[key] and all(v > 0 for v in series[key]), key
     assert all(
         b >= s for b, s in zip(series["collision_brake_ms"], series["collision_ms"], strict=True)

@@ -440,6 +440,8 @@ def test_people_approaching_the_moving_arm_slow_it_then_a_protective_stop_latche
         report = cell.robot.call("report")
         assert report["latched"] and report["reason"].startswith("protective stop: a person")
         assert report["separation"] < report["protective_distance"]
+        timing = report["protective_stop"]
+        assert timing["check_ms"] > 0.0 and timing["detected_to_command_ms"] > 0.0, "kept"
         cell.run(1.0)
         assert cell.arm.call("report")["braked"]
         with pytest.raises(FwError, match="latched"):
