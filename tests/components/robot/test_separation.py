@@ -86,7 +86,7 @@ def test_nobody_in_the_room_is_no_constraint():
     assert verdict.separation == math.inf and verdict.cap == math.inf and not verdict.stop
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=80, deadline=None)
 @given(
     start=st.floats(0.3, 3.0),
     walk=st.floats(0.2, 1.6),
