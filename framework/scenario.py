@@ -350,6 +350,7 @@ class ScenarioRunner(Listener):
         self._started = time.monotonic()
         self.entries: list[tuple[float, str]] = []  # (monotonic time, state path)
         self.events: list[tuple[float, str]] = []
+        self._payloads: dict[int, Any] = {}  # index in `events` -> payload, when it had one
         self.active: set[str] = set()
         self.done: list[ScenarioStep] = []
         self.outcomes: list[Outcome] = []
@@ -378,6 +379,8 @@ class ScenarioRunner(Listener):
 
     def on_event(self, event: Event) -> None:
         with self._changed:
+            if event.payload:
+                self._payloads[len(self.events)] = event.payload
             self.events.append((time.monotonic(), event.name))
             self._changed.notify_all()
 
@@ -548,6 +551,10 @@ class ScenarioRunner(Listener):
             times = [t for t, p in self.entries if any(_matches(p, n) for n in e.names)]
         else:
             times = [t for t, n in self.events if n in e.names]
+        if e.kind == "never_event" and times:  # say why it came: the reason to look at
+            first = next(i for i, (_, n) in enumerate(self.events) if n in e.names)
+            payload = self._payloads.get(first)
+            return False, f"at {times[0] - zero:.3f}s" + (f" {payload}" if payload else "")
         if e.kind.startswith("never"):
             return (not times, f"at {times[0] - zero:.3f}s" if times else "")
         hits = [t for t in times if limit is None or t <= limit]

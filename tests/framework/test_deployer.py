@@ -385,3 +385,21 @@ def test_a_restart_waits_until_the_lost_process_has_left_the_bus_and_tries_again
         assert RemoteComponent(deployment.hub, "supervisor").state() == "Running"
     finally:
         deployment.stop()
+
+
+def test_an_event_a_scenario_says_must_never_come_is_reported_with_its_reason(write):
+    """A failed `never_event` says when the event came and what it carried (an e_STOP's
+    reason is what one needs to look at a run that failed once)."""
+    from framework.scenario import ScenarioRunner, load_scenario
+    from framework.statechart.events import Event
+
+    path = write(
+        "scenario: s\nsteps:\n  - {at: 0s, send: e_GO}\nexpect:\n  - {never_event: e_STOP}\n",
+        "never.yaml",
+    )
+    runner = ScenarioRunner(load_scenario(path), lambda *a: None, lambda *a: None)
+    runner.on_event(Event("e_GO"))
+    runner.on_event(Event("e_STOP", {"reason": "protective stop: a person 30 cm away"}))
+    outcome = runner.report()[-1]
+    assert not outcome.ok and outcome.what == "never event e_STOP"
+    assert "protective stop: a person 30 cm away" in outcome.detail
