@@ -186,13 +186,15 @@ class RealTimeExecutor:
     def _event(self, component: Component, activity: Activity) -> None:
         wake = self._wake[component.name]
         idle = _idle_period(component, activity)
+        ports: list[Any] = []
         while not self._stop.is_set():
             within = component.idle_within
             if not wake.wait(idle if within is None else min(idle, max(within, 0.0005))):
                 component.idle()
                 continue
             wake.clear()
-            ports = [component.inputs[n] for n in activity.ports if n in component.inputs]
+            if len(ports) < len(activity.ports):  # a port its file declares comes later
+                ports = [component.inputs[n] for n in activity.ports if n in component.inputs]
             while any(p.pending() for p in ports) and not self._stop.is_set():
                 before = sum(p.pending() for p in ports)
                 component.update()

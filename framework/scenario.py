@@ -349,8 +349,7 @@ class ScenarioRunner(Listener):
         self._zero: float | None = None
         self._started = time.monotonic()
         self.entries: list[tuple[float, str]] = []  # (monotonic time, state path)
-        self.events: list[tuple[float, str]] = []
-        self._payloads: dict[int, Any] = {}  # index in `events` -> payload, when it had one
+        self.events: list[tuple[float, str, Any]] = []  # (monotonic time, name, payload)
         self.active: set[str] = set()
         self.done: list[ScenarioStep] = []
         self.outcomes: list[Outcome] = []
@@ -379,9 +378,7 @@ class ScenarioRunner(Listener):
 
     def on_event(self, event: Event) -> None:
         with self._changed:
-            if event.payload:
-                self._payloads[len(self.events)] = event.payload
-            self.events.append((time.monotonic(), event.name))
+            self.events.append((time.monotonic(), event.name, event.payload))
             self._changed.notify_all()
 
     # --- playing ---------------------------------------------------------------------
@@ -550,11 +547,11 @@ class ScenarioRunner(Listener):
         if e.kind in ("state", "never_state"):
             times = [t for t, p in self.entries if any(_matches(p, n) for n in e.names)]
         else:
-            times = [t for t, n in self.events if n in e.names]
-        if e.kind == "never_event" and times:  # say why it came: the reason to look at
-            first = next(i for i, (_, n) in enumerate(self.events) if n in e.names)
-            payload = self._payloads.get(first)
-            return False, f"at {times[0] - zero:.3f}s" + (f" {payload}" if payload else "")
+            came = [(t, payload) for t, n, payload in self.events if n in e.names]
+            times = [t for t, _ in came]
+            if e.kind == "never_event" and came:  # say why it came: the reason to look at
+                t, payload = came[0]
+                return False, f"at {t - zero:.3f}s" + (f" {payload}" if payload else "")
         if e.kind.startswith("never"):
             return (not times, f"at {times[0] - zero:.3f}s" if times else "")
         hits = [t for t in times if limit is None or t <= limit]

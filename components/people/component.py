@@ -179,7 +179,7 @@ class WorkspacePeopleDetector(Component):
         # the safety-relevant values go out first: the robot keeps its distance from the
         # envelopes (their age is what it was seen, not now), the Supervisor stops on
         # the distance
-        a, b, radius = self.core.envelopes(frame.guarded)
+        a, b, radius = frame.envelopes
         self.envelopes.write(
             Envelopes(
                 self._seen_at,

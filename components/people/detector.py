@@ -65,6 +65,11 @@ class Frame:
     guarded: list[Track] = field(default_factory=list)
     """Whom the robot keeps its distance from (speed and separation monitoring): the
     people (two cameras seeing someone confirm them in that frame) and the suspects."""
+    envelopes: tuple[np.ndarray, np.ndarray, np.ndarray] = field(
+        default_factory=lambda: (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+    )
+    """The guarded's envelope capsules (p, q, radius; base frame, m), noise margin in
+    the radii: what the robot keeps its distance from, and what `min_distance` is to."""
 
 
 Group = tuple[frozenset[str], np.ndarray, np.ndarray]
@@ -181,24 +186,34 @@ class PeopleDetectorCore:
             and t.last_seen == now
             and now - t.first_seen >= self.config.confirm_after
         ]
-        distance, closest = float("inf"), None
-        if robot is not None and (confirmed or suspects):
-            distance, closest = self._distances(confirmed + suspects, robot)
         guarded = confirmed + suspects
-        return Frame(tracks, confirmed, near, distance, closest, rejected, suspects, guarded)
-
-    def envelopes(self, guarded: list[Track]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The envelope capsules (p, q, radius; base frame, m) of `guarded` tracks, their
-        noise margin in the radii (an unknown sigma counts as 5 cm)."""
-        if not guarded:
-            empty = np.zeros((0, 3))
-            return empty, empty, np.zeros(0)
-        joints = np.stack([t.joints for t in guarded])
-        sigma = np.stack([t.sigma for t in guarded])
-        p, q, r, _, _ = envelopes(
-            joints, np.where(np.isnan(sigma), 0.05, sigma), self.config.margin_sigmas
+        envelope = self._envelopes(guarded)
+        distance, closest = float("inf"), None
+        if robot is not None and guarded:
+            distance, closest = self._distances(guarded, envelope, robot)
+        return Frame(
+            tracks,
+            confirmed,
+            near,
+            distance,
+            closest,
+            rejected,
+            suspects,
+            guarded,
+            envelope[:3],
         )
-        return p, q, r
+
+    def _envelopes(
+        self, people: list[Track]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """`skeleton.envelopes` of these tracks (an unknown sigma counts as 5 cm)."""
+        if not people:
+            empty = np.zeros((0, 3))
+            none = np.zeros(0, dtype=int)
+            return empty, empty, np.zeros(0), none, none
+        joints = np.stack([t.joints for t in people])
+        sigma = np.stack([t.sigma for t in people])
+        return envelopes(joints, np.where(np.isnan(sigma), 0.05, sigma), self.config.margin_sigmas)
 
     def _update_trust(self, grouped: list[Group]) -> None:
         """Cameras seen fusing with a verified camera become verified; a verified camera
@@ -293,13 +308,12 @@ class PeopleDetectorCore:
         return missing
 
     def _distances(
-        self, people: list[Track], robot: tuple[np.ndarray, np.ndarray, np.ndarray]
+        self,
+        people: list[Track],
+        envelope: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+        robot: tuple[np.ndarray, np.ndarray, np.ndarray],
     ) -> tuple[float, tuple[int, str, int] | None]:
-        joints = np.stack([t.joints for t in people])
-        sigma = np.stack([t.sigma for t in people])
-        p, q, r, owner, limb = envelopes(
-            joints, np.where(np.isnan(sigma), 0.05, sigma), self.config.margin_sigmas
-        )
+        p, q, r, owner, limb = envelope
         matrix = capsule_distances(robot[0], robot[1], robot[2], p, q, r)
         value, link, column = closest_pair(matrix)
         if link < 0:

@@ -139,7 +139,6 @@ class RobotInterface(Component):
         self._kinematics: Kinematics | None = None
         self._people: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._seen_at = 0.0
-        self._tcp_before: tuple[np.ndarray, int] | None = None
         self.verdict: Verdict = CLEAR
         self.closest = math.inf  # the least separation while released (m)
         self._cap_sent = math.inf
@@ -216,19 +215,17 @@ class RobotInterface(Component):
     def _separation(self, state: ArmState) -> None:
         """Speed and separation monitoring, every cycle the arm is released: the stop
         in this very cycle, the speed cap on change (module docstring)."""
-        started = time.perf_counter()
         status, message = self.envelopes.read()
         if status is ReadStatus.NEW:
-            shape = (-1, 3)
-            self._people = (
-                np.asarray(message.a, dtype=float).reshape(shape),
-                np.asarray(message.b, dtype=float).reshape(shape),
-                np.asarray(message.radius, dtype=float),
-            )
-            self._seen_at = message.stamp
+            people, wrong = envelope_arrays(message)
+            if wrong:  # where people are is unknown: stop, as for a lost input
+                self.refuse("envelopes", wrong)
+                if not self.latched:
+                    self._trip(f"envelopes refused: {wrong}", state)
+                return
+            self._people, self._seen_at = people, message.stamp
             self._quiet = 0  # news: check now
         if self._people is None or (state.braked and not self._commanding):
-            self._tcp_before = None
             return
         if len(self._people[2]) == 0:  # nobody in the room
             self.verdict = CLEAR
@@ -237,6 +234,7 @@ class RobotInterface(Component):
         if self._quiet > 0:  # everyone far: nothing can change before the next check
             self._quiet -= 1
             return
+        started = time.perf_counter()
         if self._kinematics is None:
             self._kinematics = Kinematics()
         capsules = self._kinematics.capsules(np.asarray(state.position, dtype=float))
@@ -255,7 +253,7 @@ class RobotInterface(Component):
                 state,
             )
             return  # the stop's first command goes out before anything else
-        self._send_cap(self._tcp_cap(verdict, state))
+        self._send_cap(verdict.tcp_cap)
 
     def _reacted(self) -> None:
         """After the first stop command of a protective stop: how long the separation
@@ -269,18 +267,6 @@ class RobotInterface(Component):
                 "check_ms": round((self._detected - started) * 1e3, 4),
                 "detected_to_command_ms": round((now - self._detected) * 1e3, 4),
             }
-
-    def _tcp_cap(self, verdict: Verdict, state: ArmState) -> float:
-        """The cap in TCP speed: the link point the cap is for may move faster than the
-        TCP the interpolator paces (an elbow swinging), so it shrinks by their ratio."""
-        tcp = np.asarray(state.tcp[:3], dtype=float)
-        before, self._tcp_before = self._tcp_before, (tcp, state.cycle)
-        if not math.isfinite(verdict.cap) or before is None or state.cycle <= before[1]:
-            return verdict.cap
-        tcp_speed = float(np.linalg.norm(tcp - before[0])) / ((state.cycle - before[1]) * CYCLE)
-        if tcp_speed < 1e-4 or verdict.robot_speed <= tcp_speed:
-            return verdict.cap
-        return verdict.cap * tcp_speed / verdict.robot_speed
 
     def _send_cap(self, cap: float) -> None:
         """Say a new cap; one within `CAP_CHANGE` of the last said is not news (0 and
@@ -477,3 +463,20 @@ class RobotInterface(Component):
 def _cm(metres: float) -> float | None:
     """A distance or speed for a report, to the millimetre (None: unbounded)."""
     return round(metres, 3) if math.isfinite(metres) else None
+
+
+def envelope_arrays(
+    message: Envelopes,
+) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray] | None, str]:
+    """The capsules (a, b as (n, 3), radius as (n,)) of an envelopes sample, or why it
+    is not one: lengths that do not match, or a value that is not finite (a NaN
+    distance would compare as "far"), or a negative radius."""
+    a, b = np.asarray(message.a, dtype=float), np.asarray(message.b, dtype=float)
+    radius = np.asarray(message.radius, dtype=float)
+    if not (len(a) == len(b) == 3 * len(radius)):
+        return None, f"{len(a)}/{len(b)} coordinates for {len(radius)} capsules"
+    if not (np.isfinite(a).all() and np.isfinite(b).all() and np.isfinite(radius).all()):
+        return None, "a coordinate or radius that is not finite"
+    if (radius < 0.0).any() or not math.isfinite(message.stamp):
+        return None, "a negative radius or a stamp that is not finite"
+    return (a.reshape(-1, 3), b.reshape(-1, 3), radius), ""

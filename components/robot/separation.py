@@ -97,13 +97,23 @@ class SsmParams:
 class Verdict:
     """One cycle's answer: the separation (m; inf without anyone), the robot's fastest
     link point (m/s), the protective distance at that speed, the speed cap for the
-    motion (m/s; inf: none) and whether to stop now."""
+    motion (m/s; inf: none), whether to stop now, and the tool's speed over the same
+    window (the end of the last capsule: what the interpolator paces)."""
 
     separation: float
     robot_speed: float
     protective: float
     cap: float
     stop: bool
+    tcp_speed: float = 0.0
+
+    @property
+    def tcp_cap(self) -> float:
+        """The cap as a TCP speed: the link point it is for may move faster than the
+        TCP (an elbow swinging), so it shrinks by their ratio."""
+        if not math.isfinite(self.cap) or self.tcp_speed < 1e-4:
+            return self.cap
+        return self.cap * min(1.0, self.tcp_speed / self.robot_speed)
 
 
 CLEAR = Verdict(math.inf, 0.0, 0.0, math.inf, False)
@@ -139,6 +149,8 @@ class SeparationMonitor:
         self.params = params
         self.max_speed = max_speed
         self._history: deque[tuple[np.ndarray, np.ndarray, float]] = deque()
+        self.tcp_speed = 0.0
+        """The tool's speed over the window of the last `robot_speed`."""
 
     def robot_speed(self, a: np.ndarray, b: np.ndarray, now: float) -> float:
         """The fastest link capsule end over the last `SPEED_WINDOW` (m/s; 0 on the
@@ -147,10 +159,11 @@ class SeparationMonitor:
         history = self._history
         while len(history) > 1 and now - history[1][2] >= SPEED_WINDOW:
             history.popleft()
-        speed = 0.0
+        speed = self.tcp_speed = 0.0
         if history and now > history[0][2]:
             pa, pb, then = history[0]
             speed = link_speed((pa, pb), (a, b), now - then)
+            self.tcp_speed = float(np.linalg.norm(b[-1] - pb[-1])) / (now - then)
         history.append((a.copy(), b.copy(), now))
         return speed
 
@@ -166,7 +179,7 @@ class SeparationMonitor:
         a, b, radius = robot
         speed = self.robot_speed(a, b, now)
         if people is None or len(people[0]) == 0:
-            return Verdict(math.inf, speed, 0.0, math.inf, False)
+            return Verdict(math.inf, speed, 0.0, math.inf, False, self.tcp_speed)
         separation = float(np.min(capsule_distances(a, b, radius, *people)))
         p = self.params
         protective = p.protective_distance(speed, age)
@@ -175,7 +188,7 @@ class SeparationMonitor:
         cap = min(self.max_speed * min(max(share, 0.0), 1.0), p.allowed_speed(separation, age))
         if share >= 1.0 and cap >= self.max_speed:
             cap = math.inf
-        return Verdict(separation, speed, protective, cap, separation < protective)
+        return Verdict(separation, speed, protective, cap, separation < protective, self.tcp_speed)
 
     def quiet_cycles(self, verdict: Verdict, age: float, dt: float) -> int:
         """How many cycles of `dt` may pass before the next check changes anything: none

@@ -222,8 +222,8 @@ def test_the_robot_keeps_its_distance_from_someone_two_cameras_see_from_that_fra
     cams, core = setup()
     frame = run(cams, core, {1: standing((0.5, 0.0))}, 1)
     assert [t.id for t in frame.guarded] == [t.id for t in frame.tracks] != []
-    a, b, radius = core.envelopes(frame.guarded)
+    a, b, radius = frame.envelopes
     assert a.shape == b.shape == (len(radius), 3) and len(radius) >= 10
     assert np.all(radius > 0.0)
-    empty = core.envelopes([])
+    empty = run(*setup(), {}, 1).envelopes
     assert empty[0].shape == (0, 3) and empty[2].shape == (0,)

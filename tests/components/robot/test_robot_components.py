@@ -3,6 +3,7 @@
 stepped clock: one millisecond of physics per update, setpoints and measured states
 through real ports, deterministic runs."""
 
+import dataclasses
 import time
 
 import numpy as np
@@ -446,5 +447,33 @@ def test_people_approaching_the_moving_arm_slow_it_then_a_protective_stop_latche
         assert cell.arm.call("report")["braked"]
         with pytest.raises(FwError, match="latched"):
             cell.robot.call("release")
+    finally:
+        cell.close()
+
+
+@pytest.mark.parametrize(
+    "garbage",
+    [
+        Envelopes(0.0, (0.5, 0.0, 0.0), (0.5, 0.0, 1.0), (float("nan"),)),
+        Envelopes(0.0, (0.5, 0.0), (0.5, 0.0, 1.0), (0.15,)),
+        Envelopes(0.0, (0.5, 0.0, 0.0), (0.5, 0.0, 1.0), (-0.15,)),
+    ],
+    ids=["nan", "short", "negative"],
+)
+def test_envelopes_that_are_not_capsules_stop_the_moving_arm_latched(hub, garbage):
+    """Garbage from the people detector means nobody knows where people are: a NaN
+    separation would compare as far, so it is a protective stop, latched, and said."""
+    cell = Cell(hub)
+    try:
+        people = writer_port(hub, "test/envelopes", Envelopes)
+        cell.container.connect("robot", "envelopes", "test/envelopes")
+        cell.release()
+        cell.interp.call("go_to", goal="target")
+        cell.run(0.5)
+        people.write(dataclasses.replace(garbage, stamp=time.time()))
+        cell.run(0.5)
+        report = cell.robot.call("report")
+        assert report["latched"] and report["reason"].startswith("envelopes refused")
+        assert cell.arm.call("report")["braked"]
     finally:
         cell.close()
