@@ -71,6 +71,7 @@ def process_keys(topology: Topology, process: str) -> dict[str, list[str]]:
     put += [keys.heartbeat(n) for n in sorted(names)] + [keys.state(n) for n in sorted(names)]
     put += [keys.refused(n) for n in sorted(names)]
     put.append(keys.process_heartbeat(process))
+    put.append(keys.config_switched(process))  # its local switches (framework/local_switch.py)
     queryable = [f"{keys.control(n)}/**" for n in sorted(names)]
     queryable += [keys.port_type(k) for k in sorted(outputs)]
     queryable.append(keys.container(process))

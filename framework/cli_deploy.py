@@ -509,6 +509,9 @@ def _summary(topic: str, data: dict[str, Any]) -> str:
         return f"REFUSED    {data.get('component')}.{data.get('port')}: {data.get('reason')}{times}"
     if topic == "/fw/config/request":
         return f"request    #{data.get('request_id')} {data.get('tag')}"
+    if topic == "/fw/config/switched":
+        verdict = "ok" if data.get("ok") else f"FAILED at {data.get('step')}: {data.get('reason')}"
+        return f"switched   #{data.get('request_id')} {data.get('tag')} in {data.get('process')} {verdict}"
     if topic == "/fw/config/ack":
         verdict = "ok" if data.get("ok") else f"FAILED at {data.get('step')}: {data.get('reason')}"
         return f"ack        #{data.get('request_id')} {data.get('tag')} {verdict}"

@@ -19,6 +19,13 @@ refused, and no step starts after it, so nothing the chart has given up on runs 
 Re-applying a configuration is harmless: connections already in place and
 components already in their target state are left alone (operations are
 called again, so they should be idempotent).
+
+A configuration that begins with a *local switch* (input ports of one process
+switched between keys they keep standby subscriptions to, `Topology.local_switch`)
+is switched by that process itself when the request is `alone`
+(framework/local_switch.py): the Configurator then waits for the process's report
+instead of sending those steps, records them as its own (a later failure undoes
+them too), and applies the rest.
 """
 
 from __future__ import annotations
@@ -29,7 +36,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from framework import messages
+from framework import keys, messages
 from framework.bus import Bus
 from framework.clock import late
 from framework.component import Component, In, Out, operation
@@ -41,6 +48,8 @@ from framework.topology import Step, Topology
 
 CALL_TAG = "@call"
 WRITE_TAG = "@write"
+KEPT_REPORTS = 64
+"""Local switch reports kept for requests not served yet."""
 
 
 class StepFailed(FwError):
@@ -61,6 +70,8 @@ class Outcome:
     reason: str = ""
     seconds: float = 0.0
     rolled_back: int = 0
+    switched_by: str = ""
+    """The process that made the configuration's first steps itself (a local switch)."""
 
 
 class Configurator(Component):
@@ -83,6 +94,32 @@ class Configurator(Component):
         }
         self._apply_lock = threading.Lock()
         self.history: list[Outcome] = []
+        self._reports: dict[int, ConfigAck] = {}
+        self._reported = threading.Condition()
+        self._report_subscription: Any = None
+        self._forced: dict[str, float] = {}  # component -> when steps were last forced on it
+
+    def start_hook(self) -> bool:
+        self._report_subscription = self.bus.subscribe(
+            keys.ALL_SWITCHED, self._on_report, history=False
+        )
+        return True
+
+    def stop_hook(self) -> None:
+        subscription, self._report_subscription = self._report_subscription, None
+        if subscription is not None:
+            subscription.undeclare()
+
+    def _on_report(self, sample: Any) -> None:
+        try:
+            report, _, _ = messages.decode(sample.payload.to_bytes(), ConfigAck)
+        except messages.CodecError:
+            return  # not a report: the wait for a real one times out
+        with self._reported:
+            self._reports[report.request_id] = report
+            while len(self._reports) > KEPT_REPORTS:
+                del self._reports[next(iter(self._reports))]
+            self._reported.notify_all()
 
     # -- the request port ----------------------------------------------------------
     def update_hook(self) -> None:
@@ -103,6 +140,15 @@ class Configurator(Component):
             )
 
     def _serve(self, request: ConfigRequest) -> Outcome:
+        process, switched = ("", [])
+        if request.alone and not request.tag.startswith("@"):
+            process, switched = self.topology.local_switch(request.tag)
+        if switched:  # made (or not) by `process` already: recorded even if late
+            configuration = self.topology.configurations[request.tag]
+            local = (process, len(switched), request)
+            return self._run(
+                request.tag, configuration.steps, request.deadline or None, local=local
+            )
         overdue = late(request.deadline)
         if overdue:  # the chart gave up on it already: never apply it late
             outcome = Outcome(request.tag, False, "deadline", overdue)
@@ -171,12 +217,26 @@ class Configurator(Component):
         return steps
 
     def _run(
-        self, tag: str, steps: list[Step], deadline: float | None = None, force: bool = False
+        self,
+        tag: str,
+        steps: list[Step],
+        deadline: float | None = None,
+        force: bool = False,
+        local: tuple[str, int, ConfigRequest] | None = None,
     ) -> Outcome:
+        """Apply `steps`; with `local` (process, count, request), the first `count` were
+        switched by that process on `request` and are only recorded here."""
         with self._apply_lock:
             start = time.perf_counter()
             undo: list[Step] = []
             try:
+                if local is not None:
+                    process, count, request = local
+                    self._take_switch(process, steps[:count], request, undo)
+                    steps = steps[count:]
+                    overdue = late(deadline)
+                    if overdue:  # the chart gave up meanwhile: undo the switch too
+                        raise StepFailed("deadline", overdue)
                 for batch in self._batches(steps, force):
                     overdue = late(deadline)
                     if overdue:
@@ -189,8 +249,43 @@ class Configurator(Component):
                 )
             else:
                 outcome = Outcome(tag, True, seconds=time.perf_counter() - start)
+            if local is not None:
+                outcome.switched_by = local[0]
+            if force:
+                for step in steps:
+                    self._forced[step.component] = time.time()
             self.history.append(outcome)
             return outcome
+
+    def _take_switch(
+        self, process: str, steps: list[Step], request: ConfigRequest, undo: list[Step]
+    ) -> None:
+        """Wait for `process`'s report of the local switch it made on `request` and record
+        its steps as made here. Without a report, or on a failure, the switch's steps
+        are undone with the rest (`StepFailed`)."""
+        wait = sum(step.timeout for step in steps)
+        if request.deadline:
+            wait = min(wait, max(0.0, request.deadline - time.time()) + steps[0].timeout)
+        with self._reported:
+            self._reported.wait_for(lambda: request.request_id in self._reports, wait)
+            report = self._reports.pop(request.request_id, None)
+        if report is None:
+            for step in steps:  # it may have switched: restore what the wiring says
+                undo.append(self._restore(step, self.wiring.get((step.component, step.target))))
+            raise StepFailed(
+                steps[0].describe(), f"{process} did not report its local switch within {wait:g} s"
+            )
+        labels = [step.describe() for step in steps]
+        made = (
+            len(steps) if report.ok else labels.index(report.step) if report.step in labels else 0
+        )
+        for step in steps[:made]:
+            self._record(step, None, undo)
+        if not report.ok:
+            raise StepFailed(report.step, f"{process}: {report.reason}")
+        if any(self._forced.get(step.component, 0.0) > request.stamp for step in steps):
+            for batch in self._batches(steps, True):  # a restore ran meanwhile: again
+                self._send(batch, [])
 
     def _batches(self, steps: list[Step], force: bool) -> list[list[Step]]:
         """Consecutive steps on one component travel together (one round trip each)."""

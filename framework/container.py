@@ -32,6 +32,7 @@ from framework.bus import Bus, BusConfig, BusError
 from framework.clock import late
 from framework.component import Component, Heartbeat, LifecycleError, Refusal, StateChange
 from framework.errors import FwError
+from framework.local_switch import LocalSwitches
 from framework.messages import EventMessage, Scalar
 from framework.ports import ConnPolicy, InputPort, OutputPort, PortError
 from framework.safety import ProcessHeartbeat, SafetyMonitor, SafetySpec
@@ -73,6 +74,9 @@ class Container:
         self._lock = threading.RLock()
         self._closed = False
         self._declared.append(bus.queryable(keys.container(name), self._on_container_query))
+        self.local_switches: LocalSwitches | None = None
+        """Configurations whose first steps this process switches itself (see
+        framework/local_switch.py); set by `build` from the topology."""
 
     # -- hosting -------------------------------------------------------------------
     def add(
@@ -359,6 +363,8 @@ class Container:
             self._closed = True
         if self.beat is not None:
             self.beat.stop()
+        if self.local_switches is not None:
+            self.local_switches.close()
         for component in reversed(list(self.components.values())):
             with contextlib.suppress(LifecycleError):
                 component.stop()
@@ -479,6 +485,8 @@ def build(spec: dict[str, Any], bus: Bus) -> Container:
             raise ContainerError(f"{component.name}: configure failed: {component.last_error}")
         if item.get("start", False) and not component.start():
             raise ContainerError(f"{component.name}: start failed: {component.last_error}")
+    if spec.get("switches"):
+        container.local_switches = LocalSwitches(container, spec["switches"])
     container.start()
     return container
 

@@ -47,8 +47,8 @@ from framework.statechart.model import (
 )
 
 EVENTS_KEY = "fw/events"
-REQUESTS_KEY = "fw/config/request"
-ACKS_KEY = "fw/config/ack"
+REQUESTS_KEY = keys.CONFIG_REQUESTS
+ACKS_KEY = keys.CONFIG_ACKS
 STATUS_KEY = "fw/coordinator/status"
 SENT_KEY = "fw/coordinator/sent"
 ACTION_TIMEOUT = 2.0
@@ -179,6 +179,7 @@ class Coordinator(Component):
         self.interpreter: Interpreter | None = None
         self._ids = itertools.count(1)
         self._pending: dict[int, str] = {}
+        self._deadlines: dict[int, float] = {}
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -250,6 +251,7 @@ class Coordinator(Component):
             if status is not ReadStatus.NEW:
                 break
             tag = self._pending.pop(ack.request_id, None)
+            self._deadlines.pop(ack.request_id, None)
             if tag is None:
                 continue  # an answer to another coordinator, or already timed out
             if tag.startswith("@"):
@@ -309,11 +311,21 @@ class Coordinator(Component):
         """One request for the Configurator, with the deadline after which the chart has
         given up on it (its configuration timeout): the Configurator refuses it then."""
         request_id = next(self._ids)
-        self._pending[request_id] = tag
         now = time.time()
+        alone = self._nothing_pending(now)
+        self._pending[request_id] = tag
         deadline = now + timeout  # a chart's configuration timeout is positive (validated)
+        self._deadlines[request_id] = deadline
         self.publish("request", {"tag": tag, "request_id": request_id, **args})
-        self.requests.write(ConfigRequest(now, request_id, tag, args, deadline))
+        self.requests.write(ConfigRequest(now, request_id, tag, args, deadline, alone))
+
+    def _nothing_pending(self, now: float) -> bool:
+        """True if every earlier request is answered or past its deadline (the
+        Configurator starts no step after it); forgets those past it."""
+        for request_id, deadline in list(self._deadlines.items()):
+            if deadline < now:
+                del self._deadlines[request_id]
+        return not self._deadlines
 
     # -- status ----------------------------------------------------------------------
     def publish(self, kind: str, payload: dict[str, Any]) -> None:

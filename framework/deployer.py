@@ -41,6 +41,7 @@ from framework.coordinator import (
 )
 from framework.errors import FwError
 from framework.keystore import OPERATOR, Keystore, create_keystore, keystore_for
+from framework.local_switch import switch_spec
 from framework.statechart.events import Listener
 from framework.statechart.loader import load_statechart
 from framework.topology import CONTROL_PROCESS, Step, Topology, load_topology
@@ -120,6 +121,7 @@ def container_spec(topology: Topology, process: str) -> dict[str, Any]:
         "name": process,
         "bus": dataclasses.replace(topology.bus, listen=listen).to_dict(),
         "components": components,
+        "switches": switch_spec(topology, process),
     }
     if topology.safety is not None:
         spec["beat"] = topology.safety.process_beat

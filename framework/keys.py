@@ -60,6 +60,17 @@ def default_output(component: str, port: str) -> str:
     return f"{component}/{port}"
 
 
+def config_switched(process: str) -> str:
+    """Where a process reports a local switch it made on a configuration request (the
+    Configurator waits for it, framework/configurator.py)."""
+    return f"fw/config/switched/{process}"
+
+
+CONFIG_REQUESTS = "fw/config/request"
+"""Where the Coordinator asks for configurations (`ConfigRequest`)."""
+CONFIG_ACKS = "fw/config/ack"
+"""Where the Configurator answers them (`ConfigAck`)."""
+ALL_SWITCHED = "fw/config/switched/*"
 DEPLOYER_EVENTS = "fw/deployer/events"
 """Where fw deploy reports what happens to its processes (lost, restarted)."""
 ALL_ALIVE = "fw/alive/*"

@@ -124,7 +124,7 @@ class EventMessage:
 class ConfigRequest:
     """The Coordinator asks the Configurator to apply a named configuration."""
 
-    LAYOUT: ClassVar[str] = "stamp:f64 request_id:i64 tag:str args:json deadline:f64"
+    LAYOUT: ClassVar[str] = "stamp:f64 request_id:i64 tag:str args:json deadline:f64 alone:bool"
     stamp: float = 0.0
     request_id: int = 0
     tag: str = ""
@@ -132,6 +132,10 @@ class ConfigRequest:
     deadline: float = 0.0
     """Wall-clock time (s) after which it must not start (0: none): a request the
     requester has given up on is refused, never applied late."""
+    alone: bool = False
+    """Nothing else the requester asked for is still being applied: the process that
+    hosts the configuration's first ports may switch them at once (a local switch,
+    framework/configurator.py), as no earlier configuration can come after it."""
 
 
 @dataclass(frozen=True, slots=True)

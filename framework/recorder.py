@@ -77,6 +77,8 @@ _SCHEMAS: dict[str, dict[str, Any]] = {
             "request_id": {"type": "integer"},
             "tag": {"type": "string"},
             "args": {"type": "object"},
+            "deadline": {"type": "number"},
+            "alone": {"type": "boolean"},
         },
     },
     "fw.ConfigAck": {
@@ -89,6 +91,7 @@ _SCHEMAS: dict[str, dict[str, Any]] = {
             "tag": {"type": "string"},
             "step": {"type": "string"},
             "reason": {"type": "string"},
+            "process": {"type": "string", "description": "who made a local switch"},
         },
     },
     "fw.Sample": {
@@ -166,6 +169,7 @@ class FlightRecorder:
                 keys.ALL_STATES, self._by_component("/fw/components", "fw.ComponentState")
             ),
             bus.subscribe(keys.ALL_REFUSED, self._by_component("/fw/refused", "fw.Refusal")),
+            bus.subscribe(keys.ALL_SWITCHED, self._switched, history=False),
         ]
         for key, type_name in (samples or {}).items():
             kind = messages.resolve_type(type_name)
@@ -236,6 +240,16 @@ class FlightRecorder:
             self.write(topic, schema, data, message.stamp)
 
         return record
+
+    def _switched(self, sample: Any) -> None:
+        """A process's report of a local switch (framework/local_switch.py), with the
+        process's name from its key."""
+        try:
+            report, _, _ = messages.decode(sample.payload.to_bytes(), ConfigAck)
+        except messages.CodecError:
+            return
+        data = {"process": str(sample.key_expr).rsplit("/", 1)[-1], **_plain(report)}
+        self.write("/fw/config/switched", "fw.ConfigAck", data, report.stamp)
 
     def close(self) -> None:
         """Stop listening and finish the file (summary and index)."""

@@ -193,6 +193,32 @@ class Topology:
             return spec.output_key(port)
         return source
 
+    def local_switch(self, tag: str) -> tuple[str, list[Step]]:
+        """The process that can apply the first steps of configuration `tag` by itself,
+        the moment the chart asks, and those steps: disconnects and connects of input
+        ports its components have, each connect to a key the port keeps a standby
+        subscription to (`prepare:`). A tracker swap is such a switch, so it costs no
+        hop through the Configurator. ('', []) if the configuration begins otherwise."""
+        configuration = self.configurations.get(tag)
+        process, steps = "", []
+        for step in configuration.steps if configuration is not None else []:
+            spec = self.components.get(step.component)
+            if (
+                spec is None
+                or spec.info is None
+                or step.kind not in ("connect", "disconnect")
+                or step.target not in spec.info.inputs
+                or (process and spec.process != process)
+                or (
+                    step.kind == "connect"
+                    and step.key not in self.prepare.get(f"{step.component}.{step.target}", [])
+                )
+            ):
+                break
+            process = spec.process
+            steps.append(step)
+        return process, steps
+
     def writers_of(self, key: str) -> list[tuple[str, str]]:
         """(component.port, message type) of every output port publishing on `key`."""
         return [(writer, kind) for writer, at, kind in self.published() if at == key]

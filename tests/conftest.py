@@ -192,9 +192,9 @@ def wait_until(predicate, timeout: float = 5.0, interval: float = 0.005) -> bool
     return bool(predicate())
 
 
-def play_seeg_scenario(path, bus_config, tmp_path) -> list:
+def play_seeg_scenario(path, bus_config, tmp_path, history: list | None = None) -> list:
     """Play a scenario on the SEEG deployment (real processes, a private bus); the
-    outcomes that failed."""
+    outcomes that failed. `history` receives the Configurator's outcomes."""
     from framework.deployer import Deployment
     from framework.scenario import load_scenario
 
@@ -206,6 +206,8 @@ def play_seeg_scenario(path, bus_config, tmp_path) -> list:
         assert deployment.runner.finished.wait(scenario.timeout + 30), "scenario never finished"
     finally:
         deployment.stop()
+    if history is not None and deployment.configurator is not None:
+        history.extend(deployment.configurator.history)
     return [o for o in deployment.runner.report() if not o.ok]
 
 

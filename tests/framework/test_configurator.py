@@ -10,16 +10,18 @@ import time
 
 import pytest
 
+from framework import keys
 from framework.activity import Activity
 from framework.configurator import Configurator
 from framework.container import Container, build
 from framework.deployer import container_spec
 from framework.messages import ConfigAck, ConfigRequest
+from framework.recorder import FlightRecorder, read_recording
 from framework.topology import Step
 from tests.conftest import REPO, decoded_into, private_topology, wait_until, writer_port
 
 TOPOLOGY = REPO / "tests" / "data" / "configurator" / "configurator.yaml"
-REQUESTS, ACKS = "spec/requests", "spec/acks"
+REQUESTS, ACKS = keys.CONFIG_REQUESTS, "spec/acks"  # where a local switch hears requests
 
 
 class Rig:
@@ -41,7 +43,7 @@ class Rig:
         assert peer.wait_for_peers(1)
         self.acks: list[ConfigAck] = []
         self._sub = peer.subscribe(ACKS, decoded_into(self.acks, ConfigAck))
-        self.requests = writer_port(peer, REQUESTS, ConfigRequest)
+        self.requests = writer_port(hub, REQUESTS, ConfigRequest)  # from control, as ever
         self._ids = iter(range(1, 10**6))
         self._routed()
         assert self.apply("setup").ok
@@ -61,10 +63,12 @@ class Rig:
 
         assert wait_until(answered, 10)
 
-    def request(self, tag, args=None, deadline=0.0) -> ConfigAck:
+    def request(self, tag, args=None, deadline=0.0, alone=False) -> ConfigAck:
         """Send a request on the Configurator's port, as the Coordinator does; its ack."""
         request_id = next(self._ids)
-        self.requests.write(ConfigRequest(time.time(), request_id, tag, args or {}, deadline))
+        self.requests.write(
+            ConfigRequest(time.time(), request_id, tag, args or {}, deadline, alone)
+        )
         assert wait_until(lambda: any(a.request_id == request_id for a in self.acks), 20)
         return next(a for a in self.acks if a.request_id == request_id)
 
@@ -301,3 +305,76 @@ def test_a_step_still_running_at_the_requests_deadline_fails_and_nothing_follows
     ack = rig.request("slow_then_tune", deadline=time.time() + 0.3)
     assert (ack.ok, ack.step) == (False, "call sink.slow")
     assert rig.workers.components["dbl"].get_property("gain") == 2.0, "never set"
+
+
+# -- local switches (framework/local_switch.py) ------------------------------------------
+def switch_routed(rig, hub):
+    """Wait until the workers' process listens to the Coordinator's requests."""
+    probe = hub.publisher(REQUESTS, cache=False, remote_only=True)
+    try:
+        assert wait_until(lambda: probe.matching_status.matching, 10)
+    finally:
+        probe.undeclare()
+
+
+def test_a_prepared_switch_is_made_by_its_process_and_recorded_by_the_configurator(
+    rig, hub, tmp_path
+):
+    recording = tmp_path / "flight.mcap"
+    recorder = FlightRecorder(recording, hub)
+    switch_routed(rig, hub)
+    assert rig.workers.local_switches.switches.keys() >= {"switch_to_b", "unplug"}
+    assert "to_b" not in rig.workers.local_switches.switches, "it begins with a state"
+    ack = rig.request("switch_to_b", alone=True)
+    assert ack.ok, ack.reason
+    (report,) = rig.workers.local_switches.done
+    assert report.ok and report.request_id == ack.request_id, "the process switched"
+    assert rig.port("sink", "inp").key.endswith("b/out")
+    assert rig.workers.components["dbl"].get_property("gain") == 6.0, "the rest ran after"
+    (step,) = rig.configurator.restore_steps({"sink"})
+    assert step.key.endswith("b/out"), "the Configurator's map has the switch"
+    assert wait_until(lambda: received(rig) and received(rig)[-1] < 0), "b's samples arrive"
+    assert rig.configurator.history[-1].switched_by == "workers"
+    recorder.close()
+    (switched,) = [d for t, _, d in read_recording(recording) if t == "/fw/config/switched"]
+    assert switched["process"] == "workers" and switched["tag"] == "switch_to_b"
+    assert switched["ok"] and switched["request_id"] == ack.request_id, "in the flight recording"
+
+
+def test_a_request_that_is_not_alone_is_applied_by_the_configurator(rig, hub):
+    switch_routed(rig, hub)
+    ack = rig.request("switch_to_b")
+    assert ack.ok and rig.port("sink", "inp").key.endswith("b/out")
+    assert rig.workers.local_switches.done == [], "something else may still be applied"
+
+
+def test_a_failure_after_a_local_switch_undoes_the_switch(rig, hub):
+    switch_routed(rig, hub)
+    before = rig.port("sink", "inp").key
+    ack = rig.request("switch_then_fail", alone=True)
+    assert not ack.ok and ack.step == "call sink.fail"
+    assert rig.workers.local_switches.done[-1].ok
+    assert rig.port("sink", "inp").key == before, "switched back"
+    assert rig.configurator.history[-1].rolled_back == 1
+    assert rig.configurator.restore_steps({"sink"}) == [], "the Configurator's map agrees"
+
+
+def test_a_switch_the_process_cannot_make_fails_at_that_step(rig, hub):
+    switch_routed(rig, hub)
+    b_out = next(k for k in rig.port("sink", "inp").prepared if k.endswith("b/out"))
+    rig.port("sink", "inp").unprepare(b_out)  # its standby subscription is gone
+    ack = rig.request("switch_to_b", alone=True)
+    assert not ack.ok
+    assert ack.step == f"connect sink.inp -> {b_out}"
+    assert "workers: " in ack.reason and "no standby subscription" in ack.reason
+    assert rig.port("sink", "inp").key.endswith("a/out"), "the disconnect undone"
+    assert rig.workers.components["dbl"].get_property("gain") == 2.0, "nothing after it ran"
+
+
+def test_a_switch_nobody_reports_fails_and_is_undone(rig, hub):
+    switch_routed(rig, hub)
+    rig.workers.local_switches.switches.clear()  # the process no longer switches by itself
+    ack = rig.request("unplug", alone=True)
+    assert not ack.ok and ack.step == "disconnect sink.inp"
+    assert "workers did not report its local switch within 2 s" in ack.reason
+    assert rig.port("sink", "inp").key.endswith("a/out"), "the wiring is restored"

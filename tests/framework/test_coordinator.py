@@ -219,6 +219,22 @@ def test_the_charts_call_and_write_go_to_the_configurator_as_one_step_requests(r
     assert rig.active() == ["Idle"], "an action's answer is no chart event"
 
 
+def test_a_request_is_alone_only_while_nothing_else_is_being_applied(rig):
+    rig.put("e_CALL")
+    assert wait_until(lambda: len(rig.requests) == 1, 10)
+    rig.put("e_GO")
+    assert wait_until(lambda: len(rig.requests) == 2, 10)
+    call, work = rig.requests
+    assert call.alone, "the first: nothing before it"
+    assert not work.alone, "the call is not answered: no process may switch ahead of it"
+    rig.ack(call)
+    rig.ack(work)
+    assert wait_until(lambda: rig.active() == ["Done"], 10)
+    rig.put("e_GO")
+    assert wait_until(lambda: len(rig.requests) == 3, 10)
+    assert rig.requests[2].alone, "both answered"
+
+
 def test_a_send_action_is_published_for_the_outside_world(rig):
     rig.put("e_SEND")
     assert wait_until(lambda: rig.sent, 10)

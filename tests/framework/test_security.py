@@ -12,11 +12,11 @@ import time
 import pytest
 import zenoh
 
-from framework import messages
+from framework import keys, messages
 from framework.bus import Bus, BusError
 from framework.coordinator import EVENTS_KEY, STATUS_KEY, Admission
 from framework.keystore import OPERATOR, create_keystore, keystore_for
-from framework.messages import EventMessage
+from framework.messages import ConfigAck, ConfigRequest, EventMessage
 from tests.conftest import wait_until
 
 
@@ -142,9 +142,11 @@ def test_an_out_of_range_target_is_refused_by_the_coordinator_itself():
 def test_a_process_may_publish_only_on_its_own_outputs(deployed):
     """The access rules from the topology: neither `trackers` (t1, t2) nor `control_side`
     (the sink) has an output on the events key, so neither may put there; and
-    control_side may not put on t1's output."""
+    control_side may not put on t1's output. Configuration requests come from control
+    only, and a local switch report only from the process that made it."""
     assert wait_until(lambda: "Use_T1" in leaves(deployed), timeout=10)
-    heard = {"t1/out": 0, EVENTS_KEY: 0}
+    switched = keys.config_switched("control_side")
+    heard = {"t1/out": 0, EVENTS_KEY: 0, keys.CONFIG_REQUESTS: 0, switched: 0}
     observer = Bus(deployed.topology.bus, subject=OPERATOR)
     forgers = [Bus(deployed.topology.bus, subject=s) for s in ("trackers", "control_side")]
     try:
@@ -156,7 +158,19 @@ def test_a_process_may_publish_only_on_its_own_outputs(deployed):
         for forger in forgers:
             forger.session.put(EVENTS_KEY, messages.encode(forged, EventMessage))
         forgers[1].session.put("t1/out", b"not a sample")
+        # the real senders first (control, control_side), so the keys are routed
+        probe = ConfigRequest(time.time(), 10**9, "no such configuration", {}, 0.0, False)
+        deployed.hub.session.put(keys.CONFIG_REQUESTS, messages.encode(probe, ConfigRequest))
+        report = ConfigAck(time.time(), 99, True, "tracker_2_up")
+        forgers[1].session.put(switched, messages.encode(report, ConfigAck))
+        assert wait_until(lambda: heard[keys.CONFIG_REQUESTS] == heard[switched] == 1)
+        request = ConfigRequest(time.time(), 99, "tracker_2_up", {}, time.time() + 5, True)
+        for forger in forgers:
+            forger.session.put(keys.CONFIG_REQUESTS, messages.encode(request, ConfigRequest))
+        forgers[0].session.put(switched, messages.encode(report, ConfigAck))
         time.sleep(0.5)
+        assert heard[keys.CONFIG_REQUESTS] == 1, "requests come from control only"
+        assert heard[switched] == 1, "a process reports only its own switches"
         assert heard[EVENTS_KEY] == 0, "nobody here may put on the events key"
         assert deployed.coordinator.refused == 0, "it never even reached the Coordinator"
         assert heard["t1/out"] > baseline, "the real t1 keeps publishing"

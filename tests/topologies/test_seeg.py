@@ -26,7 +26,16 @@ def test_every_scenario_is_checked_against_the_chart_and_topology():
         )
 
 
+LOCAL_SWITCHES = {"tracker_swap": {"tracker_2_up": "robot"}}
+"""Configurations a scenario makes: switched by the process of the ports it rewires
+(framework/local_switch.py), not over a round trip from the Configurator."""
+
+
 @pytest.mark.parametrize("path", SCENARIOS, ids=[p.stem for p in SCENARIOS])
 def test_scenario_passes_on_real_processes(path, bus_config, tmp_path):
-    failed = play_seeg_scenario(path, bus_config, tmp_path)
+    history: list = []
+    failed = play_seeg_scenario(path, bus_config, tmp_path, history)
     assert not failed, failed
+    for tag, process in LOCAL_SWITCHES.get(path.stem, {}).items():
+        made = [o.switched_by for o in history if o.tag == tag and o.ok]
+        assert made == [process], f"{tag}: switched by {made}"
