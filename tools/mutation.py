@@ -79,6 +79,10 @@ SAFETY_CORE: dict[str, list[str]] = {
         "tests/components/robot/test_robot_components.py",
         REFERENCE,
     ],
+    "components/robot/separation.py": [
+        "tests/components/robot/test_separation.py",
+        "tests/components/robot/test_separation_walking.py",
+    ],
     "components/robot/interpolator.py": [
         "tests/components/robot/test_interpolator.py",
         "tests/components/robot/test_interpolator_component.py",

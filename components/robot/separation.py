@@ -61,6 +61,13 @@ class SsmParams:
     slow_band: float = 0.4
     """Beyond S_p(0) by this much (m) the cap is the full speed; it falls linearly to 0."""
 
+    def __post_init__(self) -> None:
+        for name, value in vars(self).items():
+            if not value >= 0.0:  # NaN too
+                raise ValueError(f"SSM term {name} must be >= 0, not {value}")
+        if not self.deceleration > 0.0:
+            raise ValueError(f"SSM term deceleration must be > 0, not {self.deceleration}")
+
     def stopping_time(self, v_r: float) -> float:
         """T_s (s) from speed v_r."""
         return self.engage + v_r / self.deceleration
