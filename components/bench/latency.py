@@ -152,6 +152,7 @@ def sensor_swap(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
                 ("Supervisor raises e_TFAULT", _event_stamp(run, "e_TFAULT", t0)),
                 ("the chart takes it", run.taken_after("e_TFAULT", t_fail)),
                 ("tracker_2_up requested", run.requested_after("tracker_2_up", t_fail)),
+                ("the robot process switched (its report)", _switched(run, "tracker_2_up", t0)),
                 ("first Vicra sample at the navigator", t_new),
             ],
         )
@@ -168,6 +169,15 @@ def sensor_swap(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
         )
 
     return _repeat("sensor swap", trials, trial, progress, lambda: _recover(run))
+
+
+def _switched(run: SeegRun, tag: str, t0: float) -> float | None:
+    """The stamp of the robot process's local switch to `tag` after `t0` (None if the
+    Configurator made it: the request was not `alone`)."""
+    for sample in run.since(t0, "fw/config/switched/robot"):
+        if sample.message.tag == tag and sample.message.ok:
+            return float(sample.message.stamp)
+    return None
 
 
 def no_sensor_to_stop(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:

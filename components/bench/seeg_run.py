@@ -23,7 +23,7 @@ from framework.bus import free_port
 from framework.container import raise_priority
 from framework.deployer import SAFETY_NICE, Deployment
 from framework.errors import FwError
-from framework.messages import EventMessage, Scalar, decode
+from framework.messages import ConfigAck, EventMessage, Scalar, decode
 from framework.remote import RemoteComponent
 from framework.statechart.events import Listener
 from framework.topology import load_topology
@@ -47,6 +47,7 @@ WATCHED: dict[str, type] = {
     "interpolator/status": EventMessage,  # t_brake: the cycle the motion starts braking
     "people_detector/min_distance": Scalar,  # t_collision: the distance's stamp
     "fw/events": EventMessage,
+    "fw/config/switched/robot": ConfigAck,  # the robot process's local switch (a swap)
 }
 
 
