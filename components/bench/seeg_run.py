@@ -48,6 +48,7 @@ WATCHED: dict[str, type] = {
     "people_detector/min_distance": Scalar,  # t_collision: the distance's stamp
     "fw/events": EventMessage,
     "fw/config/switched/robot": ConfigAck,  # the robot process's local switch (a swap)
+    "robot/status": EventMessage,  # the robot side's own latched stops (SSM's)
 }
 
 
