@@ -1,0 +1,256 @@
+"""A suite of operating-room scenes for the people detector (issue 19): seeded,
+reproducible, and varied where detection is hard, so a tracker tuned on one scene
+shows it on the others.
+
+A scene fixes the people (1-10), the cameras (2-4) and where they stand, what the
+people do, and how badly the cameras err (ghost skeletons per second and dropped
+frames, up to twice the simulated Kinect's defaults). Layouts:
+
+* `ring`: cameras spread around the table, 3.2 m out (people seen from several sides);
+* `thesis`: the thesis' rig, two cameras 90 degrees apart, 2.8 m out;
+* `wall`: every camera on one side of the room, so people stand behind one another;
+* `corners`: cameras high in the room's corners, 4.2 m out (people small and far).
+
+Behaviours:
+
+* `wander`: everyone walks between random points around the table;
+* `table`: they walk in, stand at the table for most of the scene, then leave;
+* `lean`: they stand at the table and lean over it (toward the robot) now and then;
+* `pass`: pairs walk past each other at arm's length;
+* `cross`: they cross the table's area on paths that intersect;
+* `in_out`: they walk in and out of the cameras' view, beyond the room's edge.
+
+`run` plays a scene through the detector and scores it against the simulation's
+truth (components/bench/mot.py, torso positions, `GATE`), with the count of people
+near the table against the true count.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from components.bench.mot import MotAccumulator
+from components.people.kinect_sim import KinectModel, look_at
+from components.people.skeleton import body_center
+from components.sim.people import Person
+
+FRAME = 1.0 / 30.0
+GATE = 0.5
+"""m: a track further than this from a person's torso is not that person."""
+WARMUP = 2.0
+"""s: tracks are confirmed over the first second; scoring starts after this."""
+AREA_RADIUS = 1.5
+"""m: the area around the table whose people are counted (as the detector's)."""
+DEFAULT_GHOSTS = 0.05
+DEFAULT_DROPOUT = 0.02
+LAYOUTS = ("ring", "thesis", "wall", "corners")
+BEHAVIOURS = ("wander", "table", "lean", "pass", "cross", "in_out")
+
+
+@dataclass(frozen=True)
+class Scene:
+    """One reproducible scene (see the module docstring)."""
+
+    name: str
+    people: int
+    cameras: int
+    layout: str
+    behaviour: str
+    ghosts: float = DEFAULT_GHOSTS
+    """Ghost skeletons started per second, per camera."""
+    dropout: float = DEFAULT_DROPOUT
+    """Share of frames a camera drops."""
+    seed: int = 0
+    seconds: float = 30.0
+
+
+def suite() -> list[Scene]:
+    """The 40 scenes: every layout with every behaviour (24), then 16 more that push
+    the number of people, the ghosts and the dropouts to their limits."""
+    scenes = []
+    counts = itertools.cycle([1, 3, 6, 10, 2, 4, 8, 5])
+    for k, (layout, behaviour) in enumerate(itertools.product(LAYOUTS, BEHAVIOURS)):
+        cams = 2 if layout == "thesis" else 2 + k % 3
+        people = next(counts)
+        scenes.append(
+            Scene(
+                f"{layout}-{behaviour}-{people}p{cams}c",
+                people,
+                cams,
+                layout,
+                behaviour,
+                seed=100 + k,
+            )
+        )
+    hard = [
+        (10, 4, "ring", "wander"),
+        (10, 2, "thesis", "table"),
+        (8, 3, "wall", "cross"),
+        (10, 3, "wall", "pass"),
+        (6, 2, "thesis", "lean"),
+        (9, 4, "corners", "cross"),
+        (7, 3, "ring", "in_out"),
+        (10, 4, "wall", "table"),
+    ]
+    for k, (people, cams, layout, behaviour) in enumerate(hard):
+        for noisy in (False, True):
+            ghosts, dropout = (
+                (2 * DEFAULT_GHOSTS, 2 * DEFAULT_DROPOUT)
+                if noisy
+                else (DEFAULT_GHOSTS, DEFAULT_DROPOUT)
+            )
+            tag = "-noisy" if noisy else ""
+            scenes.append(
+                Scene(
+                    f"hard-{layout}-{behaviour}-{people}p{cams}c{tag}",
+                    people,
+                    cams,
+                    layout,
+                    behaviour,
+                    ghosts,
+                    dropout,
+                    seed=200 + 2 * k + noisy,
+                )
+            )
+    return scenes
+
+
+def cameras_for(scene: Scene) -> list[KinectModel]:
+    """The scene's cameras, looking at the table (1 m above the floor at the origin)."""
+    rng = np.random.default_rng(scene.seed)
+    n = scene.cameras
+    if scene.layout == "thesis":
+        spots = [(math.pi / 2 * i, 2.8, 2.2) for i in range(n)]
+    elif scene.layout == "wall":  # all on the -y side, 3 m out, 1.5 m apart
+        spots = [
+            (
+                math.atan2(-3.0, 1.5 * (i - (n - 1) / 2)),
+                math.hypot(3.0, 1.5 * (i - (n - 1) / 2)),
+                2.2,
+            )
+            for i in range(n)
+        ]
+    elif scene.layout == "corners":
+        spots = [(math.pi / 4 + math.pi / 2 * i, 4.2, 2.6) for i in range(n)]
+    else:
+        start = rng.uniform(0, 2 * math.pi)
+        spots = [(start + 2 * math.pi * i / n, 3.2, 2.2) for i in range(n)]
+    out = []
+    for i, (angle, radius, height) in enumerate(spots):
+        position = (radius * math.cos(angle), radius * math.sin(angle), height)
+        out.append(
+            KinectModel(
+                f"k{i}",
+                look_at(position, (0.0, 0.0, 1.0)),
+                ghost_rate=scene.ghosts,
+                dropout=scene.dropout,
+                rng=np.random.default_rng(scene.seed * 10 + i),
+            )
+        )
+    return out
+
+
+def _around_table(rng: np.random.Generator, inner: float = 0.7, outer: float = 1.4) -> np.ndarray:
+    angle, radius = rng.uniform(0, 2 * math.pi), rng.uniform(inner, outer)
+    return np.array([radius * math.cos(angle), radius * math.sin(angle)])
+
+
+class Script:
+    """What the scene's people do, second by second (positions, waypoints, leans)."""
+
+    def __init__(self, scene: Scene):
+        self.scene = scene
+        self.rng = np.random.default_rng(scene.seed + 1)
+        self.people: dict[int, Person] = {}
+        self._lean_until: dict[int, float] = {}
+        rng, behaviour = self.rng, scene.behaviour
+        for pid in range(scene.people):
+            speed = rng.uniform(0.5, 1.2)
+            if behaviour == "wander":
+                person = Person(_around_table(rng, 0.3, 1.6), speed=speed)
+                person.waypoints = [_around_table(rng, 0.3, 1.6) for _ in range(20)]
+            elif behaviour in ("table", "lean"):
+                spot = _around_table(rng, 0.8, 1.0)
+                door = spot / np.linalg.norm(spot) * 3.5
+                person = Person(door, speed=speed)
+                stay = [spot + rng.normal(0, 0.05, 2) for _ in range(6)]
+                person.waypoints = [spot, *stay] + ([door] if behaviour == "table" else [])
+            elif behaviour == "pass":
+                side = 1.0 if pid % 2 else -1.0
+                lane = 0.35 * (pid // 2) - 0.6 + (0.25 if pid % 2 else 0.0)  # pairs 25 cm apart
+                start, end = np.array([-2.0 * side, lane]), np.array([2.0 * side, lane])
+                person = Person(start, speed=speed)
+                person.waypoints = [end, start, end, start, end]
+            elif behaviour == "cross":
+                a = rng.uniform(0, 2 * math.pi)
+                start = 1.8 * np.array([math.cos(a), math.sin(a)])
+                person = Person(start, speed=speed)
+                person.waypoints = [-start * rng.uniform(0.8, 1.0), start, -start, start]
+            else:  # in_out: beyond the cameras' view and back
+                inside, outside = _around_table(rng, 0.5, 1.4), _around_table(rng, 5.5, 6.5)
+                person = Person(outside, speed=speed)
+                person.waypoints = [inside, outside, inside, outside, inside]
+            person.facing = rng.uniform(0, 2 * math.pi)
+            self.people[pid] = person
+
+    def advance(self, t: float, dt: float) -> dict[int, np.ndarray]:
+        """Everyone moves on by `dt`; their true skeletons (world frame, floor at 0)."""
+        for pid, person in self.people.items():
+            person.advance(dt)
+            if self.scene.behaviour == "lean":
+                self._lean(pid, person, t)
+        return {pid: p.skeleton(floor=0.0) for pid, p in self.people.items()}
+
+    def _lean(self, pid: int, person: Person, t: float) -> None:
+        """At the table (standing still), lean toward its centre for 1-3 s now and then."""
+        if person.waypoints and len(person.waypoints) > 5:
+            return  # still walking in
+        if t < self._lean_until.get(pid, 0.0):
+            return
+        if person.lean > 0:
+            person.lean = 0.0
+            self._lean_until[pid] = t + self.rng.uniform(1.0, 3.0)
+        elif self.rng.random() < 0.02:
+            person.facing = math.atan2(-person.position[1], -person.position[0])
+            person.lean = self.rng.uniform(0.4, 0.9)
+            self._lean_until[pid] = t + self.rng.uniform(1.0, 3.0)
+
+
+def near_table(skeletons: dict[int, np.ndarray]) -> int:
+    """How many people stand (torso) inside the area around the table."""
+    return sum(1 for s in skeletons.values() if math.hypot(*s[2, :2]) <= AREA_RADIUS)
+
+
+def run(scene: Scene, matcher: str = "hungarian") -> dict[str, float]:
+    """Play `scene` through the detector; MOT metrics, phantom and missed people near
+    the table (frames where the count is above / below the truth)."""
+    from components.bench.people import detector
+
+    cams = cameras_for(scene)
+    core = detector(cams, matcher)
+    script = Script(scene)
+    acc = MotAccumulator(GATE)
+    phantom = short = scored = 0
+    for k in range(int(scene.seconds / FRAME)):
+        t = k * FRAME
+        truth = script.advance(t, FRAME)
+        frame = core.process({c.name: c.observe(truth, t, FRAME) for c in cams}, t)
+        if t < WARMUP:
+            continue
+        scored += 1
+        acc.update(
+            {pid: s[2, :2] for pid, s in truth.items()},
+            {tr.id: body_center(tr.joints)[:2] for tr in frame.people},
+        )
+        true_near = near_table(truth)
+        phantom += frame.users_near > true_near
+        short += frame.users_near < true_near
+    out = acc.summary()
+    out.update(
+        {"phantom_near_frames": phantom, "missed_near_frames": short, "scored_frames": scored}
+    )
+    return out
