@@ -26,6 +26,7 @@ examples:
   fw bench swap nosensor --out docs/results full runs of two experiments
   fw bench zenoh                           just the inter-process hop baseline
   fw bench cost --load 3                   what the simulated OR costs on a busy host
+  fw bench people --suite                  people detection on 40 scenes (MOTA, IDF1)
 
 experiments:
   zenoh       the raw inter-process Zenoh hop (always run: the baseline)
@@ -85,6 +86,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         "quick": args.quick,
         "repetitions": args.repetitions,
         "chaos_repetitions": args.chaos_repetitions,
+        "suite": args.suite,
         "bus": args.bus,
         "load": args.load,
     }
@@ -157,6 +159,12 @@ def add_commands(sub: Any) -> None:
         default=6,
         metavar="N",
         help="times each process x fault case runs in `chaos` (6: 108 faults, ~25 min)",
+    )
+    p.add_argument(
+        "--suite",
+        action="store_true",
+        help="`people`: also the 40-scene suite (components/bench/scenes.py), a row per "
+        "scene and the worst, median and best scene (~3 min)",
     )
     p.add_argument(
         "--bus",

@@ -7,6 +7,7 @@ become `summary.json` and the figures).
 
 from __future__ import annotations
 
+import dataclasses
 import statistics
 import sys
 from collections.abc import Callable
@@ -362,6 +363,69 @@ def run_statechart(quick: bool, context: dict[str, Any]) -> list[Row]:
     return rows
 
 
+def _suite_rows(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """The scene suite (issue 19): per scene MOTA, IDF1, identity switches and frames
+    with phantom people near the table; then the worst, median and best scene."""
+    from components.bench import scenes
+
+    chosen = scenes.suite()
+    if quick:
+        chosen = [dataclasses.replace(s, seconds=8.0) for s in chosen[::8]]
+    show = _progress("people suite")
+    results = {}
+    for k, scene in enumerate(chosen):
+        results[scene.name] = scenes.run(scene)
+        show(k + 1, len(chosen))
+    context["people_suite"] = results
+    rows = []
+    for name, r in results.items():
+        rows += [
+            Row("people suite", f"{name}: MOTA", r["MOTA"], unit="", target=0.95, at_least=True),
+            Row("people suite", f"{name}: IDF1", r["IDF1"], unit="", target=0.90, at_least=True),
+            Row("people suite", f"{name}: identity switches", r["id_switches"], unit=""),
+            Row(
+                "people suite",
+                f"{name}: frames with a phantom near the table",
+                r["phantom_near_frames"],
+                unit="",
+                target=0.0,
+            ),
+        ]
+    for metric, target in (("MOTA", 0.95), ("IDF1", 0.90)):
+        values = sorted(r[metric] for r in results.values())
+        rows += [
+            Row(
+                "people suite",
+                f"{metric} worst scene",
+                values[0],
+                unit="",
+                target=target,
+                at_least=True,
+                n=len(values),
+            ),
+            Row(
+                "people suite",
+                f"{metric} median scene",
+                statistics.median(values),
+                unit="",
+                n=len(values),
+            ),
+            Row("people suite", f"{metric} best scene", values[-1], unit="", n=len(values)),
+        ]
+    phantoms = sum(r["phantom_near_frames"] > 0 for r in results.values())
+    rows.append(
+        Row(
+            "people suite",
+            "scenes with a phantom near the table",
+            phantoms,
+            unit="",
+            target=0.0,
+            n=len(results),
+        )
+    )
+    return rows
+
+
 def run_people(quick: bool, context: dict[str, Any]) -> list[Row]:
     """People detection (Tables 4.1/4.2), frame cost and the Kinect calibration (Fig. 4.4)."""
     from components.bench import people
@@ -381,6 +445,8 @@ def run_people(quick: bool, context: dict[str, Any]) -> list[Row]:
         0.05,
         {"center": [0.0, 0.0], "radius": 1.5},
     )
+    if context.get("suite"):
+        context.setdefault("extra_rows", []).extend(_suite_rows(quick, context))
     residuals = {n: r["residual_mm"] for n, r in report.items() if n != "robot"}
     context.setdefault("series", {})["kinect_residuals"] = residuals
     rows = [

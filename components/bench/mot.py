@@ -52,7 +52,8 @@ class MotAccumulator:
     gate: float
     objects: int = 0
     hypotheses: int = 0
-    matches: int = 0
+    detections: int = 0
+    """Matched pairs (with the switches among them)."""
     misses: int = 0
     false_positives: int = 0
     switches: int = 0
@@ -102,7 +103,7 @@ class MotAccumulator:
         self.frames += 1
         self.objects += len(oids)
         self.hypotheses += len(hids)
-        self.matches += len(matched)
+        self.detections += len(matched)
         self.misses += len(oids) - len(matched)
         self.false_positives += len(hids) - len(matched)
         return matched
@@ -129,13 +130,14 @@ class MotAccumulator:
             "MOTA": 1.0 - (self.misses + self.false_positives + self.switches) / objects
             if objects
             else float("nan"),
-            "MOTP": self.distance / self.matches if self.matches else float("nan"),
+            "MOTP": self.distance / self.detections if self.detections else float("nan"),
             "IDF1": 2 * idtp / (objects + hypotheses) if objects + hypotheses else float("nan"),
             "IDP": idtp / hypotheses if hypotheses else float("nan"),
             "IDR": idtp / objects if objects else float("nan"),
             "objects": objects,
             "hypotheses": hypotheses,
-            "matches": self.matches,
+            "detections": self.detections,
+            "matches": self.detections - self.switches,  # as motmetrics counts them
             "misses": self.misses,
             "false_positives": self.false_positives,
             "id_switches": self.switches,

@@ -9,9 +9,9 @@
   accuracy 0.923 and 0.992, target >= 0.995 for both);
 * a crowd: 6 people walking around the table for 60 s, 3 cameras (occlusions,
   ghosts, dropouts), scored with the CLEAR MOT accuracy (MOTA) and IDF1 against
-  the simulation's truth, for both matchers (target MOTA >= 0.95). The metrics are
-  computed here (40 lines with scipy) rather than with motmetrics, which would
-  bring pandas for two numbers.
+  the simulation's truth (components/bench/mot.py, equal to motmetrics), for both
+  matchers (target MOTA >= 0.95); the scene suite (components/bench/scenes.py)
+  scores 40 such scenes.
 
 `fw bench people` runs it.
 """
@@ -23,7 +23,6 @@ import statistics
 import time
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 from scipy.stats import binomtest
 
 from components.people.cli import SimulatedCamera
@@ -35,7 +34,6 @@ from components.people.detector import (
 )
 from components.people.kinect_sim import KinectModel, look_at
 from components.people.skeleton import standing
-from components.sim.people import Person
 from components.tracking.geometry import as_matrix
 
 FRAME = 1.0 / 30.0
@@ -175,70 +173,9 @@ def protocol(users: int, trials: int) -> dict[str, float]:
     }
 
 
-GATE = 0.5  # m: a track further than this from a person's torso is not that person
-
-
 def crowd(seconds: float, matcher: str, seed: int = 7) -> dict[str, float]:
-    """MOTA and IDF1 of confirmed tracks against the truth, 6 people, 3 cameras."""
-    rng = np.random.default_rng(seed)
-    cams = cameras(3, seed, ghosts=0.05)
-    core = detector(cams, matcher)
-    crowd = {}
-    for pid in range(6):
-        start = rng.uniform(-1.2, 1.2, 2)
-        person = Person(start, speed=rng.uniform(0.4, 1.0))
-        person.waypoints = [rng.uniform(-1.2, 1.2, 2) for _ in range(12)]
-        crowd[pid] = person
-    gt_total = hyp_total = misses = false_positives = switches = 0
-    last_match: dict[int, int] = {}
-    pair_frames: dict[tuple[int, int], int] = {}
-    gt_frames: dict[int, int] = {}
-    hyp_frames: dict[int, int] = {}
-    for k in range(int(seconds / FRAME)):
-        t = k * FRAME
-        for person in crowd.values():
-            person.advance(FRAME)
-        truth = {pid: p.skeleton(floor=0.0) for pid, p in crowd.items()}
-        frame = core.process({c.name: c.observe(truth, t, FRAME) for c in cams}, t)
-        if t < 2.0:
-            continue  # let tracks be confirmed first
-        gt_ids = sorted(truth)
-        gt_xy = np.array([truth[g][2, :2] for g in gt_ids])
-        hyps = [(tr.id, np.nan_to_num(tr.joints[2, :2], nan=1e6)) for tr in frame.people]
-        hyp_ids = [h for h, _ in hyps]
-        cost = (
-            np.linalg.norm(gt_xy[:, None, :] - np.array([xy for _, xy in hyps])[None], axis=2)
-            if hyps
-            else np.zeros((len(gt_ids), 0))
-        )
-        for i, g in enumerate(gt_ids):
-            gt_frames[g] = gt_frames.get(g, 0) + 1
-            for j, h in enumerate(hyp_ids):
-                if cost[i, j] <= GATE:
-                    pair_frames[(g, h)] = pair_frames.get((g, h), 0) + 1
-        for h in hyp_ids:
-            hyp_frames[h] = hyp_frames.get(h, 0) + 1
-        gated = np.where(cost <= GATE, cost, 1e6)
-        rows, cols = linear_sum_assignment(gated) if hyps else ([], [])
-        matched = {
-            gt_ids[r]: hyp_ids[c] for r, c in zip(rows, cols, strict=True) if gated[r, c] < 1e6
-        }
-        gt_total += len(gt_ids)
-        hyp_total += len(hyp_ids)
-        misses += len(gt_ids) - len(matched)
-        false_positives += len(hyp_ids) - len(matched)
-        for g, h in matched.items():
-            switches += g in last_match and last_match[g] != h
-            last_match[g] = h
-    g_list, h_list = sorted(gt_frames), sorted(hyp_frames)
-    overlap = np.array([[pair_frames.get((g, h), 0) for h in h_list] for g in g_list])
-    rows, cols = linear_sum_assignment(-overlap) if h_list else ([], [])
-    idtp = float(overlap[rows, cols].sum()) if h_list else 0.0
-    return {
-        "MOTA": 1.0 - (misses + false_positives + switches) / gt_total,
-        "IDF1": 2 * idtp / (sum(gt_frames.values()) + sum(hyp_frames.values())),
-        "misses": misses,
-        "false_positives": false_positives,
-        "id_switches": switches,
-        "ground_truth": gt_total,
-    }
+    """MOTA and IDF1 of confirmed tracks against the truth, 6 people, 3 cameras (the
+    scene suite's `crowd` scene, components/bench/scenes.py)."""
+    from components.bench.scenes import Scene, run
+
+    return run(Scene("crowd", 6, 3, "ring", "wander", seed=seed, seconds=seconds), matcher)

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -225,30 +226,50 @@ def near_table(skeletons: dict[int, np.ndarray]) -> int:
     return sum(1 for s in skeletons.values() if math.hypot(*s[2, :2]) <= AREA_RADIUS)
 
 
-def run(scene: Scene, matcher: str = "hungarian") -> dict[str, float]:
-    """Play `scene` through the detector; MOT metrics, phantom and missed people near
-    the table (frames where the count is above / below the truth)."""
+@dataclass
+class Step:
+    """One scored frame of a scene: where everyone truly is and what the detector says."""
+
+    t: float
+    truth: dict[int, np.ndarray]
+    """Person -> torso floor position (m)."""
+    tracks: dict[int, np.ndarray]
+    """Confirmed track -> its body centre's floor position (m)."""
+    true_near: int
+    users_near: int
+
+
+def play(scene: Scene, matcher: str = "hungarian") -> Iterator[Step]:
+    """The scene through the detector, frame by frame after `WARMUP`."""
     from components.bench.people import detector
 
     cams = cameras_for(scene)
     core = detector(cams, matcher)
     script = Script(scene)
-    acc = MotAccumulator(GATE)
-    phantom = short = scored = 0
     for k in range(int(scene.seconds / FRAME)):
         t = k * FRAME
         truth = script.advance(t, FRAME)
         frame = core.process({c.name: c.observe(truth, t, FRAME) for c in cams}, t)
-        if t < WARMUP:
-            continue
+        if t >= WARMUP:
+            yield Step(
+                t,
+                {pid: s[2, :2] for pid, s in truth.items()},
+                {tr.id: body_center(tr.joints)[:2] for tr in frame.people},
+                near_table(truth),
+                frame.users_near,
+            )
+
+
+def run(scene: Scene, matcher: str = "hungarian") -> dict[str, float]:
+    """Play `scene` through the detector; MOT metrics, phantom and missed people near
+    the table (frames where the count is above / below the truth)."""
+    acc = MotAccumulator(GATE)
+    phantom = short = scored = 0
+    for step in play(scene, matcher):
         scored += 1
-        acc.update(
-            {pid: s[2, :2] for pid, s in truth.items()},
-            {tr.id: body_center(tr.joints)[:2] for tr in frame.people},
-        )
-        true_near = near_table(truth)
-        phantom += frame.users_near > true_near
-        short += frame.users_near < true_near
+        acc.update(step.truth, step.tracks)
+        phantom += step.users_near > step.true_near
+        short += step.users_near < step.true_near
     out = acc.summary()
     out.update(
         {"phantom_near_frames": phantom, "missed_near_frames": short, "scored_frames": scored}
