@@ -71,8 +71,12 @@ def sequences(draw):
                 h = draw(st.integers(10, 17))
                 tracks[h] = (x + draw(st.floats(-0.6, 0.6)), y + draw(st.floats(-0.6, 0.6)))
         tracks.update(draw(st.dictionaries(st.integers(20, 23), points, max_size=2)))
-        frames.append(({o: np.array(p) for o, p in truth.items()},
-                       {h: np.array(p) for h, p in tracks.items()}))
+        frames.append(
+            (
+                {o: np.array(p) for o, p in truth.items()},
+                {h: np.array(p) for h, p in tracks.items()},
+            )
+        )
     return frames
 
 
