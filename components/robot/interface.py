@@ -138,7 +138,8 @@ class RobotInterface(Component):
         self._ssm = SeparationMonitor(params, self.max_speed)
         self._kinematics: Kinematics | None = None
         self._people: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        self._seen_at = 0.0
+        self._age_at_arrival = 0.0  # the envelopes' age when they arrived (wall clock, s)
+        self._arrived = 0.0  # ...and when, on this component's clock
         self.verdict: Verdict = CLEAR
         self.closest = math.inf  # the least separation while released (m)
         self._cap_sent = math.inf
@@ -223,7 +224,12 @@ class RobotInterface(Component):
                 if not self.latched:
                     self._trip(f"envelopes refused: {wrong}", state)
                 return
-            self._people, self._seen_at = people, message.stamp
+            self._people = people
+            # their age is the camera frame's on arrival, then this cycle's own clock:
+            # a wall clock step after arrival cannot make them younger, and on a
+            # simulated clock they age with the simulation
+            self._age_at_arrival = max(0.0, time.time() - message.stamp)
+            self._arrived = self.clock.now()
             self._quiet = 0  # news: check now
         if self._people is None or (state.braked and not self._commanding):
             return
@@ -239,7 +245,7 @@ class RobotInterface(Component):
             self._kinematics = Kinematics()
         capsules = self._kinematics.capsules(np.asarray(state.position, dtype=float))
         now = state.cycle * CYCLE
-        age = time.time() - self._seen_at
+        age = self._age_at_arrival + max(0.0, self.clock.now() - self._arrived)
         verdict = self._ssm.check((capsules.a, capsules.b, capsules.radius), self._people, age, now)
         self.verdict = verdict
         self.closest = min(self.closest, verdict.separation)

@@ -419,20 +419,21 @@ def test_people_approaching_the_moving_arm_slow_it_then_a_protective_stop_latche
         cell.run(1.0)
         assert cell.interp.call("report")["speed"] == pytest.approx(0.075, abs=1e-6)
 
-        def person_at(gap):
-            """A standing torso `gap` metres beyond the TCP's side, 15 cm thick."""
-            x, y, z = cell.model_tcp()
-            a, b = (x, y + 0.15 + gap, z - 0.5), (x, y + 0.15 + gap, z + 0.5)
-            people.write(Envelopes(time.time(), (*a,), (*b,), (0.15,)))
-            cell.run(0.002)
+        def person_at(gap, seconds=0.002):
+            """A standing torso `gap` metres beyond the TCP's side, 15 cm thick, seen
+            at 30 Hz for `seconds` (envelopes age on the simulated clock: an old one
+            needs more room)."""
+            for _ in range(max(1, round(seconds * 30))):
+                x, y, z = cell.model_tcp()
+                a, b = (x, y + 0.15 + gap, z - 0.5), (x, y + 0.15 + gap, z + 0.5)
+                people.write(Envelopes(time.time(), (*a,), (*b,), (0.15,)))
+                cell.run(min(seconds, 1 / 30))
 
-        person_at(1.0)
-        cell.run(0.3)
+        person_at(1.0, 0.3)
         report = cell.robot.call("report")
         assert report["speed_cap"] is None, "far away: no cap"
         assert 0.075 <= report["link_speed"] < 0.15, "the fastest link point, near the TCP's"
-        person_at(0.45)
-        cell.run(0.3)
+        person_at(0.25, 0.3)
         report = cell.robot.call("report")
         assert 0.0 < report["speed_cap"] < 0.075
         assert cell.interp.call("report")["speed"] < 0.075 / 2, "it slowed down"
