@@ -351,7 +351,11 @@ class RobotInterface(Component):
     def _publish(self, state: ArmState) -> None:
         stamp = time.time()
         previous = self._published_cycle
-        cycles = state.cycle - previous if 0 < previous < state.cycle else 1
+        # braked, the arm reports every few cycles (monitor mode): the state covers them;
+        # released, it reports every cycle, and a state this loop skipped (a busy host)
+        # was a cycle without a new command: the motion must not catch up in one jump
+        covered = state.cycle - previous if 0 < previous < state.cycle else 1
+        cycles = covered if state.braked else 1
         self._published_cycle = state.cycle
         self.joints.write(JointState(stamp, state.position, state.velocity, state.effort, cycles))
         x, y, z, qw, qx, qy, qz = state.tcp

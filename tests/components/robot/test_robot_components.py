@@ -478,3 +478,19 @@ def test_envelopes_that_are_not_capsules_stop_the_moving_arm_latched(hub, garbag
         assert cell.arm.call("report")["braked"]
     finally:
         cell.close()
+
+
+def test_a_state_the_busy_interface_skipped_is_no_cycle_to_catch_up_while_released(cell):
+    """Released, the arm reports every cycle and the interface answers each; a state it
+    never read (a busy host) was a cycle without a new command, so the next counts as
+    one cycle: the interpolator must not jump ahead by the skipped ones (a jump over
+    the rated velocity is refused and stops the arm). Braked, a state stands for the
+    cycles it covers (monitor mode)."""
+    cell.release()
+    cell.run(0.05)
+    state = cell.robot._arm
+    cell.robot._publish(dataclasses.replace(state, cycle=state.cycle + 3))
+    assert cell.robot.joints.last.cycles == 1
+    braked = dataclasses.replace(state, cycle=state.cycle + 13, braked=True)
+    cell.robot._publish(braked)
+    assert cell.robot.joints.last.cycles == 10
