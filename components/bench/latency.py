@@ -51,14 +51,7 @@ def _first(
     run: SeegRun, key: str, after: float, test: Any, what: str, timeout: float = 10.0
 ) -> Sample:
     """The first sample of `key` received after `after` that passes `test`."""
-    deadline = time.monotonic() + timeout
-    while True:
-        for sample in run.since(after, key):
-            if test(sample.message):
-                return sample
-        if time.monotonic() > deadline:
-            raise BenchError(f"no {what} within {timeout:g} s")
-        time.sleep(0.002)
+    return _first_of(run, after, {key: test}, what, timeout)
 
 
 def _first_of(
