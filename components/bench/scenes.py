@@ -20,6 +20,10 @@ Behaviours:
 * `cross`: they cross the table's area on paths that intersect;
 * `in_out`: they walk in and out of the cameras' view, beyond the room's edge.
 
+People are bodies: nobody walks through anybody. Their torsos stay `PERSONAL` apart
+(the camera model's body width): a walker about to come closer steps aside to the
+right, as people do in a corridor, or waits.
+
 `run` plays a scene through the detector and scores it against the simulation's
 truth (components/bench/mot.py, torso positions, `GATE`) for the people some camera
 has in view, with the count of people near the table against the true count.
@@ -35,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from components.bench.mot import MotAccumulator
-from components.people.kinect_sim import KinectModel, look_at
+from components.people.kinect_sim import BODY_RADIUS, KinectModel, look_at
 from components.people.skeleton import body_center
 from components.sim.people import Person
 
@@ -46,6 +50,12 @@ WARMUP = 2.0
 """s: tracks are confirmed over the first second; scoring starts after this."""
 AREA_RADIUS = 1.5
 """m: the area around the table whose people are counted (as the detector's)."""
+PERSONAL = 2 * BODY_RADIUS
+"""m: the least distance between two people's torsos (a body is this wide)."""
+SIDESTEPS = tuple(math.radians(a) for a in (-30, -60, -90, -120, 30, 60, 90, 120))
+"""Headings to try, from the way to the next waypoint, when it is blocked (right first)."""
+PATIENCE = 1.0
+"""s: someone blocked this long gives up their next waypoint and heads for the one after."""
 DEFAULT_GHOSTS = 0.05
 DEFAULT_DROPOUT = 0.02
 LAYOUTS = ("ring", "thesis", "wall", "corners")
@@ -160,6 +170,17 @@ def _around_table(rng: np.random.Generator, inner: float = 0.7, outer: float = 1
     return np.array([radius * math.cos(angle), radius * math.sin(angle)])
 
 
+def _free_spot(
+    rng: np.random.Generator, taken: list[np.ndarray], inner: float, outer: float
+) -> np.ndarray:
+    """A spot around the table at least `PERSONAL` (and a margin) from every taken one."""
+    for _ in range(1000):
+        spot = _around_table(rng, inner, outer)
+        if all(np.linalg.norm(spot - other) >= PERSONAL + 0.05 for other in taken):
+            return spot
+    raise ValueError(f"no room for another person between {inner} and {outer} m")
+
+
 class Script:
     """What the scene's people do, second by second (positions, waypoints, leans)."""
 
@@ -169,34 +190,40 @@ class Script:
         self.people: dict[int, Person] = {}
         self._lean_until: dict[int, float] = {}
         self._leave: dict[int, tuple[float, np.ndarray]] = {}
+        self._waited: dict[int, float] = {}
         rng, behaviour = self.rng, scene.behaviour
+        starts: list[np.ndarray] = []
         for pid in range(scene.people):
             speed = rng.uniform(0.5, 1.2)
             if behaviour == "wander":
-                person = Person(_around_table(rng, 0.3, 1.6), speed=speed)
+                person = Person(_free_spot(rng, starts, 0.3, 1.6), speed=speed)
                 person.waypoints = [_around_table(rng, 0.3, 1.6) for _ in range(20)]
             elif behaviour in ("table", "lean"):
-                spot = _around_table(rng, 0.8, 1.0)
+                crowded = scene.people > 6  # a second row behind the first
+                spot = _free_spot(rng, starts, 0.8, 1.3 if crowded else 1.0)
                 door = spot / np.linalg.norm(spot) * 3.0
                 person = Person(door, speed=speed)
                 person.waypoints = [spot]
+                starts.append(spot)  # the spots, not the doors, must be apart
                 if behaviour == "table":  # stay for most of the scene, then leave
                     self._leave[pid] = (rng.uniform(0.6, 0.9) * scene.seconds, door)
-            elif behaviour == "pass":
+            elif behaviour == "pass":  # pairs in lanes 0.5 m apart, pairs 1 m apart
                 side = 1.0 if pid % 2 else -1.0
-                lane = 0.35 * (pid // 2) - 0.6 + (0.25 if pid % 2 else 0.0)  # pairs 25 cm apart
+                lane = 1.0 * (pid // 2) - 0.5 * (scene.people // 2) + (0.5 if pid % 2 else 0.0)
                 start, end = np.array([-2.0 * side, lane]), np.array([2.0 * side, lane])
                 person = Person(start, speed=speed)
                 person.waypoints = [end, start, end, start, end]
             elif behaviour == "cross":
-                a = rng.uniform(0, 2 * math.pi)
-                start = 1.8 * np.array([math.cos(a), math.sin(a)])
+                start = _free_spot(rng, starts, 1.8, 1.8)
                 person = Person(start, speed=speed)
                 person.waypoints = [-start * rng.uniform(0.8, 1.0), start, -start, start]
             else:  # in_out: beyond the cameras' view and back
-                inside, outside = _around_table(rng, 0.5, 1.4), _around_table(rng, 5.5, 6.5)
+                inside = _around_table(rng, 0.5, 1.4)
+                outside = _free_spot(rng, starts, 5.5, 6.5)
                 person = Person(outside, speed=speed)
                 person.waypoints = [inside, outside, inside, outside, inside]
+            if behaviour not in ("table", "lean"):
+                starts.append(person.position)
             person.facing = rng.uniform(0, 2 * math.pi)
             self.people[pid] = person
 
@@ -207,10 +234,40 @@ class Script:
             if leave is not None and t >= leave[0]:
                 person.waypoints.append(leave[1])
                 del self._leave[pid]
-            person.advance(dt)
+            self._walk(pid, person, dt)
             if self.scene.behaviour == "lean":
                 self._lean(pid, person, t)
         return {pid: p.skeleton(floor=0.0) for pid, p in self.people.items()}
+
+    def _walk(self, pid: int, person: Person, dt: float) -> None:
+        """Walk on, keeping `PERSONAL` from everyone: a blocked step turns right (then
+        left) until it is free, or waits, for `PATIENCE` at most; a waypoint someone
+        stands on counts as reached once it is within reach."""
+        others = [p.position for q, p in self.people.items() if q != pid]
+        if not person.waypoints or not others:
+            person.advance(dt)
+            return
+        way = person.waypoints[0] - person.position
+        occupied = min(float(np.linalg.norm(person.waypoints[0] - o)) for o in others)
+        if occupied < PERSONAL and np.linalg.norm(way) < 2 * PERSONAL:
+            person.waypoints.pop(0)
+            return
+        start, waypoints = person.position, list(person.waypoints)
+        person.advance(dt)
+        if _keeps_apart(start, person.position, others):
+            return
+        person.position, person.waypoints = start, waypoints
+        heading, step = math.atan2(way[1], way[0]), person.speed * dt
+        for turn in SIDESTEPS:
+            target = start + step * np.array([math.cos(heading + turn), math.sin(heading + turn)])
+            if _keeps_apart(start, target, others):
+                person.position, person.facing = target, heading + turn
+                self._waited[pid] = 0.0
+                return
+        self._waited[pid] = self._waited.get(pid, 0.0) + dt
+        if self._waited[pid] >= PATIENCE:
+            person.waypoints.pop(0)
+            self._waited[pid] = 0.0
 
     def _lean(self, pid: int, person: Person, t: float) -> None:
         """At the table (standing still), lean toward its centre for 1-3 s now and then."""
@@ -225,6 +282,16 @@ class Script:
             person.facing = math.atan2(-person.position[1], -person.position[0])
             person.lean = self.rng.uniform(0.4, 0.9)
             self._lean_until[pid] = t + self.rng.uniform(1.0, 3.0)
+
+
+def _keeps_apart(start: np.ndarray, end: np.ndarray, others: list[np.ndarray]) -> bool:
+    """Whether a step from `start` to `end` keeps `PERSONAL` from each of `others` (or,
+    where it is already closer, moves away)."""
+    for other in others:
+        after = float(np.linalg.norm(end - other))
+        if after < PERSONAL and after <= float(np.linalg.norm(start - other)):
+            return False
+    return True
 
 
 def in_view(cams: list[KinectModel], skeleton: np.ndarray) -> bool:

@@ -13,9 +13,8 @@ import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
-from components.people.fusion import robust_cost
+from components.people.fusion import gated_pairs, robust_cost
 
 
 @dataclass
@@ -68,16 +67,14 @@ class PeopleTracker:
             cost = robust_cost(
                 np.stack([t.joints for t in self.tracks]), np.stack([p.joints for p in people])
             )
-            rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e6))
-            for i, j in zip(rows, cols, strict=True):
-                if cost[i, j] <= self.gate:
-                    track, person = self.tracks[i], people[j]
-                    track.joints, track.sigma = person.joints, person.sigma
-                    track.last_seen, track.cameras = now, person.cameras
-                    track.frames += 1
-                    track.untrusted += not person.trusted
-                    matched_tracks.add(i)
-                    matched_people.add(j)
+            for i, j in gated_pairs(cost, self.gate):
+                track, person = self.tracks[i], people[j]
+                track.joints, track.sigma = person.joints, person.sigma
+                track.last_seen, track.cameras = now, person.cameras
+                track.frames += 1
+                track.untrusted += not person.trusted
+                matched_tracks.add(i)
+                matched_people.add(j)
         for j, person in enumerate(people):
             if j not in matched_people:
                 self.tracks.append(

@@ -1,0 +1,103 @@
+"""Spec: cross-camera matching gates on the cameras' noise, and the pairing keeps every
+pair it can under the gate."""
+
+import itertools
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from components.people.fusion import GATE_SIGMAS, gated_pairs, noise_for, normalized_cost
+from components.people.kinect_sim import KinectModel, look_at
+from components.people.skeleton import standing
+
+
+def _brute_force(cost: np.ndarray, gate: float) -> tuple[int, float]:
+    """The most pairs under the gate, then their least total cost, by enumeration."""
+    n, m = cost.shape
+    best = (0, 0.0)
+    small, large = (n, m) if n <= m else (m, n)
+    matrix = cost if n <= m else cost.T
+    for chosen in itertools.permutations(range(large), small):
+        pairs = [(i, j) for i, j in zip(range(small), chosen) if matrix[i, j] <= gate]
+        total = sum(matrix[i, j] for i, j in pairs)
+        if len(pairs) > best[0] or (len(pairs) == best[0] and total < best[1] - 1e-12):
+            best = (len(pairs), total)
+    return best
+
+
+def test_a_good_pair_is_not_broken_to_avoid_a_bad_one():
+    # A-a is a person's two views; B is far from a, and b far from everyone: the cheapest
+    # full assignment (A-b, B-a) would lose A-a to the gate
+    cost = np.array([[1.0, 20.0], [30.0, 1000.0]])
+    assert gated_pairs(cost, 4.0) == [(0, 0)]
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.integers(1, 4),
+    st.integers(1, 4),
+    st.integers(0, 2**32 - 1),
+)
+def test_the_pairing_keeps_the_most_pairs_under_the_gate_then_the_cheapest(n, m, seed):
+    rng = np.random.default_rng(seed)
+    cost = rng.exponential(4.0, (n, m))
+    cost[rng.random((n, m)) < 0.2] = np.inf  # no joint in common
+    pairs = gated_pairs(cost, GATE_SIGMAS)
+    assert all(cost[i, j] <= GATE_SIGMAS for i, j in pairs)
+    assert len({i for i, _ in pairs}) == len({j for _, j in pairs}) == len(pairs)
+    count, total = _brute_force(cost, GATE_SIGMAS)
+    assert len(pairs) == count
+    assert sum(cost[i, j] for i, j in pairs) == np.float64(total) or np.isclose(
+        sum(cost[i, j] for i, j in pairs), total
+    )
+
+
+def _view(camera: KinectModel, skeleton: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A camera's noisy view of a skeleton, back in the world frame, with its sigma."""
+    seen = camera.to_camera(skeleton)
+    sigma = noise_for(seen, camera.lateral_noise)
+    seen = seen + camera.noise(seen)
+    world = seen @ camera.world_from_camera[:3, :3].T + camera.world_from_camera[:3, 3]
+    return world, sigma
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.floats(0.8, 3.8),
+    st.floats(-np.pi, np.pi),
+    st.floats(0.4, 1.0),
+    st.integers(0, 2**32 - 1),
+)
+def test_two_cameras_views_of_a_person_match_and_a_neighbour_a_body_apart_does_not(
+    distance, bearing, apart, seed
+):
+    cameras = [
+        KinectModel(
+            f"k{i}",
+            look_at((3.0 * np.cos(a), 3.0 * np.sin(a), 2.2), (0.0, 0.0, 1.0)),
+            rng=np.random.default_rng(seed + i),
+        )
+        for i, a in enumerate((0.0, 1.6))
+    ]
+    at = (distance * np.cos(bearing) * 0.5, distance * np.sin(bearing) * 0.5)
+    person = standing(at, bearing)
+    neighbour = standing((at[0] + apart, at[1]), bearing)
+    a, sigma_a = _view(cameras[0], person)
+    b, sigma_b = _view(cameras[1], person)
+    c, sigma_c = _view(cameras[1], neighbour)
+    cost = normalized_cost(a[None], sigma_a[None], np.stack([b, c]), np.stack([sigma_b, sigma_c]))
+    assert cost[0, 0] <= GATE_SIGMAS, "one person's two views are one person"
+    assert cost[0, 1] > GATE_SIGMAS, "people a body's width apart are two"
+    assert gated_pairs(cost, GATE_SIGMAS) == [(0, 0)]
+
+
+def test_joints_one_view_does_not_see_are_left_out_and_none_in_common_is_no_match():
+    a = standing((0.0, 0.0))
+    b = a.copy()
+    b[:8] = np.nan
+    sigma = np.full(15, 0.02)
+    assert normalized_cost(a[None], sigma[None], b[None], sigma[None])[0, 0] == 0.0
+    c = a.copy()
+    c[8:] = np.nan
+    assert np.isinf(normalized_cost(b[None], sigma[None], c[None], sigma[None])[0, 0])
