@@ -54,6 +54,9 @@ PERSONAL = 2 * BODY_RADIUS
 """m: the least distance between two people's torsos (a body is this wide)."""
 SIDESTEPS = tuple(math.radians(a) for a in (-30, -60, -90, -120, 30, 60, 90, 120))
 """Headings to try, from the way to the next waypoint, when it is blocked (right first)."""
+TURN_RATE = 2 * math.pi
+"""rad/s: how fast people turn (half a turn in half a second); a walker's body turns
+toward where they walk no faster than this."""
 PATIENCE = 1.0
 """s: someone blocked this long gives up their next waypoint and heads for the one after."""
 DEFAULT_GHOSTS = 0.05
@@ -234,7 +237,10 @@ class Script:
             if leave is not None and t >= leave[0]:
                 person.waypoints.append(leave[1])
                 del self._leave[pid]
+            facing = person.facing
             self._walk(pid, person, dt)
+            turn = (person.facing - facing + math.pi) % (2 * math.pi) - math.pi
+            person.facing = facing + max(-TURN_RATE * dt, min(TURN_RATE * dt, turn))
             if self.scene.behaviour == "lean":
                 self._lean(pid, person, t)
         return {pid: p.skeleton(floor=0.0) for pid, p in self.people.items()}

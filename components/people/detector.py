@@ -47,7 +47,10 @@ class DetectorConfig:
     area_radius: float = 1.5
     margin_sigmas: float = 3.0
     confirm_after: float = 1.0
-    delete_after: float = 0.5
+    missed_for: float = 0.2
+    """s: a person in a camera's clear view that the camera misses still counts this long."""
+    hidden_for: float = 2.0
+    """s: a person hidden behind others from every camera still counts this long."""
 
 
 @dataclass
@@ -103,13 +106,30 @@ SHADOW = 0.35
 may be hidden by them (a body is ~0.4 m wide; limbs widen the shadow)."""
 
 
+RECENT = 0.5
+"""s: a person who stops counting (left every camera's view, or missed in clear view)
+is still kept at a distance by the robot this long (their envelope stays)."""
+
+
+def _behind(point: np.ndarray, torsos: np.ndarray, camera_from_base: np.ndarray) -> bool:
+    """Whether a camera-frame point is in the shadow of one of `torsos` (base frame, k x
+    3), seen from the camera: further along its line of sight, within `SHADOW` of it."""
+    if not len(torsos):
+        return False
+    o = torsos @ camera_from_base[:3, :3].T + camera_from_base[:3, 3]
+    depth = np.sqrt(np.einsum("ij,ij->i", o, o))
+    along = (o @ point) / depth
+    lateral = np.linalg.norm(point - (along / depth)[:, None] * o, axis=1)
+    return bool(((along > depth + 0.1) & (lateral < SHADOW)).any())
+
+
 class PeopleDetectorCore:
     """Everything between camera users and robot-person distances."""
 
     def __init__(self, config: DetectorConfig):
         self.config = config
         self.cameras = {c.name: c for c in config.cameras}
-        self.tracker = PeopleTracker(config.confirm_after, config.delete_after)
+        self.tracker = PeopleTracker(config.confirm_after, config.hidden_for)
         self.master = config.cameras[0].name if config.cameras else ""
         self.disagreements: dict[tuple[str, str], int] = {}
         self.suspicion: dict[str, float] = {}
@@ -170,7 +190,16 @@ class PeopleDetectorCore:
                 )
             people.append(Person(joints, sigma, cameras, trusted))
         tracks = self.tracker.update(people, now)
-        confirmed = [t for t in tracks if t.confirmed]
+        seen = [t.joints for t in tracks if t.last_seen == now]
+        seen_now = np.stack(seen) if seen else np.zeros((0, 15, 3))
+        confirmed, lately = [], []
+        for t in tracks:
+            if not t.confirmed:
+                continue
+            if t.last_seen == now or self._still_there(t, now, reporting, seen_now):
+                confirmed.append(t)
+            elif now - t.last_seen <= RECENT:
+                lately.append(t)
         near = 0
         if confirmed:
             where = body_centers(np.stack([t.joints for t in confirmed]))[:, :2]
@@ -186,7 +215,7 @@ class PeopleDetectorCore:
             and t.last_seen == now
             and now - t.first_seen >= self.config.confirm_after
         ]
-        guarded = confirmed + suspects
+        guarded = confirmed + suspects + lately
         envelope = self._envelopes(guarded)
         distance, closest = float("inf"), None
         if robot is not None and guarded:
@@ -203,6 +232,34 @@ class PeopleDetectorCore:
             envelope[:3],
         )
 
+    def _still_there(
+        self, track: Track, now: float, reporting: list[str], seen: np.ndarray
+    ) -> bool:
+        """Whether a confirmed track no camera saw this frame still stands for someone:
+        hidden behind others (or where a camera that did not report looks) for up to
+        `hidden_for`; in a camera's clear view for `missed_for`; out of every camera's
+        view, not at all (they left)."""
+        unseen = now - track.last_seen
+        if unseen > self.config.hidden_for:
+            return False
+        joints = track.predicted(now)
+        body = joints[np.isfinite(joints).all(axis=1)]
+        if not len(body):
+            return False
+        torsos = seen[:, 2][np.isfinite(seen[:, 2]).all(axis=1)]
+        clear = False
+        for name in self.cameras:
+            camera_from_base = self._camera_from_base(name)
+            points = body @ camera_from_base[:3, :3].T + camera_from_base[:3, 3]
+            if _fraction_in_view(points) <= 0.5:
+                continue  # not in this camera's view
+            if name not in reporting:
+                return True  # this camera sent nothing: it cannot say they left
+            if _behind(points.mean(axis=0), torsos, camera_from_base):
+                return True
+            clear = True
+        return clear and unseen <= self.config.missed_for
+
     def _envelopes(
         self, people: list[Track]
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -217,22 +274,24 @@ class PeopleDetectorCore:
 
     def _update_trust(self, grouped: list[Group]) -> None:
         """Cameras seen fusing with a verified camera become verified; a verified camera
-        that keeps seeing people apart from the master's, never fusing with them, loses
-        its trust (bumped after calibration: its copies land beside the real people)."""
+        that keeps seeing people apart from the master's, never fusing with a verified
+        camera, loses its trust (bumped after calibration: its copies land beside or far
+        from the real people). Fusing with any verified camera clears the doubt: a
+        camera that agrees with one the master trusts agrees with the master (cameras
+        in a room's corners share few people with the master, and some with others)."""
         alone: set[str] = set()
-        with_master: set[str] = set()
+        agreeing: set[str] = set()
         for cameras, _, _ in grouped:
             if len(cameras) > 1 and cameras & self.verified:
                 self.verified |= cameras
+                agreeing |= cameras
             if len(cameras) == 1:
                 alone |= cameras
-            elif self.master in cameras:
-                with_master |= cameras
-        for camera in with_master:
+        for camera in agreeing:
             self.doubt.pop(camera, None)
         if self.master not in alone:
             return
-        for camera in (alone & self.verified) - with_master - {self.master}:
+        for camera in (alone & self.verified) - agreeing - {self.master}:
             self.doubt[camera] = self.doubt.get(camera, 0) + 1
             if self.doubt[camera] >= DOUBT:
                 self.verified.discard(camera)
@@ -297,13 +356,7 @@ class PeopleDetectorCore:
             body += camera_from_base[:3, 3]
             if _fraction_in_view(body) < FULLY_IN_VIEW:
                 continue  # at the edge of its view a camera may rightly lose the person
-            # hidden in the shadow of a nearer person, seen from the camera
-            o = torsos @ camera_from_base[:3, :3].T + camera_from_base[:3, 3]
-            depth = np.sqrt(np.einsum("ij,ij->i", o, o))
-            along = (o @ point) / depth
-            lateral = np.linalg.norm(point - (along / depth)[:, None] * o, axis=1)
-            hidden = bool(((along > depth + 0.1) & (lateral < SHADOW)).any())
-            if not hidden:
+            if not _behind(point, torsos, camera_from_base):
                 missing.append(name)
         return missing
 

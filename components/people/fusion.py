@@ -73,20 +73,32 @@ def robust_cost(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def normalized_cost(
-    a: np.ndarray, sigma_a: np.ndarray, b: np.ndarray, sigma_b: np.ndarray, extra: float = 0.0
+    a: np.ndarray, sigma_a: np.ndarray, b: np.ndarray, sigma_b: np.ndarray, slack: float = 0.0
 ) -> np.ndarray:
-    """Median over the joints both see of the joint distance in units of its noise,
-    sqrt(sigma_a^2 + sigma_b^2 + extra^2) (`extra`: what else may separate them, such as
-    motion between frames): (n, m), inf if no joint in common. Compare with
-    `GATE_SIGMAS`."""
-    d = joint_distances(a, b)
-    if not d.size:
-        return np.full(d.shape[:2], np.inf)
+    """The median joint distance over the joints both see, less `slack` (how far the
+    joints may have moved between a and b, such as a walker's motion), in units of the
+    noise sqrt(sigma_a^2 + sigma_b^2), each skeleton's sigma its largest joint's (a
+    skeleton's joints lie within a metre of one another, so their sigmas differ little,
+    and the largest errs toward keeping a person's views together): (n, m), inf if no
+    joint in common. Compare with `GATE_SIGMAS`."""
+    return _in_sigmas(robust_cost(a, b), worst_sigma(a, sigma_a), worst_sigma(b, sigma_b), slack)
+
+
+def worst_sigma(joints: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Each skeleton's largest sigma over the joints it sees: (n,) of (n, 15, 3), (n, 15)."""
     with np.errstate(invalid="ignore"):
-        scale = np.sqrt(
-            np.square(sigma_a)[:, None, :] + np.square(sigma_b)[None, :, :] + extra * extra
-        )
-    return _median_seen(d / scale, a, b)
+        return np.nanmax(np.where(np.isnan(joints[..., 0]), np.nan, sigma), axis=1, initial=0.0)
+
+
+def _in_sigmas(
+    median: np.ndarray, worst_a: np.ndarray, worst_b: np.ndarray, slack: float = 0.0
+) -> np.ndarray:
+    """`normalized_cost` from the median distances and each side's sigma."""
+    if not median.size:
+        return median
+    scale = np.sqrt(np.square(worst_a)[:, None] + np.square(worst_b)[None, :])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.maximum(median - slack, 0.0) / scale
 
 
 def _median_seen(d: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -190,7 +202,9 @@ def group_and_fuse_arrays(
     if not batches:
         return groups, fused, total
     every = np.concatenate([b[1] for b in batches])
-    weights = _weights(every, np.concatenate([b[2] for b in batches]))
+    sigmas = np.concatenate([b[2] for b in batches])
+    weights = _weights(every, sigmas)
+    worst = worst_sigma(every, sigmas)
     contributions = np.where(weights[..., None] > 0, every, 0.0) * weights[..., None]
     first = 0
     for camera, joints, sigma in batches:
@@ -201,8 +215,10 @@ def group_and_fuse_arrays(
             pairs = []
         elif noise_gated:
             with np.errstate(divide="ignore"):
-                group_sigma = 1.0 / np.sqrt(total)
-            cost = normalized_cost(fused, group_sigma, joints, sigma)
+                group_worst = 1.0 / np.sqrt(np.where(total > 0, total, np.inf).min(axis=1))
+            cost = _in_sigmas(
+                robust_cost(fused, joints), group_worst, worst[first - len(joints) : first]
+            )
             pairs = gated_pairs(cost, GATE_SIGMAS)
         else:
             pairs = rule_matches(fused, joints)

@@ -19,7 +19,7 @@ def _brute_force(cost: np.ndarray, gate: float) -> tuple[int, float]:
     small, large = (n, m) if n <= m else (m, n)
     matrix = cost if n <= m else cost.T
     for chosen in itertools.permutations(range(large), small):
-        pairs = [(i, j) for i, j in zip(range(small), chosen) if matrix[i, j] <= gate]
+        pairs = [(i, j) for i, j in zip(range(small), chosen, strict=True) if matrix[i, j] <= gate]
         total = sum(matrix[i, j] for i, j in pairs)
         if len(pairs) > best[0] or (len(pairs) == best[0] and total < best[1] - 1e-12):
             best = (len(pairs), total)
