@@ -207,7 +207,7 @@ def group_and_fuse_arrays(
     worst = worst_sigma(every, sigmas)
     contributions = np.where(weights[..., None] > 0, every, 0.0) * weights[..., None]
     first = 0
-    for camera, joints, sigma in batches:
+    for camera, joints, _ in batches:
         weight = weights[first : first + len(joints)]
         contribution = contributions[first : first + len(joints)]
         first += len(joints)

@@ -75,10 +75,14 @@ class Track:
     walked: float = 0.0
     """The farthest the torso has been from `born` (m)."""
 
+    at: float = 0.0
+    """When `joints` stood there: the last detection, or the last frame it was coasted to."""
+
     def predicted(self, now: float) -> np.ndarray:
         """The joints where the person should be at `now`, walking on as they were (for
-        at most a second: after that, a walker has likely changed course)."""
-        return self.joints + self.velocity * min(max(now - self.last_seen, 0.0), 1.0)
+        at most a second unseen: after that, a walker has likely changed course)."""
+        walked = min(max(now - self.last_seen, 0.0), 1.0) - min(self.at - self.last_seen, 1.0)
+        return self.joints + self.velocity * walked
 
     def _seen(self, person: Person, now: float) -> None:
         """Take this frame's detection: joints, velocity, how far it walked."""
@@ -99,7 +103,7 @@ class Track:
                 self.born = (ax, ay)
             self.walked = max(self.walked, math.hypot(ax - self.born[0], ay - self.born[1]))
         self.joints, self.sigma = person.joints, person.sigma
-        self.last_seen, self.cameras = now, person.cameras
+        self.last_seen, self.at, self.cameras = now, now, person.cameras
         self.frames += 1
         self.untrusted += not person.trusted
 
@@ -140,6 +144,9 @@ class PeopleTracker:
             track.last_seen = now
             self.tracks.append(track)
         self.tracks = [t for t in self.tracks if now - t.last_seen <= self.keep_for]
+        for track in self.tracks:
+            if track.last_seen < now:  # unseen: coasted on, so it is reported where it walks
+                track.joints, track.at = track.predicted(now), now
         for track in self.tracks:
             if not track.confirmed and track.last_seen == now and self._credible(track, now):
                 track.confirmed = True

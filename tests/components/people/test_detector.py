@@ -6,7 +6,7 @@ import pytest
 
 from components.people.detector import CameraConfig, DetectorConfig, PeopleDetectorCore
 from components.people.kinect_sim import KinectModel, look_at
-from components.people.skeleton import standing
+from components.people.skeleton import body_center, standing
 from components.tracking.synthetic import rigid
 
 FRAME = 1.0 / 30.0
@@ -227,3 +227,75 @@ def test_the_robot_keeps_its_distance_from_someone_two_cameras_see_from_that_fra
     assert np.all(radius > 0.0)
     empty = run(*setup(), {}, 1).envelopes
     assert empty[0].shape == (0, 3) and empty[2].shape == (0,)
+
+
+def _walk(cams, core, still, start, end, speed, hide=None):
+    """A person walks from start to end (floor, m), past a person standing at `still`
+    (None: nobody); k0 misses the walker while `hide(x)` (a camera losing a user behind
+    someone). Each frame: (walker's track id or None, walker counted, k0 saw them)."""
+    start, end = np.asarray(start, float), np.asarray(end, float)
+    steps = int(np.linalg.norm(end - start) / speed / FRAME)
+    out = []
+    for k in range(steps):
+        at = start + (end - start) * k / steps
+        people = {2: standing(tuple(at), 0.0)}
+        if still is not None:
+            people[1] = standing(still, -np.pi / 2)
+        users = {c.name: c.observe(people, k * FRAME, FRAME) for c in cams}
+        walker_id = cams[0]._ids.get(2)
+        if hide is not None and hide(at[0]):
+            users["k0"] = [(u, j) for u, j in users["k0"] if u != walker_id]
+        frame = core.process(users, k * FRAME)
+        seen = any(u == walker_id for u, _ in users["k0"])
+        walker = [t for t in frame.people if np.linalg.norm(body_center(t.joints)[:2] - at) < 0.3]
+        out.append((walker[0].id if walker else None, bool(walker), seen))
+    return out
+
+
+def _one_camera():
+    """k0 alone: where it cannot see, nobody can."""
+    cams, core = setup(verified=True)
+    config = core.config
+    return cams[:1], PeopleDetectorCore(
+        DetectorConfig(config.cameras[:1], config.base_from_master, area_radius=1.2)
+    )
+
+
+def _behind_the_standing_one(x):
+    return abs(x) < 0.2
+
+
+def test_a_person_hidden_behind_another_for_over_a_second_keeps_their_identity():
+    cams, core = _one_camera()
+    # k0 looks along +y from (0, -3); the walker passes slowly behind someone standing
+    # at the origin, and k0 loses them there for 1.6 s
+    frames = _walk(cams, core, (0.0, 0.0), (-1.4, 0.6), (1.4, 0.6), 0.25, _behind_the_standing_one)
+    hidden = [k for k, (_, _, seen) in enumerate(frames) if not seen and k > 30]
+    assert len(hidden) * FRAME >= 1.5
+    before, after = frames[min(hidden) - 1], frames[max(hidden) + 1]
+    assert before[0] is not None and after[0] == before[0], "the same identity after"
+    assert all(frames[k][1] for k in hidden), "counted all the while they are hidden"
+
+
+def test_a_person_missed_in_clear_view_stops_counting_soon():
+    cams, core = _one_camera()
+    frames = _walk(cams, core, None, (-1.4, 0.6), (1.4, 0.6), 0.25, _behind_the_standing_one)
+    missed = [k for k, (_, _, seen) in enumerate(frames) if not seen and k > 30]
+    assert frames[min(missed) - 1][1], "counted while seen"
+    assert not any(frames[k][1] for k in missed[7:]), "nobody to hide behind: not counted"
+
+
+def test_a_person_who_walks_out_of_every_view_stops_counting_within_a_fifth_of_a_second():
+    cams, core = _one_camera()
+    frames = _walk(cams, core, None, (0.0, 0.4), (4.0, 0.4), 1.0)
+    gone = next(k for k, (_, _, seen) in enumerate(frames) if k > 30 and not seen)
+    assert frames[gone - 1][1], "counted while seen"
+    assert not any(counted for _, counted, _ in frames[gone + 6 :]), "not counted out of view"
+
+
+def test_someone_walking_into_one_cameras_view_counts_within_a_fraction_of_a_second():
+    cams, core = _one_camera()
+    frames = _walk(cams, core, None, (-3.0, 0.4), (1.0, 0.4), 1.0)
+    first_seen = next(k for k, (_, _, seen) in enumerate(frames) if seen)
+    counted = next(k for k, (_, c, _) in enumerate(frames) if c)
+    assert (counted - first_seen) * FRAME <= 0.5, "a walker is not a ghost: no 1 s wait"
