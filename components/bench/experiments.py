@@ -368,14 +368,10 @@ def _suite_rows(quick: bool, context: dict[str, Any]) -> list[Row]:
     with phantom people near the table; then the worst, median and best scene."""
     from components.bench import scenes
 
-    chosen = scenes.suite()
+    chosen = scenes.suite(context.get("variant", 0))
     if quick:
         chosen = [dataclasses.replace(s, seconds=8.0) for s in chosen[::8]]
-    show = _progress("people suite")
-    results = {}
-    for k, scene in enumerate(chosen):
-        results[scene.name] = scenes.run(scene)
-        show(k + 1, len(chosen))
+    results = scenes.run_all(chosen, _progress("people suite"))
     context["people_suite"] = results
     rows = []
     for name, r in results.items():
@@ -389,6 +385,12 @@ def _suite_rows(quick: bool, context: dict[str, Any]) -> list[Row]:
                 r["phantom_near_frames"],
                 unit="",
                 target=0.0,
+            ),
+            Row(
+                "people suite",
+                f"{name}: frames with someone missing near the table",
+                r["missed_near_frames"],
+                unit="",
             ),
         ]
     for metric, target in (("MOTA", 0.95), ("IDF1", 0.90)):

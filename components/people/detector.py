@@ -106,6 +106,11 @@ SHADOW = 0.35
 may be hidden by them (a body is ~0.4 m wide; limbs widen the shadow)."""
 
 
+STEP = 0.15
+"""m: how close to the edge of a camera's view someone first seen there may be and still
+be taken for someone walking in (a walker's step in the few frames a camera may drop
+or take to report them; a ghost appears anywhere in the view, seldom so close)."""
+
 RECENT = 0.5
 """s: a person who stops counting (left every camera's view, or missed in clear view)
 is still kept at a distance by the robot this long (their envelope stays)."""
@@ -172,23 +177,38 @@ class PeopleDetectorCore:
             for i, group in enumerate(members)
         ]
         self._update_suspicion(grouped, reporting, fused)
-        self._update_trust(grouped)
-        people = []
-        for i, (cameras, joints, sigma) in enumerate(grouped):
-            trusted = True
+        missing: dict[int, list[str]] = {}
+        """Per lone user of a non-master camera: the reporting cameras that should see
+        them too and do not (a misplaced copy, or a ghost)."""
+        for i, (cameras, joints, _) in enumerate(grouped):
             if len(cameras) == 1 and self.master not in cameras:
                 camera = next(iter(cameras))
-                missing = self._should_see(joints, cameras, reporting, np.delete(fused, i, 0))
-                for other in missing:
+                missing[i] = self._should_see(joints, cameras, reporting, np.delete(fused, i, 0))
+                for other in missing[i]:
                     self.disagreements[(camera, other)] = (
                         self.disagreements.get((camera, other), 0) + 1
                     )
+        contradicted = {
+            next(iter(grouped[i][0]))
+            for i, others in missing.items()
+            if set(others) & self.verified
+        }
+        self._update_trust(grouped, contradicted)
+        people = []
+        for i, (cameras, joints, sigma) in enumerate(grouped):
+            trusted = True
+            if i in missing:
+                camera = next(iter(cameras))
                 trusted = (
-                    not missing
+                    not missing[i]
                     and self.suspicion.get(camera, 0.0) < SUSPECT
                     and camera in self.verified
                 )
-            people.append(Person(joints, sigma, cameras, trusted))
+            entering = len(cameras) == 1 and self._entering(joints, next(iter(cameras)))
+            if entering and i not in missing:  # the master's: no one may contradict it
+                others = np.delete(fused, i, 0)
+                entering = not self._should_see(joints, cameras, reporting, others)
+            people.append(Person(joints, sigma, cameras, trusted, entering))
         tracks = self.tracker.update(people, now)
         seen = [t.joints for t in tracks if t.last_seen == now]
         seen_now = np.stack(seen) if seen else np.zeros((0, 15, 3))
@@ -235,30 +255,55 @@ class PeopleDetectorCore:
     def _still_there(
         self, track: Track, now: float, reporting: list[str], seen: np.ndarray
     ) -> bool:
-        """Whether a confirmed track no camera saw this frame still stands for someone:
-        hidden behind others (or where a camera that did not report looks) for up to
-        `hidden_for`; in a camera's clear view for `missed_for`; out of every camera's
-        view, not at all (they left)."""
+        """Whether a confirmed track no camera saw this frame still stands for someone.
+        Judged on their whole body where they should be now (the joints no camera saw
+        where the body's shape puts them: someone walking out of a view is last seen
+        with only the joints still inside it): in some camera's clear view, for
+        `missed_for`; hidden behind others from every camera that has them in view (or
+        where a camera that did not report looks), for up to `hidden_for`; out of every
+        camera's view, or at its edge (under `FULLY_IN_VIEW` of the body inside it,
+        where a camera stops reporting someone walking out), not at all."""
         unseen = now - track.last_seen
         if unseen > self.config.hidden_for:
             return False
-        joints = track.predicted(now)
-        body = joints[np.isfinite(joints).all(axis=1)]
+        body = track.whole()
+        body = body[np.isfinite(body).all(axis=1)]
         if not len(body):
             return False
         torsos = seen[:, 2][np.isfinite(seen[:, 2]).all(axis=1)]
-        clear = False
+        clear = hidden = False
         for name in self.cameras:
             camera_from_base = self._camera_from_base(name)
             points = body @ camera_from_base[:3, :3].T + camera_from_base[:3, 3]
-            if _fraction_in_view(points) <= 0.5:
-                continue  # not in this camera's view
-            if name not in reporting:
-                return True  # this camera sent nothing: it cannot say they left
-            if _behind(points.mean(axis=0), torsos, camera_from_base):
-                return True
-            clear = True
-        return clear and unseen <= self.config.missed_for
+            if _fraction_in_view(points) < FULLY_IN_VIEW:
+                continue  # out of this camera's view, or at its edge: walking out
+            if name not in reporting or _behind(points.mean(axis=0), torsos, camera_from_base):
+                hidden = True  # behind someone, or unknown: this camera sent nothing
+            else:
+                clear = True
+        if clear:
+            return unseen <= self.config.missed_for
+        return hidden
+
+    def _entering(self, joints: np.ndarray, camera: str) -> bool:
+        """Whether a body one camera sees stands where people come into its sight: a
+        step of `STEP` (sideways or in depth) would leave no more than half of it in
+        view. Joints the camera does not see count as out of view (someone coming in
+        at the edge, or out from behind someone, is seen in part)."""
+        camera_from_base = self._camera_from_base(camera)
+        rotation, origin = camera_from_base[:3, :3], camera_from_base[:3, 3]
+        points = joints @ rotation.T + origin  # unseen joints stay NaN: never in view
+        for axis in (0, 2):  # the camera's sideways and depth directions, on the floor
+            step = rotation[axis].copy()
+            step[2] = 0.0
+            norm = float(np.hypot(step[0], step[1]))
+            if norm < 1e-6:
+                continue
+            shift = rotation @ (step * (STEP / norm))
+            for sign in (1.0, -1.0):
+                if _fraction_in_view(points + sign * shift) <= 0.5:
+                    return True
+        return False
 
     def _envelopes(
         self, people: list[Track]
@@ -272,26 +317,21 @@ class PeopleDetectorCore:
         sigma = np.stack([t.sigma for t in people])
         return envelopes(joints, np.where(np.isnan(sigma), 0.05, sigma), self.config.margin_sigmas)
 
-    def _update_trust(self, grouped: list[Group]) -> None:
+    def _update_trust(self, grouped: list[Group], contradicted: set[str]) -> None:
         """Cameras seen fusing with a verified camera become verified; a verified camera
-        that keeps seeing people apart from the master's, never fusing with a verified
-        camera, loses its trust (bumped after calibration: its copies land beside or far
-        from the real people). Fusing with any verified camera clears the doubt: a
-        camera that agrees with one the master trusts agrees with the master (cameras
-        in a room's corners share few people with the master, and some with others)."""
-        alone: set[str] = set()
+        that keeps seeing people alone where a verified camera should see them too
+        (`contradicted`), never fusing with a verified camera meanwhile, loses its trust
+        (bumped after calibration: its copies land beside or far from the real people).
+        Seeing people no other camera can see is no evidence: cameras in a room's
+        corners share few people. Fusing with any verified camera clears the doubt."""
         agreeing: set[str] = set()
         for cameras, _, _ in grouped:
             if len(cameras) > 1 and cameras & self.verified:
                 self.verified |= cameras
                 agreeing |= cameras
-            if len(cameras) == 1:
-                alone |= cameras
         for camera in agreeing:
             self.doubt.pop(camera, None)
-        if self.master not in alone:
-            return
-        for camera in (alone & self.verified) - agreeing - {self.master}:
+        for camera in (contradicted & self.verified) - agreeing - {self.master}:
             self.doubt[camera] = self.doubt.get(camera, 0) + 1
             if self.doubt[camera] >= DOUBT:
                 self.verified.discard(camera)

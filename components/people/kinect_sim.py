@@ -125,12 +125,22 @@ class KinectModel:
         return self._ids[person]
 
     def _ghost_frame(self, now: float, dt: float) -> list[tuple[int, np.ndarray]]:
+        """Ghost skeletons: a body that is not there, standing 1.5-3.5 m in front of
+        the camera somewhere across its view, reported as a person would be (the
+        joints outside the view unseen, at most half the body out of it)."""
         if self.rng.random() < self.ghost_rate * dt:
-            at = (self.rng.uniform(-1.0, 1.0), self.rng.uniform(1.5, 3.5))
+            eye = self.world_from_camera[:3, 3]
+            axis = self.world_from_camera[:3, 2]
+            heading = math.atan2(axis[1], axis[0]) + self.rng.uniform(-H_FOV / 2, H_FOV / 2)
+            reach = self.rng.uniform(1.5, 3.5)
+            at = (eye[0] + reach * math.cos(heading), eye[1] + reach * math.sin(heading))
             ghost = self.to_camera(standing(at, self.rng.uniform(0, 2 * math.pi)))
-            self._ghosts.append(
-                (now, now + self.rng.uniform(0.1, 0.9), ghost, 50 + len(self._ghosts))
-            )
+            inside = self.in_view(ghost)
+            if inside.mean() > 0.5:
+                ghost[~inside] = np.nan
+                self._ghosts.append(
+                    (now, now + self.rng.uniform(0.1, 0.9), ghost, 50 + len(self._ghosts))
+                )
         self._ghosts = [g for g in self._ghosts if g[1] > now]
         return [(uid, g + self.noise(g)) for start, _, g, uid in self._ghosts]
 

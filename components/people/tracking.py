@@ -14,7 +14,8 @@ single-camera artifacts that stand still, so a track is confirmed when two or mo
 cameras see the person at once, or after `confirm_after` of detection by a credible
 camera, or sooner (`confirm_walking`) when it has walked a body's length since it
 appeared: people walk in, ghosts do not walk. Only confirmed tracks count as people;
-tracks unseen for longer than `keep_for` are deleted. Which unseen tracks still stand
+confirmed tracks unseen for longer than `keep_for` are deleted, tentative ones after
+`TENTATIVE_KEEP`. Which unseen tracks still stand
 for someone in the room is the detector's to say (it knows where the cameras look).
 """
 
@@ -22,11 +23,13 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from components.people.fusion import GATE_SIGMAS, gated_pairs, normalized_cost
+from components.people.skeleton import standing
 
 TORSO = 2
 LIMB_MOTION = 0.05
@@ -36,11 +39,24 @@ TURN_SPEED = 0.7
 MOST_MOTION = 1.0
 """m: the most motion allowed between a prediction and a detection, however long the
 track was unseen."""
-VELOCITY_TIME = 0.5
-"""s: the time constant of the walking velocity's smoothing (a torso seen at 4 m moves
-by 1 m/s from frame to frame in its noise alone; this leaves about 0.2 m/s)."""
-WALKED = 0.3
-"""m: a track whose torso moved this far from where it appeared is someone walking."""
+VELOCITY_WINDOW = 0.5
+"""s: the walking velocity is the least-squares slope of the torso over this long (a
+torso seen at 4 m moves by 1 m/s from frame to frame in its noise alone; the slope over
+15 frames is good to about 0.05 m/s, and does not lag a steady walk as smoothing does)."""
+WALK_SIGMAS = 4.3
+"""How far (in units of the noise of a difference of two torso positions, sigma *
+sqrt(2)) a track's torso must move from where it appeared to be someone walking: for
+a ghost, which stands still, each frame goes this far with probability exp(-4.3^2 / 2)
+= 1e-4, so fewer than 1 in 300 does in a ghost's life (under 30 frames)."""
+TENTATIVE_KEEP = 0.2
+"""s: a track not yet confirmed is dropped when unseen this long (a ghost's track must
+not wait for the next ghost nearby and add up their lives to a confirmation)."""
+_UPRIGHT = standing((0.0, 0.0), 0.0)
+UPRIGHT = np.zeros_like(_UPRIGHT)
+UPRIGHT[:, 2] = _UPRIGHT[:, 2] - _UPRIGHT[TORSO, 2]
+"""Each joint's place relative to the torso of someone standing, for joints a track
+has never seen (their height matters for what a camera sees; the side offsets, 10-27
+cm, are left out as the person's facing is unknown)."""
 
 
 @dataclass
@@ -53,6 +69,9 @@ class Person:
     trusted: bool = True
     """False when only a non-master camera sees it where another camera should (a
     camera whose calibration is wrong produces exactly such misplaced copies)."""
+    entering: bool = False
+    """Seen where someone comes into sight: at the edge of the views that could see
+    them (the detector knows where cameras look)."""
 
 
 @dataclass
@@ -70,10 +89,21 @@ class Track:
     untrusted: int = 0
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     """The body's walking velocity (m/s, floor plane: z is 0)."""
+    path: deque[tuple[float, float, float]] = field(default_factory=deque)
+    """(time, x, y) of the torso over the last `VELOCITY_WINDOW`."""
     born: tuple[float, float] | None = None
     """The torso's floor position where the track appeared."""
+    born_sigma: float = math.inf
+    """The noise (1 sigma, m) of `born`."""
     walked: float = 0.0
     """The farthest the torso has been from `born` (m)."""
+    shape: np.ndarray = field(default_factory=lambda: UPRIGHT.copy())
+    """Each joint relative to the torso, as last seen (`UPRIGHT` until then): where
+    the joints a camera does not see now must be, to tell whether it should."""
+
+    entered: bool = False
+    """Appeared where people come into sight (`Person.entering`): someone walking in,
+    not a ghost, which appears anywhere."""
 
     at: float = 0.0
     """When `joints` stood there: the last detection, or the last frame it was coasted to."""
@@ -84,28 +114,66 @@ class Track:
         walked = min(max(now - self.last_seen, 0.0), 1.0) - min(self.at - self.last_seen, 1.0)
         return self.joints + self.velocity * walked
 
+    def whole(self) -> np.ndarray:
+        """All 15 joints at the track's place: its joints, the unseen ones where the
+        body's shape puts them (NaN only when nothing was ever seen)."""
+        return complete(self.joints, self.shape)
+
     def _seen(self, person: Person, now: float) -> None:
         """Take this frame's detection: joints, velocity, how far it walked."""
-        dt = now - self.last_seen
-        bx, by, _ = self.joints[TORSO].tolist()  # floats: cheaper than numpy for three
-        ax, ay, az = person.joints[TORSO].tolist()
-        seen_after = math.isfinite(ax + ay + az)
-        if 0.0 < dt <= 0.5 and seen_after and math.isfinite(bx + by):
-            gain = min(1.0, dt / VELOCITY_TIME)
-            vx, vy, _ = self.velocity.tolist()
-            vx += gain * ((ax - bx) / dt - vx)
-            vy += gain * ((ay - by) / dt - vy)
-            self.velocity = np.array([vx, vy, 0.0])
-        elif dt > 0.5:
-            self.velocity = np.zeros(3)
-        if seen_after:
+        ax, ay, az = person.joints[TORSO].tolist()  # floats: cheaper than numpy for three
+        if math.isfinite(ax + ay + az):
+            seen = ~np.isnan(person.joints).any(axis=1)
+            self.shape[seen] = person.joints[seen] - person.joints[TORSO]
+            self.path.append((now, ax, ay))
+            while now - self.path[0][0] > VELOCITY_WINDOW:
+                self.path.popleft()
+            self.velocity = _slope(self.path)
             if self.born is None:
                 self.born = (ax, ay)
+                self.born_sigma = float(person.sigma[TORSO])
             self.walked = max(self.walked, math.hypot(ax - self.born[0], ay - self.born[1]))
+        elif now - self.last_seen > VELOCITY_WINDOW:
+            self.velocity = np.zeros(3)
         self.joints, self.sigma = person.joints, person.sigma
         self.last_seen, self.at, self.cameras = now, now, person.cameras
         self.frames += 1
         self.untrusted += not person.trusted
+
+
+def complete(joints: np.ndarray, shape: np.ndarray = UPRIGHT) -> np.ndarray:
+    """A skeleton (15, 3) with its unseen joints put where `shape` (each joint relative
+    to the torso) says they are, about the torso the seen joints imply; all NaN if none
+    is seen."""
+    unseen = np.isnan(joints).any(axis=1)
+    if not unseen.any() or unseen.all():
+        return joints
+    # the torso as seen, or else the torso each seen joint implies, averaged
+    torso = joints[TORSO] if not unseen[TORSO] else (joints[~unseen] - shape[~unseen]).mean(axis=0)
+    out = joints.copy()
+    out[unseen] = torso + shape[unseen]
+    return out
+
+
+def _slope(path: deque[tuple[float, float, float]]) -> np.ndarray:
+    """The least-squares velocity (x, y, 0) of (t, x, y) samples; 0 for fewer than two."""
+    n = len(path)
+    if n < 2:
+        return np.zeros(3)
+    t0 = path[-1][0]
+    st = sx = sy = stt = stx = sty = 0.0
+    for t, x, y in path:
+        t -= t0
+        st += t
+        sx += x
+        sy += y
+        stt += t * t
+        stx += t * x
+        sty += t * y
+    spread = n * stt - st * st
+    if spread <= 0.0:
+        return np.zeros(3)
+    return np.array([(n * stx - st * sx) / spread, (n * sty - st * sy) / spread, 0.0])
 
 
 class PeopleTracker:
@@ -117,10 +185,9 @@ class PeopleTracker:
         confirm_after: float = 1.0,
         keep_for: float = 2.0,
         cameras_to_confirm: int = 2,
-        confirm_walking: float = 0.2,
     ):
         self.confirm_after, self.keep_for = confirm_after, keep_for
-        self.cameras_to_confirm, self.confirm_walking = cameras_to_confirm, confirm_walking
+        self.cameras_to_confirm = cameras_to_confirm
         self.tracks: list[Track] = []
         self._ids = itertools.count(1)
 
@@ -140,10 +207,15 @@ class PeopleTracker:
         for j in unmatched:
             person = people[j]
             track = Track(next(self._ids), person.joints, person.sigma, now, now)
+            track.entered = person.entering
             track._seen(person, now)
             track.last_seen = now
             self.tracks.append(track)
-        self.tracks = [t for t in self.tracks if now - t.last_seen <= self.keep_for]
+        self.tracks = [
+            t
+            for t in self.tracks
+            if now - t.last_seen <= (self.keep_for if t.confirmed else TENTATIVE_KEEP)
+        ]
         for track in self.tracks:
             if track.last_seen < now:  # unseen: coasted on, so it is reported where it walks
                 track.joints, track.at = track.predicted(now), now
@@ -180,8 +252,13 @@ class PeopleTracker:
             return True
         if track.untrusted * 2 > track.frames:  # mostly seen where it should not be
             return False
+        if track.entered and not track.untrusted:
+            return True
         age = now - track.first_seen
-        return age >= self.confirm_after or (age >= self.confirm_walking and track.walked >= WALKED)
+        return (
+            age >= self.confirm_after
+            or track.walked >= WALK_SIGMAS * math.sqrt(2) * track.born_sigma
+        )
 
     @property
     def people(self) -> list[Track]:

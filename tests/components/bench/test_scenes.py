@@ -55,3 +55,20 @@ def test_a_scene_plays_the_same_twice():
     first = [(s.t, sorted(s.tracks)) for s in scenes.play(scene)]
     again = [(s.t, sorted(s.tracks)) for s in scenes.play(scene)]
     assert first == again and first
+
+
+def test_the_suite_in_parallel_scores_each_scene_as_one_at_a_time():
+    chosen = [dataclasses.replace(s, seconds=4.0) for s in (SUITE[2], SUITE[6])]
+    one_at_a_time = {s.name: scenes.run(s) for s in chosen}
+    assert all(r["objects"] > 0 for r in one_at_a_time.values()), "people to score"
+    assert scenes.run_all(chosen, workers=2) == one_at_a_time
+
+
+def test_other_variants_are_other_scenes_of_every_kind():
+    other = scenes.suite(3)
+    assert len(other) == len(SUITE)
+    assert {s.layout for s in other} == set(scenes.LAYOUTS)
+    assert {s.behaviour for s in other[:24]} == set(scenes.BEHAVIOURS)
+    assert not {s.seed for s in other} & {s.seed for s in SUITE}
+    assert all(1 <= s.people <= 10 and 2 <= s.cameras <= 4 for s in other)
+    assert scenes.suite(3) == other, "reproducible"

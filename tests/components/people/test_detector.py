@@ -152,14 +152,32 @@ def test_a_person_with_an_unseen_joint_has_a_finite_envelope():
     assert 1.5 < frame.min_distance < 2.5, frame.min_distance
 
 
-@pytest.mark.parametrize("verified", [False, True], ids=["unverified", "verified-at-calibration"])
-def test_a_camera_wrong_enough_to_place_its_user_out_of_everyones_sight_makes_no_phantom(verified):
-    for error in (rigid((3.0, 0.0, 0.0), (0.0, 0.0, 1.5)), rigid((0.0, 0.0, 3.0), (0.0, 0.0, 0.0))):
-        cams, core = setup(wrong="k1", error=error, verified=verified)
+GROSS_ERRORS = (
+    rigid((3.0, 0.0, 0.0), (0.0, 0.0, 1.5)),
+    rigid((0.0, 0.0, 3.0), (0.0, 0.0, 0.0)),
+    rigid((0.8, 0.0, 0.0), (0.0, 0.4, 0.0)),  # 23 degrees: the copy lands 2 m off
+)
+
+
+def test_a_camera_wrong_enough_to_place_its_user_out_of_everyones_sight_makes_no_phantom():
+    for error in GROSS_ERRORS:
+        cams, core = setup(wrong="k1", error=error)
         frame = run(cams, core, {1: standing((0.5, 0.0))}, 90)
         assert len(frame.people) == 1 and frame.people[0].cameras == {"k0"}, "the real one only"
         assert core.verified == {"k0"}, "k1 never agreed with the master"
         assert len(frame.suspects) == 1, "its misplaced user is kept as a suspect"
+
+
+def test_a_verified_camera_bumped_out_of_everyones_sight_errs_toward_one_person_too_many():
+    """Known limit: two cameras that share no one cannot tell a camera bumped so far that
+    its people land where no other camera looks from cameras that simply see different
+    people (a room's corners). Trust is withdrawn only on evidence (a camera's lone
+    people where a trusted camera should see them), so the copy counts as a person: the
+    robot keeps its distance from one person too many, never from one too few."""
+    for error in GROSS_ERRORS:
+        cams, core = setup(wrong="k1", error=error, verified=True)
+        frame = run(cams, core, {1: standing((0.5, 0.0))}, 90)
+        assert sorted(p.cameras for p in frame.people) == [{"k0"}, {"k1"}], "never fused"
 
 
 def test_the_robot_keeps_its_distance_from_suspects_too():
@@ -190,9 +208,9 @@ def test_a_camera_verified_at_calibration_is_trusted_from_the_first_frame():
 
 
 def test_a_verified_camera_that_disagrees_with_the_master_loses_its_trust():
-    # bumped after calibration: it places everyone 0.8 m off, so it misses the people
-    # the master sees where it should see them; its trust is revoked, no phantom appears
-    cams, core = setup(wrong="k1", verified=True)
+    # bumped after calibration: it places everyone 0.8 m off, beside the people the master
+    # sees, where the master should see them too; its trust is revoked, no phantom appears
+    cams, core = setup(wrong="k1", error=rigid((0.8, 0.0, 0.0), (0.0, 0.0, 0.0)), verified=True)
     frame = run(cams, core, {1: standing((0.5, 0.0))}, 90)
     assert core.verified == {"k0"}, "k1 must earn its trust again by fusing with the master"
     assert len(frame.people) == 1 and frame.people[0].cameras == {"k0"}
@@ -285,17 +303,47 @@ def test_a_person_missed_in_clear_view_stops_counting_soon():
     assert not any(frames[k][1] for k in missed[7:]), "nobody to hide behind: not counted"
 
 
-def test_a_person_who_walks_out_of_every_view_stops_counting_within_a_fifth_of_a_second():
+def test_a_person_who_walks_out_of_every_view_stops_counting_when_the_camera_loses_them():
+    """Last seen with only the joints still inside the view, they are judged on their
+    whole body (the rest where their shape puts it): at the edge, walking out."""
     cams, core = _one_camera()
     frames = _walk(cams, core, None, (0.0, 0.4), (4.0, 0.4), 1.0)
     gone = next(k for k, (_, _, seen) in enumerate(frames) if k > 30 and not seen)
     assert frames[gone - 1][1], "counted while seen"
-    assert not any(counted for _, counted, _ in frames[gone + 6 :]), "not counted out of view"
+    assert not any(counted for _, counted, _ in frames[gone:]), "not counted out of view"
 
 
-def test_someone_walking_into_one_cameras_view_counts_within_a_fraction_of_a_second():
+def test_someone_walking_into_one_cameras_view_counts_from_the_frame_it_sees_them():
+    """People come into sight at the edge of a view; ghosts appear anywhere in it."""
     cams, core = _one_camera()
     frames = _walk(cams, core, None, (-3.0, 0.4), (1.0, 0.4), 1.0)
     first_seen = next(k for k, (_, _, seen) in enumerate(frames) if seen)
-    counted = next(k for k, (_, c, _) in enumerate(frames) if c)
-    assert (counted - first_seen) * FRAME <= 0.5, "a walker is not a ghost: no 1 s wait"
+    assert frames[first_seen][1], "a walker is not a ghost: no 1 s wait"
+
+
+def test_a_corner_camera_that_sees_people_no_other_camera_can_keeps_its_trust():
+    """Seeing people apart from the master's is no evidence against a camera when the
+    master cannot see where they stand (cameras in a room's corners share few people)."""
+    cams, core = setup(verified=True)
+    only_k0 = (-1.3, 0.0)  # in front of k0, beyond k1's view
+    frame = run(cams, core, {1: standing(ONLY_K1_SEES), 2: standing(only_k0)}, 150)
+    assert core.verified == {"k0", "k1"}
+    assert sorted(p.cameras for p in frame.people) == [{"k0"}, {"k1"}]
+
+
+@pytest.mark.parametrize("camera", ["k0", "k1"], ids=["master", "other"])
+def test_a_ghost_at_the_edge_of_a_view_where_another_camera_looks_is_not_someone(camera):
+    """Coming into sight at the edge of one view is no shortcut where another camera
+    sees the place clearly and sees no one there, the master's view included."""
+    cams, core = setup(verified=True)
+    seer, other = cams if camera == "k0" else cams[::-1]
+    ghost = standing({"k0": (0.0, 0.75), "k1": (-0.8, 0.0)}[camera])
+    seen = seer.to_camera(ghost)
+    inside = seer.in_view(seen)
+    seen[~inside] = np.nan
+    assert 0.5 < inside.mean() < 0.8 and other.in_view(other.to_camera(ghost)).all()
+    frame = core.process({seer.name: [(50, seen)], other.name: []}, 0.0)
+    assert frame.people == [], "not at once"
+    core = setup(verified=True)[1]
+    frame = core.process({seer.name: [(50, seen)]}, 0.0)
+    assert len(frame.people) == 1, "with no one to say otherwise: someone walking in"
