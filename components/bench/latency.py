@@ -113,13 +113,19 @@ def _tracker_in_use(run: SeegRun) -> str:
 
 
 def _repeat(
-    name: str, trials: int, trial: Callable[[], Trial | None], progress: Any, cleanup: Any
+    name: str,
+    trials: int,
+    trial: Callable[[], Trial | None],
+    progress: Any,
+    cleanup: Any,
+    give_up: Callable[[], bool] = lambda: False,
 ) -> list[Trial]:
-    """Run `trial` until `trials` succeeded; a failed one (BenchError) is cleaned up
-    and retried, at most 10 times in all."""
+    """Run `trial` until `trials` succeeded (a trial returning None does not count)
+    or `give_up()`; a failed one (BenchError) is cleaned up and retried, at most 10
+    times in all."""
     out: list[Trial] = []
     failures: list[str] = []
-    while len(out) < trials:
+    while len(out) < trials and not give_up():
         if len(failures) > 10:
             raise BenchError(f"{name}: {len(failures)} trials failed; last: {failures[-1]}")
         try:
@@ -318,11 +324,16 @@ COLLIDER = 1
 def collision_reaction(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
     """A surgeon standing at the table leans over the moving robot; L = t_stop -
     t_collision (eq. 3.18), and the braking cycle's latency in `detail["brake"]`.
-    Then they stand upright, the distance clears and RELEASE resumes the motion."""
+    Then they stand upright, the distance clears and RELEASE resumes the motion.
+    Speed and separation monitoring may stop the arm before the collision distance
+    (more often on a busy host, where the lean is seen later): such a lean is returned
+    with `detail["preempted"]` and leaned again, until `trials` leans timed the
+    Supervisor's path or 3x as many were preempted."""
     limit = _collision_distance()
     goal = ["target"]
+    preempted: list[Trial] = []
 
-    def trial() -> Trial:
+    def trial() -> Trial | None:
         _clear(run, limit)
         keep_moving(run, goal)
         time.sleep(0.3)  # well into the motion
@@ -343,8 +354,10 @@ def collision_reaction(run: SeegRun, trials: int, progress: Any = None) -> list[
                 },
                 "a robot-person distance under the collision distance, or a protective stop",
             )
+            result: Trial | None
             if first.key == "robot/status":
-                result = Trial(0.0, first.received, first.received, {"preempted": True})
+                preempted.append(Trial(0.0, first.received, first.received, {"preempted": True}))
+                result = None  # the Supervisor's path was not exercised: lean again
             else:
                 result = _stop_after(run, t0, first.message.stamp, "possible collision")
                 result.detail["distance"] = first.message.value
@@ -355,7 +368,15 @@ def collision_reaction(run: SeegRun, trials: int, progress: Any = None) -> list[
 
     run.call("people_world.place", person=COLLIDER, x=1.25, y=0.0, facing_deg=180.0)
     try:
-        return _repeat("collision reaction", trials, trial, progress, lambda: _clear(run, limit))
+        timed = _repeat(
+            "collision reaction",
+            trials,
+            trial,
+            progress,
+            lambda: _clear(run, limit),
+            give_up=lambda: len(preempted) >= 3 * trials,
+        )
+        return timed + preempted
     finally:
         run.call("people_world.leave", person=COLLIDER)
         _no_collision(run)
