@@ -25,6 +25,7 @@ import time
 import numpy as np
 from scipy.stats import binomtest
 
+from components.people import kinect_sim
 from components.people.cli import SimulatedCamera
 from components.people.cli import run as calibration_protocol
 from components.people.detector import (
@@ -113,7 +114,7 @@ def frame_cost(
         if everyone:
             users = {c.name: [(p + 1, seen(c, j)) for p, j in people.items()] for c in cams}
         else:
-            users = {c.name: c.observe(people, k * FRAME, FRAME) for c in cams}
+            users = kinect_sim.frames(cams, people, k * FRAME, FRAME)
         t0 = time.perf_counter()
         core.process(users, k * FRAME, ROBOT)
         times.append(time.perf_counter() - t0)
@@ -150,7 +151,7 @@ def protocol(users: int, trials: int) -> dict[str, float]:
             t = k * FRAME
             where = next(p for start, p in reversed(script) if start <= t and p is not None)
             people = {u: standing(xy) for u, xy in where.items()}
-            frame = core.process({c.name: c.observe(people, t, FRAME) for c in cams}, t)
+            frame = core.process(kinect_sim.frames(cams, people, t, FRAME), t)
             if abs(t - 3.5) < FRAME / 2:
                 judged_in = frame.users_near
             if abs(t - 5.9) < FRAME / 2:
@@ -171,11 +172,3 @@ def protocol(users: int, trials: int) -> dict[str, float]:
         "specificity": tn / (tn + fp),
         "binomial_p_vs_0.8": binomtest(tp + tn, n, 0.8, alternative="greater").pvalue,
     }
-
-
-def crowd(seconds: float, matcher: str, seed: int = 7) -> dict[str, float]:
-    """MOTA and IDF1 of confirmed tracks against the truth, 6 people, 3 cameras (the
-    scene suite's `crowd` scene, components/bench/scenes.py)."""
-    from components.bench.scenes import Scene, run
-
-    return run(Scene("crowd", 6, 3, "ring", "wander", seed=seed, seconds=seconds), matcher)

@@ -4,11 +4,19 @@ Per frame: each camera's users into the master camera frame (eq. 3.8); group use
 across cameras (eq. 3.9 rule or the global assignment) and fuse them weighted by
 their noise; into the robot base frame (eq. 3.10); persistent tracks; envelopes with
 a noise margin; distances between robot link capsules and every person; the number
-of people inside the area around the table. Bad input is contained: non-finite joints
-become unseen joints, a camera that stops simply contributes nothing, and a camera
-whose calibration is wrong cannot create people (its users fail to match the others
-and are not trusted: a person only a non-master camera sees, where another reporting
-camera should see them too, is never confirmed, and the disagreement is recorded
+of people inside the area around the table.
+
+Where the cameras look is what the detector knows and the tracker does not: whether
+someone first seen by one camera stands where people come into sight (at the edge of
+its view, `_entering`), and whether a track no camera sees this frame still stands
+for someone (hidden behind others) or is gone (out of every view, at a view's edge,
+or missed in a clear view: `_still_there`), judged on the whole body.
+
+Bad input is contained: non-finite joints become unseen joints, a camera that stops
+simply contributes nothing, and a camera whose calibration is wrong cannot create
+people where another camera looks (its users fail to match the others and are not
+trusted: a person only a non-master camera sees, where another reporting camera
+should see them too, is never confirmed, and the disagreement is recorded
 (`disagreements`); the master camera is trusted on ties).
 """
 
@@ -79,8 +87,12 @@ Group = tuple[frozenset[str], np.ndarray, np.ndarray]
 """A person of one frame: the cameras that saw them, fused joints (15, 3) and sigma (15,)."""
 
 SUSPECT = 5.0  # frames of net disagreement with the master before a camera is suspect
-DOUBT = 9  # frames (0.3 s, under the 1 s confirmation) a verified camera may see people
-# only apart from the master's before it must earn trust again by fusing with the master
+DOUBT_FOR = 1.0
+"""s: how long a verified camera may go on seeing people alone where a verified camera
+should see them too before it must earn its trust again: longer than a ghost lives
+(under 1 s), so a ghost is no evidence against its camera; a bumped camera's copies
+are contradicted every frame. (The contradicted copies themselves are never trusted
+meanwhile: only the camera's other lone people wait on this.)"""
 
 
 def _fraction_in_view(points: np.ndarray) -> float:
@@ -141,11 +153,12 @@ class PeopleDetectorCore:
         """Per camera: grows while it misses people the master sees where it should see
         them, shrinks while it agrees; a suspect camera's lone users are not trusted."""
         self.verified: set[str] = {self.master} | {c.name for c in config.cameras if c.verified}
-        self.doubt: dict[str, int] = {}
-        """Per verified camera: frames it and the master both saw people, none together."""
-        """Cameras that have seen someone together with a verified camera (fused into one
+        """Cameras verified by calibration or seen with a verified camera (fused into one
         person): only their lone users can become people. A camera whose calibration is
         grossly wrong never fuses with anyone, so its misplaced users stay suspects."""
+        self.doubt: dict[str, float] = {}
+        """Per verified camera: since when, frame after frame, a verified camera should
+        have seen some of its lone people too (`_update_trust`)."""
 
     def process(
         self,
@@ -193,7 +206,7 @@ class PeopleDetectorCore:
             for i, others in missing.items()
             if set(others) & self.verified
         }
-        self._update_trust(grouped, contradicted)
+        self._update_trust(grouped, contradicted, now)
         people = []
         for i, (cameras, joints, sigma) in enumerate(grouped):
             trusted = True
@@ -214,11 +227,14 @@ class PeopleDetectorCore:
         seen_now = np.stack(seen) if seen else np.zeros((0, 15, 3))
         confirmed, lately = [], []
         for t in tracks:
-            if not t.confirmed:
-                continue
-            if t.last_seen == now or self._still_there(t, now, reporting, seen_now):
+            if t.confirmed and (
+                t.last_seen == now or self._still_there(t, now, reporting, seen_now)
+            ):
                 confirmed.append(t)
-            elif now - t.last_seen <= RECENT:
+                continue
+            if t.confirmed:
+                self.tracker.lose(t)
+            if t.gone and now - t.last_seen <= RECENT:
                 lately.append(t)
         near = 0
         if confirmed:
@@ -317,24 +333,26 @@ class PeopleDetectorCore:
         sigma = np.stack([t.sigma for t in people])
         return envelopes(joints, np.where(np.isnan(sigma), 0.05, sigma), self.config.margin_sigmas)
 
-    def _update_trust(self, grouped: list[Group], contradicted: set[str]) -> None:
+    def _update_trust(self, grouped: list[Group], contradicted: set[str], now: float) -> None:
         """Cameras seen fusing with a verified camera become verified; a verified camera
-        that keeps seeing people alone where a verified camera should see them too
-        (`contradicted`), never fusing with a verified camera meanwhile, loses its trust
-        (bumped after calibration: its copies land beside or far from the real people).
-        Seeing people no other camera can see is no evidence: cameras in a room's
-        corners share few people. Fusing with any verified camera clears the doubt."""
+        that sees people alone where a verified camera should see them too
+        (`contradicted`) in every frame for `DOUBT_FOR`, never fusing with a verified
+        camera meanwhile, loses its trust (bumped after calibration: its copies land
+        beside or far from the real people). Seeing people no other camera can see is
+        no evidence: cameras in a room's corners share few people."""
         agreeing: set[str] = set()
         for cameras, _, _ in grouped:
             if len(cameras) > 1 and cameras & self.verified:
                 self.verified |= cameras
                 agreeing |= cameras
-        for camera in agreeing:
-            self.doubt.pop(camera, None)
-        for camera in (contradicted & self.verified) - agreeing - {self.master}:
-            self.doubt[camera] = self.doubt.get(camera, 0) + 1
-            if self.doubt[camera] >= DOUBT:
+        doubted = (contradicted & self.verified) - agreeing - {self.master}
+        for camera in set(self.doubt) - doubted:  # agreed, or nothing contradicted
+            del self.doubt[camera]
+        for camera in doubted:
+            since = self.doubt.setdefault(camera, now)
+            if now - since >= DOUBT_FOR:
                 self.verified.discard(camera)
+                del self.doubt[camera]
                 self.disagreements[(camera, self.master)] = (
                     self.disagreements.get((camera, self.master), 0) + 1
                 )

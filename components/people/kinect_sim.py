@@ -55,6 +55,8 @@ class KinectModel:
     rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
     _ids: dict[int, int] = field(default_factory=dict)
     _ghosts: list[tuple[float, float, np.ndarray, int]] = field(default_factory=list)
+    _inverse: tuple[np.ndarray | None, np.ndarray] = (None, np.eye(4))
+    """(world_from_camera, its inverse), kept while the pose is the same array."""
 
     def in_view(self, points: np.ndarray) -> np.ndarray:
         """Which camera-frame points are inside the field of view and depth range."""
@@ -69,7 +71,9 @@ class KinectModel:
 
     def to_camera(self, world: np.ndarray) -> np.ndarray:
         """World points (..., 3) into the camera frame."""
-        camera_from_world = np.linalg.inv(self.world_from_camera)
+        if self._inverse[0] is not self.world_from_camera:  # a pose set anew
+            self._inverse = (self.world_from_camera, np.linalg.inv(self.world_from_camera))
+        camera_from_world = self._inverse[1]
         return world @ camera_from_world[:3, :3].T + camera_from_world[:3, 3]
 
     def _hidden(self, joints: np.ndarray, others: list[np.ndarray]) -> np.ndarray:
@@ -88,10 +92,11 @@ class KinectModel:
 
     def observe(
         self, people: dict[int, np.ndarray], now: float, dt: float
-    ) -> list[tuple[int, np.ndarray]]:
-        """(user id, joints in the camera frame) for this frame."""
+    ) -> list[tuple[int, np.ndarray]] | None:
+        """(user id, joints in the camera frame) for this frame; None when the camera
+        drops the frame (it sends nothing, which is not the same as seeing no one)."""
         if self.rng.random() < self.dropout:
-            return []  # a dropped frame
+            return None
         in_camera = {pid: self.to_camera(s) for pid, s in people.items()}
         visible = {pid: j for pid, j in in_camera.items() if self.in_view(j).mean() > 0.5}
         out = []
@@ -157,6 +162,15 @@ class KinectModel:
         return Skeletons(stamp, self.name, tuple(skeletons))
 
 
+def frames(
+    cameras: list[KinectModel], people: dict[int, np.ndarray], now: float, dt: float
+) -> dict[str, list[tuple[int, np.ndarray]]]:
+    """What these cameras send for one frame, by name: a camera that drops the frame
+    sends nothing and is left out."""
+    sent = {c.name: c.observe(people, now, dt) for c in cameras}
+    return {name: users for name, users in sent.items() if users is not None}
+
+
 def from_message(message: Skeletons) -> list[tuple[int, np.ndarray]]:
     """(user id, joints with NaN where confidence is 0) of a `Skeletons` message."""
     out = []
@@ -199,7 +213,8 @@ class KinectSim(Component):
                 for u in truth.users
             }
         frame = self.model.observe(self.people, self.clock, 1.0 / 30.0)
-        self.users.write(self.model.to_message(frame, time.time()))
+        if frame is not None:  # a dropped frame sends nothing
+            self.users.write(self.model.to_message(frame, time.time()))
 
     @operation
     def place(self, person: int, x: float, y: float, facing: float = 0.0) -> None:

@@ -7,6 +7,8 @@ by a margin of `sigmas` standard deviations of the depth noise at that distance.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 JOINTS = (
@@ -74,9 +76,42 @@ def body_centers(skeletons: np.ndarray) -> np.ndarray:
     return np.where(seen[:, 2, None], skeletons[:, 2], mean)
 
 
-def standing(at: tuple[float, float], facing: float = 0.0, height: float = 1.75) -> np.ndarray:
-    """A standing person's skeleton (world frame, z up) at floor position `at`."""
-    s = height / 1.75
+@dataclass(frozen=True)
+class Build:
+    """How a body is made, as far as a skeleton shows it: the height, and the breadth of
+    the shoulders and hips and the length of the legs relative to a body of that height
+    (1.0: the 1.75 m template's proportions)."""
+
+    height: float = 1.75
+    shoulders: float = 1.0
+    hips: float = 1.0
+    legs: float = 1.0
+
+    @classmethod
+    def drawn(cls, rng: np.random.Generator) -> Build:
+        """Someone from a mixed adult population: height 1.72 +- 0.09 m (men and women
+        together, clipped to 1.50-1.98 m), shoulder and hip breadth +- 6%, legs +- 3%
+        relative to height (anthropometric surveys' spread between adults)."""
+        return cls(
+            float(np.clip(rng.normal(1.72, 0.09), 1.50, 1.98)),
+            float(rng.normal(1.0, 0.06)),
+            float(rng.normal(1.0, 0.06)),
+            float(rng.normal(1.0, 0.03)),
+        )
+
+
+_SHOULDER_SIDE = [3, 4, 5, 6, 7, 8]
+_HIP_SIDE = [9, 10, 11, 12, 13, 14]
+_LEG_LIFT = [9, 10, 12, 13]  # hips and knees rise with longer legs (feet stay down)
+
+
+def standing(
+    at: tuple[float, float], facing: float = 0.0, height: float = 1.75, build: Build | None = None
+) -> np.ndarray:
+    """A standing person's skeleton (world frame, z up) at floor position `at`, of a
+    given height or `build`."""
+    build = build or Build(height)
+    s = build.height / 1.75
     local = (
         np.array(
             [
@@ -99,6 +134,9 @@ def standing(at: tuple[float, float], facing: float = 0.0, height: float = 1.75)
         )
         * s
     )
+    local[_SHOULDER_SIDE, 1] *= build.shoulders
+    local[_HIP_SIDE, 1] *= build.hips
+    local[_LEG_LIFT, 2] *= build.legs
     c, w = np.cos(facing), np.sin(facing)
     rotation = np.array([[c, -w, 0.0], [w, c, 0.0], [0.0, 0.0, 1.0]])
     return local @ rotation.T + np.array([at[0], at[1], 0.0])

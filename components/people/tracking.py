@@ -1,22 +1,26 @@
-"""Persistent people tracks: identities across frames and occlusions, confirmation
-and deletion.
+"""Persistent people tracks: identities across frames, occlusions and absences;
+when a track is someone; when it is dropped.
 
 Association: each frame's people are paired with the tracks, the most recently seen
 tracks first (a track that just lost its person must not take a neighbour's), on the
-median joint distance in units of the noise (`fusion.normalized_cost`). A track's
-joints are predicted at its body's walking velocity; the noise allowed between the
-prediction and the detection grows with the time since the track was last seen (a
-walker turns, stops, swings their limbs), so a person hidden for up to `keep_for`
-(2 s) behind someone is found again where they reappear.
+median joint distance in units of the noise (`fusion.normalized_cost`): near where
+walking on at the body's velocity would put them, or within a walk (1.6 m/s, any
+direction) of where they were last seen, whichever is nearer (someone who turns back
+at the edge of a view is not where walking on would put them). A person hidden for
+up to `keep_for` (2 s) behind someone is found again where they reappear.
 
 Confirmation: ghost skeletons (false positives under 1 s, thesis 3.4) are
-single-camera artifacts that stand still, so a track is confirmed when two or more
-cameras see the person at once, or after `confirm_after` of detection by a credible
-camera, or sooner (`confirm_walking`) when it has walked a body's length since it
-appeared: people walk in, ghosts do not walk. Only confirmed tracks count as people;
-confirmed tracks unseen for longer than `keep_for` are deleted, tentative ones after
-`TENTATIVE_KEEP`. Which unseen tracks still stand
-for someone in the room is the detector's to say (it knows where the cameras look).
+single-camera artifacts that stand still and appear anywhere in a view. A track is
+someone when two or more cameras see them at once; or, seen by one credible camera,
+when they came into sight where people do (at the edge of a view: `Person.entering`,
+the detector's to say), when they walked beyond the noise (`WALK_SIGMAS`), or after
+`confirm_after`. Only confirmed tracks count as people.
+
+Lives: a tentative track unseen for `TENTATIVE_KEEP` is dropped. A confirmed track
+the detector judges gone (`lose`: it left every view) stops counting but keeps its
+identity for `keep_for`, and counts again once credible, as a new track would. Who
+leaves for longer is remembered by their build (`reid`): a newcomer built clearly
+like one of them is given their identity back.
 """
 
 from __future__ import annotations
@@ -29,13 +33,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from components.people.fusion import GATE_SIGMAS, gated_pairs, normalized_cost
+from components.people.reid import FRAMES_TO_KNOW, Build, Departed, Gallery, sizes
 from components.people.skeleton import standing
 
 TORSO = 2
+FRAME = 1.0 / 30.0
+"""s: a camera frame (30 Hz)."""
 LIMB_MOTION = 0.05
 """m: how far a limb may move against the body between two frames (a swinging arm)."""
 TURN_SPEED = 0.7
 """m/s: how fast a walker may leave the predicted path (turning, stopping, starting)."""
+WALK_SPEED = 1.6
+"""m/s: how fast someone unseen may have walked away from where they were last seen, in
+any direction (ISO 13855's walking speed; a walker who turns back at the edge of a
+view is not where walking on would put them)."""
 MOST_MOTION = 1.0
 """m: the most motion allowed between a prediction and a detection, however long the
 track was unseen."""
@@ -91,19 +102,31 @@ class Track:
     """The body's walking velocity (m/s, floor plane: z is 0)."""
     path: deque[tuple[float, float, float]] = field(default_factory=deque)
     """(time, x, y) of the torso over the last `VELOCITY_WINDOW`."""
+    since: float = 0.0
+    """When this sighting began: the track's birth, or its first detection after more
+    than `TENTATIVE_KEEP` unseen."""
+    gone: bool = False
+    """Judged gone (`lose`): it keeps its identity for `keep_for`, but counts again
+    only once credible, as a new track would."""
     born: tuple[float, float] | None = None
-    """The torso's floor position where the track appeared."""
+    """The torso's floor position where this sighting began."""
     born_sigma: float = math.inf
     """The noise (1 sigma, m) of `born`."""
     walked: float = 0.0
-    """The farthest the torso has been from `born` (m)."""
+    """The farthest the torso has been from `born` in this sighting (m)."""
+    build: Build = field(default_factory=Build)
+    """The body's sizes measured so far (`reid`): who it is, should it leave and return."""
+    known: bool = False
+    """Its build was compared with the people who left (once, `FRAMES_TO_KNOW` in)."""
+    origin: tuple[float, float] = (math.nan, math.nan)
+    """The torso's floor position when first seen."""
     shape: np.ndarray = field(default_factory=lambda: UPRIGHT.copy())
     """Each joint relative to the torso, as last seen (`UPRIGHT` until then): where
     the joints a camera does not see now must be, to tell whether it should."""
 
     entered: bool = False
-    """Appeared where people come into sight (`Person.entering`): someone walking in,
-    not a ghost, which appears anywhere."""
+    """This sighting began where people come into sight (`Person.entering`): someone
+    walking in, not a ghost, which appears anywhere."""
 
     at: float = 0.0
     """When `joints` stood there: the last detection, or the last frame it was coasted to."""
@@ -114,13 +137,23 @@ class Track:
         walked = min(max(now - self.last_seen, 0.0), 1.0) - min(self.at - self.last_seen, 1.0)
         return self.joints + self.velocity * walked
 
+    def last_place(self) -> np.ndarray:
+        """The joints where it was last seen (before any coasting)."""
+        return self.joints - self.velocity * min(self.at - self.last_seen, 1.0)
+
     def whole(self) -> np.ndarray:
         """All 15 joints at the track's place: its joints, the unseen ones where the
         body's shape puts them (NaN only when nothing was ever seen)."""
         return complete(self.joints, self.shape)
 
-    def _seen(self, person: Person, now: float) -> None:
-        """Take this frame's detection: joints, velocity, how far it walked."""
+    def _seen(
+        self, person: Person, now: float, size: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> None:
+        """Take this frame's detection: joints, velocity, how far it walked, its sizes."""
+        if size is not None:
+            self.build.add(*size)
+        if now - self.last_seen > TENTATIVE_KEEP or not self.frames:  # a new sighting
+            self.since, self.entered, self.born, self.walked = now, person.entering, None, 0.0
         ax, ay, az = person.joints[TORSO].tolist()  # floats: cheaper than numpy for three
         if math.isfinite(ax + ay + az):
             seen = ~np.isnan(person.joints).any(axis=1)
@@ -132,6 +165,8 @@ class Track:
             if self.born is None:
                 self.born = (ax, ay)
                 self.born_sigma = float(person.sigma[TORSO])
+                if math.isnan(self.origin[0]):  # the first place its torso was seen
+                    self.origin = (ax, ay)
             self.walked = max(self.walked, math.hypot(ax - self.born[0], ay - self.born[1]))
         elif now - self.last_seen > VELOCITY_WINDOW:
             self.velocity = np.zeros(3)
@@ -189,11 +224,16 @@ class PeopleTracker:
         self.confirm_after, self.keep_for = confirm_after, keep_for
         self.cameras_to_confirm = cameras_to_confirm
         self.tracks: list[Track] = []
+        self.gallery = Gallery()
         self._ids = itertools.count(1)
 
     def update(self, people: list[Person], now: float) -> list[Track]:
         """Feed one frame; returns the live tracks (tentative and confirmed)."""
         unmatched = list(range(len(people)))
+        if people:
+            values, variances = sizes(
+                np.stack([p.joints for p in people]), np.stack([p.sigma for p in people])
+            )
         for tier in self._tiers(now):
             if not unmatched:
                 break
@@ -201,50 +241,70 @@ class PeopleTracker:
             candidates = [people[j] for j in unmatched]
             pairs = self._associate(tracks, candidates, now)
             for i, j in pairs:
-                tracks[i]._seen(candidates[j], now)
+                k = unmatched[j]
+                tracks[i]._seen(candidates[j], now, (values[k], variances[k]))
             taken = {unmatched[j] for _, j in pairs}
             unmatched = [j for j in unmatched if j not in taken]
         for j in unmatched:
             person = people[j]
             track = Track(next(self._ids), person.joints, person.sigma, now, now)
-            track.entered = person.entering
-            track._seen(person, now)
-            track.last_seen = now
+            track._seen(person, now, (values[j], variances[j]))
             self.tracks.append(track)
-        self.tracks = [
-            t
-            for t in self.tracks
-            if now - t.last_seen <= (self.keep_for if t.confirmed else TENTATIVE_KEEP)
-        ]
+        kept = []
+        for t in self.tracks:
+            if now - t.last_seen <= (self.keep_for if t.confirmed or t.gone else TENTATIVE_KEEP):
+                kept.append(t)
+            elif t.confirmed or t.gone:  # someone who left: remembered by their build
+                where = t.last_place()[TORSO]
+                self.gallery.leave(Departed(t.id, t.build, (where[0], where[1]), t.last_seen))
+        self.tracks = kept
         for track in self.tracks:
             if track.last_seen < now:  # unseen: coasted on, so it is reported where it walks
                 track.joints, track.at = track.predicted(now), now
         for track in self.tracks:
             if not track.confirmed and track.last_seen == now and self._credible(track, now):
-                track.confirmed = True
+                track.confirmed, track.gone = True, False
+            if track.confirmed and not track.known and track.frames >= FRAMES_TO_KNOW:
+                track.known = True
+                former = self.gallery.recognise(track.build, track.origin, track.first_seen)
+                if former is not None:
+                    track.id = former  # someone who left, back
         return list(self.tracks)
 
     def _tiers(self, now: float) -> list[list[int]]:
         """Track indices grouped by the frames since they were last seen, freshest first."""
         tiers: dict[int, list[int]] = {}
         for i, track in enumerate(self.tracks):
-            tiers.setdefault(round((now - track.last_seen) * 30.0), []).append(i)
+            tiers.setdefault(round((now - track.last_seen) / FRAME), []).append(i)
         return [tiers[k] for k in sorted(tiers)]
 
     def _associate(
         self, tracks: list[Track], people: list[Person], now: float
     ) -> list[tuple[int, int]]:
-        """Gated global assignment of these tracks (seen equally long ago) to people."""
+        """Gated global assignment of these tracks (seen equally long ago) to people:
+        near where walking on would put them, or within a walk in any direction of
+        where they were last seen, whichever is nearer."""
         unseen = now - tracks[0].last_seen
-        motion = min(LIMB_MOTION + TURN_SPEED * unseen, MOST_MOTION)
-        cost = normalized_cost(
+        sigma = np.stack([t.sigma for t in tracks])
+        joints = np.stack([p.joints for p in people])
+        noise = np.stack([p.sigma for p in people])
+        ahead = normalized_cost(
             np.stack([t.predicted(now) for t in tracks]),
-            np.stack([t.sigma for t in tracks]),
-            np.stack([p.joints for p in people]),
-            np.stack([p.sigma for p in people]),
-            slack=motion,
+            sigma,
+            joints,
+            noise,
+            slack=min(LIMB_MOTION + TURN_SPEED * unseen, MOST_MOTION),
         )
-        return gated_pairs(cost, GATE_SIGMAS)
+        if unseen <= 1.5 * FRAME:  # seen last frame: no one turns back in a frame
+            return gated_pairs(ahead, GATE_SIGMAS)
+        around = normalized_cost(
+            np.stack([t.last_place() for t in tracks]),
+            sigma,
+            joints,
+            noise,
+            slack=min(LIMB_MOTION + WALK_SPEED * unseen, MOST_MOTION),
+        )
+        return gated_pairs(np.minimum(ahead, around), GATE_SIGMAS)
 
     def _credible(self, track: Track, now: float) -> bool:
         """Whether a tentative track, seen this frame, is someone (module docstring)."""
@@ -254,11 +314,19 @@ class PeopleTracker:
             return False
         if track.entered and not track.untrusted:
             return True
-        age = now - track.first_seen
+        age = now - track.since
         return (
             age >= self.confirm_after
             or track.walked >= WALK_SIGMAS * math.sqrt(2) * track.born_sigma
         )
+
+    @staticmethod
+    def lose(track: Track) -> None:
+        """The person a confirmed track stood for is gone (the detector judged they left
+        every view, or a camera that sees the place clearly misses them): it no longer
+        counts, and should it be seen again within `keep_for` (someone walking back in,
+        or a ghost where it was), it keeps its identity but counts only once credible."""
+        track.confirmed, track.gone = False, True
 
     @property
     def people(self) -> list[Track]:

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from components.people.distance import capsule_distances
-from components.people.skeleton import JOINTS, envelopes, standing
+from components.people.skeleton import JOINTS, Build, envelopes, standing
 from components.robot.separation import SsmParams, link_speed
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError
@@ -46,6 +46,7 @@ class Person:
     waypoints: list[np.ndarray] = field(default_factory=list)
     speed: float = WALK_SPEED
     lean: float = 0.0  # how far the hands reach forward (m)
+    build: Build = field(default_factory=Build)
 
     def advance(self, dt: float) -> None:
         """Walk toward the next waypoint for `dt` seconds."""
@@ -64,7 +65,8 @@ class Person:
 
     def skeleton(self, floor: float) -> np.ndarray:
         """True joints (15 x 3)."""
-        joints = standing((float(self.position[0]), float(self.position[1])), self.facing)
+        at = (float(self.position[0]), float(self.position[1]))
+        joints = standing(at, self.facing, build=self.build)
         joints[:, 2] += floor
         if self.lean > 0:  # arms reach forward to hands at table height
             ahead = np.array([math.cos(self.facing), math.sin(self.facing), 0.0])

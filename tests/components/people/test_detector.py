@@ -347,3 +347,15 @@ def test_a_ghost_at_the_edge_of_a_view_where_another_camera_looks_is_not_someone
     core = setup(verified=True)[1]
     frame = core.process({seer.name: [(50, seen)]}, 0.0)
     assert len(frame.people) == 1, "with no one to say otherwise: someone walking in"
+
+
+def test_a_ghost_where_the_master_looks_costs_its_camera_no_trust():
+    """A ghost lives under a second; a bumped camera's copies are contradicted for as
+    long as it is bumped. Only the lasting disagreement withdraws trust."""
+    cams, core = setup(verified=True)
+    ghost = standing((0.3, 0.4))
+    assert all(c.in_view(c.to_camera(ghost)).all() for c in cams), "where both look"
+    for k in range(27):  # 0.9 s: k1 alone sees it, k0 sees no one
+        core.process({"k0": [], "k1": [(50, cams[1].to_camera(ghost))]}, k * FRAME)
+    assert core.verified == {"k0", "k1"}
+    assert core.process({"k0": [], "k1": []}, 27 * FRAME).people == [], "never someone"

@@ -119,3 +119,17 @@ def test_unseen_joints_are_put_where_the_bodys_shape_says(x, y, facing, height, 
     # 1.6 m from head to feet
     assert np.allclose(guess[:, 2], body[:, 2], atol=0.25 / 1.75 * 1.6), "heights about right"
     assert np.hypot(*(guess[TORSO, :2] - body[TORSO, :2])) < 0.3, "where they stand"
+
+
+def test_where_a_track_began_is_where_its_torso_was_first_seen_not_before():
+    # someone stepping out from behind another shows a hand before their torso: where
+    # they began (to know them again, `reid`) is where the torso first was
+    tracker, rng = PeopleTracker(), np.random.default_rng(5)
+    body = standing((1.0, 2.0))
+    hand_only = body.copy()
+    hand_only[[i for i in range(15) if i != 6]] = np.nan
+    tracker.update([one_camera(hand_only, rng)], 0.0)
+    (track,) = tracker.tracks
+    assert math.isnan(track.origin[0])
+    tracker.update([one_camera(body, rng)], FRAME)
+    assert np.allclose(track.origin, (1.0, 2.0), atol=4 * SIGMA)
