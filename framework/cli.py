@@ -8,25 +8,28 @@ command line, 3 an internal error (a bug in fw: please report it).
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import os
 import sys
 import traceback
 from collections.abc import Sequence
+from importlib import metadata
 from typing import Any
 
 from framework.clock import SimulatedClock
 from framework.errors import Finding, FindingsError, FwError
-from framework.statechart.events import Event, Listener, Output
-from framework.statechart.model import CONFIG_DONE, CONFIG_FAILED, State, Transition
+from framework.statechart.events import Output
+from framework.statechart.model import CONFIG_DONE, CONFIG_FAILED
+from framework.statechart.trace import TracePrinter
 
-COMMAND_PROVIDERS = [
-    "framework.cli_deploy",
-    "components.tracking.cli",
-    "components.people.cli",
-    "components.bench.cli",
-]
+COMMANDS_GROUP = "fw.commands"
+"""Entry point group through which installed packages add `fw` commands: each names a
+function `add_commands(subparsers)` (the way pytest and ros2cli find their plugins),
+so the framework never names a procedure's packages:
+
+    [project.entry-points."fw.commands"]
+    tracking = "components.tracking.cli:add_commands"
+"""
 
 EPILOG_VALIDATE = """\
 examples:
@@ -92,7 +95,7 @@ def _print_findings(findings: list[Finding], as_json: bool, strict: bool) -> int
 def cmd_validate(args: argparse.Namespace) -> int:
     """Check fw files statically (each by its kind); print every finding."""
     from framework.filekinds import detect, kinds
-    from framework.statechart.validator import validate_file
+    from framework.statechart.files import validate_file
 
     known = kinds()
     if args.kinds:
@@ -147,55 +150,6 @@ def cmd_graph(args: argparse.Namespace) -> int:
     return 0
 
 
-class _Printer(Listener):
-    """Prints the trace of `fw run` with the simulated time."""
-
-    def __init__(self, clock: SimulatedClock, as_json: bool):
-        self.clock = clock
-        self.as_json = as_json
-
-    def emit(self, kind: str, text: str, **data: Any) -> None:
-        if self.as_json:
-            print(json.dumps({"t": round(self.clock.now(), 6), "kind": kind, **data}))
-        else:
-            print(f"[{self.clock.now():9.3f}] {kind:<10} {text}")
-
-    def on_event(self, event: Event) -> None:
-        payload = f" {json.dumps(event.payload)}" if event.payload else ""
-        self.emit(
-            "event",
-            f"{event.name}{payload} ({event.kind})",
-            name=event.name,
-            payload=event.payload,
-            source=event.kind,
-        )
-
-    def on_unhandled(self, event: Event, reason: str) -> None:
-        self.emit("unhandled", f"{event.name}: {reason}", name=event.name, reason=reason)
-
-    def on_transition(self, transition: Transition, event: Event | None) -> None:
-        target = transition.target.path if transition.target is not None else "(internal)"
-        self.emit(
-            "transition",
-            f"{transition.source.path} -> {target}",
-            source=transition.source.path,
-            target=target,
-        )
-
-    def on_entry(self, state: State) -> None:
-        self.emit("enter", state.path, state=state.path)
-
-    def on_exit(self, state: State) -> None:
-        self.emit("exit", state.path, state=state.path)
-
-    def on_output(self, output: Output) -> None:
-        what = output.tag or output.event or output.port or output.operation or output.message
-        self.emit("output", f"{output.kind} {what}", output=output.kind, what=what)
-
-    def on_error(self, message: str, event: Event | None) -> None:
-        self.emit("error", message, message=message)
-
-
 def _parse_token(token: str) -> tuple[str, Any]:
     from framework.durations import parse_duration
 
@@ -236,7 +190,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     chart = _load(args.file)
     clock = SimulatedClock()
-    printer = _Printer(clock, args.json)
+    printer = TracePrinter(clock, args.json)
     failing = {t for f in args.fail for t in f.split(",") if t}
     interpreter: Interpreter
 
@@ -257,6 +211,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         if kind == "advance":
             interpreter.advance(value)
         else:
+            problem = chart.event_problem(*value, complete=False)  # stepping by hand
+            if problem:
+                raise FwError(problem)
             interpreter.queue(*value)
             interpreter.run()
 
@@ -299,11 +256,28 @@ def _interactive(interpreter: Any, apply: Any) -> None:
             print(f"fw: {exc}", file=sys.stderr)
 
 
+def cmd_new(args: argparse.Namespace) -> int:
+    """Make a new procedure from the template (`framework/scaffold.py`)."""
+    from pathlib import Path
+
+    from framework.scaffold import new_procedure
+
+    for path in new_procedure(args.name, Path(args.dir), args.port):
+        print(f"wrote {path}")
+    folder = Path(args.dir) / args.name
+    print(
+        f"next: fw validate {folder / (args.name + '.yaml')} && python -m pytest {folder}\n"
+        f"      fw deploy {folder / (args.name + '.yaml')}",
+        file=sys.stderr,
+    )
+    return 0
+
+
 def cmd_describe(args: argparse.Namespace) -> int:
     """Print (or write) the reference of component classes, named or used by topologies."""
     from pathlib import Path
 
-    from framework.container import load_class
+    from framework.classes import load_class
     from framework.reference import reference
     from framework.topology import load_topology
 
@@ -425,8 +399,39 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", metavar="OUT", help="write to this file (default: stdout)")
     p.set_defaults(func=cmd_describe)
 
-    for provider in COMMAND_PROVIDERS:  # domain packages add their own commands
-        importlib.import_module(provider).add_commands(sub)
+    p = sub.add_parser(
+        "new",
+        help="start a new procedure from a template (components, topology, chart, specs)",
+        description="Write a whole small procedure into DIR/NAME: two components of your "
+        "own (NAME_components.py), a topology in two processes (NAME.yaml), a chart that "
+        "rewires the reader live on e_SWAP (NAME_chart.yaml) and its specs (test_NAME.py). "
+        "Nothing existing is overwritten. docs/tutorial.md walks through it.",
+        epilog="examples:\n  fw new procedure hello\n"
+        "  fw new procedure pick_place --dir ~/work --port 7600\n"
+        "then:\n  fw validate hello/hello.yaml && python -m pytest hello\n"
+        "  fw deploy hello/hello.yaml",
+        formatter_class=raw,
+    )
+    p.add_argument("kind", choices=["procedure"], help="what to make")
+    p.add_argument("name", metavar="NAME", help="a Python module name, e.g. hello")
+    p.add_argument("--dir", default=".", metavar="DIR", help="where to make it (default: .)")
+    p.add_argument(
+        "--port", type=int, metavar="N", help="its bus port (default: from its name, 7470-7969)"
+    )
+    p.set_defaults(func=cmd_new)
+
+    from framework import cli_deploy
+
+    cli_deploy.add_commands(sub)
+    for entry in sorted(metadata.entry_points(group=COMMANDS_GROUP), key=lambda e: e.name):
+        try:
+            entry.load()(sub)
+        except Exception as exc:  # a broken plugin must not take `fw` down with it
+            print(
+                f"fw: warning: commands of {entry.name!r} ({entry.value}) not loaded: "
+                f"{type(exc).__name__}: {exc}",
+                file=sys.stderr,
+            )
     return parser
 
 

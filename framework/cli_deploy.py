@@ -300,14 +300,21 @@ def _console_tls(args: argparse.Namespace) -> tuple[Any, str]:
 
 
 def _scenario_report(runner: Any) -> int:
-    """Print PASS/FAIL per check and expectation; 0 if everything passed."""
+    """Print PASS/FAIL per check and expectation (NOT RUN for an invariant whose state
+    never held: nothing was checked); 0 if nothing failed."""
     outcomes = runner.report()
     print(f"\nscenario {runner.scenario.name}:")
     for outcome in outcomes:
         detail = f"  ({outcome.detail})" if outcome.detail else ""
-        print(f"  {'PASS' if outcome.ok else 'FAIL'}  {outcome.what}{detail}")
+        verdict = "FAIL" if not outcome.ok else "PASS" if outcome.exercised else "NOT RUN"
+        print(f"  {verdict:<7} {outcome.what}{detail}")
     failed = sum(not o.ok for o in outcomes)
-    print(f"{'PASSED' if not failed else 'FAILED'}: {len(outcomes) - failed} of {len(outcomes)}")
+    unrun = sum(o.ok and not o.exercised for o in outcomes)
+    passed = len(outcomes) - failed - unrun
+    print(
+        f"{'PASSED' if not failed else 'FAILED'}: {passed} passed, {failed} failed, "
+        f"{unrun} not run (their state never held)"
+    )
     return 1 if failed else 0
 
 
@@ -368,6 +375,59 @@ def cmd_send(args: argparse.Namespace) -> int:
         return 1
     print(f"accepted {shown}")
     return 0
+
+
+def cmd_call(args: argparse.Namespace) -> int:
+    """Call a read-only operation of a running deployment's component; print its result."""
+    from framework.remote import RemoteComponent, RemoteError
+
+    component, _, operation = args.target.partition(".")
+    if not component or not operation:
+        raise FwError(f"{args.target!r}: name it COMPONENT.OPERATION, e.g. robot.report")
+    try:
+        call_args = json.loads(args.args) if args.args else {}
+    except json.JSONDecodeError as exc:
+        raise FwError(f"--args is not JSON: {exc.msg}") from None
+    if not isinstance(call_args, dict):
+        raise FwError("--args must be a JSON object of keyword arguments")
+    with _joined(args.topology, args.keys) as (topology, bus):
+        _callable(topology, component, operation)
+        remote = RemoteComponent(bus, component, timeout=min(args.timeout, 2.0))
+        deadline = time.monotonic() + args.timeout
+        while True:  # a fresh session learns the routes to the component's queryable first
+            try:
+                result = remote.call(operation, **call_args)
+                break
+            except RemoteError as exc:
+                if exc.kind != "Timeout" or time.monotonic() > deadline:
+                    raise FwError(str(exc)) from None
+                time.sleep(0.1)
+    print(json.dumps(result, indent=2, default=str))
+    return 0
+
+
+def _callable(topology: Any, component: str, operation: str) -> None:
+    """Refuse, with what to do instead, a call the deployment would not answer."""
+    import difflib
+
+    spec = topology.components.get(component)
+    if spec is None:
+        close = difflib.get_close_matches(component, list(topology.components), n=1)
+        hint = f"did you mean {close[0]!r}?" if close else "see `fw ls`"
+        raise FwError(f"no component {component!r} in {topology.name!r}; {hint}")
+    info = spec.info
+    if info is None:
+        return
+    if operation not in info.operations:
+        close = difflib.get_close_matches(operation, list(info.operations), n=1)
+        hint = f"did you mean {close[0]!r}?" if close else "it has " + ", ".join(info.operations)
+        raise FwError(f"{component} has no operation {operation!r}; {hint}")
+    if operation not in info.readonly:
+        raise FwError(
+            f"{component}.{operation} changes state: an operator's session may call only "
+            f"read-only operations ({', '.join(sorted(info.readonly)) or 'none here'}); what "
+            "changes the robot goes through the chart (`fw send EVENT`)"
+        )
 
 
 def cmd_keys(args: argparse.Namespace) -> int:
@@ -551,11 +611,11 @@ def recorded_events(path: str) -> list[tuple[float, str, dict[str, Any] | None]]
 
 def cmd_replay(args: argparse.Namespace) -> int:
     """Feed a recording's chart events back into the chart on a simulated clock."""
-    from framework.cli import _Printer as TracePrinter
     from framework.clock import SimulatedClock
     from framework.recorder import recording_metadata
     from framework.statechart.interpreter import Interpreter
     from framework.statechart.loader import load_statechart
+    from framework.statechart.trace import TracePrinter
 
     chart_path = args.chart or recording_metadata(args.file).get("statechart")
     if not chart_path:
@@ -658,13 +718,53 @@ def add_commands(sub: Any) -> None:
     p.add_argument("--keys", metavar="DIR", help=KEYS_HELP)
     p.set_defaults(func=cmd_send)
 
-    p = sub.add_parser("log", help="print the timeline of a flight recording")
+    p = sub.add_parser(
+        "call",
+        help="call a read-only operation of a running deployment's component",
+        description="Join a running deployment as its operator and call one of a "
+        "component's read-only operations (those that change nothing); waits for the "
+        "component up to --timeout. What changes the robot goes through the chart "
+        "(`fw send`).",
+        epilog="examples:\n  fw call robot.report --topology topologies/seeg.yaml\n"
+        "  fw call people_world.where --topology topologies/seeg.yaml --timeout 10\n"
+        "  fw call supervisor.stats --topology topologies/demo.yaml\n",
+        formatter_class=raw,
+    )
+    p.add_argument("target", metavar="COMPONENT.OPERATION")
+    p.add_argument("--args", metavar="JSON", help="keyword arguments as a JSON object")
+    p.add_argument("--topology", required=True, metavar="T")
+    p.add_argument(
+        "--timeout", type=float, default=5.0, metavar="S", help="how long to wait for it"
+    )
+    p.add_argument("--keys", metavar="DIR", help=KEYS_HELP)
+    p.set_defaults(func=cmd_call)
+
+    p = sub.add_parser(
+        "log",
+        help="print the timeline of a flight recording",
+        description="One line per recorded chart step, configuration request and "
+        "acknowledgement, component state change, refusal and deployer event (plus the "
+        "port samples `fw deploy --record-samples` asked for), timed from the first.",
+        epilog="examples:\n  fw log run.mcap                        (from fw deploy ... --record run.mcap)\n"
+        "  fw log run.mcap --topic /fw/config     only the configurations\n"
+        "  fw log run.mcap --json | jq .topic     one JSON object per line",
+        formatter_class=raw,
+    )
     p.add_argument("file", metavar="FILE")
     p.add_argument("--topic", help="only topics starting with this (e.g. /fw/config)")
     p.add_argument("--json", action="store_true", help="one JSON object per line")
     p.set_defaults(func=cmd_log)
 
-    p = sub.add_parser("replay", help="feed a flight recording's events back into the chart")
+    p = sub.add_parser(
+        "replay",
+        help="feed a flight recording's events back into the chart",
+        description="Step the recorded chart (or --chart, e.g. a fixed version) through "
+        "the external events of a recording, at their recorded times, on a simulated "
+        "clock; prints the trace and the states it ends in.",
+        epilog="examples:\n  fw replay run.mcap\n"
+        "  fw replay run.mcap --chart statecharts/seeg.yaml     the same run, today's chart",
+        formatter_class=raw,
+    )
     p.add_argument("file", metavar="FILE")
     p.add_argument("--chart", metavar="C", help="statechart (default: the recorded one)")
     p.set_defaults(func=cmd_replay)
@@ -687,7 +787,15 @@ def add_commands(sub: Any) -> None:
     p.add_argument("--keys", metavar="DIR", help=KEYS_HELP)
     p.set_defaults(func=cmd_status)
 
-    p = sub.add_parser("ls", help="components, ports, keys and connections of a deployment")
+    p = sub.add_parser(
+        "ls",
+        help="components, ports, keys and connections of a deployment",
+        description="Ask a running deployment what it hosts: every process's components "
+        "with their state, ports and the keys they are connected to.",
+        epilog="examples:\n  fw ls --topology topologies/seeg.yaml\n"
+        "  fw ls --topology topologies/demo.yaml --json",
+        formatter_class=raw,
+    )
     p.add_argument("--topology", required=True, metavar="T")
     p.add_argument("--json", action="store_true")
     p.add_argument("--keys", metavar="DIR", help=KEYS_HELP)
@@ -699,6 +807,9 @@ def add_commands(sub: Any) -> None:
         description="Issue a CA and one certificate per process of the topology (plus "
         "control and operator) into DIR, for `fw deploy --keys DIR` on every host. The "
         "CA's private key is not kept. Copy DIR to each host, readable by its user only.",
+        epilog="examples:\n  fw keys topologies/seeg.yaml -o /etc/fw/seeg-keys\n"
+        "  fw keys topologies/seeg.yaml -o keys --address 10.0.0.7   a host listens there",
+        formatter_class=raw,
     )
     p.add_argument("topology", metavar="TOPOLOGY")
     p.add_argument("-o", "--out", required=True, metavar="DIR")

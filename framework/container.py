@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib
 import json
 import logging
 import os
@@ -29,6 +28,7 @@ from typing import Any
 from framework import keys, messages
 from framework.activity import Activity, RealTimeExecutor, SteppedExecutor
 from framework.bus import Bus, BusConfig, BusError
+from framework.classes import add_import_paths, load_class
 from framework.clock import late
 from framework.component import Component, Heartbeat, LifecycleError, Refusal, StateChange
 from framework.errors import FwError
@@ -446,24 +446,10 @@ def bring(
 
 
 # -- process entry point ---------------------------------------------------------------
-def load_class(path: str) -> type[Component]:
-    """`package.module:Class` -> the class; a clear error otherwise."""
-    module_name, _, class_name = path.partition(":")
-    if not class_name:
-        raise ContainerError(f"class path {path!r} must look like 'package.module:Class'")
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise ContainerError(f"cannot import {module_name!r}: {exc}") from None
-    cls = getattr(module, class_name, None)
-    if not (isinstance(cls, type) and issubclass(cls, Component)):
-        raise ContainerError(f"{path!r} is not a Component class")
-    return cls
-
-
 def build(spec: dict[str, Any], bus: Bus) -> Container:
     """A container with the components of `spec` added (configured/started if asked)."""
     container = Container(spec["name"], bus, beat=spec.get("beat"))
+    add_import_paths(spec.get("import_paths", []))
     for item in spec.get("components", []):
         cls = load_class(item["class"])
         component = cls(item["name"])

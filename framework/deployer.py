@@ -122,6 +122,7 @@ def container_spec(topology: Topology, process: str) -> dict[str, Any]:
         "bus": dataclasses.replace(topology.bus, listen=listen).to_dict(),
         "components": components,
         "switches": switch_spec(topology, process),
+        "import_paths": [str(p) for p in topology.import_paths],
     }
     if topology.safety is not None:
         spec["beat"] = topology.safety.process_beat

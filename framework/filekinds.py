@@ -64,7 +64,7 @@ def schema_then(schema_name: str, load: Callable[[str], Any], code: str) -> Chec
 
 
 def _statechart(path: str) -> list[Finding]:
-    from framework.statechart.validator import validate_file
+    from framework.statechart.files import validate_file
 
     return validate_file(path)
 

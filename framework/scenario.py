@@ -325,6 +325,10 @@ class Outcome:
     ok: bool
     what: str
     detail: str = ""
+    exercised: bool = True
+    """False for an invariant whose state never held: nothing was checked, so it is
+    neither a pass nor a failure (reported apart: a scenario meant to exercise it
+    does not)."""
 
 
 class ScenarioRunner(Listener):
@@ -581,9 +585,11 @@ class ScenarioRunner(Listener):
             if index in self.violations:
                 at, what = self.violations[index]
                 out.append(Outcome(False, inv.describe(), f"violated at {at:.3f}s: {what}"))
+            elif samples:
+                out.append(Outcome(True, inv.describe(), f"{samples} samples"))
             else:
-                detail = f"{samples} samples" if samples else "not exercised: state never held"
-                out.append(Outcome(True, inv.describe(), detail))
+                when = inv.state or "the run"
+                out.append(Outcome(True, inv.describe(), f"{when} never held", exercised=False))
         return out
 
 

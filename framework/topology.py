@@ -20,6 +20,7 @@ from typing import Any
 from framework import keys, schema
 from framework.activity import Activity, ActivityError
 from framework.bus import BusConfig
+from framework.classes import ClassPathError, add_import_paths, load_class
 from framework.component import Component, FileInput, In, Out, declarations
 from framework.durations import parse_duration
 from framework.errors import Finding, FindingsError, FwError, Location, MissingFileError
@@ -141,6 +142,9 @@ class Topology:
     """What the robot-side monitor watches (None: the topology declares no monitor)."""
     hosts: dict[str, str] = field(default_factory=dict)
     """Other machines -> the address their processes listen on (`hosts:`)."""
+    import_paths: list[Path] = field(default_factory=list)
+    """Folders its component classes are also imported from: its own folder and its
+    `import_paths:` (relative to it)."""
     file_links: list[tuple[str, FileInput]] = field(default_factory=list)
     """(component, input) of the input ports components declare in their configuration
     files (a tracker's tools per sensor of sensors.yaml, a camera per camera of
@@ -259,11 +263,9 @@ class _Loader:
         return f"did you mean {match[0]!r}?" if match else f"known: {', '.join(sorted(options))}"
 
     def import_class(self, path: str, where: tuple[Any, ...]) -> ClassInfo | None:
-        from framework.container import ContainerError, load_class
-
         try:
             return class_info(load_class(path))
-        except ContainerError as exc:
+        except ClassPathError as exc:
             self.error("class", str(exc), where, "check the module path and class name")
         except Exception as exc:  # the user's module failed while importing
             self.error("class", f"importing {path!r} failed: {type(exc).__name__}: {exc}", where)
@@ -813,6 +815,17 @@ def check_topology(path: str | Path) -> tuple[Topology | None, list[Finding]]:
         description=data.get("description", ""),
         hosts={name: spec["address"] for name, spec in (data.get("hosts") or {}).items()},
     )
+    topo.import_paths = [base.resolve()]
+    for i, folder in enumerate(data.get("import_paths") or []):
+        if (base / folder).is_dir():
+            topo.import_paths.append((base / folder).resolve())
+        else:
+            loader.error(
+                "import-path",
+                f"import path {folder!r} is not a folder (relative to {str(base)!r})",
+                ("import_paths", i),
+            )
+    add_import_paths(topo.import_paths)
     topo.components = loader.components(data)
     loader.file_inputs(topo)
     for i, spec in enumerate(data.get("connections") or []):

@@ -247,7 +247,7 @@ def mutant(
 
 def _check(kind: str, path: str) -> list[Any]:
     from framework.filekinds import kinds
-    from framework.statechart.validator import validate_file
+    from framework.statechart.files import validate_file
 
     if kind == "statechart":
         return validate_file(path)

@@ -29,6 +29,7 @@ from framework.statechart.model import (
     VariableSpec,
     has_type,
 )
+from framework.statechart.validator import validate_chart
 from framework.yamlio import Document, PathKey, load_yaml, load_yaml_text
 
 
@@ -489,8 +490,6 @@ def load_statechart(path: str | Path, validate: bool = True, text: str | None = 
     if chart is None or errors:
         raise FindingsError(findings)
     if validate:
-        from framework.statechart.validator import validate_chart
-
         found = validate_chart(chart)
         if any(f.severity == "error" for f in found):
             raise FindingsError(found)

@@ -8,6 +8,7 @@ separate tools.
 
 from __future__ import annotations
 
+import difflib
 import math
 from dataclasses import dataclass, field
 from enum import Enum
@@ -211,9 +212,10 @@ class EventSpec:
     location: Location
     fields: dict[str, dict[str, Any]] = field(default_factory=dict)
 
-    def problem(self, payload: dict[str, Any]) -> str:
+    def problem(self, payload: dict[str, Any], complete: bool = True) -> str:
         """Why `payload` does not fit this declaration ("" if it does): an unknown or
-        missing field, a wrong type, a number not finite or out of its limits."""
+        (if `complete`) missing field, a wrong type, a number not finite or out of its
+        limits."""
         for name, value in payload.items():
             vtype = self.payload.get(name)
             if vtype is None:
@@ -228,7 +230,7 @@ class EventSpec:
                 return f"{self.name}.{name} must be at least {limits['min']:g}{unit}"
             if "max" in limits and value > limits["max"]:
                 return f"{self.name}.{name} must be at most {limits['max']:g}{unit}"
-        missing = [n for n in self.payload if n not in payload]
+        missing = [n for n in self.payload if n not in payload] if complete else []
         return f"{self.name} needs {', '.join(missing)}" if missing else ""
 
 
@@ -274,3 +276,26 @@ class Statechart:
         return sorted(
             (t for s in self.states.values() for t in s.transitions), key=lambda t: t.order
         )
+
+    def event_names(self) -> set[str]:
+        """Every event this chart knows: declared, consumed by a transition, built in."""
+        used = {e for t in self.transitions() for e in t.events}
+        return set(self.events) | used | set(BUILTIN_EVENTS)
+
+    def event_problem(
+        self, name: str, payload: dict[str, Any] | None = None, complete: bool = True
+    ) -> str:
+        """Why sending `name` with `payload` to this chart is a mistake ("" if it is not):
+        an event the chart does not know (with the nearest it does), or a payload its
+        declaration does not allow (missing fields only if `complete`)."""
+        known = self.event_names()
+        if name not in known:
+            close = difflib.get_close_matches(name, sorted(known), n=1)
+            hint = (
+                f"did you mean {close[0]!r}?"
+                if close
+                else "it knows " + ", ".join(sorted(known - set(BUILTIN_EVENTS)))
+            )
+            return f"{name!r} is not an event of chart {self.name!r}; {hint}"
+        spec = self.events.get(name)
+        return spec.problem(payload or {}, complete) if spec is not None else ""

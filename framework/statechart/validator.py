@@ -9,11 +9,9 @@ from __future__ import annotations
 
 import difflib
 from collections.abc import Iterable
-from pathlib import Path
 
 from framework.errors import Finding, Location
 from framework.statechart.expressions import Expression, provably_exclusive
-from framework.statechart.loader import build_statechart
 from framework.statechart.model import (
     BUILTIN_EVENTS,
     COMPONENT_BACK,
@@ -718,33 +716,3 @@ def validate_chart(chart: Statechart, tags: dict[str, Location] | None = None) -
     findings = _Checker(chart, tags).run()
     findings.sort(key=lambda f: (f.location.file, f.location.line, f.location.column))
     return findings
-
-
-def topology_tags(path: str | Path) -> tuple[dict[str, Location], list[Finding]]:
-    """Configuration names a topology defines, and the topology's own findings (its
-    schema and every cross-check, see `framework.topology`)."""
-    from framework.topology import check_topology
-
-    topology, findings = check_topology(path)
-    if topology is None:
-        return {}, findings
-    tags = {name: c.location for name, c in topology.configurations.items()}
-    return tags, findings
-
-
-def validate_file(path: str | Path, topology: str | Path | None = None) -> list[Finding]:
-    """Load and check a chart file (and its includes); every finding, sorted."""
-    chart, findings = build_statechart(path)
-    tags = None
-    if topology is not None:
-        tags, problems = topology_tags(topology)
-        findings = findings + problems
-    if chart is None:
-        return findings
-    # Run the static checks even after build errors (an unresolved name is simply
-    # skipped by them), so one run reports everything that is wrong.
-    seen = {(f.code, f.location) for f in findings}
-    extra = [f for f in validate_chart(chart, tags) if (f.code, f.location) not in seen]
-    return sorted(
-        findings + extra, key=lambda f: (f.location.file, f.location.line, f.location.column)
-    )

@@ -2,8 +2,8 @@
 
 import re
 
+from framework.statechart.files import validate_file
 from framework.statechart.loader import load_statechart
-from framework.statechart.validator import validate_file
 from tests.conftest import REPO, Run
 
 DOCS = REPO / "docs"

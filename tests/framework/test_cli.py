@@ -92,16 +92,35 @@ def test_run_rejects_bad_tokens(capsys):
     assert "bad JSON payload" in capsys.readouterr().err
 
 
+def test_run_names_an_event_the_chart_does_not_know_and_the_one_meant(capsys):
+    assert main(["run", SEEG, "-e", "e_STRAT"]) == 1
+    assert "'e_STRAT' is not an event of chart 'seeg'; did you mean 'e_START'?" in (
+        capsys.readouterr().err
+    )
+
+
+def test_run_refuses_a_payload_the_event_does_not_declare(capsys):
+    assert main(["run", SEEG, "-e", 'e_START{"speed": 2}']) == 1
+    assert "e_START has no payload field 'speed'" in capsys.readouterr().err
+
+
 def test_missing_files_are_reported_not_raised(capsys, tmp_path):
     assert main(["run", str(tmp_path / "none.yaml")]) == 1
     assert "file not found" in capsys.readouterr().err
 
 
-def test_help_teaches_with_examples(capsys):
-    with pytest.raises(SystemExit) as exc:
-        main(["run", "--help"])
-    assert exc.value.code == 0
-    assert "examples:" in capsys.readouterr().out
+def test_help_teaches_with_examples_for_every_command(capsys):
+    from framework.cli import build_parser
+
+    commands = build_parser()._subparsers._group_actions[0].choices
+    missing = []
+    for name in commands:
+        with pytest.raises(SystemExit) as exc:
+            main([name, "--help"])
+        assert exc.value.code == 0
+        if "examples:" not in capsys.readouterr().out:
+            missing.append(name)
+    assert missing == []
 
 
 @pytest.mark.skipif(shutil.which("fw") is None, reason="needs `pip install -e .`")
@@ -122,3 +141,26 @@ def test_the_installed_console_script_runs_as_a_real_process(tmp_path):
         timeout=60,
     )
     assert bad.returncode == 1 and "Traceback" not in bad.stderr + bad.stdout
+
+
+def test_commands_come_from_installed_packages_and_a_broken_one_only_warns(monkeypatch, capsys):
+    from importlib import metadata
+
+    from framework import cli
+
+    installed = {e.name: e.value for e in metadata.entry_points(group=cli.COMMANDS_GROUP)}
+    assert installed["bench"] == "components.bench.cli:add_commands", "declared by the package"
+    broken = metadata.EntryPoint("broken", "no_such_package.cli:add_commands", cli.COMMANDS_GROUP)
+    real = list(metadata.entry_points(group=cli.COMMANDS_GROUP))
+    monkeypatch.setattr(
+        cli.metadata,
+        "entry_points",
+        lambda group: [*real, broken] if group == cli.COMMANDS_GROUP else [],
+    )
+    assert main(["validate", str(REPO / "statecharts" / "seeg.yaml")]) == 0
+    assert (
+        "commands of 'broken' (no_such_package.cli:add_commands) not loaded"
+        in capsys.readouterr().err
+    )
+    parser = cli.build_parser()
+    assert parser.parse_args(["bench", "--quick"]).func, "the installed commands are there"

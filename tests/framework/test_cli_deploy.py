@@ -107,6 +107,13 @@ def test_deploy_send_status_ls_log_replay(topology, bus_config, tmp_path):
         assert "supervisor" in screen and "Running" in screen
         listing = fw("ls", "--topology", str(topology))
         assert "t2/out" in listing.stdout and "t2.out -> supervisor.inp" in listing.stdout
+        called = fw("call", "supervisor.stats", "--topology", str(topology))
+        assert called.returncode == 0, called.stderr
+        assert json.loads(called.stdout)["received"] > 0
+        changes = fw("call", "t1.reset", "--args", '{"to": 5}', "--topology", str(topology))
+        assert changes.returncode == 1 and "t1.reset changes state" in changes.stderr
+        typo = fw("call", "supervisr.stats", "--topology", str(topology))
+        assert "no component 'supervisr' in 'toy'; did you mean 'supervisor'?" in typo.stderr
     finally:
         bus.close()
         deploy.send_signal(signal.SIGINT)
@@ -242,3 +249,26 @@ def test_a_keystore_made_beforehand_is_used_and_kept(topology, tmp_path):
         deploy.send_signal(signal.SIGINT)
         deploy.communicate(timeout=60)
     assert (keys / "operator.key").is_file(), "a keystore given to fw deploy is kept"
+
+
+def test_the_scenario_report_keeps_invariants_never_exercised_apart(capsys):
+    from types import SimpleNamespace
+
+    from framework.cli_deploy import _scenario_report
+    from framework.scenario import Outcome
+
+    outcomes = [
+        Outcome(True, "state Moving"),
+        Outcome(True, "while Stopped: robot.report braked == True", "12 samples"),
+        Outcome(
+            True, "while No_Tracker: robot.report braked == True", "No_Tracker never held", False
+        ),
+    ]
+    runner = SimpleNamespace(report=lambda: outcomes, scenario=SimpleNamespace(name="toy"))
+    assert _scenario_report(runner) == 0, "nothing failed"
+    out = capsys.readouterr().out
+    assert "NOT RUN while No_Tracker" in out and "PASS    while Stopped" in out
+    assert "PASSED: 2 passed, 0 failed, 1 not run" in out
+    outcomes.append(Outcome(False, "never event e_STOP", "at 3s"))
+    assert _scenario_report(runner) == 1
+    assert "FAILED: 2 passed, 1 failed, 1 not run" in capsys.readouterr().out

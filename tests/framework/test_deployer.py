@@ -287,7 +287,8 @@ def test_scenario_invariants_are_sampled_and_a_violation_fails(toy, tmp_path, wr
     ok, violated, unexercised = deployment.runner.report()[-3:]
     assert ok.ok and "samples" in ok.detail
     assert not violated.ok and "violated at" in violated.detail and "received=" in violated.detail
-    assert unexercised.ok and "not exercised" in unexercised.detail
+    assert unexercised.ok and not unexercised.exercised and "never held" in unexercised.detail
+    assert ok.exercised and violated.exercised
 
 
 def test_a_configuration_that_comes_after_its_deadline_is_refused_unapplied(deployed):

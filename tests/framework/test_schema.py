@@ -54,7 +54,7 @@ def test_the_shipped_chart_is_valid_both_ways():
 
 
 def test_a_text_of_the_wrong_form_is_named_for_what_it_should_be(write):
-    from framework.statechart.validator import validate_file
+    from framework.statechart.files import validate_file
 
     path = write(
         """

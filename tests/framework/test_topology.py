@@ -1,5 +1,9 @@
 """Spec: a topology is checked completely before anything starts; errors are located."""
 
+import os
+import subprocess
+import sys
+
 import pytest
 
 from framework.errors import FindingsError
@@ -267,3 +271,26 @@ def test_a_file_that_still_names_bus_keys_is_refused_with_what_to_do(tmp_path):
     wrong = [f for f in found if f.code == "file-links"]
     assert len(wrong) == 1 and "'keys' are no longer read" in wrong[0].message
     assert "vicra_cto and vicra_rto" in wrong[0].message
+
+
+def test_a_projects_own_components_are_found_next_to_its_topology_without_pythonpath(tmp_path):
+    component = (
+        "from framework.component import Component\n\nclass {0}(Component):\n    '''A {0}.'''\n"
+    )
+    (tmp_path / "mycomps.py").write_text(component.format("Thing"))
+    (tmp_path / "lib").mkdir()
+    (tmp_path / "lib" / "othercomps.py").write_text(component.format("Other"))
+    topology = tmp_path / "mine.yaml"
+    topology.write_text(
+        "topology: mine\nimport_paths: [lib]\ncomponents:\n"
+        "  a: {class: mycomps:Thing}\n  b: {class: othercomps:Other}\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    fw = [sys.executable, "-m", "framework.cli", "validate", str(topology)]
+    found = subprocess.run(fw, capture_output=True, text=True, cwd="/", env=env, timeout=60)
+    assert found.returncode == 0, found.stderr
+    topology.write_text(topology.read_text().replace("[lib]", "[lib, nowhere]"))
+    missing = subprocess.run(fw, capture_output=True, text=True, cwd="/", env=env, timeout=60)
+    assert missing.returncode == 1
+    said = missing.stdout + missing.stderr
+    assert f"{topology}:2:" in said and "import path 'nowhere' is not a folder" in said

@@ -4,7 +4,7 @@ on its own, stops on e_STOP and resumes on e_RELEASE."""
 from framework.cli_deploy import _screen
 from framework.deployer import Deployment
 from framework.remote import RemoteComponent
-from framework.statechart.validator import validate_file
+from framework.statechart.files import validate_file
 from framework.topology import check_topology
 from tests.conftest import REPO, private_topology, wait_until
 

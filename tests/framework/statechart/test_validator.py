@@ -2,7 +2,7 @@
 
 import pytest
 
-from framework.statechart.validator import validate_file
+from framework.statechart.files import validate_file
 from tests.conftest import REPO
 
 HEADER = """

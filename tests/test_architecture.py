@@ -1,0 +1,111 @@
+"""Spec: the house plan's boundaries (ARCHITECTURE.md), read from the code's imports:
+the framework knows no procedure's components, and no module needs itself through a
+circle of imports when it runs (imports for type annotations only are not run)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+from tests.conftest import REPO
+
+PACKAGES = ("framework", "components")
+
+
+def _module(path: Path) -> str:
+    parts = path.relative_to(REPO).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _type_checking(node: ast.If) -> bool:
+    test = node.test
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
+    )
+
+
+def run_time_imports(tree: ast.AST) -> set[str]:
+    """Modules a file imports when it runs (anywhere but under `if TYPE_CHECKING:`)."""
+    out: set[str] = set()
+
+    def visit(node: ast.AST) -> None:
+        if isinstance(node, ast.If) and _type_checking(node):
+            for child in node.orelse:
+                visit(child)
+            return
+        if isinstance(node, ast.Import):
+            out.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+            out.add(node.module)
+            out.update(f"{node.module}.{alias.name}" for alias in node.names)
+        for child in ast.iter_child_nodes(node):
+            visit(child)
+
+    visit(tree)
+    return out
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Module -> the modules of this repository's packages it imports at run time."""
+    files = [p for pkg in PACKAGES for p in (REPO / pkg).rglob("*.py")]
+    modules = {_module(p): p for p in files}
+    graph = {}
+    for name, path in modules.items():
+        found = run_time_imports(ast.parse(path.read_text(encoding="utf-8")))
+        graph[name] = {m for m in found if m in modules and m != name}
+    return graph
+
+
+def circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected groups of more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+
+    def connect(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph[v]:
+            if w not in index:
+                connect(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                out.append(sorted(group))
+
+    for v in graph:
+        if v not in index:
+            connect(v)
+    return out
+
+
+def test_no_module_imports_itself_through_a_circle():
+    assert circles(import_graph()) == []
+
+
+def test_the_circle_finder_finds_a_circle_and_skips_type_only_imports():
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
+    assert circles(graph) == [["a", "b", "c"]]
+    code = "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import x\nimport y\n"
+    assert run_time_imports(ast.parse(code)) == {"typing", "typing.TYPE_CHECKING", "y"}
+
+
+def test_the_framework_imports_no_procedure_component_at_run_time():
+    graph = import_graph()
+    framework = {m: deps for m, deps in graph.items() if m.startswith("framework")}
+    leaks = {
+        m: sorted(d for d in deps if d.startswith("components")) for m, deps in framework.items()
+    }
+    assert {m: d for m, d in leaks.items() if d} == {}
