@@ -9,7 +9,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from framework.component import Component, In, Out, operation
+from framework.component import Component, ConfigureError, In, Out, operation
 from framework.messages import Pose, Scalar
 from framework.ports import ReadStatus
 from framework.properties import prop
@@ -56,8 +56,12 @@ class Sink(Component):
     inp = In(Scalar, doc="anything numeric", policy={"type": "buffer", "size": 1000})
     pose = In(Pose, doc="a pose input, to test type checks")
 
-    def start_hook(self) -> bool:
+    def __init__(self, name: str):
+        super().__init__(name)
         self.seen: list[float] = []
+
+    def start_hook(self) -> bool:
+        self.seen = []
         return True
 
     def update_hook(self) -> None:
@@ -70,7 +74,7 @@ class Sink(Component):
     @operation(readonly=True)
     def received(self) -> list[float]:
         """Every value read since start."""
-        return list(getattr(self, "seen", []))
+        return list(self.seen)
 
     @operation(readonly=True)
     def stats(self) -> dict[str, Any]:
@@ -98,12 +102,19 @@ class Flaky(Component):
         choices=["", "configure", "start", "update", "stop", "cleanup", "exception"],
         doc="which hook fails",
     )
-    how = prop(str, "raise", choices=["raise", "false"], doc="raise, or return False")
+    how = prop(
+        str,
+        "raise",
+        choices=["raise", "false", "refuse"],
+        doc="raise (a bug), return False, or refuse (ConfigureError)",
+    )
 
     def _maybe(self, hook: str) -> bool:
         if self.fail_in == hook:
             if self.how == "raise":
                 raise RuntimeError(f"{hook} failed on purpose")
+            if self.how == "refuse":
+                raise ConfigureError(f"{hook} refused on purpose")
             return False
         return True
 

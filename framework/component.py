@@ -18,10 +18,13 @@ implements hooks; the runtime drives the lifecycle:
         def reset(self) -> str:
             return "ok"
 
-States and allowed transitions are RTT's (table in docs/components.md). A
-hook that returns False or raises leaves the component in the documented
-state with `last_error` saying why, and the change is reported to every
-state listener (the container publishes it on the bus): never swallowed.
+States and allowed transitions are RTT's (table in docs/components.md). A hook
+refuses by raising `ConfigureError` (or any `FwError`: a file that does not load, a
+device that does not answer) with the reason, or by returning False; it then leaves
+the component in the documented state with `last_error` saying why. Any other
+exception is a bug in the hook: the component goes to Exception. Either way the
+change is reported to every state listener (the container publishes it on the
+bus): never swallowed.
 """
 
 from __future__ import annotations
@@ -45,6 +48,12 @@ from framework.properties import Property, PropertyError
 
 class LifecycleError(FwError):
     """A lifecycle operation was called in a state that does not allow it."""
+
+
+class ConfigureError(FwError):
+    """A hook's refusal, with the reason (`raise ConfigureError("no such port")`): the
+    component stays where it was (PreOperational after `configure`), `last_error` says
+    why, and it may be tried again once the cause is mended."""
 
 
 class OperationError(FwError):
@@ -438,7 +447,10 @@ class Component:
                     f"property {n} is empty ({self.declared_properties[n].doc or 'no doc'})"
                     for n in empty
                 )
-        result = getattr(self, hook)()
+        try:
+            result = getattr(self, hook)()
+        except FwError as exc:  # a refusal, with its reason (`ConfigureError`)
+            return False, str(exc) or f"{hook} refused"
         if result is False:  # keep the reason the hook gave, if it set one
             return False, self.last_error or f"{hook} returned False"
         return True, ""

@@ -30,7 +30,7 @@ from components.people.skeleton import body_center
 from components.tracking.geometry import as_matrix
 from framework import schema
 from framework.component import Component, FileInput, In, Out, operation
-from framework.errors import FwError, LocatedError
+from framework.errors import LocatedError
 from framework.filekinds import FileKind, schema_then
 from framework.messages import Envelopes, EventMessage, JointState, Scalar, Skeletons
 from framework.ports import InputPort, ReadStatus
@@ -136,22 +136,27 @@ class WorkspacePeopleDetector(Component):
         file = str(properties.get("cameras_file", ""))
         return list(_camera_inputs(load_cameras(file), file).values())
 
+    def __init__(self, name: str):
+        super().__init__(name)
+        self.last: dict[str, Any] = {}
+        """The latest frame, as `current` reports it."""
+        self.robot: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        """The robot's link capsules (p, q, radius), as last received."""
+        self._people: list[Any] = []
+        """The people of the latest frame (their envelopes: `envelopes`)."""
+
     def configure_hook(self) -> bool:
-        try:
-            config = load_cameras(self.cameras_file)
-            ports = {port.name: port for port in self.file_ports()}
-        except FwError as exc:
-            self.last_error = str(exc)
-            return False
+        config = load_cameras(self.cameras_file)
+        ports = {port.name: port for port in self.file_ports()}
         self.core = PeopleDetectorCore(config)
         self.camera_ports: dict[str, InputPort[Skeletons]] = {
             name: ports[wanted.port]
             for name, wanted in _camera_inputs(config, self.cameras_file).items()
         }
-        self.last: dict[str, Any] = {}
+        self.last = {}
         self.kinematics: Any = None
-        self.robot: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        self._people: list[Any] = []
+        self.robot = None
+        self._people = []
         self._seen_at = 0.0  # the oldest camera frame of the latest that arrived
         return True
 
@@ -220,9 +225,9 @@ class WorkspacePeopleDetector(Component):
                 for p, q, radius in zip(a, b, np.broadcast_to(r, (len(a),)), strict=True)
             ]
 
-        robot = rows(*self.robot) if getattr(self, "robot", None) is not None else []
+        robot = rows(*self.robot) if self.robot is not None else []
         people = []
-        for track in getattr(self, "_people", []):
+        for track in self._people:
             p, q, radius = envelope(track.joints, track.sigma)
             people.append({"id": track.id, "capsules": rows(p, q, radius)})
         return {"robot": robot, "people": people}
@@ -231,6 +236,5 @@ class WorkspacePeopleDetector(Component):
     def current(self) -> dict[str, Any]:
         """The latest frame: confirmed people, tentative count, users near, disagreements."""
         return dict(
-            getattr(self, "last", {})
-            or {"people": [], "tentative": 0, "users_near": 0, "disagreements": {}}
+            self.last or {"people": [], "tentative": 0, "users_near": 0, "disagreements": {}}
         )

@@ -88,6 +88,11 @@ class ArmController(Component):
     measured = Out(ArmState, doc="joints, flange tool pose, brakes and latch, every cycle")
     tcp = Out(Pose, doc="ground-truth tool pose in the base frame (what trackers see)")
 
+    def __init__(self, name: str):
+        super().__init__(name)
+        self.arm: SimulatedArm | None = None
+        """The machine, made by `configure`."""
+
     def configure_hook(self) -> bool:
         self.arm = SimulatedArm(
             HOME,
@@ -215,7 +220,7 @@ class ArmController(Component):
     @operation(readonly=True)
     def report(self) -> dict[str, Any]:
         """Brakes, latch, why, releases so far, servo mode, simulated time, joints."""
-        arm = getattr(self, "arm", None)
+        arm = self.arm
         if arm is None:
             return {"braked": True, "latched": False, "reason": "not configured"}
         return {

@@ -114,10 +114,15 @@ class RobotInterface(Component):
     tcp = Out(Pose, doc="measured TCP in the robot base frame, every cycle")
     status = Out(EventMessage, doc="brakes, latch and reason, mode (on change and at 2 Hz)")
 
+    def __init__(self, name: str):
+        super().__init__(name)
+        self._arm: ArmState | None = None
+        """The arm's last measured state."""
+
     def configure_hook(self) -> bool:
         self.latched = ""
         self.mode = "position"
-        self._arm: ArmState | None = None
+        self._arm = None
         self._stop: SafeStop | None = None
         self._sent: deque[np.ndarray] = deque(maxlen=2)
         self._commanding = False
@@ -442,7 +447,7 @@ class RobotInterface(Component):
     @operation(readonly=True)
     def report(self) -> dict[str, Any]:
         """Brakes, latch and why, servo mode, the controller's time, joints, the monitor."""
-        state = getattr(self, "_arm", None)
+        state = self._arm
         if state is None:
             return {"braked": True, "latched": False, "fault": False, "reason": "no arm state"}
         problems = self.safety.problems() if self.safety is not None else []

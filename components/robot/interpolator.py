@@ -417,15 +417,16 @@ class CartesianInterpolator(Component):
     command = Out(Pose, doc="commanded TCP in the robot base frame (every cycle unless idle)")
     status = Out(EventMessage, doc="phase (idle, moving, reached, stopping, returning, stopped)")
 
+    def __init__(self, name: str):
+        super().__init__(name)
+        self.core: InterpolatorCore | None = None
+        """The interpolation, made from the first joint state after `configure`."""
+
     def configure_hook(self) -> bool:
         from components.supervisor.procedure import load_procedure
 
-        try:
-            self.procedure = load_procedure(self.procedure_file)
-        except FwError as exc:
-            self.last_error = str(exc)
-            return False
-        self.core: InterpolatorCore | None = None
+        self.procedure = load_procedure(self.procedure_file)
+        self.core = None
         self._goal_name = ""
         self._phase: Phase | None = None
         self._core_lock = threading.Lock()
@@ -543,7 +544,7 @@ class CartesianInterpolator(Component):
             )
 
     def _core(self) -> InterpolatorCore:
-        if getattr(self, "core", None) is None:
+        if self.core is None:
             raise FwError("no joint state received yet: is the robot interface running?")
         assert self.core is not None
         return self.core
@@ -619,7 +620,7 @@ class CartesianInterpolator(Component):
     @operation(readonly=True)
     def report(self) -> dict[str, Any]:
         """Phase, goal, path progress and speed, limits."""
-        core = getattr(self, "core", None)
+        core = self.core
         if core is None:
             return {"phase": "waiting for joints"}
         return {

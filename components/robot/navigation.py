@@ -69,7 +69,6 @@ from components.supervisor.procedure import Procedure, load_procedure
 from components.tracking.geometry import invert, matrix_to_quat, pose_matrix
 from components.tracking.sensor_manager import SensorsConfig, load_sensors
 from framework.component import Component, In, Out, operation
-from framework.errors import FwError
 from framework.messages import EventMessage, JointState, Pose
 from framework.ports import ReadStatus
 from framework.properties import prop
@@ -395,13 +394,14 @@ class Navigator(Component):
         "sample_stamp} (stamped on receipt; a sensor swap's latency ends here)",
     )
 
+    def __init__(self, name: str):
+        super().__init__(name)
+        self.core: NavigatorCore | None = None
+        """The navigation, made by `configure` from the procedure and the sensors."""
+
     def configure_hook(self) -> bool:
-        try:
-            self.procedure: Procedure = load_procedure(self.procedure_file)
-            self.core = core_for(self.procedure, load_sensors(self.sensors_file))
-        except FwError as exc:
-            self.last_error = str(exc)
-            return False
+        self.procedure: Procedure = load_procedure(self.procedure_file)
+        self.core = core_for(self.procedure, load_sensors(self.sensors_file))
         self.kinematics = Kinematics()
         self._rto: Pose | None = None
         self._last_sample = -math.inf
@@ -489,7 +489,7 @@ class Navigator(Component):
     @operation(readonly=True)
     def report(self) -> dict[str, Any]:
         """The goals now (base frame), the tracker that steers, the patient's motion."""
-        core = getattr(self, "core", None)
+        core = self.core
         if core is None:
             return {"goals": {}, "tracker": None, "refused": ""}
         goals = {}

@@ -113,6 +113,11 @@ class PatientHead(Component):
     pose = Out(Pose, doc="the reference tool on the head clamp, robot base frame")
     tcp = In(Pose, doc="the real arm's TCP (ground truth), for the referee")
 
+    def __init__(self, name: str):
+        super().__init__(name)
+        self.motion: HeadMotion | None = None
+        """How the head moves, made by `configure`."""
+
     def configure_hook(self) -> bool:
         self.home = invert(standard_rigs()[0].rto_from_base)  # base_from_rto at rest
         self.motion = HeadMotion()
@@ -121,11 +126,7 @@ class PatientHead(Component):
         if self.procedure_file:
             from components.supervisor.procedure import load_procedure
 
-            try:
-                procedure = load_procedure(self.procedure_file)
-            except FwError as exc:
-                self.last_error = str(exc)
-                return False
+            procedure = load_procedure(self.procedure_file)
             if procedure.frame("target") == "patient":
                 self.target = procedure.target
         return True
@@ -198,7 +199,7 @@ class PatientHead(Component):
     @operation(readonly=True)
     def report(self) -> dict[str, Any]:
         """How far the head is from where it started (mm) and what moves it."""
-        motion = getattr(self, "motion", None)
+        motion = self.motion
         if motion is None:
             return {"offset_mm": [0.0, 0.0, 0.0]}
         offset = motion.offset(self.clock.now())

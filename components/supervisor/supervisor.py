@@ -273,11 +273,7 @@ class Supervisor(Component):
     )
 
     def configure_hook(self) -> bool:
-        try:
-            self.core = SupervisorCore(load_procedure(self.procedure_file))
-        except FwError as exc:
-            self.last_error = str(exc)
-            return False
+        self.core = SupervisorCore(load_procedure(self.procedure_file))
         self._core_lock = threading.Lock()
         return True
 

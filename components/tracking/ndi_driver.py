@@ -162,14 +162,10 @@ class NdiTracker(Component):
 
     # -- lifecycle -------------------------------------------------------------------
     def configure_hook(self) -> bool:
-        try:
-            if not self.tools_file:
-                raise DriverError("property tools_file is empty: name the tools YAML")
-            self.tools = load_tools(self.tools_file)
-            self._connect()
-        except FwError as exc:  # a configuration problem: stay PreOperational, say why
-            self.last_error = str(exc)
-            return False
+        if not self.tools_file:
+            raise DriverError("property tools_file is empty: name the tools YAML")
+        self.tools = load_tools(self.tools_file)  # a problem refuses: stays PreOperational
+        self._connect()
         return True
 
     def start_hook(self) -> bool:

@@ -599,13 +599,14 @@ class SensorManager(Component):
         file = str(properties.get("sensors_file", ""))
         return [wanted for _, _, wanted in _tracker_inputs(load_sensors(file), file)]
 
+    def __init__(self, name: str):
+        super().__init__(name)
+        self.core: SensorManagerCore | None = None
+        """The decisions, made by `configure` from the sensors file."""
+
     def configure_hook(self) -> bool:
-        try:
-            config = load_sensors(self.sensors_file)
-            ports = {port.name: port for port in self.file_ports()}
-        except FwError as exc:
-            self.last_error = str(exc)
-            return False
+        config = load_sensors(self.sensors_file)
+        ports = {port.name: port for port in self.file_ports()}
         self.core = SensorManagerCore(config)
         self.tracker_ports: list[tuple[str, str, InputPort[Pose]]] = [
             (sensor, tool, ports[wanted.port])
@@ -679,7 +680,7 @@ class SensorManager(Component):
     @operation(readonly=True)
     def current(self) -> dict[str, Any]:
         """The latest decision (best sensor, limits, health of every sensor)."""
-        core = getattr(self, "core", None)
+        core = self.core
         last = core.last if core is not None else None
         if last is None:  # not configured yet, or no cycle run yet
             return {"best": None, "limits": {}, "calibration": None, "health": {}}

@@ -45,6 +45,8 @@ def test_wrong_state_calls_are_refused_naming_the_state(op, state):
     [
         ("configure", "false", ["configure"], S.PRE_OPERATIONAL),
         ("configure", "raise", ["configure"], S.EXCEPTION),
+        ("configure", "refuse", ["configure"], S.PRE_OPERATIONAL),
+        ("start", "refuse", ["configure", "start"], S.STOPPED),
         ("start", "false", ["configure", "start"], S.STOPPED),
         ("start", "raise", ["configure", "start"], S.EXCEPTION),
         ("update", "raise", ["configure", "start", "update"], S.EXCEPTION),

@@ -1,0 +1,51 @@
+#!/usr/bin/env bash
+# Install fw for this checkout, then run COMMAND... in its environment:
+#   bash tools/install.sh fw deploy topologies/seeg.yaml
+#   bash tools/install.sh --test python3 -m pytest      (what tools/test.sh does)
+# What it installs: the Debian packages a run needs when they are missing (graphviz
+# draws the console's live chart; with --test also chromium for the browser tests,
+# and python3-venv where a virtual environment must be made), then fw itself
+# (with --test its test extras) into: the active virtual environment; else ./.venv if
+# it exists; else, when this Python is the system's own ("externally managed", as on
+# Debian 12), a new ./.venv; else this Python.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+extras=""
+if [ "${1:-}" = "--test" ]; then extras="[test]"; shift; fi
+
+if [ "$(id -u)" = 0 ]; then SUDO=""; elif command -v sudo >/dev/null 2>&1; then SUDO="sudo"; else SUDO="none"; fi
+apt_install() {
+  [ $# -gt 0 ] || return 0
+  if [ "$SUDO" = none ] || ! command -v apt-get >/dev/null 2>&1; then
+    echo "warning: cannot install $* (no apt-get, or not root and no sudo); what needs them is skipped" >&2
+    return 0
+  fi
+  echo "installing Debian packages: $*" >&2
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "$@" >/dev/null
+}
+
+system_python() {  # PEP 668: pip may not install into this Python
+  python3 -c 'import os, sys, sysconfig; sys.exit(not os.path.exists(os.path.join(sysconfig.get_path("stdlib"), "EXTERNALLY-MANAGED")))'
+}
+
+need=()
+command -v dot >/dev/null 2>&1 || need+=(graphviz)
+if [ -n "$extras" ]; then command -v chromium >/dev/null 2>&1 || need+=(chromium); fi
+if [ -z "${VIRTUAL_ENV:-}" ] && [ ! -d .venv ] && system_python && ! python3 -c 'import ensurepip' 2>/dev/null; then
+  need+=(python3-venv)
+fi
+apt_install "${need[@]+"${need[@]}"}"
+
+if [ -z "${VIRTUAL_ENV:-}" ]; then
+  if [ -d .venv ]; then
+    . .venv/bin/activate
+  elif system_python; then
+    echo "making a virtual environment in .venv (this Python is the system's own)" >&2
+    python3 -m venv .venv
+    . .venv/bin/activate
+  fi
+fi
+python3 -m pip install --disable-pip-version-check -q -e ".$extras"
+[ $# -eq 0 ] || exec "$@"
