@@ -21,8 +21,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from benchlib import bench_parser, write_report
 
+from components.domain.geometry import rotation_angle
 from components.tracking.calibration import hand_eye, protocol_poses
-from components.tracking.geometry import rotation_angle
 from components.tracking.synthetic import rigid, standard_rigs
 
 

@@ -25,10 +25,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from benchlib import bench_parser, percentiles, write_report
 
+from components.domain.lwr4 import HOME
+from components.domain.procedure import load_procedure
 from components.robot.arm import SimulatedArm
 from components.robot.interpolator import InterpolatorCore, Phase
-from components.robot.lwr4 import HOME
-from components.supervisor.procedure import load_procedure
 
 PROCEDURE = load_procedure(Path(__file__).resolve().parents[1] / "procedures" / "seeg.yaml")
 

@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from components.robot import lwr4
+from components.domain import lwr4
+from components.domain.procedure import load_procedure
 from components.robot.arm import SimulatedArm
 from components.robot.interpolator import InterpolatorCore, Phase
-from components.supervisor.procedure import load_procedure
 
 PROCEDURE_FILE = Path(__file__).resolve().parents[2] / "procedures" / "seeg.yaml"
 SPEEDS = (0.01, 0.025, 0.05, 0.075, 0.10)

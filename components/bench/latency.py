@@ -393,7 +393,7 @@ def _no_collision(run: SeegRun, timeout: float = 10.0) -> None:
 
 
 def _collision_distance() -> float:
-    from components.supervisor.procedure import load_procedure
+    from components.domain.procedure import load_procedure
 
     return load_procedure(REPO / "procedures" / "seeg.yaml").collision_distance
 

@@ -37,12 +37,12 @@ from typing import Any
 
 import numpy as np
 
-from components.robot import lwr4
+from components.domain import lwr4
+from components.domain.geometry import invert, pose_matrix
+from components.domain.procedure import load_procedure, pose_from
 from components.robot.arm import SimulatedArm
 from components.robot.interpolator import InterpolatorCore, Phase
 from components.robot.navigation import core_for
-from components.supervisor.procedure import load_procedure, pose_from
-from components.tracking.geometry import invert, pose_matrix
 from components.tracking.sensor_manager import load_sensors
 from components.tracking.synthetic import Rig, standard_rigs
 

@@ -25,6 +25,7 @@ import time
 import numpy as np
 from scipy.stats import binomtest
 
+from components.domain.geometry import as_matrix
 from components.people import kinect_sim
 from components.people.cli import SimulatedCamera
 from components.people.cli import run as calibration_protocol
@@ -35,7 +36,6 @@ from components.people.detector import (
 )
 from components.people.kinect_sim import KinectModel, look_at
 from components.people.skeleton import standing
-from components.tracking.geometry import as_matrix
 
 FRAME = 1.0 / 30.0
 

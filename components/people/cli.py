@@ -28,10 +28,10 @@ from typing import Any
 import numpy as np
 import yaml
 
+from components.domain.geometry import matrix_to_quat, rotation_angle
 from components.people.calibration import chessboard_corners, kinect_to_kinect, kinect_to_robot
 from components.people.kinect_sim import KinectModel, look_at
 from components.tracking.calibration import protocol_poses
-from components.tracking.geometry import matrix_to_quat, rotation_angle
 from components.tracking.synthetic import rigid
 from framework.errors import FwError, YamlError
 from framework.yamlio import load_yaml
@@ -129,8 +129,8 @@ def reachable_poses(count: int, seed: int = 0) -> list[np.ndarray]:
     """`count` end-effector poses for the marker protocol that the robot reaches (IK
     from home): the tracking protocol's pattern over a 0.3 m cube, twice the trackers'
     (a Kinect is ten times noisier than an optical tracker, the lever arm must grow)."""
-    from components.robot.ik import DifferentialIK
-    from components.robot.lwr4 import HOME
+    from components.domain.ik import DifferentialIK
+    from components.domain.lwr4 import HOME
 
     ik = DifferentialIK()
     kept = []

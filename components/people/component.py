@@ -24,10 +24,10 @@ from typing import Any
 
 import numpy as np
 
+from components.domain.geometry import as_matrix
 from components.people.detector import CameraConfig, DetectorConfig, PeopleDetectorCore
 from components.people.kinect_sim import from_message
 from components.people.skeleton import body_center
-from components.tracking.geometry import as_matrix
 from framework import schema
 from framework.component import Component, FileInput, In, Out, operation
 from framework.errors import LocatedError
@@ -172,7 +172,7 @@ class WorkspacePeopleDetector(Component):
         status, joints = self.joints.read()
         if status is ReadStatus.NEW:
             if self.kinematics is None:
-                from components.robot.lwr4 import Kinematics
+                from components.domain.lwr4 import Kinematics
 
                 self.kinematics = Kinematics()
             capsules = self.kinematics.capsules(np.asarray(joints.position))

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from components.robot import lwr4
+from components.domain import lwr4
 from components.sim.scene import Scene
 
 MODES = {"position": (2500.0, 120.0), "impedance": (300.0, 21.0)}

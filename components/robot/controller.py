@@ -36,9 +36,9 @@ from typing import Any
 
 import numpy as np
 
+from components.domain.geometry import matrix_to_quat
+from components.domain.lwr4 import HOME, LWR4_ERRORS, NOMINAL, Kinematics
 from components.robot.arm import MODES, SimulatedArm
-from components.robot.lwr4 import HOME, LWR4_ERRORS, NOMINAL, Kinematics
-from components.tracking.geometry import matrix_to_quat
 from framework import keys
 from framework.component import Component, In, Out, operation
 from framework.messages import ArmState, EventMessage, JointState, Pose
@@ -46,7 +46,7 @@ from framework.ports import ReadStatus
 from framework.properties import prop
 
 MODEL_ERRORS = {"lwr4": LWR4_ERRORS, "none": NOMINAL}
-"""How the simulated arm differs from its model: as a real LWR 4+ (components/robot/lwr4.py),
+"""How the simulated arm differs from its model: as a real LWR 4+ (components/domain/lwr4.py),
 or not at all."""
 SELF_BRAKES = ("watchdog", "setpoint", "link")
 """Brake reasons of the controller's own safety: they latch."""

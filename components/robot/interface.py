@@ -38,10 +38,10 @@ from typing import Any
 
 import numpy as np
 
-from components.robot.lwr4 import POSITION_LIMIT, VELOCITY_LIMIT, Kinematics
+from components.domain.geometry import matrix_to_quat
+from components.domain.lwr4 import POSITION_LIMIT, VELOCITY_LIMIT, Kinematics
 from components.robot.safe_stop import SafeStop
 from components.robot.separation import CLEAR, SeparationMonitor, SsmParams, Verdict
-from components.tracking.geometry import matrix_to_quat
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError
 from framework.messages import ArmState, Envelopes, EventMessage, JointState, Pose, Scalar

@@ -47,7 +47,7 @@ import numpy as np
 import pinocchio as pin
 from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig
 
-from components.robot.ik import DifferentialIK
+from components.domain.ik import DifferentialIK
 from components.robot.interface import tcp_message
 from components.robot.navigation import pose_from_list
 from framework.component import Component, In, Out, operation
@@ -423,7 +423,7 @@ class CartesianInterpolator(Component):
         """The interpolation, made from the first joint state after `configure`."""
 
     def configure_hook(self) -> bool:
-        from components.supervisor.procedure import load_procedure
+        from components.domain.procedure import load_procedure
 
         self.procedure = load_procedure(self.procedure_file)
         self.core = None
@@ -574,7 +574,7 @@ class CartesianInterpolator(Component):
     @operation
     def go_to_pose(self, position: list[float], rpy_deg: list[float]) -> dict[str, Any]:
         """Move to a pose given in the robot base frame (m, deg)."""
-        from components.supervisor.procedure import pose_from
+        from components.domain.procedure import pose_from
 
         pose = pose_from(position, rpy_deg)
         with self._core_lock:

@@ -64,9 +64,9 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from components.robot.lwr4 import Kinematics
-from components.supervisor.procedure import Procedure, load_procedure
-from components.tracking.geometry import invert, matrix_to_quat, pose_matrix
+from components.domain.geometry import invert, matrix_to_quat, pose_matrix
+from components.domain.lwr4 import Kinematics
+from components.domain.procedure import Procedure, load_procedure
 from components.tracking.sensor_manager import SensorsConfig, load_sensors
 from framework.component import Component, In, Out, operation
 from framework.messages import EventMessage, JointState, Pose

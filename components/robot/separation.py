@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from components.people.distance import capsule_distances
+from components.domain.distance import capsule_distances
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from components.tracking.geometry import invert, matrix_to_quat, pose_matrix
+from components.domain.geometry import invert, matrix_to_quat, pose_matrix
 from components.tracking.synthetic import standard_rigs
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError
@@ -124,7 +124,7 @@ class PatientHead(Component):
         self.frame_number = 0
         self.target: np.ndarray | None = None  # on the patient
         if self.procedure_file:
-            from components.supervisor.procedure import load_procedure
+            from components.domain.procedure import load_procedure
 
             procedure = load_procedure(self.procedure_file)
             if procedure.frame("target") == "patient":

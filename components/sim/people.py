@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from components.people.distance import capsule_distances
+from components.domain.distance import capsule_distances
 from components.people.skeleton import JOINTS, Build, envelopes, standing
 from components.robot.separation import SsmParams, link_speed
 from framework.component import Component, In, Out, operation
@@ -117,7 +117,7 @@ class PeopleWorld(Component):
         if status is ReadStatus.NO_DATA:
             return
         if self._kinematics is None:
-            from components.robot.lwr4 import Kinematics
+            from components.domain.lwr4 import Kinematics
 
             self._kinematics = Kinematics()
         links = self._kinematics.capsules(np.asarray(joints.position, dtype=float))

@@ -1,6 +1,6 @@
 """The simulated operating room as MuJoCo bodies: table, patient head, target, tools.
 
-Only what the physics or a viewer needs: the arm comes from `components.robot.lwr4`;
+Only what the physics or a viewer needs: the arm comes from `components.domain.lwr4`;
 trackers and cameras are bodies with a fixed camera each (MuJoCo can render their
 view); their sensing is simulated elsewhere.
 The reference tool (RTO) is a mocap body so a scenario can bump it.
@@ -29,8 +29,8 @@ class Scene:
 
     def sensors(self) -> str:
         """Bodies for the trackers (from the synthetic rigs) and the cameras: for viewers."""
+        from components.domain.geometry import invert, matrix_to_quat
         from components.people.kinect_sim import look_at
-        from components.tracking.geometry import invert, matrix_to_quat
         from components.tracking.synthetic import standard_rigs
 
         poses = {

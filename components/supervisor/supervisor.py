@@ -46,7 +46,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from components.supervisor.procedure import Procedure, load_procedure
+from components.domain.procedure import Procedure, load_procedure
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError
 from framework.messages import EventMessage, Pose, Scalar

@@ -26,7 +26,7 @@ from scipy.linalg import sqrtm
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from components.tracking.geometry import invert
+from components.domain.geometry import invert
 from framework.errors import FwError
 
 ROTATION_SCALE = 0.1  # metres per radian when rotation and translation residuals are mixed

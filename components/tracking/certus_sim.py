@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from components.tracking.geometry import invert, pose_matrix
+from components.domain.geometry import invert, pose_matrix
 from components.tracking.synthetic import ee_path, rigid, standard_rigs
 from framework.component import Component, In, Out, operation
 from framework.messages import Pose

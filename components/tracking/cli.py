@@ -19,9 +19,10 @@ from typing import Any
 import numpy as np
 import yaml
 
+from components.domain.geometry import invert, matrix_to_quat, pose_matrix, rotation_angle
+from components.domain.ik import DifferentialIK
+from components.domain.lwr4 import HOME, LWR4_ERRORS
 from components.robot.arm import resting_tcp
-from components.robot.ik import DifferentialIK
-from components.robot.lwr4 import HOME, LWR4_ERRORS
 from components.tracking.calibration import (
     hand_eye,
     pivot_calibration,
@@ -29,7 +30,6 @@ from components.tracking.calibration import (
     protocol_poses,
     tracker_to_tracker,
 )
-from components.tracking.geometry import invert, matrix_to_quat, pose_matrix, rotation_angle
 from components.tracking.synthetic import standard_rigs
 
 EPILOG = """\

@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from components.tracking.geometry import (
+from components.domain.geometry import (
     as_matrix,
     invert,
     matrix_to_quat,

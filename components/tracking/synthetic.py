@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from components.tracking.geometry import invert, matrix_to_quat, rotvec_matrix
+from components.domain.geometry import invert, matrix_to_quat, rotvec_matrix
 from components.tracking.sensor_manager import SensorConfig, SensorsConfig
 from framework.messages import Pose
 

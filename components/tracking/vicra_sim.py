@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from components.domain.geometry import pose_matrix
 from components.tracking import ndi
-from components.tracking.geometry import pose_matrix
 from components.tracking.ndi_rom import read_tool_definition
 from framework.component import Component, In, operation
 from framework.messages import Pose

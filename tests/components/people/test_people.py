@@ -4,7 +4,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from components.people.distance import capsule_distances, closest_pair
+from components.domain.distance import capsule_distances, closest_pair
 from components.people.fusion import (
     Detection,
     fuse,

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from components.domain.lwr4 import HOME, Kinematics
 from components.robot.interpolator import InterpolatorCore, LimitError, Phase
-from components.robot.lwr4 import HOME, Kinematics
 
 KIN = Kinematics()
 DT = 0.001

@@ -9,11 +9,11 @@ import time
 import numpy as np
 import pytest
 
+from components.domain.procedure import load_procedure
 from components.robot.controller import ArmController
 from components.robot.interface import RobotInterface
 from components.robot.interpolator import CartesianInterpolator
 from components.robot.navigation import Navigator
-from components.supervisor.procedure import load_procedure
 from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
 from framework.container import Container

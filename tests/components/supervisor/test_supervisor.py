@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from components.supervisor.procedure import load_procedure
+from components.domain.procedure import load_procedure
 from components.supervisor.supervisor import SupervisorCore, _decision_problem
 from framework.errors import FwError
 from tests.conftest import REPO

@@ -6,6 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from components.domain.geometry import invert, rotation_angle
 from components.tracking.calibration import (
     CalibrationError,
     hand_eye,
@@ -13,7 +14,6 @@ from components.tracking.calibration import (
     protocol_poses,
     tracker_to_tracker,
 )
-from components.tracking.geometry import invert, rotation_angle
 from components.tracking.sensor_manager import load_sensors
 from components.tracking.synthetic import rigid, sensors_config, standard_rigs
 from framework.cli import main
@@ -156,8 +156,8 @@ def test_fw_calibrate_writes_a_loadable_sensors_file(tmp_path, capsys):
 def test_the_default_protocol_poses_are_reachable_by_the_arm_from_home():
     """`fw calibrate` does not drive the arm yet; when it does, every pose it asks for
     must be one the LWR reaches (the tool points down at the table, as at the target)."""
-    from components.robot.ik import DifferentialIK
-    from components.robot.lwr4 import HOME
+    from components.domain.ik import DifferentialIK
+    from components.domain.lwr4 import HOME
 
     ik = DifferentialIK()
     for pose in protocol_poses(8):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import yaml
 
+from components.domain.geometry import matrix_to_quat, quat_to_matrix
 from components.tracking.certus_sim import TrackerSim
-from components.tracking.geometry import matrix_to_quat, quat_to_matrix
 from components.tracking.sensor_manager import SensorManager
 from components.tracking.synthetic import ee_path, rigid, sensors_config, standard_rigs
 from framework.activity import Activity, SteppedExecutor

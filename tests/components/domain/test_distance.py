@@ -4,7 +4,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from components.people.distance import capsule_distances, closest_pair, segment_distances
+from components.domain.distance import capsule_distances, closest_pair, segment_distances
 
 coord = st.floats(-2.0, 2.0, allow_nan=False)
 point = st.tuples(coord, coord, coord)

@@ -6,7 +6,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from components.supervisor.procedure import ProcedureError, load_procedure, pose_from
+from components.domain.procedure import ProcedureError, load_procedure, pose_from
 from tests.conftest import REPO
 
 
@@ -16,7 +16,7 @@ def test_the_seeg_procedure_loads_with_the_thesis_speeds():
     assert p.frame("target") == "patient" and p.frame("home") == "base"
     # on the patient where, at rest, the robot base has it 12 cm above the table, the
     # tool pointing down: the reference tool at rest is the simulated head clamp's
-    from components.tracking.geometry import invert
+    from components.domain.geometry import invert
     from components.tracking.synthetic import standard_rigs
 
     in_base = invert(standard_rigs()[0].rto_from_base) @ p.target

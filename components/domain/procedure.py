@@ -18,7 +18,7 @@ from framework.errors import FwError, LocatedError
 from framework.filekinds import FileKind, schema_then
 from framework.yamlio import load_yaml
 
-SCHEMA = "components.supervisor:procedure.schema.json"
+SCHEMA = "components.domain:procedure.schema.json"
 FRAMES = ("base", "patient")
 """The frames a goal may be given in: the robot base, or the reference tool on the head
 clamp (the master tracker's), which moves with the patient."""

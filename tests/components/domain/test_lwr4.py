@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from components.robot import lwr4
+from components.domain import lwr4
+from components.domain.ik import DifferentialIK
 from components.robot.arm import SimulatedArm, resting_tcp
-from components.robot.ik import DifferentialIK
 
 KIN = lwr4.Kinematics()
 MODEL = mujoco.MjModel.from_xml_string(lwr4.mjcf())

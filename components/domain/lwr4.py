@@ -94,7 +94,7 @@ def _rx(angle: float) -> np.ndarray:
 
 
 def _quat_wxyz(rotation: np.ndarray) -> tuple[float, ...]:
-    from components.tracking.geometry import matrix_to_quat
+    from components.domain.geometry import matrix_to_quat
 
     return matrix_to_quat(rotation)
 

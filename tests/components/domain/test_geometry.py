@@ -5,7 +5,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from components.tracking.geometry import matrix_to_quat, quat_to_matrix, rotvec_matrix
+from components.domain.geometry import matrix_to_quat, quat_to_matrix, rotvec_matrix
 
 quaternions = st.tuples(*[st.floats(-1, 1) for _ in range(4)]).filter(
     lambda q: sum(v * v for v in q) > 1e-3

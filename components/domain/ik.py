@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from components.robot.lwr4 import HOME, Kinematics
+from components.domain.lwr4 import HOME, Kinematics
 
 
 class DifferentialIK:
