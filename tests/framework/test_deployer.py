@@ -404,3 +404,20 @@ def test_an_event_a_scenario_says_must_never_come_is_reported_with_its_reason(wr
     outcome = runner.report()[-1]
     assert not outcome.ok and outcome.what == "never event e_STOP"
     assert "protective stop: a person 30 cm away" in outcome.detail
+
+
+def test_the_control_loops_processes_run_ahead_of_the_rest():
+    """The robot side (the monitor's process and the arm it watches at 50 ms) gets three
+    times the others' share of a busy CPU; every process runs ahead of the host's."""
+    from framework.deployer import CONTROL_NICE, SAFETY_NICE, container_spec
+    from framework.topology import load_topology
+    from tests.conftest import REPO
+
+    seeg = load_topology(REPO / "topologies" / "seeg.yaml")
+    processes = sorted({c.process for c in seeg.components.values()})
+    nice = {p: container_spec(seeg, p)["nice"] for p in processes}
+    assert {p for p, n in nice.items() if n == CONTROL_NICE} == {"robot", "arm"}
+    assert all(n == SAFETY_NICE for p, n in nice.items() if p not in ("robot", "arm"))
+    assert CONTROL_NICE < SAFETY_NICE < 0
+    demo = load_topology(REPO / "topologies" / "demo.yaml")
+    assert "nice" not in container_spec(demo, "robot"), "no safety monitor: the host's own"
