@@ -582,9 +582,18 @@ def cmd_log(args: argparse.Namespace) -> int:
     """Print the timeline of a flight recording."""
     from framework.recorder import read_recording
 
+    records = [r for r in read_recording(args.file) if r[0].startswith(args.topic or "")]
+    # the chart records each request it makes, and the Configurator the same request with
+    # its id: in text, one line per request (--json keeps both records)
+    requested = {d.get("request_id") for t, _, d in records if t == "/fw/config/request"}
     t0 = None
-    for topic, stamp, data in read_recording(args.file):
-        if args.topic and not topic.startswith(args.topic):
+    for topic, stamp, data in records:
+        if (
+            not args.json
+            and topic == "/fw/chart"
+            and data.get("kind") == "request"
+            and (data.get("payload") or {}).get("request_id") in requested
+        ):
             continue
         t0 = stamp if t0 is None else t0
         if args.json:

@@ -135,6 +135,12 @@ def test_deploy_send_status_ls_log_replay(topology, bus_config, tmp_path):
 
     log = fw("log", str(record))
     assert log.returncode == 0 and "request    #3 tracker_2_up" in log.stdout
+    requests = [line for line in log.stdout.splitlines() if " request " in line]
+    assert len(requests) == 3 and requests[-1].endswith("request    #3 tracker_2_up"), (
+        "each request once: the chart's own record of it is not repeated"
+    )
+    chart_only = fw("log", str(record), "--topic", "/fw/chart")
+    assert '"tag": "tracker_2_up"' in chart_only.stdout, "alone, the chart's record shows"
     assert "component  supervisor: Running -> Stopped" in log.stdout
     replay = fw("replay", str(record))
     assert replay.returncode == 0, replay.stderr
