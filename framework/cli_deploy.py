@@ -347,18 +347,24 @@ def _join(topology_path: str, keystore: str | None = None) -> tuple[Any, Any]:
     return topology, bus
 
 
+def _json_object(text: str | None, option: str) -> dict[str, Any]:
+    """A command-line option's JSON object ({} if not given); a clear error otherwise."""
+    try:
+        value = json.loads(text) if text else {}
+    except json.JSONDecodeError as exc:
+        raise FwError(f"{option} is not JSON: {exc.msg}") from None
+    if not isinstance(value, dict):
+        raise FwError(f"{option} must be a JSON object")
+    return value
+
+
 def cmd_send(args: argparse.Namespace) -> int:
     """Offer one operator event to the chart of a running deployment; print its answer."""
     import getpass
 
     from framework.remote import RemoteComponent, RemoteError
 
-    try:
-        payload = json.loads(args.payload) if args.payload else {}
-    except json.JSONDecodeError as exc:
-        raise FwError(f"--payload is not JSON: {exc.msg}") from None
-    if not isinstance(payload, dict):
-        raise FwError("--payload must be a JSON object")
+    payload = _json_object(args.payload, "--payload")
     with _joined(args.topology, args.keys) as (topology, bus):
         try:
             answer = RemoteComponent(bus, "coordinator", timeout=args.timeout).call(
@@ -384,12 +390,7 @@ def cmd_call(args: argparse.Namespace) -> int:
     component, _, operation = args.target.partition(".")
     if not component or not operation:
         raise FwError(f"{args.target!r}: name it COMPONENT.OPERATION, e.g. robot.report")
-    try:
-        call_args = json.loads(args.args) if args.args else {}
-    except json.JSONDecodeError as exc:
-        raise FwError(f"--args is not JSON: {exc.msg}") from None
-    if not isinstance(call_args, dict):
-        raise FwError("--args must be a JSON object of keyword arguments")
+    call_args = _json_object(args.args, "--args")
     with _joined(args.topology, args.keys) as (topology, bus):
         _callable(topology, component, operation)
         remote = RemoteComponent(bus, component, timeout=min(args.timeout, 2.0))

@@ -230,10 +230,20 @@ class PeopleTracker:
     def update(self, people: list[Person], now: float) -> list[Track]:
         """Feed one frame; returns the live tracks (tentative and confirmed)."""
         unmatched = list(range(len(people)))
-        if people:
-            values, variances = sizes(
-                np.stack([p.joints for p in people]), np.stack([p.sigma for p in people])
-            )
+        measured: list[tuple[np.ndarray, np.ndarray]] = []
+
+        def size(k: int, build: Build) -> tuple[np.ndarray, np.ndarray] | None:
+            """Person k's sizes, if `build` still takes them (measured once per frame,
+            and not at all in a frame where every build is known)."""
+            if build.known:
+                return None
+            if not measured:
+                measured.append(
+                    sizes(np.stack([p.joints for p in people]), np.stack([p.sigma for p in people]))
+                )
+            values, variances = measured[0]
+            return values[k], variances[k]
+
         for tier in self._tiers(now):
             if not unmatched:
                 break
@@ -242,13 +252,13 @@ class PeopleTracker:
             pairs = self._associate(tracks, candidates, now)
             for i, j in pairs:
                 k = unmatched[j]
-                tracks[i]._seen(candidates[j], now, (values[k], variances[k]))
+                tracks[i]._seen(candidates[j], now, size(k, tracks[i].build))
             taken = {unmatched[j] for _, j in pairs}
             unmatched = [j for j in unmatched if j not in taken]
         for j in unmatched:
             person = people[j]
             track = Track(next(self._ids), person.joints, person.sigma, now, now)
-            track._seen(person, now, (values[j], variances[j]))
+            track._seen(person, now, size(j, track.build))
             self.tracks.append(track)
         kept = []
         for t in self.tracks:
