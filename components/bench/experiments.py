@@ -350,6 +350,12 @@ def run_statechart(quick: bool, context: dict[str, Any]) -> list[Row]:
                     )
                 )
         load = statechart.bench_load(Path(tmp), 5 if quick else 20)
+        growth = statechart.bench_growth(Path(tmp), 3 if quick else 10)
+    for what, size, per_unit in growth:
+        unit = "state" if what == "states" else "level"
+        rows.append(
+            Row("statechart", f"load + validate per {unit}, {size} {what}", per_unit, unit="us")
+        )
     context.setdefault("series", {})["statechart"] = series
     rows.append(
         Row(

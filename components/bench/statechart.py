@@ -4,7 +4,10 @@ Measured on equivalent charts, in one run:
   * events/s and p50/p99 microseconds per event for a transition whose source
     and target leaves sit at depth 1, 3, 5 and 8 (exit d states, enter d states),
     for fw and for sismic with its outer-first selection (rFSM semantics);
-  * load + validate time of a 200-state chart (fw) beside sismic's YAML import.
+  * load + validate time of a 200-state chart (fw) beside sismic's YAML import;
+  * load cost against size and nesting (issue 20: linear), per state for 200, 800 and
+    1,600 states and per level for a chain nested 8, 16 and 31 levels deep (31 is the
+    deepest a chart can be: the YAML reader refuses more than 64 levels of nesting).
 
 The thesis' rFSM needed under 500 us for transitions shallower than depth 5.
 Targets (statechart issue): >= 10x sismic throughput at depth 5, p99 <= 30 us per
@@ -211,3 +214,43 @@ def bench_load(workdir: Path, repeats: int) -> dict[str, float]:
     except ImportError:
         pass
     return result
+
+
+def nested_chart(levels: int) -> str:
+    """A chain of `levels` states, each the only child of the one above, the last final."""
+    lines = ["statechart: deep", "initial: s0", "states:"]
+    indent = ""
+    for level in range(levels):
+        lines.append(f"{indent}  - name: s{level}")
+        if level == levels - 1:
+            lines.append(f"{indent}    type: final")
+        else:
+            lines += [f"{indent}    initial: s{level + 1}", f"{indent}    states:"]
+        indent += "    "
+    return "\n".join(lines) + "\n"
+
+
+def _median_load_ms(path: Path, repeats: int) -> float:
+    load_statechart(path)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        load_statechart(path)
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times) * 1e3
+
+
+def bench_growth(workdir: Path, repeats: int) -> list[tuple[str, int, float]]:
+    """Load + validate cost per unit: (what, size, microseconds per state or per level).
+    Flat rows across sizes mean the cost grows linearly."""
+    out = []
+    for n in (200, 800, 1600):
+        path = workdir / f"big{n}.yaml"
+        path.write_text(yaml.safe_dump(big_chart(n), sort_keys=False))
+        states = len(load_statechart(path).states) - 1
+        out.append(("states", states, _median_load_ms(path, repeats) * 1e3 / states))
+    for levels in (8, 16, 31):
+        path = workdir / f"deep{levels}.yaml"
+        path.write_text(nested_chart(levels))
+        out.append(("levels", levels, _median_load_ms(path, repeats) * 1e3 / levels))
+    return out
