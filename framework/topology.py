@@ -22,6 +22,7 @@ from framework.activity import Activity, ActivityError
 from framework.bus import BusConfig
 from framework.classes import ClassPathError, add_import_paths, load_class
 from framework.component import Component, FileInput, In, Out, declarations
+from framework.console.spec import ConsoleSpec, parse_console
 from framework.durations import parse_duration
 from framework.errors import Finding, FindingsError, FwError, Location, MissingFileError
 from framework.messages import type_name
@@ -145,6 +146,8 @@ class Topology:
     import_paths: list[Path] = field(default_factory=list)
     """Folders its component classes are also imported from: its own folder and its
     `import_paths:` (relative to it)."""
+    console: ConsoleSpec = field(default_factory=ConsoleSpec)
+    """What the operator console shows besides the generic parts (`console:`)."""
     file_links: list[tuple[str, FileInput]] = field(default_factory=list)
     """(component, input) of the input ports components declare in their configuration
     files (a tracker's tools per sensor of sensors.yaml, a camera per camera of
@@ -758,6 +761,13 @@ class _Loader:
         for spec in topo.components.values():
             if spec.info is not None:
                 produced.update(spec.info.emits)
+        for i, button in enumerate(topo.console.buttons or []):
+            declared = chart.events.get(button.event)
+            problem = declared.problem(button.payload) if declared is not None else ""
+            if problem:
+                self.error(
+                    "console-button", problem, ("console", "buttons", i, "payload")
+                )
         raised = {
             a.event
             for s in chart.states.values()
@@ -839,6 +849,7 @@ def check_topology(path: str | Path) -> tuple[Topology | None, list[Finding]]:
             topo.prepare[ref] = [topo.key_of(c) for c in candidates]
     topo.configurations = loader.configurations(topo, data)
     topo.safety = loader.safety(topo, data)
+    topo.console = parse_console(data.get("console"), topo, loader)
     for process, settings in topo.processes.items():
         host = settings.get("host")
         if topo.hosts and host is not None and host not in topo.hosts:

@@ -1,40 +1,45 @@
 """What the operator console shows, gathered from a running deployment.
 
 `ConsoleModel` listens on the deployment's bus (the Coordinator's status stream, the
-people detector, the robot's TCP) and polls the components' `report` operations and
-lifecycle states a few times a second. `snapshot()` is the whole picture as plain
-data: a console that connects mid-procedure gets everything at once. Each section
-carries its age, so a page can mark what went stale; nothing is invented when a
-source is silent.
+ports the topology's `console:` tiles and plots name) and polls read-only operations
+(the tiles' and the panels') and the components' lifecycle states a few times a
+second. `snapshot()` is the whole picture as plain data: a console that connects
+mid-procedure gets everything at once. Each section carries its age, so a page can mark what went stale; nothing is
+invented when a source is silent.
 
-The procedure panels (operation, area, tracker in use, people, TCP) read the SEEG
-components when the topology has them (`supervisor`, `interpolator`, `robot`,
-`people_detector`); the chart, commands, component health and the event log work
-for any topology.
+It knows no procedure: the chart, the operator's commands, component health, the
+event log and the declared tiles and plots work for any topology; a procedure's own
+views come from the panels the topology names (framework/console/panels.py).
 """
 
 from __future__ import annotations
 
 import collections
 import contextlib
+import dataclasses
 import math
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from framework import keys, messages
 from framework.bus import Bus
+from framework.console.panels import Panel, Tile, load_panels
+from framework.console.spec import PlotSpec, Source, TileSpec
 from framework.coordinator import STATUS_KEY
-from framework.messages import EventMessage, Pose, Scalar
+from framework.messages import EventMessage
 from framework.ports import ConnPolicy, InputPort, ReadStatus
 from framework.remote import RemoteComponent, RemoteError
 from framework.statechart.model import Statechart
 from framework.topology import Topology
 
 LOG_SIZE = 300
-TRACE_SECONDS = 20.0
-TRACE_RATE = 20.0
+PLOT_RATE = 20.0
+"""Plot points per second (faster samples are thinned)."""
+STALE_AFTER = 2.0
+"""Seconds after which a polled tile is greyed out."""
 SEVERITY = {
     "error": "error",
     "unhandled": "debug",  # the chart ignoring an event is normal; refused commands warn
@@ -44,7 +49,6 @@ SEVERITY = {
     "entry": "debug",
 }
 """Log severity by Coordinator status kind (anything else is `debug`)."""
-STOP_EVENTS = ("e_STOP", "e_NOTRACKER", "e_TFAULT", "e_SETUP_FAILED", "component.lost")
 
 
 @dataclass
@@ -70,29 +74,31 @@ class ConsoleModel:
     _sections: dict[str, _Section] = field(default_factory=dict)
     _log: collections.deque = field(default_factory=lambda: collections.deque(maxlen=LOG_SIZE))
     _log_seq: int = 0
-    _trace: collections.deque = field(default_factory=collections.deque)
-    _last_trace: float = 0.0
+    _plots: dict[str, collections.deque] = field(default_factory=dict)
+    _listened: set[str] = field(default_factory=set)
+    _polls: list[tuple[str, str, str, dict[str, Any]]] = field(default_factory=list)
+    panels: list[Panel] = field(default_factory=list)
     _subscriptions: list[Any] = field(default_factory=list)
     _incidents: Any = None
     _stop: threading.Event = field(default_factory=threading.Event)
     _changed: threading.Condition = field(default_factory=threading.Condition)
     _generation: int = 0
-    _halt: float | None = None  # the last halt not yet matched by a braking cycle
-    _fault: tuple[str, float] | None = None  # (tracker in use, verdict stamp) until a swap
-    _in_use: str | None = None
     _thread: threading.Thread | None = None
 
     # -- lifecycle -----------------------------------------------------------------
     def start(self) -> ConsoleModel:
-        """Subscribe and start polling."""
-        self._listen(STATUS_KEY, EventMessage, self._on_status, 1024)
-        self._listen("robot/tcp", Pose, self._on_tcp, 1)
-        self._listen("people_detector/people", EventMessage, self._on_people, 1)
-        self._listen("people_detector/min_distance", Scalar, self._on_distance, 1)
-        self._listen("supervisor/halt", EventMessage, self._on_halt, 16)
-        self._listen("interpolator/status", EventMessage, self._on_motion, 16)
-        self._listen("sensor_manager/status", EventMessage, self._on_tracking, 16)
-        self._listen("navigator/sources", EventMessage, self._on_source, 16)
+        """Load the topology's panels, subscribe and start polling (`FwError` if a
+        panel is not installed)."""
+        spec = self.topology.console
+        self.panels = load_panels(spec.panels)
+        self.listen(STATUS_KEY, EventMessage, self._on_status, 1024)
+        for tile in spec.tiles:
+            self._follow(tile.source)
+        for plot in spec.plots:
+            self._plots[plot.id] = collections.deque()
+            self._follow(plot.source, plot)
+        for panel in self.panels:
+            panel.start(self)
         # fw deploy publishes these from its own session, which may be this one
         self._incidents = self.bus.subscribe(keys.DEPLOYER_EVENTS, self._on_incident, False)
         self._thread = threading.Thread(target=self._poll, name="fw-console-poll", daemon=True)
@@ -118,6 +124,65 @@ class ConsoleModel:
         """Events an operator may send (the topology's `external_events`)."""
         return list(self.topology.external_events)
 
+    def layout(self) -> dict[str, Any]:
+        """What the page builds once: the operator's buttons and forms (from the
+        topology's `console:` section and the chart's event declarations), the plots and
+        the panels' scripts."""
+        chart = self.chart
+        commands = {}
+        for name in self.external_events:
+            declared = chart.events.get(name) if chart is not None else None
+            if declared is None:
+                continue
+            commands[name] = {
+                "doc": declared.doc,
+                "payload": {
+                    key: {"type": kind, **declared.fields.get(key, {})}
+                    for key, kind in declared.payload.items()
+                },
+            }
+        with_payload = {name for name, c in commands.items() if c["payload"]}
+        buttons = self.topology.console.all_buttons(self.external_events, with_payload)
+        on_buttons = {b.event for b in buttons}
+        return {
+            "topology": self.topology.name,
+            "buttons": [
+                {**dataclasses.asdict(b), "doc": (commands.get(b.event) or {}).get("doc", "")}
+                for b in buttons
+            ],
+            "forms": {name: c for name, c in commands.items() if name in with_payload - on_buttons},
+            "plots": [
+                {"id": p.id, "label": p.label, "unit": p.unit} for p in self.topology.console.plots
+            ],
+            "panels": [
+                {"name": p.name, "scripts": [f"/panels/{p.name}/{s}" for s in p.scripts]}
+                for p in self.panels
+            ],
+        }
+
+    def panel_file(self, panel: str, name: str) -> Path | None:
+        """A file a panel ships (None unless it is one of its own)."""
+        for p in self.panels:
+            if p.name == panel and p.static is not None:
+                folder = p.static.resolve()
+                try:
+                    target = (folder / name).resolve()
+                except (OSError, ValueError):
+                    return None
+                if (
+                    folder in target.parents
+                    and target.is_file()
+                    and target.suffix
+                    in (
+                        ".js",
+                        ".css",
+                        ".svg",
+                        ".png",
+                    )
+                ):
+                    return target
+        return None
+
     def snapshot(self, log: bool = True) -> dict[str, Any]:
         """Everything the console shows, with each section's age in seconds (`log`:
         with the event log so far; a stream sends it once, then line by line)."""
@@ -126,10 +191,19 @@ class ConsoleModel:
             out = {name: section.view(now) for name, section in self._sections.items()}
             out["log"] = list(self._log) if log else []
             out["log_seq"] = self._log_seq
-            out["trace"] = list(self._trace)
+            out["plots"] = {
+                name: {"t": [p[0] for p in points], "values": _columns(points)}
+                for name, points in self._plots.items()
+            }
         out["topology"] = self.topology.name
         out["external_events"] = self.external_events
-        out["status"] = self._status(out)
+        tiles = [self._tile(spec, out) for spec in self.topology.console.tiles]
+        alert = None
+        for panel in self.panels:
+            tiles += panel.tiles(out)
+            alert = alert or panel.alert(out)
+        out["tiles"] = [tile.view() for tile in tiles]
+        out["alert"] = alert
         return out
 
     def wait_change(self, generation: int, timeout: float) -> int:
@@ -164,19 +238,28 @@ class ConsoleModel:
             )
         self._touch()
 
-    def _set(self, name: str, data: Any) -> None:
+    def set(self, name: str, data: Any) -> None:
+        """Replace a section of the picture (panels keep theirs here too)."""
         with self._lock:
             section = self._sections.setdefault(name, _Section())
             section.data, section.at = data, time.monotonic()
 
-    def _get(self, name: str) -> Any:
+    def get(self, name: str) -> Any:
+        """A section's data (None if it never came)."""
         with self._lock:
             section = self._sections.get(name)
             return None if section is None else section.data
 
+    def poll(self, section: str, component: str, operation: str, **args: Any) -> None:
+        """Call `component.operation(**args)` at the poll rate into `section`, if the
+        topology has that component."""
+        if component in self.topology.components:
+            self._polls.append((section, component, operation, args))
+
     # -- listening -----------------------------------------------------------------------
-    def _listen(self, key: str, kind: type, handler: Any, size: int) -> None:
-        """An input port on `key` (it hears writers in this process and in others)."""
+    def listen(self, key: str, kind: type, handler: Any, size: int) -> None:
+        """Call `handler` with each sample on `key` (writers in this process and in
+        others), in the bus' thread: handlers must be quick."""
         port: InputPort[Any] = InputPort(key, kind, policy=ConnPolicy("buffer", size))
         port.bus = self.bus
 
@@ -194,15 +277,15 @@ class ConsoleModel:
     def _on_status(self, message: EventMessage) -> None:
         payload = message.payload or {}
         if message.name == "configuration":
-            self._set("chart", payload)
+            self.set("chart", payload)
             self._touch()
             return
         severity = SEVERITY.get(message.name, "debug")
-        if message.name == "event" and payload.get("event") in STOP_EVENTS:
+        if message.name == "event" and self._stops(payload.get("event")):
             severity = "warning"
         if message.name == "event" and payload.get("event") == "config.failed":
             severity = "error"
-            self._set("failure", payload.get("payload") or {})
+            self.set("failure", payload.get("payload") or {})
         if message.name == "command" and not payload.get("accepted"):
             severity = "warning"
         self.note(severity, _describe(message.name, payload), kind=message.name)
@@ -221,74 +304,77 @@ class ConsoleModel:
             severity, f"{payload.get('process')}: {what}: {payload.get('detail')}", kind="incident"
         )
 
-    def _on_tcp(self, pose: Pose) -> None:
-        now = time.monotonic()
-        if now - self._last_trace < 1.0 / TRACE_RATE:
+    def _stops(self, event: Any) -> bool:
+        """Whether `event` is worth a warning: a lost component, an event that leads the
+        chart into its safe state, or one a panel names."""
+        if event == "component.lost" or any(event in p.warnings for p in self.panels):
+            return True
+        chart = self.chart
+        if chart is None or chart.safe_state is None or not isinstance(event, str):
+            return False
+        safe = chart.safe_state.path
+        return any(
+            event in t.events
+            and t.target is not None
+            and (t.target.path == safe or t.target.path.startswith(safe + "."))
+            for t in chart.transitions()
+        )
+
+    def _follow(self, source: Source, plot: PlotSpec | None = None) -> None:
+        """Keep the latest value of a tile's or plot's source (a port's samples: a
+        section named after the key; an operation: polled)."""
+        section = source.section
+        if source.polled:
+            if all(p[0] != section for p in self._polls):
+                self.poll(section, source.component, source.operation)
             return
-        self._last_trace = now
-        with self._lock:
-            self._trace.append([round(pose.stamp, 3), *[round(v, 5) for v in pose.position]])
-            while self._trace and self._trace[-1][0] - self._trace[0][0] > TRACE_SECONDS:
-                self._trace.popleft()
-        self._set("tcp", {"position": list(pose.position), "stamp": pose.stamp})
+        if plot is None:
+            if section not in self._listened:
+                self._listened.add(section)
+                self.listen(
+                    source.key,
+                    messages.resolve_type(source.type_name),
+                    lambda v, s=section: self.set(s, _plain(v)),
+                    1,
+                )
+            return
+        points = self._plots[plot.id]
+        last = [-math.inf]
 
-    # reaction latencies, measured live as `fw bench` does (docs/bench.md)
-    def _on_halt(self, message: EventMessage) -> None:
-        self._halt = message.stamp
+        def add(value: Any) -> None:
+            now = time.time()
+            if now - last[0] < 1.0 / PLOT_RATE:
+                return
+            numbers = _numbers(_at(_plain(value), source.path), plot.scale)
+            if numbers is None:
+                return
+            last[0] = now
+            with self._lock:
+                points.append((round(now, 3), numbers))
+                while points and now - points[0][0] > plot.seconds:
+                    points.popleft()
 
-    def _on_motion(self, message: EventMessage) -> None:
-        halt = self._halt
-        if message.name == "stopping" and halt is not None and 0 <= message.stamp - halt < 1.0:
-            self._latency("STOP sent -> braking", message.stamp - halt)
-            self._halt = None
+        self.listen(source.key, messages.resolve_type(source.type_name), add, 4)
 
-    def _on_tracking(self, message: EventMessage) -> None:
-        in_use = ((self._get("supervisor") or {}).get("tracker")) or self._in_use
-        health = (message.payload or {}).get("health", {}).get(in_use or "", {})
-        fault = self._fault
-        if fault is not None and message.stamp - fault[1] > 2.0:
-            fault = self._fault = None  # no swap followed (no tracker left, or recovered)
-        if in_use and health.get("ok") is False and fault is None:
-            self._fault = (in_use, message.stamp)
-        self._in_use = in_use
-
-    def _on_source(self, message: EventMessage) -> None:
-        fault = self._fault
-        tracker = (message.payload or {}).get("tracker", "")
-        if fault is not None and tracker and tracker != fault[0]:
-            if 0 <= message.stamp - fault[1] < 2.0:
-                self._latency("sensor swap", message.stamp - fault[1])
-            self._fault = None
-
-    def _latency(self, kind: str, seconds: float) -> None:
-        with self._lock:
-            section = self._sections.setdefault("latencies", _Section(data=[]))
-            section.data = [
-                *section.data[-49:],
-                {"kind": kind, "ms": round(seconds * 1e3, 3), "t": time.time()},
-            ]
-            section.at = time.monotonic()
-
-    def _on_people(self, message: EventMessage) -> None:
-        self._set("people", message.payload)
-
-    def _on_distance(self, value: Scalar) -> None:
-        self._set("min_distance", None if math.isinf(value.value) else value.value)
+    def _tile(self, spec: TileSpec, view: dict[str, Any]) -> Tile:
+        source = spec.source
+        section = view.get(source.section) or {}
+        age = section.get("age")
+        value = _at(section.get("data"), source.path) if age is not None else None
+        stale = age is None or (source.polled and age > STALE_AFTER)
+        return Tile(
+            spec.id, spec.label, _format(value, spec.scale, spec.digits, spec.unit), stale=stale
+        )
 
     # -- polling ---------------------------------------------------------------------------
     def _poll(self) -> None:
-        reports = [
-            n for n in ("supervisor", "interpolator", "robot") if n in self.topology.components
-        ]
         tick = 0
         while not self._stop.wait(1.0 / self.poll_rate):
             if "chart" not in self._sections:  # until the first status arrives
                 self._ask("chart", "coordinator", "active")
             self._ask("takeable", "coordinator", "takeable", events=self.external_events)
-            for name in reports:
-                self._ask(name, name, "report")
-            if "people_detector" in self.topology.components:
-                self._ask("scene", "people_detector", "scene")
+            for section, component, operation, args in list(self._polls):
+                self._ask(section, component, operation, **args)
             if tick % round(self.poll_rate) == 0:
                 self._health()
             tick += 1
@@ -298,7 +384,7 @@ class ConsoleModel:
             result = RemoteComponent(self.bus, component, timeout=0.5).call(operation, **args)
         except RemoteError:
             return  # the section ages and the page marks it stale
-        self._set(section, result)
+        self.set(section, result)
 
     def _health(self) -> None:
         alive = {name.rsplit("/", 1)[-1] for name in self.bus.alive(keys.ALL_ALIVE, 0.5)}
@@ -311,63 +397,7 @@ class ConsoleModel:
                 except RemoteError:
                     state = "not responding"
             health[name] = {"process": spec.process, "alive": name in alive, "state": state}
-        self._set("health", health)
-
-    # -- the SEEG status panel --------------------------------------------------------------
-    def _status(self, view: dict[str, Any]) -> dict[str, Any]:
-        chart = (view.get("chart") or {}).get("data") or {}
-        leaves = [p.rsplit(".", 1)[-1] for p in chart.get("active", [])]
-        supervisor = (view.get("supervisor") or {}).get("data") or {}
-        robot = (view.get("robot") or {}).get("data") or {}
-        return {
-            "robot": _robot(robot),
-            "states": leaves,
-            "operation": _operation(leaves, supervisor.get("goal") or ""),
-            "area": supervisor.get("area") or ("critical" if "Critical" in leaves else None),
-            "tracker": supervisor.get("tracker") or "No Sensor Available",
-            "people_near": supervisor.get("users_near"),
-            "min_distance": (view.get("min_distance") or {}).get("data"),
-            "setup_failed": "Setup_Aborted" in leaves,
-            "failure": _failure((view.get("failure") or {}).get("data")),
-        }
-
-
-def _robot(report: dict[str, Any]) -> str:
-    """The robot side in one line: moving, braked (why), or a latched safety stop and
-    whether a RELEASE would be taken now (every safety input healthy)."""
-    if not report:
-        return "-"
-    if report.get("latched"):
-        problems = report.get("problems") or []
-        release = "RELEASE possible" if not problems else "not yet: " + "; ".join(problems[:2])
-        return f"SAFETY STOP: {report.get('reason')} ({release})"
-    if report.get("braked"):
-        return f"braked ({report.get('reason') or 'power on'})"
-    return "released"
-
-
-def _failure(payload: dict[str, Any] | None) -> str:
-    """The last failed configuration, in one line."""
-    if not payload:
-        return ""
-    parts = [payload.get("tag"), payload.get("step"), payload.get("reason")]
-    return ": ".join(str(p) for p in parts if p)
-
-
-def _operation(leaves: list[str], goal: str) -> str:
-    """wait / approaching <goal> / at the goal / stopped, from the chart's leaves."""
-    if any(s in leaves for s in ("Stopped", "No_Tracker", "Fault", "Setup_Aborted")):
-        return "stopped"
-    if any(
-        s.startswith("Moving") or s in ("Tracker_Selection", "Certus_Up", "Vicra_Up", "Releasing")
-        for s in leaves
-    ):
-        return f"approaching {goal or 'goal'}"
-    if "Target_Reached" in leaves:
-        return "at the goal"
-    if any(s.startswith(("Start_", "Setup_")) for s in leaves):
-        return "setting up"
-    return "wait"
+        self.set("health", health)
 
 
 def _describe(kind: str, payload: dict[str, Any]) -> str:
@@ -387,3 +417,67 @@ def _describe(kind: str, payload: dict[str, Any]) -> str:
     if kind == "error":
         return f"error: {payload.get('message')}"
     return f"{kind} {payload}"
+
+
+def _plain(value: Any) -> Any:
+    """A sample as plain data: a message's fields (an event's payload merged in)."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        out = {f.name: getattr(value, f.name) for f in dataclasses.fields(value)}
+        if isinstance(out.get("payload"), dict):
+            out = {**out, **out["payload"]}
+        return out
+    return value
+
+
+def _at(value: Any, path: tuple[str, ...]) -> Any:
+    """The field at `path` below `value` (None if it has none)."""
+    for key in path:
+        if isinstance(value, dict):
+            value = value.get(key)
+        elif isinstance(value, (list, tuple)) and key.isdigit() and int(key) < len(value):
+            value = value[int(key)]
+        else:
+            return None
+    return value
+
+
+def _numbers(value: Any, scale: float) -> list[float] | None:
+    """A plot point: a number or a list of numbers, scaled (None if it is neither)."""
+    if isinstance(value, bool):
+        return [float(value)]
+    if isinstance(value, (int, float)):
+        return [float(value) * scale]
+    if (
+        isinstance(value, (list, tuple))
+        and value
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+    ):
+        return [float(v) * scale for v in value]
+    return None
+
+
+def _columns(points: Any) -> list[list[float]]:
+    """One list per line of a plot (points whose length changed are left out)."""
+    if not points:
+        return []
+    width = len(points[-1][1])
+    return [[p[1][k] for p in points if len(p[1]) == width] for k in range(width)]
+
+
+def _format(value: Any, scale: float, digits: int, unit: str) -> str:
+    """A tile's text: numbers scaled and rounded, lists joined, nothing as a dash."""
+    if value is None:
+        return "-"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, (int, float)):
+        if isinstance(value, float) and not math.isfinite(value):
+            return "-"
+        number = value * scale
+        text = f"{number:.{digits}f}" if isinstance(number, float) else str(number)
+        return f"{text} {unit}".strip()
+    if isinstance(value, (list, tuple)):
+        return ", ".join(_format(v, scale, digits, "") for v in value) + (
+            f" {unit}" if unit else ""
+        )
+    return str(value)

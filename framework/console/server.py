@@ -7,13 +7,15 @@ Every request needs the run's token; a client has `TIMEOUT` s for the whole head
 request (TLS handshake, request line, headers, a command's body), however it trickles.
 
 * `GET /` and `/static/<file>`: the page (HTML, JS, CSS from `framework/console/static`);
+  `/panels/<name>/<file>`: the scripts of the panels the topology names;
+* `GET /api/layout`: what the page builds once (`ConsoleModel.layout`): the operator's
+  buttons and forms (payload fields with type, limits, unit), plots and panels;
 * `GET /api/state`: the whole picture (`ConsoleModel.snapshot`) as JSON;
 * `GET /api/stream`: Server-Sent Events: the whole picture at once, then again at
   every change of the chart or the log (at least `rate` times a second), with each
   new log line; the page marks the view stale when the stream stops;
 * `GET /api/chart`: the procedure chart as SVG plus the SVG-id -> state-path map the
-  page uses to highlight the active states, and the operator commands with their
-  payload fields (type, limits, unit) the page builds its forms from;
+  page uses to highlight the active states;
 * `POST /api/command` `{"event", "payload", "origin"}`: checked here (only the
   topology's `external_events`, payload fields and types as the chart declares
   them), then offered to the Coordinator, whose answer (accepted, or refused with
@@ -195,17 +197,6 @@ class ConsoleServer:
                 self._chart = {"svg": "", "idents": {}, "error": "this deployment has no chart"}
             else:
                 self._chart = _draw(chart)
-                self._chart["commands"] = {
-                    name: {
-                        "doc": chart.events[name].doc,
-                        "payload": {
-                            field: {"type": kind, **chart.events[name].fields.get(field, {})}
-                            for field, kind in chart.events[name].payload.items()
-                        },
-                    }
-                    for name in self.model.external_events
-                    if name in chart.events
-                }
         return self._chart
 
     def command(self, body: dict[str, Any], origin: str) -> dict[str, Any]:
@@ -410,6 +401,15 @@ class _Handler(BaseHTTPRequestHandler):
             return self._json(self.console.model.snapshot())
         if path == "/api/chart":
             return self._json(self.console.chart())
+        if path == "/api/layout":
+            return self._json(self.console.model.layout())
+        if path.startswith("/panels/"):
+            panel, _, name = path[len("/panels/") :].partition("/")
+            found = self.console.model.panel_file(panel, name)
+            if found is None:
+                return self._json({"error": f"no such file: {path[:80]}"}, HTTPStatus.NOT_FOUND)
+            kind = mimetypes.guess_type(found.name)[0] or "application/octet-stream"
+            return self._send(HTTPStatus.OK, found.read_bytes(), kind)
         if path == "/api/stream":
             return self._stream()
         self._json({"error": f"no such page: {path}"}, HTTPStatus.NOT_FOUND)

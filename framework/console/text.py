@@ -8,27 +8,25 @@ LOG_LINES = 8
 
 
 def render_text(snapshot: dict[str, Any], width: int = 78) -> str:
-    """One screen: status, chart, what the operator can send, components, recent log."""
-    s = snapshot["status"]
-    distance = s.get("min_distance")
-    closest = "-" if distance is None else f"{distance * 100:.0f} cm"
+    """One screen: the tiles, the chart, what the operator can send, an alert, the
+    components and the recent log."""
     chart = ((snapshot.get("chart") or {}).get("data")) or {}
     takeable = ((snapshot.get("takeable") or {}).get("data")) or []
-    lines = [
-        f"fw {snapshot['topology']}".ljust(width),
-        "",
-        f"operation  {s['operation'].upper()}",
-        f"area       {s.get('area') or '-'}",
-        f"tracker    {s['tracker']}",
-        f"robot      {s.get('robot') or '-'}"[:width],
-        f"people     {s.get('people_near') if s.get('people_near') is not None else '-'} near,"
-        f" closest {closest}",
-        "",
+    lines = [f"fw {snapshot['topology']}".ljust(width), ""]
+    tiles = snapshot.get("tiles") or []
+    if tiles:
+        column = min(max(len(t["label"]) for t in tiles), 32) + 2
+        for tile in tiles:
+            text = tile["text"] + ("  (stale)" if tile.get("stale") else "")
+            lines.append(f"{tile['label'][:32]:<{column}} {text}"[:width])
+        lines.append("")
+    lines += [
         "chart      " + ", ".join(p.rsplit(".", 1)[-1] for p in chart.get("active", [])),
         "can send   " + (", ".join(takeable) or "-"),
     ]
-    if s.get("setup_failed"):
-        lines.append(f"SETUP FAILED ({s.get('failure') or 'see the log'}): the robot will not move")
+    alert = snapshot.get("alert")
+    if alert:
+        lines.append(f"{alert['title'].upper()}: {alert['text']}")
     health = ((snapshot.get("health") or {}).get("data")) or {}
     if health:
         lines.append("")

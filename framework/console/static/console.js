@@ -1,48 +1,54 @@
 // fw operator console: follows /api/stream, sends commands to /api/command.
-// Plain browser JavaScript, no build step, nothing fetched from elsewhere.
+// Plain browser JavaScript, no build step, nothing fetched from elsewhere. The page is
+// generic: tiles, buttons, forms and plots come from /api/layout (the topology's
+// `console:` section and the chart's operator events); a procedure's panels add their
+// own scripts, each registering fwPanels[name] = {init(container), render(state)}.
 "use strict";
 
 const STALE_AFTER = 2.0;  // seconds without news before a section is marked stale
+const COLORS = ["#f87171", "#4ade80", "#60a5fa", "#facc15", "#c084fc", "#fb923c"];
 const $ = (id) => document.getElementById(id);
+const fwPanels = {};
+let layout = { buttons: [], forms: {}, plots: [], panels: [] };
 let takeable = [];
 let idents = {};
 let lastState = null;
 let resetLog = true;  // a new stream starts with the whole log
-
-function show(id, text, cls) {
-  const el = $(id);
-  el.textContent = text;
-  const tile = el.closest(".tile");
-  if (tile) tile.className = "tile " + (cls || "");
-}
+let alertShown = "";
 
 function fresh(section) {
   return section && section.age !== null && section.age < STALE_AFTER;
 }
 
+function renderTiles(tiles) {
+  const holder = $("status");
+  for (const t of tiles) {
+    let tile = $(`tile-${t.id}`);
+    if (!tile) {
+      tile = document.createElement("div");
+      tile.id = `tile-${t.id}`;
+      tile.innerHTML = `<label></label><b data-testid="${t.id}"></b>`;
+      holder.appendChild(tile);
+    }
+    tile.querySelector("label").textContent = t.label;
+    tile.querySelector("b").textContent = t.text;
+    tile.className = ["tile", t.tone, t.stale ? "stale" : "", t.wide ? "wide" : ""].join(" ");
+  }
+}
+
 function render(state) {
   lastState = state;
   $("topology").textContent = state.topology;
-  const s = state.status;
-  show("operation", s.operation, s.operation === "stopped" ? "bad" : s.operation.startsWith("approaching") ? "ok" : "");
-  show("area", s.area || "–", s.area === "critical" ? "warn" : s.area === "safe" ? "ok" : "");
-  show("tracker", s.tracker, s.tracker === "No Sensor Available" ? "bad" : "ok");
-  const distance = s.min_distance === null || s.min_distance === undefined ? "–" : (s.min_distance * 100).toFixed(0) + " cm";
-  show("people", `${s.people_near ?? "–"} / ${distance}`, "");
-  show("robot", s.robot || "–", (s.robot || "").startsWith("SAFETY STOP") ? "bad" : s.robot === "released" ? "ok" : "");
-  $("people-tile").classList.toggle("stale", !fresh(state.people));
-  $("tracker-tile").classList.toggle("stale", !fresh(state.supervisor));
-  $("area-tile").classList.toggle("stale", !fresh(state.supervisor));
+  renderTiles(state.tiles || []);
 
   takeable = (state.takeable && state.takeable.data) || [];
-  for (const button of document.querySelectorAll("button[data-event]")) {
+  for (const button of document.querySelectorAll("#buttons button[data-event]")) {
     button.disabled = !takeable.includes(button.dataset.event);
+    if (button.disabled && button.dataset.confirm) disarm(button);
   }
-  $("release").disabled = !takeable.includes("e_RELEASE");
   for (const form of document.querySelectorAll("#forms form")) {
     form.querySelector("button").disabled = !takeable.includes(form.dataset.event);
   }
-  if ($("release").disabled) disarm();
 
   const health = (state.health && state.health.data) || {};
   $("health").classList.toggle("stale", !state.health || state.health.age === null || state.health.age > 3);
@@ -50,14 +56,23 @@ function render(state) {
     `<tr class="${h.alive ? "" : "dead"}"><td>${name}</td><td>${h.process}</td>` +
     `<td>${h.alive ? (h.state || "?") : "LOST"}</td></tr>`).join("");
 
-  drawScene(state);
-  drawPlots(state);
-  drawLatencies(state);
-  highlight(s.states || [], (state.chart && state.chart.data && state.chart.data.active) || []);
-  if (s.setup_failed && !$("setup-failed").open) {
-    $("setup-reason").textContent = s.failure || "a setup configuration failed";
-    $("setup-failed").showModal();
+  for (const spec of layout.plots) {
+    const series = (state.plots || {})[spec.id] || { t: [], values: [] };
+    const labels = series.values.map((_, k) => series.values.length > 1 ? `${spec.label} [${k}]` : spec.label);
+    plotOn($(`plot-${spec.id}`), series, labels, COLORS, spec.unit);
   }
+  for (const panel of layout.panels) {
+    const code = fwPanels[panel.name];
+    if (code && code.render) code.render(state);
+  }
+  highlight((state.chart && state.chart.data && state.chart.data.active) || []);
+  const alert = state.alert;
+  if (alert && alert.text !== alertShown && !$("alert").open) {
+    $("alert-title").textContent = alert.title;
+    $("alert-text").textContent = alert.text;
+    $("alert").showModal();
+  }
+  alertShown = alert ? alert.text : "";
   if (resetLog && state.log) {
     $("log-lines").innerHTML = "";
     resetLog = false;
@@ -73,7 +88,7 @@ function addLog(line) {
   while ($("log-lines").children.length > 300) $("log-lines").lastChild.remove();
 }
 
-function highlight(_leaves, paths) {
+function highlight(paths) {
   const active = new Set();
   for (const path of paths) {  // the active leaves and every ancestor
     const parts = path.split(".");
@@ -104,42 +119,63 @@ async function send(event, payload) {
   }
 }
 
-function disarm() {
-  $("release").hidden = false;
-  $("release-confirm").hidden = true;
-  $("release-cancel").hidden = true;
+function disarm(button) {
+  button.hidden = false;
+  $(`${button.id}-confirm`).hidden = true;
+  $(`${button.id}-cancel`).hidden = true;
 }
 
-for (const button of document.querySelectorAll("button[data-event]")) {
-  button.addEventListener("click", () => {
-    const payload = {};
-    if (button.dataset.where) payload.where = button.dataset.where;
-    if (button.dataset.reason) payload.reason = button.dataset.reason;
-    send(button.dataset.event, Object.keys(payload).length ? payload : undefined);
-  });
+function buildButtons(buttons) {
+  // one button per operator command; a button with `confirm` is armed, then confirmed
+  const holder = $("buttons");
+  holder.innerHTML = "";
+  for (const spec of buttons) {
+    const button = document.createElement("button");
+    button.id = spec.id;
+    button.dataset.event = spec.event;
+    button.textContent = spec.confirm ? `${spec.label}…` : spec.label;
+    button.title = spec.doc || spec.event;
+    button.className = spec.style === "normal" ? "" : spec.style;
+    button.disabled = true;
+    const payload = Object.keys(spec.payload || {}).length ? spec.payload : undefined;
+    holder.appendChild(button);
+    if (!spec.confirm) {
+      button.addEventListener("click", () => send(spec.event, payload));
+      continue;
+    }
+    button.dataset.confirm = "1";
+    const confirm = document.createElement("button");
+    confirm.id = `${spec.id}-confirm`;
+    confirm.className = button.className;
+    confirm.textContent = `Confirm ${spec.label}`;
+    confirm.hidden = true;
+    const cancel = document.createElement("button");
+    cancel.id = `${spec.id}-cancel`;
+    cancel.textContent = "Cancel";
+    cancel.hidden = true;
+    holder.append(confirm, cancel);
+    button.addEventListener("click", () => {  // two steps: arm, then confirm
+      button.hidden = true;
+      confirm.hidden = false;
+      cancel.hidden = false;
+    });
+    cancel.addEventListener("click", () => disarm(button));
+    confirm.addEventListener("click", () => { disarm(button); send(spec.event, payload); });
+  }
 }
-$("release").addEventListener("click", () => {  // two steps: arm, then confirm
-  $("release").hidden = true;
-  $("release-confirm").hidden = false;
-  $("release-cancel").hidden = false;
-});
-$("release-cancel").addEventListener("click", disarm);
-$("release-confirm").addEventListener("click", () => { disarm(); send("e_RELEASE"); });
-
-const WITH_BUTTONS = ["e_GOTO", "e_STOP"];
 
 function buildForms(commands) {
   // one form per operator command that carries values, from the chart's declaration
   const holder = $("forms");
   holder.innerHTML = "";
+  holder.hidden = !Object.keys(commands).length;
   for (const [event, spec] of Object.entries(commands)) {
     const fields = Object.entries(spec.payload || {});
-    if (!fields.length || WITH_BUTTONS.includes(event)) continue;
     const form = document.createElement("form");
     form.dataset.event = event;
     form.id = `form-${event}`;
-    form.noValidate = false;
-    form.innerHTML = `<h3>${spec.doc || event}</h3>`;
+    form.innerHTML = `<h3></h3>`;
+    form.querySelector("h3").textContent = spec.doc || event;
     const row = document.createElement("div");
     row.style.display = "contents";
     for (const [name, f] of fields) {
@@ -182,13 +218,49 @@ function buildForms(commands) {
   }
 }
 
+function buildPlots(plots) {
+  const holder = $("plots");
+  holder.hidden = !plots.length;
+  holder.innerHTML = plots.map((p) => `<canvas id="plot-${p.id}" width="640" height="160"></canvas>`).join("");
+}
+
+function loadScript(url) {
+  return new Promise((resolve, reject) => {
+    const script = document.createElement("script");
+    script.src = url;
+    script.onload = resolve;
+    script.onerror = () => reject(new Error(`cannot load ${url}`));
+    document.body.appendChild(script);
+  });
+}
+
+async function loadLayout() {
+  try {
+    layout = await (await fetch("/api/layout")).json();
+  } catch (err) {
+    $("answer").textContent = `cannot load the page's layout: ${err}`;
+    return;
+  }
+  buildButtons(layout.buttons);
+  buildForms(layout.forms);
+  buildPlots(layout.plots);
+  for (const panel of layout.panels) {
+    try {
+      for (const url of panel.scripts) await loadScript(url);
+      if (fwPanels[panel.name] && fwPanels[panel.name].init) fwPanels[panel.name].init($("panels"));
+    } catch (err) {
+      $("panels").insertAdjacentHTML("beforeend", `<section class="bad">panel ${panel.name}: ${err}</section>`);
+    }
+  }
+  if (lastState) render({ ...lastState, log: undefined });
+}
+
 async function loadChart() {
   try {
     const chart = await (await fetch("/api/chart")).json();
     idents = chart.idents || {};
-    buildForms(chart.commands || {});
     $("chart-svg").innerHTML = chart.svg || `<p>${chart.error || "no chart"}</p>`;
-    if (lastState) render({ ...lastState, log: undefined });
+    if (lastState) highlight((lastState.chart && lastState.chart.data && lastState.chart.data.active) || []);
   } catch (err) {
     $("chart-svg").textContent = `cannot load the chart: ${err}`;
   }
@@ -214,7 +286,30 @@ function connect() {
   };
 }
 
+function plotOn(canvas, series, labels, colors, unit) {
+  // a rolling line plot: series.t (s) against series.values (one list per line)
+  const ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  const t = series.t;
+  if (t.length < 2) return;
+  const values = series.values.flat().filter(Number.isFinite);
+  let lo = Math.min(...values), hi = Math.max(...values);
+  if (hi - lo < 1e-6) { lo -= 1; hi += 1; }
+  const x = (v) => 40 + (v - t[0]) / (t[t.length - 1] - t[0] || 1) * (canvas.width - 50);
+  const y = (v) => canvas.height - 20 - (v - lo) / (hi - lo) * (canvas.height - 35);
+  ctx.fillStyle = "#94a3b8"; ctx.font = "11px sans-serif";
+  ctx.fillText(`${hi.toFixed(1)} ${unit}`, 2, 12);
+  ctx.fillText(`${lo.toFixed(1)} ${unit}`, 2, canvas.height - 22);
+  ctx.fillText(`last ${(t[t.length - 1] - t[0]).toFixed(0)} s`, canvas.width - 60, canvas.height - 5);
+  series.values.forEach((column, k) => {
+    ctx.strokeStyle = colors[k]; ctx.lineWidth = 1.5; ctx.beginPath();
+    column.forEach((v, i) => (i ? ctx.lineTo(x(t[i]), y(v)) : ctx.moveTo(x(t[i]), y(v))));
+    ctx.stroke();
+    ctx.fillStyle = colors[k]; ctx.fillText(labels[k], 45 + 60 * k, 12);
+  });
+}
+
+
 $("details").addEventListener("change", (e) => $("log").classList.toggle("details", e.target.checked));
 
-loadChart();
-connect();
+loadLayout().then(() => { loadChart(); connect(); });

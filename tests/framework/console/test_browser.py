@@ -59,7 +59,7 @@ def wait_for(page, script, arg, shown, expected):
         )
 
 
-TILE = "document.querySelector(`[data-testid=${id}]`).textContent"
+TILE = "(document.querySelector(`[data-testid=${id}]`) || {textContent: \"\"}).textContent"
 
 
 def text_is(page, testid, expected):
@@ -125,7 +125,7 @@ def test_the_operator_drives_the_procedure_from_the_browser(seeg_console, page):
     text_is(page, "operation", "approaching target")
     text_is(page, "tracker", "certus")
     moved = (
-        "() => { const t = lastState.trace; return t.length > 2 && Math.hypot("
+        "() => { const t = (lastState.trace && lastState.trace.data) || []; return t.length > 2 && Math.hypot("
         "t[t.length-1][1]-t[0][1], t[t.length-1][2]-t[0][2], t[t.length-1][3]-t[0][3]) > 0.005; }"
     )
     page.wait_for_function(moved, timeout=WAIT_MS)  # the TCP the page plots has moved 5 mm
@@ -196,8 +196,9 @@ def test_a_failed_setup_opens_a_dialog_and_the_robot_never_moves(bus_config, tmp
     topology.components["people_detector"].properties["cameras_file"] = str(tmp_path / "none.yaml")
     with served(topology, tmp_path / "logs") as (server, _):
         page.goto(server.url)
-        page.wait_for_selector("#setup-failed[open]", timeout=WAIT_MS)
-        assert "people_detector" in page.inner_text("#setup-reason")
+        page.wait_for_selector("#alert[open]", timeout=WAIT_MS)
+        assert page.inner_text("#alert-title") == "Setup failed"
+        assert "people_detector" in page.inner_text("#alert-text")
         text_is(page, "operation", "stopped")
         assert page.is_disabled("#start")
 
@@ -275,3 +276,24 @@ def test_a_page_of_another_origin_can_neither_command_nor_read_the_console(toy, 
             evil.shutdown()
         assert "command 200" not in outcome and "read {" not in outcome, outcome
         assert deployment.coordinator.active()["active"] == ["Use_T1"], outcome
+
+
+def test_a_topology_of_its_own_gets_its_tiles_plots_and_buttons(bus_config, tmp_path, page):
+    """Not SEEG: the toy topology with a `console:` section. Its tiles fill in, its plot
+    is drawn, its confirmed button swaps the trackers, and no SEEG part is on the page."""
+    from tests.framework.console.test_generic import CONSOLE, toy_with
+
+    topology = private_topology(toy_with(tmp_path, CONSOLE), bus_config)
+    with served(topology, tmp_path / "logs") as (server, deployment):
+        page.goto(server.url)
+        text_is(page, "link", "live")
+        text_matches(page, "count", r"^-?\d+\.\d$")
+        text_matches(page, "samples-read", r"^[1-9]\d*$")
+        page.wait_for_selector("#plot-tracker-1", timeout=WAIT_MS)
+        assert not page.query_selector("#scene") and not page.query_selector("[data-testid=tracker]")
+        page.wait_for_selector("#swap-trackers:enabled", timeout=WAIT_MS)
+        page.click("#swap-trackers")
+        assert page.is_visible("#swap-trackers-confirm") and page.is_hidden("#swap-trackers")
+        page.click("#swap-trackers-confirm")
+        text_is(page, "answer", "e_SWAP: accepted")
+        assert wait_until(lambda: deployment.coordinator.active()["active"] == ["Use_T2"])

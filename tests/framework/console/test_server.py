@@ -116,7 +116,7 @@ def test_the_stream_starts_with_the_whole_state(console):
         assert stream.headers.get("Content-Type") == "text/event-stream"
         assert stream.readline() == b"event: state\n"
         first = json.loads(stream.readline()[len(b"data: ") :])
-    assert first["topology"] == "toy" and "status" in first and "log" in first
+    assert first["topology"] == "toy" and "tiles" in first and "log" in first
 
 
 def test_the_chart_drawing_comes_with_the_map_from_svg_ids_to_states(console):

@@ -1,7 +1,7 @@
-"""Spec: the console's robot line tells the operator why the robot stopped and whether
+"""Spec: the SEEG panel's robot line tells the operator why the robot stopped and whether
 a RELEASE would be taken now."""
 
-from framework.console.model import _robot
+from components.supervisor.panel import _robot
 
 
 def test_a_latched_safety_stop_says_why_and_what_keeps_release_refused():

@@ -1,5 +1,7 @@
-// The 3D view and the plots, drawn on 2D canvases: a perspective camera orbiting the
-// table, capsules drawn as thick round-capped lines (depth-sorted), no library.
+// The SEEG panel of the operator console (components/supervisor/panel): the 3D view of
+// robot and people (a perspective camera orbiting the table, capsules drawn as thick
+// round-capped lines, depth-sorted, no library), the TCP's position and speed, and the
+// reaction latencies measured live. Registers fwPanels.seeg = {init, render}.
 "use strict";
 
 const camera = { yaw: 0.4, pitch: 0.35, distance: 3.0, center: [0.6, 0.0, 0.5] };
@@ -30,6 +32,7 @@ function capsule(ctx, canvas, c, color) {
 
 function drawScene(state) {
   const canvas = document.getElementById("scene");
+  const distance = state.min_distance ? state.min_distance.data : null;
   const ctx = canvas.getContext("2d");
   ctx.clearRect(0, 0, canvas.width, canvas.height);
   ctx.strokeStyle = "#334155";  // the floor, 0.5 m grid
@@ -43,7 +46,7 @@ function drawScene(state) {
   const scene = (state.scene && state.scene.data) || { robot: [], people: [] };
   const supervisor = (state.supervisor && state.supervisor.data) || {};
   const items = [];
-  for (const c of scene.robot) items.push([c, state.status.min_distance !== null && state.status.min_distance < 0.1 ? "#ef4444" : "#60a5fa"]);
+  for (const c of scene.robot) items.push([c, distance !== null && distance !== undefined && distance < 0.1 ? "#ef4444" : "#60a5fa"]);
   for (const person of scene.people) for (const c of person.capsules) items.push([c, "rgba(251,146,60,0.8)"]);
   items.sort((u, v) => (project(v[0].slice(0, 3), canvas).depth - project(u[0].slice(0, 3), canvas).depth));
   for (const [c, color] of items) capsule(ctx, canvas, c, color);
@@ -61,37 +64,14 @@ function drawScene(state) {
   ctx.fillText(stale ? "no scene from the people detector (stale)" : `${scene.people.length} people`, 10, 18);
 }
 
-function plot(canvasId, series, labels, colors, unit) {
-  const canvas = document.getElementById(canvasId);
-  const ctx = canvas.getContext("2d");
-  ctx.clearRect(0, 0, canvas.width, canvas.height);
-  const t = series.t;
-  if (t.length < 2) return;
-  const values = series.values.flat().filter(Number.isFinite);
-  let lo = Math.min(...values), hi = Math.max(...values);
-  if (hi - lo < 1e-6) { lo -= 1; hi += 1; }
-  const x = (v) => 40 + (v - t[0]) / (t[t.length - 1] - t[0] || 1) * (canvas.width - 50);
-  const y = (v) => canvas.height - 20 - (v - lo) / (hi - lo) * (canvas.height - 35);
-  ctx.fillStyle = "#94a3b8"; ctx.font = "11px sans-serif";
-  ctx.fillText(`${hi.toFixed(1)} ${unit}`, 2, 12);
-  ctx.fillText(`${lo.toFixed(1)} ${unit}`, 2, canvas.height - 22);
-  ctx.fillText(`last ${(t[t.length - 1] - t[0]).toFixed(0)} s`, canvas.width - 60, canvas.height - 5);
-  series.values.forEach((column, k) => {
-    ctx.strokeStyle = colors[k]; ctx.lineWidth = 1.5; ctx.beginPath();
-    column.forEach((v, i) => (i ? ctx.lineTo(x(t[i]), y(v)) : ctx.moveTo(x(t[i]), y(v))));
-    ctx.stroke();
-    ctx.fillStyle = colors[k]; ctx.fillText(labels[k], 45 + 60 * k, 12);
-  });
-}
-
 function drawPlots(state) {
-  const trace = state.trace || [];
+  const trace = (state.trace && state.trace.data) || [];
   const t = trace.map((r) => r[0]);
   const first = trace[0] || [0, 0, 0, 0];  // positions relative to the window's start
-  plot("plot-position", { t, values: [0, 1, 2].map((i) => trace.map((r) => (r[1 + i] - first[1 + i]) * 1000)) },
+  plotOn(document.getElementById("plot-position"), { t, values: [0, 1, 2].map((i) => trace.map((r) => (r[1 + i] - first[1 + i]) * 1000)) },
     ["Δx mm", "Δy mm", "Δz mm"], ["#f87171", "#4ade80", "#60a5fa"], "mm");
   const speed = trace.map((r, i) => i === 0 ? 0 : Math.hypot(r[1] - trace[i - 1][1], r[2] - trace[i - 1][2], r[3] - trace[i - 1][3]) / Math.max(r[0] - trace[i - 1][0], 1e-3) * 100);
-  plot("plot-speed", { t, values: [speed] }, ["TCP speed cm/s"], ["#facc15"], "cm/s");
+  plotOn(document.getElementById("plot-speed"), { t, values: [speed] }, ["TCP speed cm/s"], ["#facc15"], "cm/s");
 }
 
 function drawLatencies(state) {
@@ -119,7 +99,7 @@ function drawLatencies(state) {
   });
 }
 
-(function orbit() {
+function orbit() {
   const canvas = document.getElementById("scene");
   let drag = null;
   canvas.addEventListener("mousedown", (e) => { drag = [e.clientX, e.clientY]; });
@@ -136,4 +116,25 @@ function drawLatencies(state) {
     camera.distance = Math.min(10, Math.max(1, camera.distance * (e.deltaY > 0 ? 1.1 : 0.9)));
     if (lastState) drawScene(lastState);
   });
-})();
+}
+
+fwPanels.seeg = {
+  init(container) {
+    container.insertAdjacentHTML("beforeend", `
+      <section id="view" aria-label="3D view">
+        <canvas id="scene" width="640" height="420" data-testid="scene"></canvas>
+        <p class="hint">drag to turn · wheel to zoom · blue: robot · orange: people · red: target and its critical sphere</p>
+      </section>
+      <section id="seeg-plots" aria-label="SEEG plots">
+        <canvas id="plot-position" width="640" height="200"></canvas>
+        <canvas id="plot-speed" width="640" height="150"></canvas>
+        <canvas id="plot-latency" width="640" height="150" data-testid="latency"></canvas>
+      </section>`);
+    orbit();
+  },
+  render(state) {
+    drawScene(state);
+    drawPlots(state);
+    drawLatencies(state);
+  },
+};
