@@ -765,9 +765,7 @@ class _Loader:
             declared = chart.events.get(button.event)
             problem = declared.problem(button.payload) if declared is not None else ""
             if problem:
-                self.error(
-                    "console-button", problem, ("console", "buttons", i, "payload")
-                )
+                self.error("console-button", problem, ("console", "buttons", i, "payload"))
         raised = {
             a.event
             for s in chart.states.values()

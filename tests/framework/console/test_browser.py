@@ -59,7 +59,7 @@ def wait_for(page, script, arg, shown, expected):
         )
 
 
-TILE = "(document.querySelector(`[data-testid=${id}]`) || {textContent: \"\"}).textContent"
+TILE = '(document.querySelector(`[data-testid=${id}]`) || {textContent: ""}).textContent'
 
 
 def text_is(page, testid, expected):
@@ -290,7 +290,9 @@ def test_a_topology_of_its_own_gets_its_tiles_plots_and_buttons(bus_config, tmp_
         text_matches(page, "count", r"^-?\d+\.\d$")
         text_matches(page, "samples-read", r"^[1-9]\d*$")
         page.wait_for_selector("#plot-tracker-1", timeout=WAIT_MS)
-        assert not page.query_selector("#scene") and not page.query_selector("[data-testid=tracker]")
+        assert not page.query_selector("#scene") and not page.query_selector(
+            "[data-testid=tracker]"
+        )
         page.wait_for_selector("#swap-trackers:enabled", timeout=WAIT_MS)
         page.click("#swap-trackers")
         assert page.is_visible("#swap-trackers-confirm") and page.is_hidden("#swap-trackers")

@@ -91,7 +91,10 @@ def test_declared_tiles_plots_and_buttons_follow_the_deployment(bus_config, tmp_
 @pytest.mark.parametrize(
     "section, message",
     [
-        ("console: {panels: [seg]}", "no console panel 'seg' is installed (hint: did you mean 'seeg'?)"),
+        (
+            "console: {panels: [seg]}",
+            "no console panel 'seg' is installed (hint: did you mean 'seeg'?)",
+        ),
         (
             "console: {buttons: [{event: e_SWP}]}",
             "a button sends 'e_SWP', which is not one of the topology's external_events",
