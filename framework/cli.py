@@ -420,9 +420,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.set_defaults(func=cmd_new)
 
-    from framework import cli_deploy
+    from framework import cli_deploy, cli_records, cli_session
 
-    cli_deploy.add_commands(sub)
+    for module in (cli_deploy, cli_session, cli_records):
+        module.add_commands(sub)
     for entry in sorted(metadata.entry_points(group=COMMANDS_GROUP), key=lambda e: e.name):
         try:
             entry.load()(sub)

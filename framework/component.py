@@ -627,6 +627,7 @@ class Component:
                     "name": n,
                     "doc": m.__fw_operation__,
                     "args": list(inspect.signature(m).parameters),
+                    "readonly": bool(getattr(m, "__fw_readonly__", False)),
                 }
                 for n, m in self.operations.items()
             ],

@@ -253,10 +253,11 @@ def class_info(cls: type[Component]) -> ClassInfo:
 
 
 class _Loader:
-    def __init__(self, doc: Document):
+    def __init__(self, doc: Document, classes: bool = True):
         self.doc = doc
         self.base = Path(doc.file).parent
         self.findings: list[Finding] = []
+        self.classes = classes
 
     def error(self, code: str, message: str, path: tuple[Any, ...], hint: str = "") -> None:
         self.findings.append(Finding("error", code, message, self.doc.location(path), hint))
@@ -294,7 +295,7 @@ class _Loader:
                     (*here, "process"),
                     self.close(process, processes),
                 )
-            info = self.import_class(spec["class"], (*here, "class"))
+            info = self.import_class(spec["class"], (*here, "class")) if self.classes else None
             try:
                 activity = Activity.from_spec(spec.get("activity"))
                 declares_own = info is not None and _declares_file_inputs(info.cls)
@@ -757,6 +758,8 @@ class _Loader:
             return
         tags = {name: c.location for name, c in topo.configurations.items()}
         self.findings.extend(f for f in validate_chart(chart, tags) if f.severity == "error")
+        if not self.classes:
+            return  # what the components emit is in their classes
         produced = set(topo.external_events)
         for spec in topo.components.values():
             if spec.info is not None:
@@ -786,8 +789,9 @@ class _Loader:
             )
 
 
-def check_topology(path: str | Path) -> tuple[Topology | None, list[Finding]]:
-    """Load and check a topology; the model (None if it cannot be built) and findings."""
+def check_topology(path: str | Path, classes: bool = True) -> tuple[Topology | None, list[Finding]]:
+    """Load and check a topology; the model (None if it cannot be built) and findings.
+    `classes=False` imports no component class (see `load_topology`)."""
     try:
         doc = load_yaml(path)
     except FwError as exc:
@@ -797,7 +801,7 @@ def check_topology(path: str | Path) -> tuple[Topology | None, list[Finding]]:
     if problems:
         return None, problems
     data = doc.data
-    loader = _Loader(doc)
+    loader = _Loader(doc, classes)
     base = Path(doc.file).parent
     bus_spec = data.get("bus") or {}
     bus = BusConfig(
@@ -871,9 +875,16 @@ def check_topology(path: str | Path) -> tuple[Topology | None, list[Finding]]:
     return topo, findings
 
 
-def load_topology(path: str | Path) -> Topology:
-    """Load a topology; raise `FindingsError` with every error found."""
-    topo, findings = check_topology(path)
+def load_topology(path: str | Path, classes: bool = True) -> Topology:
+    """Load a topology; raise `FindingsError` with every error found.
+
+    `classes=False` gives a client's view (`fw send`, `status`, `ls`, `call`): no
+    component class is imported, so a project's components need not be importable
+    where the operator runs fw. Names, processes, the bus, the chart, the operator's
+    events and the console are read and checked; ports, wiring and what the classes
+    declare are not (`ComponentSpec.info` is None): the running deployment knows them.
+    """
+    topo, findings = check_topology(path, classes)
     if topo is None or any(f.severity == "error" for f in findings):
         raise FindingsError(findings)
     return topo

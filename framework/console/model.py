@@ -328,12 +328,15 @@ class ConsoleModel:
             if all(p[0] != section for p in self._polls):
                 self.poll(section, source.component, source.operation)
             return
+        kind = self._port_type(source)
+        if kind is None:
+            return
         if plot is None:
             if section not in self._listened:
                 self._listened.add(section)
                 self.listen(
                     source.key,
-                    messages.resolve_type(source.type_name),
+                    kind,
                     lambda v, s=section: self.set(s, _plain(v)),
                     1,
                 )
@@ -354,7 +357,26 @@ class ConsoleModel:
                 while points and now - points[0][0] > plot.seconds:
                     points.popleft()
 
-        self.listen(source.key, messages.resolve_type(source.type_name), add, 4)
+        self.listen(source.key, kind, add, 4)
+
+    def _port_type(self, source: Source) -> type | None:
+        """The message type of a port source: from the topology, or (a client that did
+        not import the classes) from the running component; None, logged, if unknown."""
+        name = source.type_name
+        if not name:
+            try:
+                described = RemoteComponent(self.bus, source.component, timeout=2.0).describe()
+                name = next(
+                    (p["type"] for p in described["outputs"] if source.key in p["keys"]), ""
+                )
+            except RemoteError as exc:
+                self.note("warning", f"console: {source.component} did not describe itself: {exc}")
+                return None
+        try:
+            return messages.resolve_type(name)
+        except messages.CodecError as exc:
+            self.note("warning", f"console: no tile or plot on {source.key}: {exc}")
+            return None
 
     def _tile(self, spec: TileSpec, view: dict[str, Any]) -> Tile:
         source = spec.source

@@ -260,7 +260,7 @@ def test_a_keystore_made_beforehand_is_used_and_kept(topology, tmp_path):
 def test_the_scenario_report_keeps_invariants_never_exercised_apart(capsys):
     from types import SimpleNamespace
 
-    from framework.cli_deploy import _scenario_report
+    from framework.cli_deploy import scenario_report
     from framework.scenario import Outcome
 
     outcomes = [
@@ -271,10 +271,54 @@ def test_the_scenario_report_keeps_invariants_never_exercised_apart(capsys):
         ),
     ]
     runner = SimpleNamespace(report=lambda: outcomes, scenario=SimpleNamespace(name="toy"))
-    assert _scenario_report(runner) == 0, "nothing failed"
+    assert scenario_report(runner) == 0, "nothing failed"
     out = capsys.readouterr().out
     assert "NOT RUN while No_Tracker" in out and "PASS    while Stopped" in out
     assert "PASSED: 2 passed, 0 failed, 1 not run" in out
     outcomes.append(Outcome(False, "never event e_STOP", "at 3s"))
-    assert _scenario_report(runner) == 1
+    assert scenario_report(runner) == 1
     assert "FAILED: 2 passed, 1 failed, 1 not run" in capsys.readouterr().out
+
+
+def test_operator_commands_need_not_import_the_projects_components(topology, bus_config):
+    """The components live in the project's own module next to the topology; once the
+    deployment runs, `fw send/status/ls/call` work where that module cannot be imported
+    (here: deleted), since they ask the running deployment instead of the classes."""
+    project = topology.parent
+    (project / "mycomps.py").write_text(
+        '"""A project\'s own components."""\n'
+        "from components.demo import Counter as _Counter, Sink as _Sink\n\n\n"
+        "class Counter(_Counter):\n    pass\n\n\n"
+        "class Sink(_Sink):\n    pass\n"
+    )
+    topology.write_text(
+        topology.read_text()
+        .replace("components.demo:Counter", "mycomps:Counter")
+        .replace("components.demo:Sink", "mycomps:Sink")
+    )
+    deploy = deploy_in_background(topology)
+    bus = join_deployment(bus_config)
+    try:
+        assert settled(bus, "Use_T1"), deploy.stderr.read() if deploy.poll() else "no chart"
+        (project / "mycomps.py").unlink()
+        status = fw("status", "--topology", str(topology), "--json")
+        assert status.returncode == 0, status.stderr
+        assert json.loads(status.stdout)["containers"]["trackers"] == ["t1", "t2"]
+        listing = fw("ls", "--topology", str(topology))
+        assert "t1 (mycomps:Counter)" in listing.stdout, listing.stdout + listing.stderr
+        called = fw("call", "supervisor.stats", "--topology", str(topology))
+        assert called.returncode == 0 and json.loads(called.stdout)["received"] > 0
+        refused = fw("call", "t1.reset", "--topology", str(topology))
+        assert refused.returncode == 1 and "t1.reset changes state" in refused.stderr
+        typo = fw("call", "t1.rest", "--topology", str(topology))
+        assert "t1 has no operation 'rest'; did you mean 'reset'?" in typo.stderr
+        sent = fw("send", "e_SWAP", "--topology", str(topology))
+        assert sent.returncode == 0 and sent.stdout.strip() == "accepted e_SWAP", sent.stderr
+        watch = fw("status", "--topology", str(topology), "--watch", "--frames", "2")
+        assert watch.returncode == 0 and "can send" in watch.stdout, watch.stderr
+        for run in (status, listing, called, sent, watch):
+            assert "mycomps" not in run.stderr and "Traceback" not in run.stderr
+    finally:
+        bus.close()
+        deploy.send_signal(signal.SIGINT)
+    deploy.communicate(timeout=60)

@@ -1,7 +1,7 @@
 """Spec: the demo topology of the README validates and really runs: it swaps trackers
 on its own, stops on e_STOP and resumes on e_RELEASE."""
 
-from framework.cli_deploy import _screen
+from framework.cli_deploy import live_screen
 from framework.deployer import Deployment
 from framework.remote import RemoteComponent
 from framework.statechart.files import validate_file
@@ -34,7 +34,7 @@ def test_the_demo_runs_swaps_stops_and_resumes(bus_config, tmp_path):
         )
         state = RemoteComponent(deployment.hub, "supervisor").state()
         assert state == "Stopped", "all_stop stopped the robot side"
-        screen = _screen(deployment, 0.0)
+        screen = live_screen(deployment, 0.0)
         assert "chart      Stopped" in screen and "supervisor" in screen
         deployment.send("e_RELEASE")
         assert wait_until(lambda: leaf() == ["Working.Use_T1"], timeout=10)

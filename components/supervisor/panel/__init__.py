@@ -50,7 +50,7 @@ class SeegPanel(Panel):
 
         def listen(component: str, port: str, kind: type, handler: Any, size: int) -> None:
             if component in components:
-                model.listen(model.topology.key_of(f"{component}.{port}"), kind, handler, size)
+                model.listen(components[component].output_key(port), kind, handler, size)
 
         listen("robot", "tcp", Pose, self._on_tcp, 1)
         listen(
