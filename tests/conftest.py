@@ -195,10 +195,16 @@ def wait_until(predicate, timeout: float = 5.0, interval: float = 0.005) -> bool
 def play_seeg_scenario(path, bus_config, tmp_path, history: list | None = None) -> list:
     """Play a scenario on the SEEG deployment (real processes, a private bus); the
     outcomes that failed. `history` receives the Configurator's outcomes."""
+    return play_scenario(REPO / "topologies" / "seeg.yaml", path, bus_config, tmp_path, history)
+
+
+def play_scenario(topology_file, path, bus_config, tmp_path, history: list | None = None) -> list:
+    """Play a scenario on a deployment of `topology_file` (real processes, a private
+    bus); the outcomes that failed. `history` receives the Configurator's outcomes."""
     from framework.deployer import Deployment
     from framework.scenario import load_scenario
 
-    topology = private_topology(REPO / "topologies" / "seeg.yaml", bus_config, tmp_path)
+    topology = private_topology(topology_file, bus_config, tmp_path)
     scenario = load_scenario(path)
     deployment = Deployment(topology, tmp_path / "logs", scenario=scenario)
     deployment.start()

@@ -488,7 +488,7 @@ def _columns(points: Any) -> list[list[float]]:
 
 def _format(value: Any, scale: float, digits: int, unit: str) -> str:
     """A tile's text: numbers scaled and rounded, lists joined, nothing as a dash."""
-    if value is None:
+    if value is None or value == "":
         return "-"
     if isinstance(value, bool):
         return "yes" if value else "no"

@@ -58,7 +58,8 @@ function render(state) {
 
   for (const spec of layout.plots) {
     const series = (state.plots || {})[spec.id] || { t: [], values: [] };
-    const labels = series.values.map((_, k) => series.values.length > 1 ? `${spec.label} [${k}]` : spec.label);
+    const n = series.values.length;  // a 2- or 3-vector's lines are x, y, z
+    const labels = series.values.map((_, k) => n === 1 ? spec.label : n <= 3 ? `${spec.label} ${"xyz"[k]}` : `${spec.label} [${k}]`);
     plotOn($(`plot-${spec.id}`), series, labels, COLORS, spec.unit);
   }
   for (const panel of layout.panels) {
@@ -301,11 +302,13 @@ function plotOn(canvas, series, labels, colors, unit) {
   ctx.fillText(`${hi.toFixed(1)} ${unit}`, 2, 12);
   ctx.fillText(`${lo.toFixed(1)} ${unit}`, 2, canvas.height - 22);
   ctx.fillText(`last ${(t[t.length - 1] - t[0]).toFixed(0)} s`, canvas.width - 60, canvas.height - 5);
+  let labelX = 45;
   series.values.forEach((column, k) => {
     ctx.strokeStyle = colors[k]; ctx.lineWidth = 1.5; ctx.beginPath();
     column.forEach((v, i) => (i ? ctx.lineTo(x(t[i]), y(v)) : ctx.moveTo(x(t[i]), y(v))));
     ctx.stroke();
-    ctx.fillStyle = colors[k]; ctx.fillText(labels[k], 45 + 60 * k, 12);
+    ctx.fillStyle = colors[k]; ctx.fillText(labels[k], labelX, 12);
+    labelX += ctx.measureText(labels[k]).width + 14;
   });
 }
 
