@@ -70,9 +70,19 @@ class _Printer(Listener):
         self.line(f"error      {message}")
 
 
-def live_screen(deployment: Any, started: float, console: str = "") -> str:
-    """The one-screen live status."""
-    from framework.remote import RemoteComponent, RemoteError
+SLOW_SCREENS = 2
+"""Screens in a row a live process may leave a state query unanswered before the live
+screen says NOT RESPONDING (one miss is a busy moment, such as its first second)."""
+
+
+def live_screen(
+    deployment: Any,
+    started: float,
+    console: str = "",
+    seen: dict[str, tuple[str, int]] | None = None,
+) -> str:
+    """The one-screen live status. `seen` (kept by the caller between screens): each
+    component's last answered state and the screens it has not answered since."""
 
     lines = [
         f"fw deploy {deployment.topology.name}   up {time.monotonic() - started:6.1f} s"
@@ -107,14 +117,28 @@ def live_screen(deployment: Any, started: float, console: str = "") -> str:
         if spec.name in lost or spec.process in lost_processes:
             state = f"LOST ({lost_processes.get(spec.process, 'no liveliness')})"
         else:
-            try:
-                state = RemoteComponent(deployment.hub, spec.name, 0.3).state()
-            except RemoteError:
-                state = "NOT RESPONDING"
+            state = _answered(deployment.hub, spec.name, {} if seen is None else seen)
         lines.append(f"{spec.name:<20} {spec.process:<16} {state}")
     if watch is not None and watch.incidents:
         lines += ["", *watch.incidents[-5:]]
     return "\n".join(lines)
+
+
+def _answered(hub: Any, name: str, seen: dict[str, tuple[str, int]]) -> str:
+    """A live component's state, or what the screen says while it does not answer."""
+    from framework.remote import RemoteComponent, RemoteError
+
+    last, misses = seen.get(name, ("", 0))
+    try:
+        state = RemoteComponent(hub, name, 0.3).state()
+    except RemoteError:
+        misses += 1
+        seen[name] = (last, misses)
+        if misses >= SLOW_SCREENS:
+            return "NOT RESPONDING"
+        return f"{last} (slow to answer)" if last else "(no answer yet)"
+    seen[name] = (state, 0)
+    return state
 
 
 def cmd_deploy(args: argparse.Namespace) -> int:
@@ -211,6 +235,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
             console = _start_console(args, deployment, topology, console_tls)
         end = started + args.duration if args.duration else None
         runner = deployment.runner
+        seen: dict[str, tuple[str, int]] = {}
         while end is None or time.monotonic() < end:
             if runner is not None and runner.finished.is_set():
                 time.sleep(0.5)  # let the last reactions land in the recording
@@ -218,7 +243,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
             if interactive:
                 sys.stdout.write(
                     "\x1b[H\x1b[2J"
-                    + live_screen(deployment, started, console.url if console else "")
+                    + live_screen(deployment, started, console.url if console else "", seen)
                     + "\n"
                 )
                 sys.stdout.flush()

@@ -40,3 +40,35 @@ def test_the_demo_runs_swaps_stops_and_resumes(bus_config, tmp_path):
         assert wait_until(lambda: leaf() == ["Working.Use_T1"], timeout=10)
     finally:
         deployment.stop()
+
+
+def test_the_live_screen_says_not_responding_only_after_two_silent_screens(bus_config, tmp_path):
+    """A component that misses one state query (a busy first second) keeps its last
+    state, marked slow; only a second silent screen in a row says NOT RESPONDING (or
+    LOST, once its bus lease has run out)."""
+    import os
+    import signal
+
+    deployment = Deployment(private_topology(DEMO, bus_config), tmp_path)
+    deployment.start()
+    trackers = next(p for p in deployment.processes if p.name == "trackers")
+    try:
+        assert wait_until(
+            lambda: deployment.coordinator.active()["active"] == ["Working.Use_T1"], timeout=10
+        )
+        seen: dict = {}
+
+        def row(name):
+            screen = live_screen(deployment, 0.0, seen=seen)
+            return next(line for line in screen.splitlines() if line.startswith(name + " "))
+
+        assert row("tracker_1").endswith(" Running")
+        os.kill(trackers.popen.pid, signal.SIGSTOP)  # it hangs: no answers at all
+        try:
+            assert row("tracker_1").endswith(" Running (slow to answer)")
+            second = row("tracker_1")
+            assert second.endswith(" NOT RESPONDING") or " LOST (" in second, second
+        finally:
+            os.kill(trackers.popen.pid, signal.SIGCONT)
+    finally:
+        deployment.stop()
