@@ -21,16 +21,15 @@ from __future__ import annotations
 
 import random
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
+from components.bench.files import seeg_file
 from components.domain import lwr4
 from components.domain.procedure import load_procedure
 from components.robot.arm import SimulatedArm
 from components.robot.interpolator import InterpolatorCore, Phase
 
-PROCEDURE_FILE = Path(__file__).resolve().parents[2] / "procedures" / "seeg.yaml"
 SPEEDS = (0.01, 0.025, 0.05, 0.075, 0.10)
 """Cruise speeds of the thesis (m/s)."""
 PLANAR_PATH = (0.20, 0.10, 0.0)
@@ -63,7 +62,7 @@ class Rig:
     """The interpolator feeding the MuJoCo arm, one cycle per `step`."""
 
     def __init__(self, speed: float):
-        procedure = load_procedure(PROCEDURE_FILE)
+        procedure = load_procedure(seeg_file("procedures", "seeg.yaml"))
         self.arm = SimulatedArm(mode="impedance", errors=lwr4.LWR4_ERRORS)
         self.arm.release()
         self.core = InterpolatorCore(

@@ -14,8 +14,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from components.bench.files import seeg_file
 from components.bench.report import Row, stats
-from components.bench.seeg_run import REPO
 
 
 def run_zenoh(quick: bool, context: dict[str, Any]) -> list[Row]:
@@ -465,7 +465,7 @@ def run_people(quick: bool, context: dict[str, Any]) -> list[Row]:
     crowd = scenes.crowd(20.0 if quick else 60.0, "hungarian")
     cost = people.frame_cost(8, 16, 60 if quick else 300, "hungarian")
     _, report = calibrate(
-        cameras_of(str(REPO / "topologies" / "seeg.yaml")),
+        cameras_of(str(seeg_file("topologies", "seeg.yaml"))),
         "kinect_0",
         4,
         16,

@@ -31,7 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from components.bench.seeg_run import REPO, BenchError, Sample, SeegRun
+from components.bench.files import seeg_file
+from components.bench.seeg_run import BenchError, Sample, SeegRun
 from framework.messages import Envelopes, EventMessage, Pose
 
 MOVE_TIMEOUT = 60.0
@@ -395,7 +396,7 @@ def _no_collision(run: SeegRun, timeout: float = 10.0) -> None:
 def _collision_distance() -> float:
     from components.domain.procedure import load_procedure
 
-    return load_procedure(REPO / "procedures" / "seeg.yaml").collision_distance
+    return load_procedure(seeg_file("procedures", "seeg.yaml")).collision_distance
 
 
 def _clear(run: SeegRun, limit: float, timeout: float = 10.0) -> None:

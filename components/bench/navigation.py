@@ -32,11 +32,11 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from components.bench.files import seeg_file
 from components.domain import lwr4
 from components.domain.geometry import invert, pose_matrix
 from components.domain.procedure import load_procedure, pose_from
@@ -46,9 +46,6 @@ from components.robot.navigation import core_for
 from components.tracking.sensor_manager import load_sensors
 from components.tracking.synthetic import Rig, standard_rigs
 
-REPO = Path(__file__).resolve().parents[2]
-PROCEDURE_FILE = REPO / "procedures" / "seeg.yaml"
-SENSORS_FILE = REPO / "procedures" / "seeg" / "sensors.yaml"
 TARGET_IN_BASE = (0.60, 0.0, 0.12)
 """The procedure's target where the head rests (base frame, tool pointing down)."""
 
@@ -65,8 +62,10 @@ class Run:
     quiet: tuple[str, ...] = ()  # trackers whose noise is left out
 
     def __post_init__(self) -> None:
-        procedure = load_procedure(PROCEDURE_FILE)
-        self.nav = core_for(procedure, load_sensors(SENSORS_FILE))
+        procedure = load_procedure(seeg_file("procedures", "seeg.yaml"))
+        self.nav = core_for(
+            procedure, load_sensors(seeg_file("procedures", "seeg", "sensors.yaml"))
+        )
         self.arm = SimulatedArm(lwr4.HOME, errors=lwr4.LWR4_ERRORS)
         self.arm.release()
         self.kinematics = lwr4.Kinematics()

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from components.bench.files import seeg_home
 from framework.bus import free_port
 from framework.container import raise_priority
 from framework.deployer import SAFETY_NICE, Deployment
@@ -28,8 +29,6 @@ from framework.remote import RemoteComponent
 from framework.statechart.events import Listener
 from framework.topology import load_topology
 
-REPO = Path(__file__).resolve().parents[2]
-TOPOLOGY = REPO / "topologies" / "seeg.yaml"
 TASK_STATES = (
     "Wait_Start",
     "Moving_Fast",
@@ -102,7 +101,8 @@ class SeegRun:
 
     def start(self) -> SeegRun:
         """Deploy and wait until the robot waits for START (setup done)."""
-        topology = load_topology(TOPOLOGY)
+        home = seeg_home()
+        topology = load_topology(home / "topologies" / "seeg.yaml")
         topology.bus = dataclasses.replace(
             topology.bus,
             namespace=f"fw_bench_{os.getpid()}",
@@ -116,7 +116,7 @@ class SeegRun:
             raise_priority(SAFETY_NICE, "control")
         self.deployment = Deployment(topology, self.workdir, listeners=[self._states])
         old = os.getcwd()
-        os.chdir(REPO)  # property paths are relative to the repository
+        os.chdir(home)  # property paths are relative to the repository
         try:
             self.deployment.start(run_chart=False)
             hub = self.deployment.hub

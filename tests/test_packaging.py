@@ -1,0 +1,84 @@
+"""Spec: fw works installed from its wheel, not only from a checkout. The wheel carries
+the schemas, the console's page and the SEEG panel's script; `fw bench` finds the SEEG
+deployment it measures through FW_HOME (or the current folder) and says so clearly
+when there is none. Built offline from a copy of the sources (nothing downloaded)."""
+
+import os
+import shutil
+import subprocess
+import sys
+import venv
+
+import pytest
+
+from tests.conftest import REPO
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory):
+    """A virtual environment with fw installed from a wheel of this tree (its
+    dependencies come from the system's site-packages)."""
+    root = tmp_path_factory.mktemp("installed")
+    source = root / "src"
+    source.mkdir()
+    for name in ("framework", "components"):
+        shutil.copytree(REPO / name, source / name, ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(REPO / name, source / name)
+    wheels = root / "wheels"
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
+         str(source), "-w", str(wheels)],
+        check=True, capture_output=True, cwd=root,
+    )  # fmt: skip
+    env_dir = root / "venv"
+    venv.EnvBuilder(system_site_packages=True, with_pip=False).create(env_dir)
+    python = env_dir / "bin" / "python"
+    wheel = next(wheels.glob("fw-*.whl"))
+    subprocess.run(
+        [sys.executable, "-m", "pip", "--python", str(python), "install", "--no-deps",
+         "--no-index", "-q", str(wheel)],
+        check=True, capture_output=True,
+    )  # fmt: skip
+    return env_dir
+
+
+def run(env_dir, *args, cwd, extra_env=None):
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "FW_HOME")}
+    env.update(extra_env or {})
+    return subprocess.run(
+        [str(env_dir / "bin" / args[0]), *args[1:]],
+        capture_output=True, text=True, cwd=cwd, env=env, timeout=600,
+    )  # fmt: skip
+
+
+def test_the_wheel_is_what_runs_and_carries_its_files(installed, tmp_path):
+    probe = (
+        "import framework, components.supervisor.panel as p;"
+        "from framework.console.panels import load_panels;"
+        "from framework.console.server import STATIC;"
+        "panel = load_panels(['seeg'])[0];"
+        "print(framework.__file__);"
+        "print((panel.static / 'seeg.js').is_file(), (STATIC / 'console.js').is_file())"
+    )
+    out = run(installed, "python", "-c", probe, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    where, files = out.stdout.split("\n")[:2]
+    assert where.startswith(str(installed)), where
+    assert files == "True True"
+    checked = run(installed, "fw", "validate", "topologies/pick_place.yaml", cwd=REPO)
+    assert checked.returncode == 0, checked.stdout + checked.stderr
+
+
+def test_fw_bench_needs_a_seeg_home_and_says_where_it_looked(installed, tmp_path):
+    lost = run(installed, "fw", "bench", "braking", "--quick", "--out", "o", cwd=tmp_path)
+    assert lost.returncode == 1, lost.stdout + lost.stderr
+    assert "no topologies/seeg.yaml was found" in lost.stderr
+    assert "set FW_HOME" in lost.stderr and "Traceback" not in lost.stderr
+    found = run(
+        installed,
+        "fw", "bench", "braking", "--quick", "--out", str(tmp_path / "out"),
+        cwd=tmp_path, extra_env={"FW_HOME": str(REPO)},
+    )  # fmt: skip
+    assert found.returncode == 0, found.stdout + found.stderr
+    assert (tmp_path / "out" / "report.md").is_file()
