@@ -8,7 +8,7 @@ file its components read (a procedure, a tracker's sensors file) through the
 `fw.file_kinds` entry point group, so the framework never names domain code:
 
     [project.entry-points."fw.file_kinds"]
-    sensors = "components.tracking.sensor_manager:SENSORS_FILE"
+    sensors = "components.domain.sensors:SENSORS_FILE"
 """
 
 from __future__ import annotations

@@ -21,9 +21,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from benchlib import bench_parser, write_report
 
-from components.domain.geometry import rotation_angle
-from components.tracking.calibration import hand_eye, protocol_poses
-from components.tracking.synthetic import rigid, standard_rigs
+from components.domain.calibration import hand_eye, protocol_poses
+from components.domain.geometry import rigid, rotation_angle
+from components.domain.rigs import standard_rigs
 
 
 def trial(rig, poses: int, seed: int) -> tuple[float, float, float, float, float]:

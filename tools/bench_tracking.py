@@ -30,13 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchlib import bench_parser, write_report
 
 from components.bench.scale import cycle_times
+from components.domain.geometry import rigid
+from components.domain.rigs import ee_path, sensors_config, standard_rigs
 from components.tracking.sensor_manager import SensorManagerCore
-from components.tracking.synthetic import (
-    ee_path,
-    rigid,
-    sensors_config,
-    standard_rigs,
-)
 
 TICK = 0.001
 

@@ -25,7 +25,8 @@ import time
 import numpy as np
 from scipy.stats import binomtest
 
-from components.domain.geometry import as_matrix
+from components.domain.geometry import as_matrix, look_at
+from components.domain.skeleton import standing
 from components.people import kinect_sim
 from components.people.cli import SimulatedCamera
 from components.people.cli import run as calibration_protocol
@@ -34,8 +35,7 @@ from components.people.detector import (
     DetectorConfig,
     PeopleDetectorCore,
 )
-from components.people.kinect_sim import KinectModel, look_at
-from components.people.skeleton import standing
+from components.people.kinect_sim import KinectModel
 
 FRAME = 1.0 / 30.0
 

@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from components.domain.rigs import ee_path, sensors_config, standard_rigs
 from components.tracking.sensor_manager import SensorManagerCore
-from components.tracking.synthetic import ee_path, sensors_config, standard_rigs
 
 TICK = 0.001
 

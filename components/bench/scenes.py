@@ -42,8 +42,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from components.bench.mot import MotAccumulator, gated_assignment
-from components.people.kinect_sim import BODY_RADIUS, KinectModel, frames, look_at
-from components.people.skeleton import Build, body_center
+from components.domain.geometry import look_at
+from components.domain.skeleton import Build, body_center
+from components.people.kinect_sim import BODY_RADIUS, KinectModel, frames
 from components.sim.people import Person
 
 FRAME = 1.0 / 30.0

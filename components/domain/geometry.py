@@ -142,3 +142,28 @@ def as_matrix(value: object) -> np.ndarray:
     ):
         raise ValueError("a 4x4 transform must be a rotation and a translation, last row 0 0 0 1")
     return matrix
+
+
+def rigid(
+    translation: tuple[float, float, float], rotvec: tuple[float, float, float]
+) -> np.ndarray:
+    """A 4x4 transform from a translation (m) and a rotation vector (rad)."""
+    out = np.eye(4)
+    out[:3, :3] = rotvec_matrix(rotvec)
+    out[:3, 3] = translation
+    return out
+
+
+def look_at(position: tuple[float, float, float], target: tuple[float, float, float]) -> np.ndarray:
+    """Camera pose (world_from_camera, 4x4): z along the optical axis towards `target`,
+    x to the right, y down, as depth cameras report."""
+    eye, at = np.asarray(position, float), np.asarray(target, float)
+    z = at - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([x, y, z], axis=1)
+    pose[:3, 3] = eye
+    return pose

@@ -4,14 +4,14 @@ Kinect-Kinect: both cameras see the inner corners of a chessboard (5 x 6 squares
 640 x 560 mm) in a few poses; the rigid transform between them is the least-squares
 fit of the corresponding 3-D corners (Kabsch). Master Kinect-robot: an RGB marker on
 the end-effector seen in N robot poses is the same AX = YB problem as the trackers',
-solved by `components.tracking.calibration.hand_eye` (reused, not copied).
+solved by `components.domain.calibration.hand_eye` (reused, not copied).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from components.tracking.calibration import CalibrationError, HandEyeResult, hand_eye
+from components.domain.calibration import CalibrationError, HandEyeResult, hand_eye
 
 SQUARES = (5, 6)
 BOARD = (0.64, 0.56)  # m

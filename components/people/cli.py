@@ -28,11 +28,10 @@ from typing import Any
 import numpy as np
 import yaml
 
-from components.domain.geometry import matrix_to_quat, rotation_angle
+from components.domain.calibration import protocol_poses
+from components.domain.geometry import look_at, matrix_to_quat, rigid, rotation_angle
 from components.people.calibration import chessboard_corners, kinect_to_kinect, kinect_to_robot
-from components.people.kinect_sim import KinectModel, look_at
-from components.tracking.calibration import protocol_poses
-from components.tracking.synthetic import rigid
+from components.people.kinect_sim import KinectModel
 from framework.errors import FwError, YamlError
 from framework.yamlio import load_yaml
 

@@ -25,9 +25,9 @@ from typing import Any
 import numpy as np
 
 from components.domain.geometry import as_matrix
+from components.domain.skeleton import body_center
 from components.people.detector import CameraConfig, DetectorConfig, PeopleDetectorCore
 from components.people.kinect_sim import from_message
-from components.people.skeleton import body_center
 from framework import schema
 from framework.component import Component, FileInput, In, Out, operation
 from framework.errors import LocatedError
@@ -217,7 +217,7 @@ class WorkspacePeopleDetector(Component):
         """The geometry of the last frame, robot base frame (m): the robot's link capsules
         and each confirmed person's envelope capsules, each as [ax, ay, az, bx, by, bz,
         radius]; what the console draws."""
-        from components.people.skeleton import envelope
+        from components.domain.skeleton import envelope
 
         def rows(a: Any, b: Any, r: Any) -> list[list[float]]:
             return [

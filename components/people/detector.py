@@ -27,8 +27,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from components.domain.distance import capsule_distances, closest_pair
+from components.domain.skeleton import LIMBS, body_center, body_centers, envelopes
 from components.people.fusion import group_and_fuse_arrays, noise_for
-from components.people.skeleton import LIMBS, body_center, body_centers, envelopes
 from components.people.tracking import PeopleTracker, Person, Track
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from components.people.skeleton import depth_sigma
+from components.domain.skeleton import depth_sigma
 
 RULE_THRESHOLD = 0.45  # eq. 3.9, metres
 GATE_SIGMAS = 4.03

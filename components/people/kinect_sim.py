@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from components.people.skeleton import JOINTS, depth_sigma, standing
+from components.domain.geometry import look_at
+from components.domain.skeleton import JOINTS, depth_sigma, standing
 from framework.component import Component, In, Out, operation
 from framework.messages import Skeleton, Skeletons
 from framework.ports import ReadStatus
@@ -26,21 +27,6 @@ H_FOV, V_FOV = math.radians(57.0), math.radians(43.0)
 NEAR, FAR = 0.8, 4.0
 MAX_USERS = 16
 BODY_RADIUS = 0.2  # how wide a person is, for hiding people behind
-
-
-def look_at(position: tuple[float, float, float], target: tuple[float, float, float]) -> np.ndarray:
-    """Camera pose (world_from_camera, 4x4): z along the optical axis towards `target`,
-    x to the right, y down, as depth cameras report."""
-    eye, at = np.asarray(position, float), np.asarray(target, float)
-    z = at - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    pose = np.eye(4)
-    pose[:3, :3] = np.stack([x, y, z], axis=1)
-    pose[:3, 3] = eye
-    return pose
 
 
 @dataclass

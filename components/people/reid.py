@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
-from components.people.skeleton import J
+from components.domain.skeleton import J
 
 SIZES: tuple[tuple[tuple[str, str], ...], ...] = (
     (("head", "neck"),),

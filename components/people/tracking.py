@@ -32,9 +32,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from components.domain.skeleton import standing
 from components.people.fusion import GATE_SIGMAS, gated_pairs, normalized_cost
 from components.people.reid import FRAMES_TO_KNOW, Build, Departed, Gallery, sizes
-from components.people.skeleton import standing
 
 TORSO = 2
 FRAME = 1.0 / 30.0

@@ -67,7 +67,7 @@ import pinocchio as pin
 from components.domain.geometry import invert, matrix_to_quat, pose_matrix
 from components.domain.lwr4 import Kinematics
 from components.domain.procedure import Procedure, load_procedure
-from components.tracking.sensor_manager import SensorsConfig, load_sensors
+from components.domain.sensors import SensorsConfig, load_sensors
 from framework.component import Component, In, Out, operation
 from framework.messages import EventMessage, JointState, Pose
 from framework.ports import ReadStatus

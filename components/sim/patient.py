@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from components.domain.geometry import invert, matrix_to_quat, pose_matrix
-from components.tracking.synthetic import standard_rigs
+from components.domain.rigs import standard_rigs
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError
 from framework.messages import Pose

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from components.domain.distance import capsule_distances
-from components.people.skeleton import JOINTS, Build, envelopes, standing
+from components.domain.skeleton import JOINTS, Build, envelopes, standing
 from components.robot.separation import SsmParams, link_speed
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError

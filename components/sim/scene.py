@@ -29,9 +29,8 @@ class Scene:
 
     def sensors(self) -> str:
         """Bodies for the trackers (from the synthetic rigs) and the cameras: for viewers."""
-        from components.domain.geometry import invert, matrix_to_quat
-        from components.people.kinect_sim import look_at
-        from components.tracking.synthetic import standard_rigs
+        from components.domain.geometry import invert, look_at, matrix_to_quat
+        from components.domain.rigs import standard_rigs
 
         poses = {
             rig.name: invert(rig.rto_from_base) @ invert(rig.sensor_from_rto)

@@ -18,8 +18,8 @@ import time
 
 import numpy as np
 
-from components.domain.geometry import invert, pose_matrix
-from components.tracking.synthetic import ee_path, rigid, standard_rigs
+from components.domain.geometry import invert, pose_matrix, rigid
+from components.domain.rigs import ee_path, standard_rigs
 from framework.component import Component, In, Out, operation
 from framework.messages import Pose
 from framework.ports import ReadStatus

@@ -2,7 +2,7 @@
 
 The robot stands at each protocol pose by its own model (the joints an inverse
 kinematics finds for it); the trackers of the synthetic tracking world
-(`components.tracking.synthetic`) see where the simulated OR's real arm
+(`components.domain.rigs`) see where the simulated OR's real arm
 (`lwr4.LWR4_ERRORS`) puts its tool then, a few millimetres away: the fit absorbs
 what is common to all poses, the residuals show the rest, as a real run's would.
 Because this is a simulation, the output also gives the error against the truth.
@@ -19,18 +19,18 @@ from typing import Any
 import numpy as np
 import yaml
 
-from components.domain.geometry import invert, matrix_to_quat, pose_matrix, rotation_angle
-from components.domain.ik import DifferentialIK
-from components.domain.lwr4 import HOME, LWR4_ERRORS
-from components.robot.arm import resting_tcp
-from components.tracking.calibration import (
+from components.domain.calibration import (
     hand_eye,
     pivot_calibration,
     pivot_poses,
     protocol_poses,
     tracker_to_tracker,
 )
-from components.tracking.synthetic import standard_rigs
+from components.domain.geometry import invert, matrix_to_quat, pose_matrix, rotation_angle
+from components.domain.ik import DifferentialIK
+from components.domain.lwr4 import HOME, LWR4_ERRORS
+from components.domain.rigs import standard_rigs
+from components.robot.arm import resting_tcp
 
 EPILOG = """\
 examples:

@@ -370,7 +370,7 @@ def synthetic_world(rig_name: str, robot: Any = None, head: Any = None) -> Any:
 
     import numpy as np
 
-    from components.tracking.synthetic import ee_path, standard_rigs
+    from components.domain.rigs import ee_path, standard_rigs
 
     rig = dataclasses.replace(next(r for r in standard_rigs() if r.name == rig_name), noise=0.0)
     rng = np.random.default_rng(0)

@@ -17,7 +17,7 @@ def test_the_seeg_procedure_loads_with_the_thesis_speeds():
     # on the patient where, at rest, the robot base has it 12 cm above the table, the
     # tool pointing down: the reference tool at rest is the simulated head clamp's
     from components.domain.geometry import invert
-    from components.tracking.synthetic import standard_rigs
+    from components.domain.rigs import standard_rigs
 
     in_base = invert(standard_rigs()[0].rto_from_base) @ p.target
     assert np.allclose(in_base[:3, 3], [0.60, 0.0, 0.12], atol=1e-6)

@@ -3,15 +3,15 @@
 import numpy as np
 import pytest
 
+from components.domain.calibration import protocol_poses
+from components.domain.geometry import look_at, rigid
 from components.people.calibration import (
     chessboard_corners,
     kinect_to_kinect,
     kinect_to_robot,
     rigid_fit,
 )
-from components.people.kinect_sim import KinectModel, look_at
-from components.tracking.calibration import protocol_poses
-from components.tracking.synthetic import rigid
+from components.people.kinect_sim import KinectModel
 
 
 def test_rigid_fit_is_exact_without_noise_and_ignores_unseen_points():
@@ -54,7 +54,7 @@ def test_the_master_kinect_to_robot_reuses_the_hand_eye_solver():
 
 
 def test_corners_on_one_line_are_refused_not_solved():
-    from components.tracking.calibration import CalibrationError
+    from components.domain.calibration import CalibrationError
 
     line = np.array([[0.1 * k, 0.0, 2.0] for k in range(6)])
     with pytest.raises(CalibrationError, match="lie on one line"):

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 import yaml
 
-from components.domain.geometry import as_matrix
+from components.domain.geometry import as_matrix, look_at
 from components.people.cli import CameraCalibrationError, board_poses, cameras_of
 from components.people.component import CameraConfigError, load_cameras
-from components.people.kinect_sim import KinectModel, look_at
+from components.people.kinect_sim import KinectModel
 from framework.cli import main
 
 SEEG = "topologies/seeg.yaml"

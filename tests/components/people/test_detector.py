@@ -4,10 +4,10 @@ containing bad input (NaN joints, a stopped camera, a wrong calibration)."""
 import numpy as np
 import pytest
 
+from components.domain.geometry import look_at, rigid
+from components.domain.skeleton import body_center, standing
 from components.people.detector import CameraConfig, DetectorConfig, PeopleDetectorCore
-from components.people.kinect_sim import KinectModel, look_at
-from components.people.skeleton import body_center, standing
-from components.tracking.synthetic import rigid
+from components.people.kinect_sim import KinectModel
 
 FRAME = 1.0 / 30.0
 

@@ -7,9 +7,10 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from components.domain.geometry import look_at
+from components.domain.skeleton import standing
 from components.people.fusion import GATE_SIGMAS, gated_pairs, noise_for, normalized_cost
-from components.people.kinect_sim import KinectModel, look_at
-from components.people.skeleton import standing
+from components.people.kinect_sim import KinectModel
 
 
 def _brute_force(cost: np.ndarray, gate: float) -> tuple[int, float]:

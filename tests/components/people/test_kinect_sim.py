@@ -3,8 +3,9 @@ in its view, and nothing at all for a frame it drops."""
 
 import numpy as np
 
-from components.people.kinect_sim import FAR, NEAR, KinectModel, frames, look_at
-from components.people.skeleton import standing
+from components.domain.geometry import look_at
+from components.domain.skeleton import standing
+from components.people.kinect_sim import FAR, NEAR, KinectModel, frames
 
 FRAME = 1.0 / 30.0
 

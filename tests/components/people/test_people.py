@@ -5,6 +5,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from components.domain.distance import capsule_distances, closest_pair
+from components.domain.skeleton import (
+    JOINTS,
+    LIMBS,
+    body_center,
+    body_centers,
+    envelope,
+    envelopes,
+    standing,
+)
 from components.people.fusion import (
     Detection,
     fuse,
@@ -13,15 +22,6 @@ from components.people.fusion import (
     hungarian_matches,
     noise_for,
     rule_matches,
-)
-from components.people.skeleton import (
-    JOINTS,
-    LIMBS,
-    body_center,
-    body_centers,
-    envelope,
-    envelopes,
-    standing,
 )
 from components.people.tracking import PeopleTracker, Person
 

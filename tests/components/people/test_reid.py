@@ -6,9 +6,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from components.domain.skeleton import Build as Body
+from components.domain.skeleton import standing
 from components.people.reid import KNOWN, REMEMBER, SIZES, Build, Departed, Gallery, sizes
-from components.people.skeleton import Build as Body
-from components.people.skeleton import standing
 from components.people.tracking import PeopleTracker, Person
 
 FRAME = 1.0 / 30.0

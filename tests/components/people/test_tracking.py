@@ -7,7 +7,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from components.people.skeleton import standing
+from components.domain.skeleton import standing
 from components.people.tracking import (
     TENTATIVE_KEEP,
     TORSO,

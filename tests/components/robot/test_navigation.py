@@ -14,12 +14,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from components.domain.geometry import invert, pose_matrix
+from components.domain.geometry import invert, pose_matrix, rigid
 from components.domain.lwr4 import HOME, Kinematics
 from components.domain.procedure import pose_from
+from components.domain.rigs import sensors_config, standard_rigs
 from components.robot.interpolator import InterpolatorCore, Phase
 from components.robot.navigation import Navigator, NavigatorCore, frames_of, pose_from_list
-from components.tracking.synthetic import rigid, sensors_config, standard_rigs
 from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
 from framework.container import Container

@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-from components.people.skeleton import JOINTS
+from components.domain.skeleton import JOINTS
 from components.sim.people import Person
 
 

@@ -10,12 +10,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from components.tracking.sensor_manager import (
-    SensorConfigError,
-    SensorManagerCore,
-    load_sensors,
-)
-from components.tracking.synthetic import ee_path, rigid, sensors_config, standard_rigs
+from components.domain.geometry import rigid
+from components.domain.rigs import ee_path, sensors_config, standard_rigs
+from components.domain.sensors import SensorConfigError, load_sensors
+from components.tracking.sensor_manager import SensorManagerCore
 
 TICK = 0.001  # the Sensor Manager's 1 kHz cycle
 
@@ -275,8 +273,8 @@ def test_sensor_files_are_checked_with_locations(write):
 
 
 def test_a_late_sample_is_checked_against_where_the_robot_was_when_it_was_taken():
+    from components.domain.rigs import ee_path, sensors_config, standard_rigs
     from components.tracking.sensor_manager import SensorManagerCore
-    from components.tracking.synthetic import ee_path, sensors_config, standard_rigs
 
     rigs = standard_rigs()
     core = SensorManagerCore(sensors_config(rigs, 1))
@@ -507,7 +505,7 @@ def test_at_start_a_sensor_is_used_after_exactly_hysteresis_healthy_samples():
 
 
 def test_a_sensor_configured_without_calibration_is_taken_as_the_identity():
-    from components.tracking.sensor_manager import SensorConfig
+    from components.domain.sensors import SensorConfig
 
     plain = SensorConfig("a", 1, 10.0)
     for frame in (plain.master_from_sensor, plain.rto_from_base, plain.ee_from_cto):

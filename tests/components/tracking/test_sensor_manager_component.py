@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import yaml
 
-from components.domain.geometry import matrix_to_quat, quat_to_matrix
+from components.domain.geometry import matrix_to_quat, quat_to_matrix, rigid
+from components.domain.rigs import ee_path, sensors_config, standard_rigs
 from components.tracking.certus_sim import TrackerSim
 from components.tracking.sensor_manager import SensorManager
-from components.tracking.synthetic import ee_path, rigid, sensors_config, standard_rigs
 from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
 from framework.container import Container

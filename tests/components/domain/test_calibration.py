@@ -6,16 +6,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from components.domain.geometry import invert, rotation_angle
-from components.tracking.calibration import (
+from components.domain.calibration import (
     CalibrationError,
     hand_eye,
     pivot_calibration,
     protocol_poses,
     tracker_to_tracker,
 )
-from components.tracking.sensor_manager import load_sensors
-from components.tracking.synthetic import rigid, sensors_config, standard_rigs
+from components.domain.geometry import invert, rigid, rotation_angle
+from components.domain.rigs import sensors_config, standard_rigs
+from components.domain.sensors import load_sensors
 from framework.cli import main
 
 

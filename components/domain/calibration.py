@@ -241,7 +241,7 @@ def protocol_poses(count: int, seed: int = 0, half: float = 0.075) -> list[np.nd
     """End-effector poses (base frame) spread for a well-conditioned calibration: a
     cube of positions (half-size `half`, m) in front of the robot, orientations tilted
     about all axes."""
-    from components.tracking.synthetic import rigid
+    from components.domain.geometry import rigid
 
     rng = np.random.default_rng(seed)
     poses = []
@@ -258,7 +258,7 @@ def pivot_poses(count: int, seed: int = 0, tilt: float = 0.5) -> list[np.ndarray
     """Poses of a tool (its tip frame, base frame) pivoted by hand about a divot on the
     table: the tip stays in the divot while the tool is tilted up to `tilt` rad about two
     axes and turned about its own; the pivot's shape, never the arm's kinematics."""
-    from components.tracking.synthetic import rigid
+    from components.domain.geometry import rigid
 
     rng = np.random.default_rng(seed)
     divot = np.array([0.55, 0.10, 0.05])

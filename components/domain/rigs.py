@@ -10,19 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from components.domain.geometry import invert, matrix_to_quat, rotvec_matrix
-from components.tracking.sensor_manager import SensorConfig, SensorsConfig
+from components.domain.geometry import invert, matrix_to_quat, rigid
+from components.domain.sensors import SensorConfig, SensorsConfig
 from framework.messages import Pose
-
-
-def rigid(
-    translation: tuple[float, float, float], rotvec: tuple[float, float, float]
-) -> np.ndarray:
-    """A 4x4 transform from a translation (m) and a rotation vector (rad)."""
-    out = np.eye(4)
-    out[:3, :3] = rotvec_matrix(rotvec)
-    out[:3, 3] = translation
-    return out
 
 
 @dataclass
