@@ -50,10 +50,6 @@ class MissingFileError(YamlError):
     """A file that is not there (as opposed to one that is there and wrong)."""
 
 
-class SchemaError(LocatedError):
-    """The YAML is well-formed but does not follow fw's schema for that file."""
-
-
 @dataclass(frozen=True, slots=True)
 class Finding:
     """One defect found in a user's file, with where it is and how to fix it."""
