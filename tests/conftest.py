@@ -192,6 +192,26 @@ def wait_until(predicate, timeout: float = 5.0, interval: float = 0.005) -> bool
     return bool(predicate())
 
 
+def check_scenarios(topology_file, scenarios) -> None:
+    """Load every scenario against its topology's chart (events, states) and operations,
+    as fw deploy does before anything starts; raises on the first wrong one."""
+    from framework.scenario import load_scenario
+    from framework.statechart.loader import load_statechart
+    from framework.statechart.model import BUILTIN_EVENTS
+    from framework.topology import load_topology
+
+    topology = load_topology(topology_file)
+    chart = load_statechart(topology.statechart)
+    operations = {f"{n}.{op}" for n, c in topology.components.items() for op in c.info.operations}
+    for path in scenarios:
+        load_scenario(
+            path,
+            set(chart.events) | set(BUILTIN_EVENTS),
+            operations,
+            {s.path for s in chart.states.values()},
+        )
+
+
 def play_seeg_scenario(path, bus_config, tmp_path, history: list | None = None) -> list:
     """Play a scenario on the SEEG deployment (real processes, a private bus); the
     outcomes that failed. `history` receives the Configurator's outcomes."""

@@ -21,7 +21,6 @@ import math
 import threading
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from framework import keys, messages
@@ -78,6 +77,7 @@ class ConsoleModel:
     _listened: set[str] = field(default_factory=set)
     _polls: list[tuple[str, str, str, dict[str, Any]]] = field(default_factory=list)
     panels: list[Panel] = field(default_factory=list)
+    _warnings: frozenset[str] = frozenset()
     _subscriptions: list[Any] = field(default_factory=list)
     _incidents: Any = None
     _stop: threading.Event = field(default_factory=threading.Event)
@@ -91,6 +91,7 @@ class ConsoleModel:
         panel is not installed)."""
         spec = self.topology.console
         self.panels = load_panels(spec.panels)
+        self._warnings = self._warning_events()
         self.listen(STATUS_KEY, EventMessage, self._on_status, 1024)
         for tile in spec.tiles:
             self._follow(tile.source)
@@ -159,29 +160,6 @@ class ConsoleModel:
                 for p in self.panels
             ],
         }
-
-    def panel_file(self, panel: str, name: str) -> Path | None:
-        """A file a panel ships (None unless it is one of its own)."""
-        for p in self.panels:
-            if p.name == panel and p.static is not None:
-                folder = p.static.resolve()
-                try:
-                    target = (folder / name).resolve()
-                except (OSError, ValueError):
-                    return None
-                if (
-                    folder in target.parents
-                    and target.is_file()
-                    and target.suffix
-                    in (
-                        ".js",
-                        ".css",
-                        ".svg",
-                        ".png",
-                    )
-                ):
-                    return target
-        return None
 
     def snapshot(self, log: bool = True) -> dict[str, Any]:
         """Everything the console shows, with each section's age in seconds (`log`:
@@ -281,7 +259,7 @@ class ConsoleModel:
             self._touch()
             return
         severity = SEVERITY.get(message.name, "debug")
-        if message.name == "event" and self._stops(payload.get("event")):
+        if message.name == "event" and payload.get("event") in self._warnings:
             severity = "warning"
         if message.name == "event" and payload.get("event") == "config.failed":
             severity = "error"
@@ -304,21 +282,19 @@ class ConsoleModel:
             severity, f"{payload.get('process')}: {what}: {payload.get('detail')}", kind="incident"
         )
 
-    def _stops(self, event: Any) -> bool:
-        """Whether `event` is worth a warning: a lost component, an event that leads the
-        chart into its safe state, or one a panel names."""
-        if event == "component.lost" or any(event in p.warnings for p in self.panels):
-            return True
+    def _warning_events(self) -> frozenset[str]:
+        """Events the log shows as warnings: a lost component, those that lead the chart
+        into its safe state, and those a panel names."""
+        names = {"component.lost", *(e for p in self.panels for e in p.warnings)}
         chart = self.chart
-        if chart is None or chart.safe_state is None or not isinstance(event, str):
-            return False
-        safe = chart.safe_state.path
-        return any(
-            event in t.events
-            and t.target is not None
-            and (t.target.path == safe or t.target.path.startswith(safe + "."))
-            for t in chart.transitions()
-        )
+        if chart is not None and chart.safe_state is not None:
+            safe = chart.safe_state.path
+            for t in chart.transitions():
+                if t.target is not None and (
+                    t.target.path == safe or t.target.path.startswith(safe + ".")
+                ):
+                    names.update(t.events)
+        return frozenset(names)
 
     def _follow(self, source: Source, plot: PlotSpec | None = None) -> None:
         """Keep the latest value of a tile's or plot's source (a port's samples: a

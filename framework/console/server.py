@@ -404,12 +404,9 @@ class _Handler(BaseHTTPRequestHandler):
         if path == "/api/layout":
             return self._json(self.console.model.layout())
         if path.startswith("/panels/"):
-            panel, _, name = path[len("/panels/") :].partition("/")
-            found = self.console.model.panel_file(panel, name)
-            if found is None:
-                return self._json({"error": f"no such file: {path[:80]}"}, HTTPStatus.NOT_FOUND)
-            kind = mimetypes.guess_type(found.name)[0] or "application/octet-stream"
-            return self._send(HTTPStatus.OK, found.read_bytes(), kind)
+            name, _, file = path[len("/panels/") :].partition("/")
+            panel = next((p for p in self.console.model.panels if p.name == name), None)
+            return self._file(file, panel.static if panel is not None else None)
         if path == "/api/stream":
             return self._stream()
         self._json({"error": f"no such page: {path}"}, HTTPStatus.NOT_FOUND)
@@ -467,14 +464,16 @@ class _Handler(BaseHTTPRequestHandler):
         except OSError:
             self.close_connection = True
 
-    def _file(self, name: str) -> None:
+    def _file(self, name: str, folder: Path | None = STATIC) -> None:
+        """A file of `folder` (the page's, or a panel's), never one outside it."""
         try:
-            target = (STATIC / name).resolve()
-            found = STATIC in target.parents and target.is_file()
+            target = (folder / name).resolve() if folder is not None else None
+            found = target is not None and folder.resolve() in target.parents
+            found = found and target.is_file()
         except (OSError, ValueError):
             found = False
         if not found:
-            return self._json({"error": f"no such file: {name}"}, HTTPStatus.NOT_FOUND)
+            return self._json({"error": f"no such file: {name[:80]}"}, HTTPStatus.NOT_FOUND)
         kind = mimetypes.guess_type(target.name)[0] or "application/octet-stream"
         self._send(HTTPStatus.OK, target.read_bytes(), kind)
 

@@ -10,11 +10,7 @@ import pytest
 
 from framework.deployer import Deployment
 from framework.remote import RemoteComponent
-from framework.scenario import load_scenario
-from framework.statechart.loader import load_statechart
-from framework.statechart.model import BUILTIN_EVENTS
-from framework.topology import load_topology
-from tests.conftest import REPO, play_scenario, private_topology, wait_until
+from tests.conftest import REPO, check_scenarios, play_scenario, private_topology, wait_until
 
 TOPOLOGY = REPO / "topologies" / "pick_place.yaml"
 SCENARIOS = sorted((REPO / "procedures" / "pick_place" / "scenarios").glob("*.yaml"))
@@ -28,17 +24,8 @@ PUBLIC = {
 
 
 def test_every_scenario_is_checked_against_the_chart_and_topology():
-    topology = load_topology(TOPOLOGY)
-    chart = load_statechart(topology.statechart)
-    operations = {f"{n}.{op}" for n, c in topology.components.items() for op in c.info.operations}
     assert [p.stem for p in SCENARIOS] == ["batch", "curtain", "lost_process"]
-    for path in SCENARIOS:
-        load_scenario(
-            path,
-            set(chart.events) | set(BUILTIN_EVENTS),
-            operations,
-            {s.path for s in chart.states.values()},
-        )
+    check_scenarios(TOPOLOGY, SCENARIOS)
 
 
 @pytest.mark.parametrize("path", SCENARIOS, ids=[p.stem for p in SCENARIOS])

@@ -3,27 +3,14 @@ scenario of the procedure: the simulated OR plays it and every expectation holds
 
 import pytest
 
-from framework.scenario import load_scenario
-from framework.statechart.loader import load_statechart
-from framework.statechart.model import BUILTIN_EVENTS
-from framework.topology import load_topology
-from tests.conftest import REPO, play_seeg_scenario
+from tests.conftest import REPO, check_scenarios, play_seeg_scenario
 
 SCENARIOS = sorted((REPO / "procedures" / "seeg" / "scenarios").glob("*.yaml"))
 
 
 def test_every_scenario_is_checked_against_the_chart_and_topology():
-    topology = load_topology(REPO / "topologies" / "seeg.yaml")
-    chart = load_statechart(topology.statechart)
-    operations = {f"{n}.{op}" for n, c in topology.components.items() for op in c.info.operations}
     assert len(SCENARIOS) >= 5
-    for path in SCENARIOS:
-        load_scenario(
-            path,
-            set(chart.events) | set(BUILTIN_EVENTS),
-            operations,
-            {s.path for s in chart.states.values()},
-        )
+    check_scenarios(REPO / "topologies" / "seeg.yaml", SCENARIOS)
 
 
 LOCAL_SWITCHES = {"tracker_swap": {"tracker_2_up": "robot"}}
