@@ -237,6 +237,12 @@ def play_scenario(topology_file, path, bus_config, tmp_path, history: list | Non
     return [o for o in deployment.runner.report() if not o.ok]
 
 
+def explain(failed: list) -> str:
+    """Failed scenario outcomes, one whole line each (pytest would cut a list's repr
+    short, losing the detail a CI log needs)."""
+    return "\n".join(f"{o.what}: {o.detail}" for o in failed)
+
+
 def private_topology(path, bus_config, device_dir: Path | None = None):
     """A topology on the test's private bus; with `device_dir`, a simulated Vicra's
     device node there instead of the shared path, so tests never share a pty."""

@@ -10,7 +10,14 @@ import pytest
 
 from framework.deployer import Deployment
 from framework.remote import RemoteComponent
-from tests.conftest import REPO, check_scenarios, play_scenario, private_topology, wait_until
+from tests.conftest import (
+    REPO,
+    check_scenarios,
+    explain,
+    play_scenario,
+    private_topology,
+    wait_until,
+)
 
 TOPOLOGY = REPO / "topologies" / "pick_place.yaml"
 SCENARIOS = sorted((REPO / "procedures" / "pick_place" / "scenarios").glob("*.yaml"))
@@ -31,7 +38,7 @@ def test_every_scenario_is_checked_against_the_chart_and_topology():
 @pytest.mark.parametrize("path", SCENARIOS, ids=[p.stem for p in SCENARIOS])
 def test_scenario_passes_on_real_processes(path, bus_config, tmp_path):
     failed = play_scenario(TOPOLOGY, path, bus_config, tmp_path)
-    assert not failed, failed
+    assert not failed, explain(failed)
 
 
 def test_hands_on_is_refused_while_a_part_is_held(bus_config, tmp_path):

@@ -3,7 +3,7 @@ scenario of the procedure: the simulated OR plays it and every expectation holds
 
 import pytest
 
-from tests.conftest import REPO, check_scenarios, play_seeg_scenario
+from tests.conftest import REPO, check_scenarios, explain, play_seeg_scenario
 
 SCENARIOS = sorted((REPO / "procedures" / "seeg" / "scenarios").glob("*.yaml"))
 
@@ -22,7 +22,7 @@ LOCAL_SWITCHES = {"tracker_swap": {"tracker_2_up": "robot"}}
 def test_scenario_passes_on_real_processes(path, bus_config, tmp_path):
     history: list = []
     failed = play_seeg_scenario(path, bus_config, tmp_path, history)
-    assert not failed, failed
+    assert not failed, explain(failed)
     for tag, process in LOCAL_SWITCHES.get(path.stem, {}).items():
         made = [o.switched_by for o in history if o.tag == tag and o.ok]
         assert made == [process], f"{tag}: switched by {made}"

@@ -12,7 +12,7 @@ from framework.scenario import load_scenario
 from framework.statechart.loader import load_statechart
 from framework.statechart.model import BUILTIN_EVENTS
 from framework.topology import load_topology
-from tests.conftest import REPO, play_seeg_scenario
+from tests.conftest import REPO, explain, play_seeg_scenario
 
 FAULTS = REPO / "procedures" / "seeg" / "scenarios" / "faults"
 IN_SUITE = [f"{p}_{kind}" for p in ("robot", "supervision", "cameras") for kind in ("kill", "hang")]
@@ -39,4 +39,4 @@ def test_there_is_a_scenario_per_process_and_fault_kind_and_each_checks():
 @pytest.mark.parametrize("name", IN_SUITE)
 def test_a_fault_ends_braked_latched_and_nothing_moves_before_release(name, bus_config, tmp_path):
     failed = play_seeg_scenario(FAULTS / f"{name}.yaml", bus_config, tmp_path)
-    assert not failed, failed
+    assert not failed, explain(failed)
