@@ -60,6 +60,8 @@ def process_keys(topology: Topology, process: str) -> dict[str, list[str]]:
     for spec in components:
         ports = spec.info.outputs if spec.info is not None else spec.outputs
         outputs.update(spec.output_key(port) for port in ports)
+        for thinned in topology.thinned.get(spec.name, {}).values():
+            outputs.update(thinned)  # its streams thinned for slower readers (`rate:`)
     for configuration in topology.configurations.values():
         for step in configuration.steps:
             if step.kind != "connect" or step.component not in names:

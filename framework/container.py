@@ -166,9 +166,19 @@ class Container:
             )
 
     # -- connections ---------------------------------------------------------------
-    def _connect_output(self, component: Component, port_name: str, key: str) -> None:
+    def connect_output(self, component: str, port: str, key: str, rate: float = 0.0) -> None:
+        """Publish an output port of a hosted component on `key` too, thinned to `rate`
+        Hz if given (a connection's `rate:`)."""
+        comp = self._component(component)
+        if port not in comp.outputs:
+            raise PortError(f"{component} has no output port {port!r}")
+        self._connect_output(comp, port, key, rate)
+
+    def _connect_output(
+        self, component: Component, port_name: str, key: str, rate: float = 0.0
+    ) -> None:
         port = component.outputs[port_name]
-        port.connect(key)
+        port.connect(key, rate)
         if key not in self._type_queryables:
             kind = port.type_name
             writer = port.full_name
@@ -462,6 +472,9 @@ def build(spec: dict[str, Any], bus: Bus) -> Container:
             item.get("heartbeat"),
             SafetySpec.from_dict(safety) if safety else None,
         )
+        for port, thinned in (item.get("thinned") or {}).items():
+            for key, rate in thinned.items():
+                container.connect_output(component.name, port, key, rate)
         for port, conn in (item.get("connections") or {}).items():
             container.connect(component.name, port, conn["key"], conn.get("policy"))
         for port, candidates in (item.get("prepare") or {}).items():

@@ -130,6 +130,7 @@ def container_spec(topology: Topology, process: str) -> dict[str, Any]:
             "activity": spec.activity.to_spec(),
             "properties": spec.properties,
             "outputs": spec.outputs,
+            "thinned": topology.thinned.get(spec.name, {}),
             "connections": connections,
             "prepare": prepare,
             "heartbeat": topology.heartbeats().get(spec.name),

@@ -35,6 +35,12 @@ def refused(component: str) -> str:
     return f"fw/refused/{component}"
 
 
+def thinned(key: str, rate: float) -> str:
+    """Where an output port publishes its samples on `key` thinned to `rate` Hz (a
+    connection's `rate:`): readers of the same rate share it."""
+    return f"{key}/at_{rate:g}hz"
+
+
 def port_type(key: str) -> str:
     """Queryable telling which message type is written on `key` (checked on connect)."""
     return f"fw/types/{key}"

@@ -13,6 +13,12 @@ counted. Every sample carries its publisher's id and sequence number, so a
 sample seen twice (cache replay racing a live sample) is dropped too.
 A newly connected port receives the publisher's cached latest sample at
 once instead of waiting for the next period.
+
+An output port may also publish a *thinned* stream on a key of its own
+(`connect(key, rate=...)`): at most `rate` samples per second, for a reader that
+needs far fewer than the writer makes (a 30 Hz detector reading 1 kHz joints). A
+sample that is not sent costs nothing on the wire and nothing to the reader's
+process, which is where a 1 kHz stream's cost is (decoding, waking).
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ from __future__ import annotations
 import itertools
 import random
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -135,7 +142,10 @@ class OutputPort(Port[T]):
         self.publisher_id = _ids.getrandbits(63)
         self._seq = itertools.count(1)
         self._publishers: dict[str, Any] = {}
+        self._thinned: dict[str, list[float]] = {}  # key -> [period (s), next send due]
         self._lock = threading.Lock()
+        self.clock: Callable[[], float] = time.monotonic
+        """What thinned keys measure their period by (a test's simulated clock)."""
         self.last: T | None = None
         self.last_data: bytes | None = None
         self.bus: Any = None
@@ -145,14 +155,19 @@ class OutputPort(Port[T]):
         """Keys this port publishes on."""
         return sorted(self._publishers)
 
-    def connect(self, key: str) -> None:
-        """Also publish on `key` (idempotent)."""
+    def connect(self, key: str, rate: float = 0.0) -> None:
+        """Also publish on `key` (idempotent); with `rate` (Hz), at most that many samples
+        per second there (the first write after each period), a thinned stream."""
         if self.bus is None:
             raise PortError(f"output port {self.full_name} is not attached to a bus")
+        if not (rate >= 0 and rate < float("inf")):
+            raise PortError(f"a rate must be a positive number of Hz, not {rate!r}")
         with self._lock:
             if key not in self._publishers:
                 self._publishers[key] = self.bus.publisher(key, remote_only=True)
                 self.bus.local_writers.setdefault(key, {})[id(self)] = self
+            if rate:
+                self._thinned[key] = [1.0 / rate, -float("inf")]
 
     def disconnect(self, key: str | None = None) -> None:
         """Stop publishing on `key` (or on every key)."""
@@ -160,6 +175,7 @@ class OutputPort(Port[T]):
             keys = [key] if key is not None else list(self._publishers)
             for k in keys:
                 publisher = self._publishers.pop(k, None)
+                self._thinned.pop(k, None)
                 if publisher is not None:
                     self.bus.local_writers.get(k, {}).pop(id(self), None)
                     publisher.undeclare()
@@ -174,7 +190,17 @@ class OutputPort(Port[T]):
         self.last, self.last_data = value, data
         self.stats.written += 1
         readers = self.bus.local_readers if self.bus is not None else {}
+        thinned = self._thinned
+        now = self.clock() if thinned else 0.0
         for key, publisher in list(self._publishers.items()):
+            due = thinned.get(key)
+            if due is not None:
+                period, next_due = due
+                if now < next_due - 0.1 * period:  # 10%: a writer's jitter skips no period
+                    continue
+                # on schedule, so the average rate holds (a late send does not push the
+                # next one back); a writer that paused gets no burst to catch up
+                due[1] = (next_due if next_due >= now - period else now) + period
             publisher.put(data)
             local = readers.get(key)
             if local:  # same session: the same delivery path, without the network

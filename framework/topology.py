@@ -148,6 +148,9 @@ class Topology:
     `import_paths:` (relative to it)."""
     console: ConsoleSpec = field(default_factory=ConsoleSpec)
     """What the operator console shows besides the generic parts (`console:`)."""
+    thinned: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
+    """component -> output port -> thinned key -> rate (Hz): the thinned streams its
+    connections' `rate:` ask the writers for (framework/ports.py)."""
     file_links: list[tuple[str, FileInput]] = field(default_factory=list)
     """(component, input) of the input ports components declare in their configuration
     files (a tracker's tools per sensor of sensors.yaml, a camera per camera of
@@ -506,9 +509,20 @@ class _Loader:
                 return None
             key = src.output_key(src_port)
             writers = [(spec["from"], src_kind)]
+            rate = spec.get("rate")
+            if rate is not None:  # the schema made it a positive number
+                key = keys.thinned(key, float(rate))
+                topo.thinned.setdefault(src.name, {}).setdefault(src_port, {})[key] = float(rate)
         else:
             key = spec["key"]
             writers = topo.writers_of(key)
+            if "rate" in spec:
+                self.error(
+                    "rate",
+                    f"{spec['port']}: a rate thins a writer's stream, and a key names none",
+                    (*where, "rate"),
+                    "name the writer: from: component.port",
+                )
         try:
             ConnPolicy.from_spec(spec.get("policy"))
         except PortError as exc:

@@ -20,18 +20,23 @@ from components.bench.report import Row, stats
 
 def run_zenoh(quick: bool, context: dict[str, Any]) -> list[Row]:
     """Raw Zenoh inter-process hop (the baseline every latency is compared with)."""
-    from components.bench.baseline import zenoh_hop
+    from components.bench.baseline import stream_cost, zenoh_hop
 
     hops = zenoh_hop(200 if quick else 2000)
     s = stats([h * 1e3 for h in hops])
     context["hop_ms"] = s["p50"]
     tls = zenoh_hop(200 if quick else 2000, secure=True)
     t = stats([h * 1e3 for h in tls])
+    stream = stream_cost(1.0 if quick else 5.0)
+    per_sample = stream["publisher_us"] + stream["subscriber_us"]
     return [
         Row("zenoh", "hop p50", s["p50"], n=len(hops)),
         Row("zenoh", "hop p99", s["p99"], n=len(hops)),
         Row("zenoh", "hop p50, mutual TLS (as fw deploy runs)", t["p50"], n=len(tls)),
         Row("zenoh", "hop p99, mutual TLS (as fw deploy runs)", t["p99"], n=len(tls)),
+        Row("zenoh", "1 kHz stream: publisher CPU per sample", stream["publisher_us"], unit="us"),
+        Row("zenoh", "1 kHz stream: subscriber CPU per sample", stream["subscriber_us"], unit="us"),
+        Row("zenoh", "1 kHz stream between two processes", per_sample / 1000.0, unit="cores"),
     ]
 
 

@@ -3,11 +3,12 @@
 The Certus's API is proprietary over Ethernet, so fw ships no driver for it: a real
 one would be a component with the same two outputs (`cto`, `rto`, `Pose` in metres,
 sensor frame) publishing on `certus/<tool>`; swap this class for it in the
-topology. The simulation observes the synthetic world (`components.tracking.
-synthetic`) at the rig's rate and noise (Certus: 100 Hz, 0.1 mm), inside an
-approximate field of view (1.5-7 m from the sensor, +-35 deg), and takes faults
-by operation: occlusion, a crash (stops publishing), corrupt (NaN) data, a bumped
-reference tool.
+topology. The simulation observes the synthetic world (`components.domain.rigs`)
+at the rig's rate and noise (Certus: 100 Hz, 0.1 mm), inside an approximate field
+of view (1.5-7 m from the sensor, +-35 deg), and takes faults by operation:
+occlusion, a crash (stops publishing), corrupt (NaN) data, a bumped reference tool.
+A sample carries the stamp of the arm pose it observed (`ee_pose`), as a real
+tracker stamps its capture, not the time it was computed.
 """
 
 from __future__ import annotations
@@ -61,11 +62,12 @@ class TrackerSim(Component):
         if self.crashed:
             return  # a crashed driver publishes nothing: the data goes stale
         status, ee = self.ee_pose.read()
-        truth = (
-            pose_matrix(ee)
-            if status is not ReadStatus.NO_DATA and ee is not None
-            else ee_path(time.monotonic() - self.t0)
-        )
+        seen = status is not ReadStatus.NO_DATA and ee is not None
+        truth = pose_matrix(ee) if seen else ee_path(time.monotonic() - self.t0)
+        # the markers are seen where the arm was at the truth's stamp, so the sample
+        # carries that stamp (a real tracker stamps its capture): a truth thinned to
+        # fewer samples than 1 kHz then costs no accuracy, only age
+        stamp = ee.stamp if seen else time.time()
         status, head = self.head.read()
         base_from_rto = (
             invert(self.model.rto_from_base)
@@ -74,7 +76,7 @@ class TrackerSim(Component):
         )
         self.frame_number += 1
         cto, rto = self.model.observe(
-            truth, self.rng, time.time(), self.frame_number, base_from_rto @ self.slip
+            truth, self.rng, stamp, self.frame_number, base_from_rto @ self.slip
         )
         if "cto" in self.hidden or (
             self.check_view and not in_certus_view(cto.position) and self.rig == "certus"

@@ -1,5 +1,7 @@
 """Spec: ports over real Zenoh: policies, read status, rewiring without loss or mixing."""
 
+import itertools
+
 import pytest
 
 from framework import messages
@@ -199,3 +201,68 @@ def test_a_prepared_key_switches_at_once_and_swaps_back_and_forth_cleanly(hub, p
     assert got in ([-2.0], [-1.0, -2.0]), "b's samples only, in order (cached, then live)"
     inp.close()
     assert inp.prepared == []
+
+
+class FakeTime:
+    """A clock the test moves (thinned keys measure their period by the port's clock)."""
+
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self):
+        return self.now
+
+
+def thinned_pair(pair, rate):
+    """A writer publishing on k/full and, thinned to `rate` Hz, on k/thin; a buffer
+    reader of each (nothing dropped on the reader's side)."""
+    hub, peer = pair
+    out, clock = make_out(hub), FakeTime()
+    out.clock = clock
+    out.connect("k/full")
+    out.connect("k/thin", rate=rate)
+    full = make_in(peer, {"type": "buffer", "size": 10_000})
+    thin = make_in(peer, {"type": "buffer", "size": 10_000})
+    full.connect("k/full")
+    thin.connect("k/thin")
+    routed(out, full)
+    assert wait_until(lambda: thin.stats.received >= 1)
+    values(thin)
+    clock.now += 1.0  # the probe's period is over
+    return out, clock, full, thin
+
+
+def test_a_thinned_key_carries_at_most_its_rate_on_schedule(pair):
+    out, clock, full, thin = thinned_pair(pair, rate=100.0)
+    for i in range(1, 1001):  # one second at 1 kHz, with a writer's jitter
+        clock.now += 0.001 + (0.0002 if i % 2 else -0.0002)
+        out.write(Scalar(0.0, float(i)))
+    assert wait_until(lambda: full.stats.received == 1001)
+    assert wait_until(lambda: thin.stats.received >= 101)
+    kept = values(thin)
+    assert 99 <= len(kept) <= 101  # 100 Hz over one second: the average rate holds
+    gaps = {b - a for a, b in itertools.pairwise(kept)}
+    assert gaps <= {9.0, 10.0, 11.0}  # every tenth sample, give or take the jitter
+    assert len(values(full)) == 1000  # the full-rate key lost nothing
+
+
+def test_a_thinned_key_passes_a_slower_writer_whole_and_gives_no_burst_after_a_pause(pair):
+    out, clock, _, thin = thinned_pair(pair, rate=100.0)
+    for i in range(1, 21):  # 100 Hz writes with jitter: nothing is thinned away
+        clock.now += 0.01 + (0.0005 if i % 2 else -0.0005)
+        out.write(Scalar(0.0, float(i)))
+    assert wait_until(lambda: thin.stats.received == 21)
+    assert values(thin) == [float(i) for i in range(1, 21)]
+    clock.now += 5.0  # the writer paused: its next writes are not sent in a burst
+    for i in range(21, 29):  # 8 ms of 1 kHz writes: one period has not passed
+        clock.now += 0.001
+        out.write(Scalar(0.0, float(i)))
+    assert wait_until(lambda: thin.stats.received >= 22)
+    assert values(thin) == [21.0]
+
+
+def test_a_rate_must_be_a_positive_number(hub):
+    out = make_out(hub)
+    for bad in (-1.0, float("inf"), float("nan")):
+        with pytest.raises(PortError, match="rate"):
+            out.connect("k/x", rate=bad)

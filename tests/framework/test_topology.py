@@ -66,6 +66,11 @@ def test_the_toy_topology_is_clean():
             "connect: {port: supervisor.pose, key: t2/out",
             "type-mismatch",
         ),
+        (
+            "connect: {port: supervisor.inp, key: t2/out",
+            "connect: {port: supervisor.inp, key: t2/out, rate: 10",
+            "rate",
+        ),
         ("  broken:\n", "  brokn:\n", "unknown-tag"),
         ("external_events: [e_SWAP, e_BREAK]", "external_events: [e_SWAP]", "no-producer"),
         ("activity: {event: inp}", "activity: {event: input}", "activity"),
@@ -86,6 +91,25 @@ def test_every_cross_check_is_located(write, old, new, code):
     errors = [f for f in found if f.code == code]
     assert errors, [f.one_line() for f in found]
     assert errors[0].location.line > 0 and errors[0].message
+
+
+def test_a_rate_thins_the_writers_stream_for_that_reader_and_the_writer_may_publish_it(write):
+    from framework.access import process_keys
+    from framework.deployer import container_spec
+
+    write((REPO / "tests" / "data" / "toy" / "toy_chart.yaml").read_text(), "toy_chart.yaml")
+    old = "connect: {port: supervisor.inp, from: t1.out, policy"
+    assert old in TOY
+    topology = load_topology(
+        write(TOY.replace(old, "connect: {port: supervisor.inp, from: t1.out, rate: 10, policy"))
+    )
+    steps = topology.configurations["tracker_1_up"].steps
+    assert [s.key for s in steps if s.kind == "connect"] == ["t1/out/at_10hz"]
+    assert topology.thinned == {"t1": {"out": {"t1/out/at_10hz": 10.0}}}
+    hosted = {c["name"]: c["thinned"] for c in container_spec(topology, "trackers")["components"]}
+    assert hosted == {"t1": {"out": {"t1/out/at_10hz": 10.0}}, "t2": {}}
+    assert "t1/out/at_10hz" in process_keys(topology, "trackers")["put"]
+    assert "t1/out/at_10hz" not in process_keys(topology, "control_side")["put"]
 
 
 def test_schema_errors_are_located_with_hints(write):
