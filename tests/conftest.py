@@ -237,6 +237,26 @@ def play_scenario(topology_file, path, bus_config, tmp_path, history: list | Non
     return [o for o in deployment.runner.report() if not o.ok]
 
 
+def interrupt(process, timeout: float = 60.0) -> tuple[str | None, str | None]:
+    """Ctrl-C (SIGINT) a `fw` command run by a test and wait for it; its (stdout, stderr).
+    One that does not stop in `timeout` is killed and fails the test with the end of its
+    stderr (a bare TimeoutExpired told nothing, and hid the test's own failure)."""
+    import signal
+    import subprocess
+
+    process.send_signal(signal.SIGINT)
+    try:
+        return process.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        _, err = process.communicate()
+        tail = "\n".join((err or "").splitlines()[-30:])
+        raise AssertionError(
+            f"{' '.join(map(str, process.args[-6:]))}: not stopped {timeout:g} s after "
+            f"Ctrl-C; its stderr ends:\n{tail}"
+        ) from None
+
+
 def explain(failed: list) -> str:
     """Failed scenario outcomes, one whole line each (pytest would cut a list's repr
     short, losing the detail a CI log needs)."""

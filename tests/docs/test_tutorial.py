@@ -10,12 +10,11 @@ from __future__ import annotations
 import os
 import re
 import shlex
-import signal
 import subprocess
 import sys
 import time
 
-from tests.conftest import REPO
+from tests.conftest import REPO, interrupt
 
 TUTORIAL = REPO / "docs" / "tutorial.md"
 
@@ -93,6 +92,5 @@ def test_the_tutorial_runs_as_written(tmp_path, bus_config):
                 assert line in said, f"$ {command}\nexpected {line!r} in:\n{said}"
     finally:
         if deploy is not None:
-            deploy.send_signal(signal.SIGINT)
-            _, err = deploy.communicate(timeout=60)
+            _, err = interrupt(deploy)
             assert deploy.returncode == 0, err

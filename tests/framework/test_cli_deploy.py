@@ -10,7 +10,7 @@ import pytest
 
 from framework.recorder import read_recording
 from framework.remote import RemoteComponent, RemoteError
-from tests.conftest import REPO, join_deployment, wait_until
+from tests.conftest import REPO, interrupt, join_deployment, wait_until
 
 TOY = REPO / "tests" / "data" / "toy"
 
@@ -116,8 +116,7 @@ def test_deploy_send_status_ls_log_replay(topology, bus_config, tmp_path):
         assert "no component 'supervisr' in 'toy'; did you mean 'supervisor'?" in typo.stderr
     finally:
         bus.close()
-        deploy.send_signal(signal.SIGINT)
-    out, err = deploy.communicate(timeout=60)
+        out, err = interrupt(deploy)
     assert deploy.returncode == 0, err
     assert "transition Use_T1 -> Use_T2" in out and "fw: stopped" in err
 
@@ -194,7 +193,6 @@ def test_a_recording_cut_by_sigkill_reads_back_up_to_the_kill(topology, bus_conf
     """`fw deploy --record` (with 50 Hz port samples) is killed without warning: every
     chart step the bus carried well before the kill is in the file, and `fw log` and
     `fw replay` read it (no summary section, maybe a torn last record)."""
-    import signal
     import time
 
     from framework import messages
@@ -252,8 +250,7 @@ def test_a_keystore_made_beforehand_is_used_and_kept(topology, tmp_path):
         assert without.returncode == 1 and "no keystore at" in without.stderr
         assert "Traceback" not in without.stderr
     finally:
-        deploy.send_signal(signal.SIGINT)
-        deploy.communicate(timeout=60)
+        interrupt(deploy)
     assert (keys / "operator.key").is_file(), "a keystore given to fw deploy is kept"
 
 
@@ -320,5 +317,4 @@ def test_operator_commands_need_not_import_the_projects_components(topology, bus
             assert "mycomps" not in run.stderr and "Traceback" not in run.stderr
     finally:
         bus.close()
-        deploy.send_signal(signal.SIGINT)
-    deploy.communicate(timeout=60)
+        interrupt(deploy)

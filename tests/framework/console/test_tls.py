@@ -10,7 +10,7 @@ import ssl
 import pytest
 
 from framework.console import tls
-from tests.conftest import REPO
+from tests.conftest import REPO, interrupt
 from tests.framework.console.conftest import served
 from tests.framework.test_cli_deploy import deploy_in_background, fw
 
@@ -84,8 +84,7 @@ def test_beyond_loopback_fw_deploy_serves_tls_with_a_run_certificate_and_its_fin
         assert reply.status == 200
         assert tls.fingerprint_der(peer) == printed
     finally:
-        run.send_signal(2)
-        run.communicate(timeout=60)
+        interrupt(run)
 
 
 @pytest.mark.parametrize(
