@@ -15,12 +15,14 @@ whatever its components compute (docs/bench.md, cost).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import subprocess
 import sys
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -68,22 +70,13 @@ def _paced(seconds: float, rate: float, put: Any) -> float:
     return time.process_time() - start
 
 
-def stream_cost(seconds: float = 3.0, rate: float = 1000.0) -> dict[str, float]:
-    """CPU (us) per sample of a `rate` Hz stream to another process, at the publisher
-    and at the subscriber, on a plain bus."""
-    from components.bench.cost import cpu_seconds
-
-    config = BusConfig(namespace=f"fw_bench_stream_{time.time_ns()}", hub_port=free_port())
-    hub = Bus(config, hub=True)
+@contextlib.contextmanager
+def _with_child(config: BusConfig, *args: str) -> Iterator[tuple[Bus, subprocess.Popen[str]]]:
+    """This process's hub on `config` and a child (this module with `args`) joined to
+    it and ready; both end on leaving (the child when its stdin closes)."""
+    hub = Bus(config, hub=True, subject=CONTROL if config.keys else "")
     child = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "components.bench.baseline",
-            SINK,
-            config.namespace,
-            str(config.hub_port),
-        ],
+        [sys.executable, "-m", "components.bench.baseline", *args],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         text=True,
@@ -92,25 +85,35 @@ def stream_cost(seconds: float = 3.0, rate: float = 1000.0) -> dict[str, float]:
         assert child.stdout is not None
         child.stdout.readline()  # ready
         hub.wait_for_peers(1, 5.0)
-        publisher = hub.publisher(PING, cache=False)
-        time.sleep(0.5)  # the route is up
-        loop = _paced(seconds, rate, None)
-        idle_child = cpu_seconds(child.pid)
-        time.sleep(seconds)
-        child_idle = cpu_seconds(child.pid) - idle_child
-        before = cpu_seconds(child.pid)
-        sending = _paced(seconds, rate, publisher.put)
-        child_busy = cpu_seconds(child.pid) - before
-        samples = seconds * rate
-        return {
-            "publisher_us": max(0.0, sending - loop) / samples * 1e6,
-            "subscriber_us": max(0.0, child_busy - child_idle) / samples * 1e6,
-        }
+        yield hub, child
     finally:
         if child.stdin:
             child.stdin.close()
         child.wait(5)
         hub.close()
+
+
+def stream_cost(seconds: float = 3.0, rate: float = 1000.0) -> dict[str, float]:
+    """CPU (us) per sample of a `rate` Hz stream to another process, at the publisher
+    and at the subscriber, on a plain bus."""
+    from components.bench.cost import cpu_seconds
+
+    config = BusConfig(namespace=f"fw_bench_stream_{time.time_ns()}", hub_port=free_port())
+    with _with_child(config, SINK, config.namespace, str(config.hub_port)) as (hub, child):
+        publisher = hub.publisher(PING, cache=False)
+        time.sleep(0.5)  # the route is up
+        loop = _paced(seconds, rate, None)
+        before = cpu_seconds(child.pid)
+        time.sleep(seconds)
+        child_idle = cpu_seconds(child.pid) - before
+        before = cpu_seconds(child.pid)
+        sending = _paced(seconds, rate, publisher.put)
+        child_busy = cpu_seconds(child.pid) - before
+    samples = seconds * rate
+    return {
+        "publisher_us": max(0.0, sending - loop) / samples * 1e6,
+        "subscriber_us": max(0.0, child_busy - child_idle) / samples * 1e6,
+    }
 
 
 def zenoh_hop(count: int, secure: bool = False) -> list[float]:
@@ -122,18 +125,7 @@ def zenoh_hop(count: int, secure: bool = False) -> list[float]:
 def _hop(count: int, keys: str) -> list[float]:
     config = BusConfig(namespace=f"fw_bench_hop_{time.time_ns()}", hub_port=free_port())
     config = dataclasses.replace(config, keys=keys)
-    hub = Bus(config, hub=True, subject=CONTROL)
-    argv = [config.namespace, str(config.hub_port), keys]
-    child = subprocess.Popen(
-        [sys.executable, "-m", "components.bench.baseline", *argv],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert child.stdout is not None
-        child.stdout.readline()  # ready
-        hub.wait_for_peers(1, 5.0)
+    with _with_child(config, config.namespace, str(config.hub_port), keys) as (hub, _):
         answered = threading.Event()
         hub.subscribe(PONG, lambda sample: answered.set(), history=False)
         publisher = hub.publisher(PING, cache=False)
@@ -147,11 +139,6 @@ def _hop(count: int, keys: str) -> list[float]:
             if k >= 20:  # warm-up rounds
                 hops.append((time.perf_counter() - t0) / 2)
         return hops
-    finally:
-        if child.stdin:
-            child.stdin.close()
-        child.wait(5)
-        hub.close()
 
 
 if __name__ == "__main__":
