@@ -28,7 +28,7 @@ function `add_commands(subparsers)` (the way pytest and ros2cli find their plugi
 so the framework never names a procedure's packages:
 
     [project.entry-points."fw.commands"]
-    tracking = "components.tracking.cli:add_commands"
+    calibrate = "components.sim.calibrate:add_commands"
 """
 
 EPILOG_VALIDATE = """\

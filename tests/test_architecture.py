@@ -115,16 +115,8 @@ def test_the_framework_imports_no_procedure_component_at_run_time():
 DOMAIN = "components.domain"
 """What components share (geometry, the LWR 4+ model and its IK, capsule distances, the
 procedure and sensors files, calibration solvers, the skeleton model, the simulated
-rigs' layout): every component package may import it; it imports none of them."""
-
-NOT_YET_MOVED = {
-    ("components.robot.arm", "components.sim.scene"),
-    ("components.sim.people", "components.robot.separation"),
-    ("components.tracking.cli", "components.robot.arm"),
-}
-"""Imports from one component package into another that remain (each a candidate for
-`DOMAIN` or for a port); the list may only shrink. The bench is a harness and may
-import anything."""
+rigs' layout, speed and separation monitoring): every component package may import it;
+it imports none of them."""
 
 
 def _cross_component_imports() -> set[tuple[str, str]]:
@@ -156,7 +148,6 @@ def test_the_domain_package_imports_no_component():
     assert leaks == set()
 
 
-def test_components_import_each_other_no_more_than_today():
-    found = _cross_component_imports()
-    assert found <= NOT_YET_MOVED, f"new: {sorted(found - NOT_YET_MOVED)}"
-    assert found >= NOT_YET_MOVED, f"gone, remove from the list: {sorted(NOT_YET_MOVED - found)}"
+def test_no_component_package_imports_another():
+    """The bench is a harness, not a component: it may import anything."""
+    assert sorted(_cross_component_imports()) == []

@@ -27,8 +27,8 @@ from benchlib import bench_parser, percentiles, write_report
 
 from components.domain.lwr4 import HOME
 from components.domain.procedure import load_procedure
-from components.robot.arm import SimulatedArm
 from components.robot.interpolator import InterpolatorCore, Phase
+from components.sim.arm import SimulatedArm
 
 PROCEDURE = load_procedure(Path(__file__).resolve().parents[1] / "procedures" / "seeg.yaml")
 

@@ -79,9 +79,9 @@ SAFETY_CORE: dict[str, list[str]] = {
         "tests/components/robot/test_robot_components.py",
         REFERENCE,
     ],
-    "components/robot/separation.py": [
-        "tests/components/robot/test_separation.py",
-        "tests/components/robot/test_separation_walking.py",
+    "components/domain/separation.py": [
+        "tests/components/domain/test_separation.py",
+        "tests/components/domain/test_separation_walking.py",
     ],
     "components/robot/interpolator.py": [
         "tests/components/robot/test_interpolator.py",

@@ -27,8 +27,8 @@ import numpy as np
 from components.bench.files import seeg_file
 from components.domain import lwr4
 from components.domain.procedure import load_procedure
-from components.robot.arm import SimulatedArm
 from components.robot.interpolator import InterpolatorCore, Phase
+from components.sim.arm import SimulatedArm
 
 SPEEDS = (0.01, 0.025, 0.05, 0.075, 0.10)
 """Cruise speeds of the thesis (m/s)."""

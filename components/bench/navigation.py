@@ -42,9 +42,9 @@ from components.domain.geometry import invert, pose_matrix
 from components.domain.procedure import load_procedure, pose_from
 from components.domain.rigs import Rig, standard_rigs
 from components.domain.sensors import load_sensors
-from components.robot.arm import SimulatedArm
 from components.robot.interpolator import InterpolatorCore, Phase
 from components.robot.navigation import core_for
+from components.sim.arm import SimulatedArm
 
 TARGET_IN_BASE = (0.60, 0.0, 0.12)
 """The procedure's target where the head rests (base frame, tool pointing down)."""

@@ -40,8 +40,8 @@ import numpy as np
 
 from components.domain.geometry import matrix_to_quat
 from components.domain.lwr4 import POSITION_LIMIT, VELOCITY_LIMIT, Kinematics
+from components.domain.separation import CLEAR, SeparationMonitor, SsmParams, Verdict
 from components.robot.safe_stop import SafeStop
-from components.robot.separation import CLEAR, SeparationMonitor, SsmParams, Verdict
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError
 from framework.messages import ArmState, Envelopes, EventMessage, JointState, Pose, Scalar

@@ -24,8 +24,8 @@ from typing import Any
 import numpy as np
 
 from components.domain.distance import capsule_distances
+from components.domain.separation import SsmParams, link_speed
 from components.domain.skeleton import JOINTS, Build, envelopes, standing
-from components.robot.separation import SsmParams, link_speed
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError
 from framework.messages import JointState, Skeleton, Skeletons

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from components.domain import lwr4
 from components.domain.ik import DifferentialIK
-from components.robot.arm import SimulatedArm, resting_tcp
+from components.sim.arm import SimulatedArm, resting_tcp
 
 KIN = lwr4.Kinematics()
 MODEL = mujoco.MjModel.from_xml_string(lwr4.mjcf())

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from components.domain.procedure import load_procedure
-from components.robot.controller import ArmController
 from components.robot.interface import RobotInterface
 from components.robot.interpolator import CartesianInterpolator
 from components.robot.navigation import Navigator
+from components.sim.arm_controller import ArmController
 from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
 from framework.container import Container

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from components.robot.arm import SimulatedArm
+from components.sim.arm import SimulatedArm
 from components.sim.scene import Scene
 
 

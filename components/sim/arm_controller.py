@@ -38,7 +38,7 @@ import numpy as np
 
 from components.domain.geometry import matrix_to_quat
 from components.domain.lwr4 import HOME, LWR4_ERRORS, NOMINAL, Kinematics
-from components.robot.arm import MODES, SimulatedArm
+from components.sim.arm import MODES, SimulatedArm
 from framework import keys
 from framework.component import Component, In, Out, operation
 from framework.messages import ArmState, EventMessage, JointState, Pose

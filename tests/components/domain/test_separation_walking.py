@@ -1,12 +1,12 @@
 """Spec: what speed and separation monitoring is for. A person walking straight at the
 moving arm at up to 1.6 m/s never reaches it while it moves: the arm slows as they
-approach and stops in time (components/robot/separation.py)."""
+approach and stops in time (components/domain/separation.py)."""
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from components.robot.separation import SeparationMonitor, SsmParams
-from tests.components.robot.test_separation import arm, person
+from components.domain.separation import SeparationMonitor, SsmParams
+from tests.components.domain.test_separation import arm, person
 
 P = SsmParams()
 

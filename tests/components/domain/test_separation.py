@@ -3,7 +3,7 @@ robot's speed and the envelope's age; the speed it allows is the largest that ke
 it; the cap slows the arm down as people approach and is 0 where standing is the only
 safe speed; the stop is said exactly when the separation is under the protective
 distance. What it is for (a person walking at the arm never reaches it while it moves)
-is tests/components/robot/test_separation_walking.py: a slow property of its own, so
+is tests/components/domain/test_separation_walking.py: a slow property of its own, so
 mutation testing can run these fast specs first."""
 
 import math
@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from components.robot.separation import (
+from components.domain.separation import (
     CLEAR,
     FASTEST_LINK,
     MAX_QUIET,

@@ -30,7 +30,7 @@ from components.domain.geometry import invert, matrix_to_quat, pose_matrix, rota
 from components.domain.ik import DifferentialIK
 from components.domain.lwr4 import HOME, LWR4_ERRORS
 from components.domain.rigs import standard_rigs
-from components.robot.arm import resting_tcp
+from components.sim.arm import resting_tcp
 
 EPILOG = """\
 examples:
