@@ -7,6 +7,7 @@ import argparse
 import json
 import os
 import shutil
+import signal
 import sys
 import tempfile
 import time
@@ -20,7 +21,8 @@ from framework.statechart.model import State, Transition
 EPILOG_DEPLOY = """\
 Checks the topology, its statechart and every cross-reference first (nothing starts if
 anything is wrong), starts the topology's processes, waits until every component is
-alive, then runs the statechart. Ctrl-C shuts down in order, the robot side first.
+alive, then runs the statechart. Ctrl-C shuts down in order, the robot side first, and
+so do SIGTERM (a service manager's stop) and SIGHUP (its terminal closed).
 
 examples:
   fw deploy topologies/demo.yaml                    live status until Ctrl-C
@@ -37,6 +39,27 @@ whenever --console-port is given; --no-console turns it off. It listens on
 over TLS only: with --console-cert/--console-key if given, else with a certificate made
 for the run, whose SHA-256 fingerprint is printed (compare it with the browser's).
 """
+
+
+STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+"""What stops a running deployment in order: Ctrl-C, a service manager's stop, the
+terminal closing. The default action of the last two would kill fw before it stops
+the robot side and closes the flight recording."""
+
+
+def stop_on_signals() -> None:
+    """Turn each of `STOP_SIGNALS` into KeyboardInterrupt, once: the first starts the
+    shutdown, later ones are ignored so that nothing cuts the shutdown short. SIGINT
+    counts even when fw was started with it ignored (a shell's background job): a
+    Ctrl-C or `kill -INT` sent to fw itself means stop."""
+
+    def stop(signum: int, frame: Any) -> None:
+        for name in STOP_SIGNALS:
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
+        raise KeyboardInterrupt
+
+    for name in STOP_SIGNALS:
+        signal.signal(getattr(signal, name), stop)
 
 
 class _Printer(Listener):
@@ -210,6 +233,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         from framework.deployer import SAFETY_NICE
 
         raise_priority(SAFETY_NICE, "control")
+    stop_on_signals()
     try:
         deployment.start(run_chart=False)
         if args.record:

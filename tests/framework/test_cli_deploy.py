@@ -25,7 +25,7 @@ def fw(*args, timeout=60):
     )
 
 
-def deploy_in_background(topology, *options, stdout=subprocess.DEVNULL):
+def deploy_in_background(topology, *options, stdout=subprocess.DEVNULL, **popen):
     """`fw deploy TOPOLOGY --headless` as its own process, bounded to 120 s; tests stop
     it with Ctrl-C (SIGINT) when they are done."""
     command = [sys.executable, "-m", "framework.cli", "deploy", str(topology), "--headless"]
@@ -35,6 +35,7 @@ def deploy_in_background(topology, *options, stdout=subprocess.DEVNULL):
         stderr=subprocess.PIPE,
         text=True,
         cwd=REPO,
+        **popen,
     )
 
 
@@ -230,6 +231,50 @@ def test_a_recording_cut_by_sigkill_reads_back_up_to_the_kill(topology, bus_conf
     assert log.returncode == 0 and "transition Use_T1 -> Use_T2" in log.stdout
     replay = fw("replay", str(record))
     assert replay.returncode == 0 and replay.stdout.strip().endswith("active: Use_T2")
+
+
+def _ignore_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@pytest.mark.parametrize(
+    "how",
+    ["sigterm", "sighup", "sigint_of_a_background_job"],
+)
+def test_a_service_stop_a_closed_terminal_or_a_background_ctrl_c_stop_in_order(
+    how, topology, bus_config, tmp_path
+):
+    """SIGTERM (a service manager's stop) and SIGHUP (the terminal closed) shut fw deploy
+    down as Ctrl-C does: the components stopped, the flight recording closed whole; and
+    a Ctrl-C sent to fw counts though the shell started it with SIGINT ignored (its
+    background jobs are), where it used to be ignored and the robot side kept running."""
+    record = tmp_path / "run.mcap"
+    deploy = deploy_in_background(
+        topology,
+        "--record",
+        str(record),
+        **({"preexec_fn": _ignore_sigint} if how == "sigint_of_a_background_job" else {}),
+    )
+    bus = join_deployment(bus_config)
+    try:
+        assert settled(bus, "Use_T1")
+    finally:
+        bus.close()
+        sent = {"sigterm": signal.SIGTERM, "sighup": signal.SIGHUP}.get(how, signal.SIGINT)
+        deploy.send_signal(sent)
+        try:
+            _, err = deploy.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            deploy.kill()
+            raise AssertionError(f"{how}: fw deploy did not stop within 60 s") from None
+    assert deploy.returncode == 0 and "fw: stopped" in err, err
+    assert "shutting down (robot side first)" in err
+    stopped = [
+        d["component"]
+        for t, _, d in read_recording(record)
+        if t == "/fw/components" and (d.get("old"), d.get("new")) == ("Running", "Stopped")
+    ]
+    assert {"supervisor", "t1", "t2"} <= set(stopped), f"every component stopped: {stopped}"
 
 
 def test_a_keystore_made_beforehand_is_used_and_kept(topology, tmp_path):
