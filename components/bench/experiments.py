@@ -465,9 +465,9 @@ def run_people(quick: bool, context: dict[str, Any]) -> list[Row]:
     from components.people.cli import cameras_of
     from components.people.cli import run as calibrate
 
-    trials = 6 if quick else 30
+    trials = 3 if quick else 30
     one, two = people.protocol(1, trials), people.protocol(2, trials)
-    crowd = scenes.crowd(20.0 if quick else 60.0, "hungarian")
+    crowd = scenes.crowd(10.0 if quick else 60.0, "hungarian")
     cost = people.frame_cost(8, 16, 60 if quick else 300, "hungarian")
     _, report = calibrate(
         cameras_of(str(seeg_file("topologies", "seeg.yaml"))),
@@ -597,8 +597,8 @@ def run_navigation(quick: bool, context: dict[str, Any]) -> list[Row]:
 
     from components.bench import navigation
 
-    count = 3 if quick else 20
-    seeds = 2 if quick else 10
+    count = 1 if quick else 20
+    seeds = 1 if quick else 10
     errors = navigation.final_errors(count, _progress("navigation"))
     bumps = {who: navigation.head_bump(tracker=who) for who in ("certus", "vicra")}
     swaps = {
