@@ -16,9 +16,19 @@ PARALLEL = 1e-14
 error is at most length x angle, 0.2 um for 2 m segments)."""
 
 
+def _unit(x: np.ndarray) -> np.ndarray:
+    """`x` clamped to [0, 1] (two ufunc calls: np.clip's wrapper costs more than the work
+    on the small arrays of a 1 kHz loop)."""
+    return np.minimum(np.maximum(x, 0.0), 1.0)
+
+
 def segment_distances(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> np.ndarray:
     """Closest distance between segments [p1, q1] (shape (n, 3)) and [p2, q2] ((m, 3)),
-    for every pair: an (n, m) array. Degenerate segments (points) are handled."""
+    for every pair: an (n, m) array. Degenerate segments (points) are handled.
+
+    Written for small arrays at 1 kHz (a robot's links against a few people): each numpy
+    call costs about a microsecond whatever its size, so the steps are as few as the
+    cases allow, and (n, 1) against (1, m) arrays broadcast instead of being expanded."""
     p1, q1, p2, q2 = (np.asarray(a, dtype=float) for a in (p1, q1, p2, q2))
     d1, d2 = q1 - p1, q2 - p2  # (n, 3), (m, 3)
     # the dot products of d1, d2 and r = p1 - p2 for every pair, by matrix products
@@ -28,31 +38,30 @@ def segment_distances(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.nda
     b = d1 @ d2.T
     c = np.einsum("ij,ij->i", d1, p1)[:, None] - d1 @ p2.T  # d1 . r
     f = p1 @ d2.T - np.einsum("ij,ij->i", d2, p2)[None, :]  # d2 . r
-    shape = (len(p1), len(p2))
-    a, e = np.broadcast_to(a, shape), np.broadcast_to(e, shape)
-    denom = a * e - b * b  # |d1|^2 |d2|^2 sin^2(angle)
-    first_point, second_point = a <= EPS, e <= EPS
-    # parallel is a question of angle, not of size: two short perpendicular segments
-    # have a tiny denominator too (an absolute threshold put them 16 mm apart when they
-    # touched)
-    skew = denom > PARALLEL * a * e
+    ae = a * e
+    denom = ae - b * b  # |d1|^2 |d2|^2 sin^2(angle)
+    first_point, second_point = a <= EPS, e <= EPS  # (n, 1), (1, m)
     with np.errstate(divide="ignore", invalid="ignore"):
-        # general case: closest points of the infinite lines, s clamped to [0, 1]
-        s = np.where(skew, np.clip((b * f - c * e) / denom, 0.0, 1.0), 0.0)
-        # the second segment is a point: project it on the first
-        s = np.where(second_point & ~first_point, np.clip(-c / a, 0.0, 1.0), s)
-        s = np.where(first_point, 0.0, s)
+        on_first = _unit(-c / a)  # the second's start projected on the first
+        # parallel is a question of angle, not of size: two short perpendicular segments
+        # have a tiny denominator too (an absolute threshold put them 16 mm apart when
+        # they touched). General case: closest points of the infinite lines, s clamped
+        s = np.where(denom > PARALLEL * ae, _unit((b * f - c * e) / denom), 0.0)
+        if second_point.any():  # the second segment is a point: project it on the first
+            s = np.where(second_point, on_first, s)
         t = np.where(second_point, 0.0, (b * s + f) / e)
         # t outside [0, 1]: clamp it and recompute s for the clamped t
-        t_low, t_high = t < 0.0, t > 1.0
-        s = np.where(t_low & ~first_point, np.clip(-c / a, 0.0, 1.0), s)
-        s = np.where(t_high & ~first_point, np.clip((b - c) / a, 0.0, 1.0), s)
-    t = np.clip(t, 0.0, 1.0)
-    squared = np.zeros(shape)
-    for k in range(3):  # closest points: r + s d1 - t d2, one axis at a time
-        axis = p1[:, k, None] - p2[None, :, k] + s * d1[:, k, None] - t * d2[None, :, k]
-        squared += axis * axis
-    return np.sqrt(squared)
+        s = np.where(t < 0.0, on_first, np.where(t > 1.0, _unit((b - c) / a), s))
+        if first_point.any():
+            s = np.where(first_point, 0.0, s)
+    t = _unit(t)
+    # closest points r + s d1 - t d2, summed over the axes in order
+    axis = (
+        (p1[:, None, :] - p2[None, :, :])
+        + s[:, :, None] * d1[:, None, :]
+        - t[:, :, None] * d2[None, :, :]
+    )
+    return np.sqrt((axis * axis).sum(axis=2))
 
 
 def capsule_distances(
