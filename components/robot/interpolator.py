@@ -56,6 +56,16 @@ from framework.messages import EventMessage, JointState, Pose, Scalar
 from framework.ports import ReadStatus
 from framework.properties import prop
 
+IDENTITY = np.eye(4)
+"""Copied, not made, for each pose of the cycle (np.eye costs more than the copy)."""
+
+
+def _length(v: np.ndarray) -> float:
+    """Euclidean length of a small vector: np.linalg.norm's own sum, without its
+    wrapper, which costs more than the work at 1 kHz."""
+    return math.sqrt(float(v @ v))
+
+
 MAX_STEPS_PER_STATE = 40
 """At most this many 1 ms steps for one measured state (the arm's monitor mode reports
 every 10 cycles; a longer gap is a stall, not time to catch up on)."""
@@ -265,7 +275,7 @@ class InterpolatorCore:
                 raise RuntimeError(f"ruckig failed: {result}")
             if steering:  # the straight path's translation this cycle
                 share = abs(self.s - before) / self.length  # a path moved on is >= 1 nm
-                self._correct(share * float(np.linalg.norm(self._delta_p)))
+                self._correct(share * _length(self._delta_p))
             self.pose = self._offset_pose(self._pose_at(self.s))
         elif steering and self._pending_correction():
             self._correct(0.0)
@@ -286,8 +296,8 @@ class InterpolatorCore:
 
     def _correction_size(self, error: np.ndarray) -> float:
         return max(
-            float(np.linalg.norm(error[:3])),
-            float(np.linalg.norm(error[3:])) * self.ROTATION_RADIUS,
+            _length(error[:3]),
+            _length(error[3:]) * self.ROTATION_RADIUS,
         )
 
     def _pending_correction(self) -> bool:
@@ -309,7 +319,7 @@ class InterpolatorCore:
     def _offset_pose(self, path: np.ndarray) -> np.ndarray:
         if not self.offset.any():
             return path
-        out = np.eye(4)
+        out = IDENTITY.copy()
         out[:3, 3] = path[:3, 3] + self.offset[:3]
         out[:3, :3] = pin.exp3(self.offset[3:]) @ path[:3, :3]
         return out
@@ -387,7 +397,7 @@ class InterpolatorCore:
 
     def _pose_at(self, s: float) -> np.ndarray:
         u = 0.0 if self.length < 1e-12 else s / self.length
-        out = np.eye(4)
+        out = IDENTITY.copy()
         out[:3, 3] = self._start[:3, 3] + u * self._delta_p
         out[:3, :3] = self._start[:3, :3] @ pin.exp3(u * self._delta_r)
         return out
