@@ -228,11 +228,6 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     started = time.monotonic()
-    if topology.safety is not None:  # the Coordinator's process is watched too
-        from framework.container import raise_priority
-        from framework.deployer import SAFETY_NICE
-
-        raise_priority(SAFETY_NICE, "control")
     stop_on_signals()
     try:
         deployment.start(run_chart=False)

@@ -29,7 +29,7 @@ from framework.access import access_control
 from framework.activity import Activity
 from framework.bus import Bus, BusConfig
 from framework.configurator import Configurator
-from framework.container import Container, spawn_container
+from framework.container import Container, raise_priority, spawn_container
 from framework.coordinator import (
     ACKS_KEY,
     EVENTS_KEY,
@@ -234,6 +234,8 @@ class Deployment:
         if not control:  # another host runs the Coordinator and the Configurator
             self.watch.start()
             return
+        if topo.safety is not None:  # the Coordinator's process is watched too: whoever
+            raise_priority(SAFETY_NICE, "control")  # hosts it (fw deploy, fw bench, a test)
         beat = topo.safety.process_beat if topo.safety is not None else None
         self.control = Container(CONTROL_PROCESS, self.hub, beat=beat)
         self.configurator = self.control.add(

@@ -21,8 +21,7 @@ from typing import Any
 
 from components.bench.files import seeg_home
 from framework.bus import free_port
-from framework.container import raise_priority
-from framework.deployer import SAFETY_NICE, Deployment
+from framework.deployer import Deployment
 from framework.errors import FwError
 from framework.messages import ConfigAck, EventMessage, Scalar, decode
 from framework.remote import RemoteComponent
@@ -112,8 +111,6 @@ class SeegRun:
         link = str(self.workdir / "ttyVICRA")
         topology.components["vicra_sim"].properties["link"] = link
         topology.components["vicra"].properties["device"] = link
-        if topology.safety is not None:  # as fw deploy does: the Coordinator is watched
-            raise_priority(SAFETY_NICE, "control")
         self.deployment = Deployment(topology, self.workdir, listeners=[self._states])
         old = os.getcwd()
         os.chdir(home)  # property paths are relative to the repository

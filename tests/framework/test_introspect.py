@@ -4,6 +4,7 @@ from components.demo import Counter, Doubler, Sink
 from framework.activity import Activity
 from framework.container import Container
 from framework.introspect import containers, snapshot
+from tests.conftest import wait_until
 
 
 def test_snapshot_lists_everything_and_derives_connections(hub, peer):
@@ -12,7 +13,10 @@ def test_snapshot_lists_everything_and_derives_connections(hub, peer):
     right.add(Doubler("dbl"), Activity.event("inp"))
     right.add(Sink("snk"))
     right.connect("dbl", "inp", "cnt/out")
-    assert containers(hub) == {"left": ["cnt"], "right": ["dbl", "snk"]}
+    # the other session's declarations reach the hub's session a moment later (a busy
+    # host: after the first query): introspection sees what has arrived
+    expected = {"left": ["cnt"], "right": ["dbl", "snk"]}
+    assert wait_until(lambda: containers(hub) == expected, timeout=10), containers(hub)
     snap = snapshot(hub)
     assert snap.components["dbl"]["state"] == "PreOperational"
     assert snap.components["snk"]["inputs"][0]["policy"]["type"] == "buffer"
