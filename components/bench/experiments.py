@@ -600,7 +600,8 @@ def run_navigation(quick: bool, context: dict[str, Any]) -> list[Row]:
     count = 1 if quick else 20
     seeds = 1 if quick else 10
     errors = navigation.final_errors(count, _progress("navigation"))
-    bumps = {who: navigation.head_bump(tracker=who) for who in ("certus", "vicra")}
+    steering = ("certus",) if quick else ("certus", "vicra")  # quick: the same code once
+    bumps = {who: navigation.head_bump(tracker=who) for who in steering}
     swaps = {
         v: [navigation.swap_transient(v, seed, trace=seed == 0) for seed in range(seeds)]
         for v in (0.075, 0.10)
@@ -673,7 +674,7 @@ def run_navigation(quick: bool, context: dict[str, Any]) -> list[Row]:
                     n=len(runs),
                 )
             )
-    for who in ("certus", "vicra"):
+    for who in steering:
         rows.append(
             Row(
                 "navigation",
