@@ -47,19 +47,21 @@ terminal closing. The default action of the last two would kill fw before it sto
 the robot side and closes the flight recording."""
 
 
-def stop_on_signals() -> None:
+def stop_on_signals() -> dict[int, Any]:
     """Turn each of `STOP_SIGNALS` into KeyboardInterrupt, once: the first starts the
     shutdown, later ones are ignored so that nothing cuts the shutdown short. SIGINT
     counts even when fw was started with it ignored (a shell's background job): a
-    Ctrl-C or `kill -INT` sent to fw itself means stop."""
+    Ctrl-C or `kill -INT` sent to fw itself means stop. The handlers it replaced, for
+    `signal.signal` to put back once the shutdown is over."""
 
     def stop(signum: int, frame: Any) -> None:
         for name in STOP_SIGNALS:
             signal.signal(getattr(signal, name), signal.SIG_IGN)
         raise KeyboardInterrupt
 
-    for name in STOP_SIGNALS:
-        signal.signal(getattr(signal, name), stop)
+    return {
+        getattr(signal, name): signal.signal(getattr(signal, name), stop) for name in STOP_SIGNALS
+    }
 
 
 class _Printer(Listener):
@@ -228,7 +230,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     started = time.monotonic()
-    stop_on_signals()
+    previous = stop_on_signals()
     try:
         deployment.start(run_chart=False)
         if args.record:
@@ -279,6 +281,8 @@ def cmd_deploy(args: argparse.Namespace) -> int:
             print(f"fw: flight recording in {args.record}", file=sys.stderr)
         if not args.workdir and not args.keep_logs:
             shutil.rmtree(workdir, ignore_errors=True)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     print("fw: stopped", file=sys.stderr)
     if deployment.runner is not None:
         return scenario_report(deployment.runner)

@@ -234,8 +234,10 @@ class Deployment:
         if not control:  # another host runs the Coordinator and the Configurator
             self.watch.start()
             return
-        if topo.safety is not None:  # the Coordinator's process is watched too: whoever
-            raise_priority(SAFETY_NICE, "control")  # hosts it (fw deploy, fw bench, a test)
+        if topo.safety is not None:
+            # the Coordinator's process is watched too, whoever hosts it (fw deploy,
+            # fw bench, a test)
+            raise_priority(SAFETY_NICE, "control")
         beat = topo.safety.process_beat if topo.safety is not None else None
         self.control = Container(CONTROL_PROCESS, self.hub, beat=beat)
         self.configurator = self.control.add(

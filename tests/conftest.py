@@ -237,14 +237,18 @@ def play_scenario(topology_file, path, bus_config, tmp_path, history: list | Non
     return [o for o in deployment.runner.report() if not o.ok]
 
 
-def interrupt(process, timeout: float = 60.0) -> tuple[str | None, str | None]:
-    """Ctrl-C (SIGINT) a `fw` command run by a test and wait for it; its (stdout, stderr).
-    One that does not stop in `timeout` is killed and fails the test with the end of its
-    stderr (a bare TimeoutExpired told nothing, and hid the test's own failure)."""
+def interrupt(
+    process, timeout: float = 60.0, sig: int | None = None
+) -> tuple[str | None, str | None]:
+    """Ctrl-C (SIGINT, or `sig`) a `fw` command run by a test and wait for it; its
+    (stdout, stderr). One that does not stop in `timeout` is killed and fails the test
+    with the end of its stderr (a bare TimeoutExpired told nothing, and hid the test's
+    own failure)."""
     import signal
     import subprocess
 
-    process.send_signal(signal.SIGINT)
+    sig = signal.SIGINT if sig is None else sig
+    process.send_signal(sig)
     try:
         return process.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
@@ -253,7 +257,7 @@ def interrupt(process, timeout: float = 60.0) -> tuple[str | None, str | None]:
         tail = "\n".join((err or "").splitlines()[-30:])
         raise AssertionError(
             f"{' '.join(map(str, process.args[-6:]))}: not stopped {timeout:g} s after "
-            f"Ctrl-C; its stderr ends:\n{tail}"
+            f"{signal.Signals(sig).name}; its stderr ends:\n{tail}"
         ) from None
 
 

@@ -261,12 +261,7 @@ def test_a_service_stop_a_closed_terminal_or_a_background_ctrl_c_stop_in_order(
     finally:
         bus.close()
         sent = {"sigterm": signal.SIGTERM, "sighup": signal.SIGHUP}.get(how, signal.SIGINT)
-        deploy.send_signal(sent)
-        try:
-            _, err = deploy.communicate(timeout=60)
-        except subprocess.TimeoutExpired:
-            deploy.kill()
-            raise AssertionError(f"{how}: fw deploy did not stop within 60 s") from None
+        _, err = interrupt(deploy, sig=sent)
     assert deploy.returncode == 0 and "fw: stopped" in err, err
     assert "shutting down (robot side first)" in err
     stopped = [
