@@ -69,11 +69,16 @@ def body_center(skeleton: np.ndarray) -> np.ndarray:
 
 def body_centers(skeletons: np.ndarray) -> np.ndarray:
     """`body_center` of many skeletons (n, 15, 3) at once: (n, 3)."""
-    seen = np.isfinite(skeletons).all(axis=2)
-    count = seen.sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(seen[..., None], skeletons, 0.0).sum(axis=1) / count[:, None]
-    return np.where(seen[:, 2, None], skeletons[:, 2], mean)
+    center = skeletons[:, 2].copy()
+    hidden = ~np.isfinite(center).all(axis=1)
+    if hidden.any():  # the mean of the seen joints, only where the torso is hidden
+        some = skeletons[hidden]
+        seen = np.isfinite(some).all(axis=2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            center[hidden] = (
+                np.where(seen[..., None], some, 0.0).sum(axis=1) / seen.sum(axis=1)[:, None]
+            )
+    return center
 
 
 @dataclass(frozen=True)

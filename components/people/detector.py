@@ -28,7 +28,7 @@ import numpy as np
 
 from components.domain.distance import capsule_distances, closest_pair
 from components.domain.skeleton import LIMBS, body_center, body_centers, envelopes
-from components.people.fusion import group_and_fuse_arrays, noise_for
+from components.people.fusion import cluster, noise_for
 from components.people.tracking import PeopleTracker, Person, Track
 
 
@@ -168,26 +168,33 @@ class PeopleDetectorCore:
     ) -> Frame:
         """One frame: `users` per camera (camera-frame joints), robot link capsules
         (p, q, r in the base frame) if known."""
-        batches, rejected = [], 0
-        for name, camera_users in users.items():
-            camera = self.cameras.get(name)
-            if camera is None or not camera_users:
-                continue  # not configured: ignored, never a person
-            transform = self._base_from_camera(name)
-            joints = np.array([j for _, j in camera_users], dtype=float)  # (n, 15, 3)
+        names = sorted(n for n, u in users.items() if u and n in self.cameras)  # others: ignored
+        counts = [len(users[n]) for n in names]
+        rejected = 0
+        joints, sigma = np.zeros((0, 15, 3)), np.zeros((0, 15))
+        camera_of = np.zeros(0, dtype=int)
+        if names:
+            joints = np.array([j for n in names for _, j in users[n]], dtype=float)  # (N, 15, 3)
             finite = np.isfinite(joints).all(axis=2)
-            rejected += int((~finite).sum() - np.isnan(joints).all(axis=2).sum())
+            rejected = int((~finite).sum() - np.isnan(joints).all(axis=2).sum())
             joints[~finite] = np.nan
-            sigma = noise_for(joints, camera.lateral_noise)
+            camera_of = np.repeat(np.arange(len(names)), counts)
+            lateral = np.array([self.cameras[n].lateral_noise for n in names])
+            sigma = noise_for(joints, lateral[camera_of, None])
             sigma[~finite] = 0.0
+            # into the robot base, each camera's users by its registration at once
+            registration = np.array([self._base_from_camera(n) for n in names])
+            rotation = registration[camera_of, :3, :3].transpose(0, 2, 1)  # (N, 3, 3)
+            joints = joints @ rotation + registration[camera_of, None, :3, 3]
             keep = finite.any(axis=1)  # a skeleton with nothing seen is nobody
-            in_base = joints[keep] @ transform[:3, :3].T + transform[:3, 3]
-            batches.append((name, in_base, sigma[keep]))
+            joints, sigma, camera_of = joints[keep], sigma[keep], camera_of[keep]
         reporting = [name for name in users if name in self.cameras]
-        members, fused, fused_sigma = group_and_fuse_arrays(batches, self.config.matcher)
+        group_of, fused, fused_sigma = cluster(joints, sigma, camera_of, self.config.matcher)
+        seen_by: list[set[str]] = [set() for _ in range(len(fused))]
+        for group, camera in zip(group_of.tolist(), camera_of.tolist(), strict=True):
+            seen_by[group].add(names[camera])
         grouped = [
-            (frozenset(c for c, _ in group), fused[i], fused_sigma[i])
-            for i, group in enumerate(members)
+            (frozenset(cameras), fused[i], fused_sigma[i]) for i, cameras in enumerate(seen_by)
         ]
         self._update_suspicion(grouped, reporting, fused)
         missing: dict[int, list[str]] = {}
@@ -365,8 +372,9 @@ class PeopleDetectorCore:
         for i, (cameras, joints, _) in enumerate(grouped):
             if self.master not in cameras:
                 continue
-            for camera in cameras - {self.master}:  # agrees with the master
-                self.suspicion[camera] = max(0.0, self.suspicion.get(camera, 0.0) - 1.0)
+            for camera in cameras:  # agrees with the master (nothing to do if unsuspected)
+                if self.suspicion.get(camera) and camera != self.master:
+                    self.suspicion[camera] = max(0.0, self.suspicion[camera] - 1.0)
             if cameras == {self.master}:
                 others = np.delete(fused, i, axis=0)
                 for camera in self._should_see(joints, cameras, reporting, others):

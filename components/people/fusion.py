@@ -15,12 +15,13 @@ together wherever the noise puts them and never reaches the next person.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from components.domain.skeleton import depth_sigma
+from components.domain.skeleton import body_centers, depth_sigma
 
 RULE_THRESHOLD = 0.45  # eq. 3.9, metres
 GATE_SIGMAS = 4.03
@@ -67,9 +68,43 @@ def rule_matches(
     return pairs
 
 
-def robust_cost(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Median joint distance over the joints both see: (n, m), inf if none in common."""
-    return _median_seen(joint_distances(a, b), a, b)
+def robust_cost(a: np.ndarray, b: np.ndarray, within: float = math.inf) -> np.ndarray:
+    """Median joint distance over the joints both see: (n, m), inf if none in common,
+    or if their body centres lie farther than `within` apart on the floor (`SAME_BODY`:
+    such a pair is not costed at all, which is what keeps a crowded frame cheap)."""
+    n, m = len(a), len(b)
+    median = np.full((n, m), np.inf)
+    if not n or not m:
+        return median
+    fa, fb = (~np.isnan(a[..., 0])).astype(float), (~np.isnan(b[..., 0])).astype(float)
+    count = fa @ fb.T  # joints both see, (n, m)
+    if math.isfinite(within):
+        ca, cb = body_centers(a), body_centers(b)
+        dx = ca[:, None, 0] - cb[None, :, 0]
+        dy = ca[:, None, 1] - cb[None, :, 1]
+        candidates = (count > 0) & (dx * dx + dy * dy <= within * within)
+        rows, cols = np.nonzero(candidates)
+        if not len(rows):
+            return median
+        diff = a[rows] - b[cols]  # (pairs, 15, 3), NaN where either joint is unseen
+        common = count[rows, cols]
+    else:  # every pair: broadcast, no gathering
+        diff = (a[:, None] - b[None, :]).reshape(n * m, -1, 3)
+        common = count.ravel()
+    squared = diff[..., 0] ** 2 + diff[..., 1] ** 2 + diff[..., 2] ** 2
+    ordered = np.sort(squared, axis=1)  # NaN (unseen) last
+    common = common.astype(int)
+    pick = np.arange(len(ordered))
+    # the median of the seen joints (low == high when their count is odd; with no joint
+    # in common it is NaN, and the pair's cost inf)
+    low = np.sqrt(ordered[pick, np.maximum((common - 1) // 2, 0)])
+    high = np.sqrt(ordered[pick, common // 2])
+    middle = (low + high) / 2.0
+    if math.isfinite(within):
+        median[rows, cols] = middle
+    else:
+        median = np.where(count > 0, middle.reshape(n, m), np.inf)
+    return median
 
 
 def normalized_cost(
@@ -86,8 +121,7 @@ def normalized_cost(
 
 def worst_sigma(joints: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """Each skeleton's largest sigma over the joints it sees: (n,) of (n, 15, 3), (n, 15)."""
-    with np.errstate(invalid="ignore"):
-        return np.nanmax(np.where(np.isnan(joints[..., 0]), np.nan, sigma), axis=1, initial=0.0)
+    return np.fmax.reduce(np.where(np.isnan(joints[..., 0]), 0.0, sigma), axis=1, initial=0.0)
 
 
 def _in_sigmas(
@@ -101,21 +135,15 @@ def _in_sigmas(
         return np.maximum(median - slack, 0.0) / scale
 
 
-def _median_seen(d: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The median of `d` (n, m, 15) over the joints both a (n, 15, 3) and b (m, 15, 3) see."""
-    if not d.size:
-        return np.full(d.shape[:2], np.inf)
-    seen_a, seen_b = ~np.isnan(a[..., 0]), ~np.isnan(b[..., 0])  # (n, 15), (m, 15)
-    count = (seen_a.astype(float) @ seen_b.T.astype(float)).astype(int)  # joints both see
-    ordered = np.sort(d, axis=2).reshape(-1, d.shape[2])  # unseen (NaN) joints sort last
-    rows = np.arange(len(ordered))
-    # the median of the seen joints (low == high when their count is odd)
-    low = ordered[rows, np.maximum((count.ravel() - 1) // 2, 0)]
-    high = ordered[rows, count.ravel() // 2]
-    median = ((low + high) / 2.0).reshape(count.shape)
-    median[count == 0] = np.inf
-    return median
-
+SAME_BODY = 1.0
+"""m: two views whose body centres (`skeleton.body_center`: the torso, or the mean of
+the seen joints while it is hidden) lie farther apart than this on the floor are not
+one person, and are not costed. A person's views differ by their noise (1-3 cm), and
+a view that sees only part of the body puts its centre at most a reach (under 0.9 m,
+a hand held out) from the torso. People stand 0.4 m apart, so in a crowd most pairs
+are beyond it: what keeps a frame of 8 cameras x 16 people cheap is the pairs not
+costed (fusion only: a tracker's few tracks against a frame's people cost less
+than the bound)."""
 
 BEYOND_GATE = 1e6
 
@@ -136,9 +164,12 @@ def gated_pairs(cost: np.ndarray, gate: float) -> list[tuple[int, int]]:
     both would be lost to the gate (two people near each other, a third far away)."""
     if not cost.size:
         return []
-    finite = np.where(cost <= gate, cost, BEYOND_GATE)  # NaN and inf are beyond it too
-    rows, cols = linear_sum_assignment(finite)
-    return [(int(i), int(j)) for i, j in zip(rows, cols, strict=True) if cost[i, j] <= gate]
+    under = cost <= gate  # NaN and inf are beyond it too
+    if not under.any():
+        return []
+    rows, cols = linear_sum_assignment(np.where(under, cost, BEYOND_GATE))
+    keep = under[rows, cols]
+    return list(zip(rows[keep].tolist(), cols[keep].tolist(), strict=True))
 
 
 def fuse(detections: list[Detection]) -> tuple[np.ndarray, np.ndarray]:
@@ -183,65 +214,103 @@ def group_and_fuse(
 def group_and_fuse_arrays(
     batches: list[tuple[str, np.ndarray, np.ndarray]], matcher: str = "hungarian"
 ) -> tuple[list[list[tuple[str, int]]], np.ndarray, np.ndarray]:
-    """Cluster the users of all cameras into people, merging cameras one after the
-    other (in name order) into the growing set of groups: "hungarian" pairs a camera's
-    users with the groups on `normalized_cost` (the group's fused sigma, the user's),
-    gated at `GATE_SIGMAS`; "rule" is eq. 3.9. `batches` holds each
-    camera's users as arrays (camera, joints (n, 15, 3), sigma (n, 15)); returns each
-    group's members as (camera, row), the fused joints (g, 15, 3) and sigma (g, 15).
-
-    Groups keep running sums of weighted joints and weights, so adding a camera's users
-    costs a few array operations whatever the number of groups (`fuse` of the members
-    gives the same result)."""
-    noise_gated = matcher == "hungarian"
-    groups: list[list[tuple[str, int]]] = []
-    weighted = np.zeros((0, 15, 3))
-    total = np.zeros((0, 15))
-    fused = np.zeros((0, 15, 3))
-    batches = sorted(batches, key=lambda b: b[0])
+    """`cluster` the users of all cameras into people. `batches` holds each camera's
+    users as arrays (camera, joints (n, 15, 3), sigma (n, 15)); returns each group's
+    members as (camera, row), the fused joints (g, 15, 3) and sigma (g, 15)."""
+    batches = sorted((b for b in batches if len(b[1])), key=lambda b: b[0])
     if not batches:
-        return groups, fused, total
-    every = np.concatenate([b[1] for b in batches])
-    sigmas = np.concatenate([b[2] for b in batches])
-    weights = _weights(every, sigmas)
-    worst = worst_sigma(every, sigmas)
-    contributions = np.where(weights[..., None] > 0, every, 0.0) * weights[..., None]
-    first = 0
-    for camera, joints, _ in batches:
-        weight = weights[first : first + len(joints)]
-        contribution = contributions[first : first + len(joints)]
-        first += len(joints)
-        if not groups or not len(joints):
-            pairs = []
-        elif noise_gated:
-            with np.errstate(divide="ignore"):
-                group_worst = 1.0 / np.sqrt(np.where(total > 0, total, np.inf).min(axis=1))
-            cost = _in_sigmas(
-                robust_cost(fused, joints), group_worst, worst[first - len(joints) : first]
-            )
-            pairs = gated_pairs(cost, GATE_SIGMAS)
+        return [], np.zeros((0, 15, 3)), np.zeros((0, 15))
+    sizes = [len(b[1]) for b in batches]
+    camera_of = np.repeat(np.arange(len(batches)), sizes)
+    group_of, fused, sigma = cluster(
+        np.concatenate([b[1] for b in batches]),
+        np.concatenate([b[2] for b in batches]),
+        camera_of,
+        matcher,
+    )
+    names = [b[0] for b in batches]
+    members: list[list[tuple[str, int]]] = [[] for _ in range(len(fused))]
+    first = np.cumsum(sizes) - sizes
+    for row, (group, camera) in enumerate(zip(group_of.tolist(), camera_of.tolist(), strict=True)):
+        members[group].append((names[camera], row - int(first[camera])))
+    return members, fused, sigma
+
+
+def cluster(
+    joints: np.ndarray, sigma: np.ndarray, camera_of: np.ndarray, matcher: str = "hungarian"
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cluster users into people, in rounds: the first camera with users not yet
+    grouped founds a group per user, and every other camera's ungrouped users are
+    paired with those groups at once (each camera one to one: "hungarian" on
+    `normalized_cost`, the founder's sigma against the user's, gated at `GATE_SIGMAS`;
+    "rule" is eq. 3.9); who is left waits for the next round. When every camera sees
+    everyone, one round groups them all. Rows are users (joints (n, 15, 3), sigma
+    (n, 15)), `camera_of` their cameras (ascending: a camera's users are consecutive,
+    in the order cameras found groups). Returns each user's group, and each group's
+    fused joints (g, 15, 3) and sigma (g, 15) (`fuse` of its users gives the same).
+
+    Why rounds and not a merge per camera into the fused groups: a frame's cost is
+    numpy calls, not arithmetic (8 cameras x 16 users are a few thousand pairs), and
+    a round pairs every camera against the founders in one cost matrix. The founder's
+    noise is the right gate for a pair (one view against another), where a fused
+    group's sigma only narrows as cameras join."""
+    worst = worst_sigma(joints, sigma) if matcher == "hungarian" else None
+    group_of = np.full(len(joints), -1)
+    groups = 0
+    free = np.arange(len(joints))
+    while len(free):
+        founding = camera_of[free] == camera_of[free[0]]
+        found, rest = free[founding], free[~founding]
+        group_of[found] = np.arange(groups, groups + len(found))
+        groups += len(found)
+        if not len(rest):
+            break
+        bounds = np.flatnonzero(np.diff(camera_of[rest])) + 1  # where each camera starts
+        if worst is not None:
+            median = robust_cost(joints[found], joints[rest], SAME_BODY)
+            i, j = pairs_per_block(_in_sigmas(median, worst[found], worst[rest]), bounds)
         else:
-            pairs = rule_matches(fused, joints)
-        if pairs:
-            rows = np.array([i for i, _ in pairs])
-            cols = np.array([j for _, j in pairs])
-            weighted[rows] += contribution[cols]
-            total[rows] += weight[cols]
-            for i, j in pairs:
-                groups[i].append((camera, j))
-        matched = {j for _, j in pairs}
-        fresh = [j for j in range(len(joints)) if j not in matched]
-        if fresh:
-            groups.extend([(camera, j)] for j in fresh)
-            weighted = np.concatenate([weighted, contribution[fresh]])
-            total = np.concatenate([total, weight[fresh]])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            fused = weighted / total[..., None]
-        fused[total == 0] = np.nan
-    with np.errstate(divide="ignore"):
-        sigma_out = 1.0 / np.sqrt(total)
-    sigma_out[total == 0] = np.nan  # unseen: no sigma (never an infinite one)
-    return groups, fused, sigma_out
+            pairs = [
+                (i, int(cols[j]))
+                for cols in np.split(np.arange(len(rest)), bounds)
+                for i, j in rule_matches(joints[found], joints[rest[cols]])
+            ]
+            i, j = np.array(pairs, dtype=int).reshape(-1, 2).T
+        group_of[rest[j]] = group_of[found[i]]
+        free = rest[group_of[rest] < 0]
+    weights = _weights(joints, sigma)
+    contributions = np.where(weights[..., None] > 0, joints, 0.0) * weights[..., None]
+    order = np.argsort(group_of, kind="stable")
+    starts = np.searchsorted(group_of[order], np.arange(groups))
+    weighted = np.add.reduceat(contributions[order], starts, axis=0)
+    total = np.add.reduceat(weights[order], starts, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fused = weighted / total[..., None]
+        fused_sigma = 1.0 / np.sqrt(total)
+    fused[total == 0] = np.nan
+    fused_sigma[total == 0] = np.nan  # unseen: no sigma (never an infinite one)
+    return group_of, fused, fused_sigma
+
+
+def pairs_per_block(
+    cost: np.ndarray, bounds: np.ndarray, gate: float = GATE_SIGMAS
+) -> tuple[np.ndarray, np.ndarray]:
+    """`gated_pairs` in each block of columns (split at `bounds`: a camera's users) of
+    `cost`, as row and column indices. A block where no row and no column has more
+    than one pair under the gate is paired as it stands (the assignment could only
+    choose those pairs); only the others need the Hungarian."""
+    under = cost <= gate
+    starts = np.concatenate([[0], bounds])
+    clear = (under.sum(axis=0) <= 1).all() and (np.add.reduceat(under, starts, axis=1) <= 1).all()
+    if clear:
+        return np.nonzero(under)
+    rows, cols = [], []
+    ends = [*bounds.tolist(), cost.shape[1]]
+    for start, end in zip(starts.tolist(), ends, strict=True):
+        for i, j in gated_pairs(cost[:, start:end], gate):
+            rows.append(i)
+            cols.append(start + j)
+    return np.array(rows, dtype=int), np.array(cols, dtype=int)
 
 
 def group(detections: list[Detection], matcher: str = "hungarian") -> list[list[Detection]]:
@@ -249,8 +318,8 @@ def group(detections: list[Detection], matcher: str = "hungarian") -> list[list[
     return [members for members, _, _ in group_and_fuse(detections, matcher)]
 
 
-def noise_for(joints_in_camera: np.ndarray, lateral: float = 0.01) -> np.ndarray:
+def noise_for(joints_in_camera: np.ndarray, lateral: float | np.ndarray = 0.01) -> np.ndarray:
     """Per-joint sigma (m) of a camera's skeleton(s) (..., 15, 3) from its depths (z along
-    the axis)."""
+    the axis); `lateral` may differ per skeleton (an array that broadcasts to (..., 15))."""
     z = joints_in_camera[..., 2]
     return np.sqrt(np.square(depth_sigma(z)) + lateral**2)

@@ -134,12 +134,20 @@ class Track:
     def predicted(self, now: float) -> np.ndarray:
         """The joints where the person should be at `now`, walking on as they were (for
         at most a second unseen: after that, a walker has likely changed course)."""
-        walked = min(max(now - self.last_seen, 0.0), 1.0) - min(self.at - self.last_seen, 1.0)
-        return self.joints + self.velocity * walked
+        return self.joints + self.velocity * self.walk_to(now)
+
+    def walk_to(self, now: float) -> float:
+        """How long (s) to walk `joints` on at `velocity` to where they should be at `now`
+        (`predicted`)."""
+        return min(max(now - self.last_seen, 0.0), 1.0) - self.coasted()
+
+    def coasted(self) -> float:
+        """How long (s) `joints` have been walked on since the last detection."""
+        return min(self.at - self.last_seen, 1.0)
 
     def last_place(self) -> np.ndarray:
         """The joints where it was last seen (before any coasting)."""
-        return self.joints - self.velocity * min(self.at - self.last_seen, 1.0)
+        return self.joints - self.velocity * self.coasted()
 
     def whole(self) -> np.ndarray:
         """All 15 joints at the track's place: its joints, the unseen ones where the
@@ -147,17 +155,23 @@ class Track:
         return complete(self.joints, self.shape)
 
     def _seen(
-        self, person: Person, now: float, size: tuple[np.ndarray, np.ndarray] | None = None
+        self,
+        person: Person,
+        now: float,
+        size: tuple[np.ndarray, np.ndarray] | None = None,
+        relative: np.ndarray | None = None,
     ) -> None:
-        """Take this frame's detection: joints, velocity, how far it walked, its sizes."""
+        """Take this frame's detection: joints, velocity, how far it walked, its sizes
+        (`relative`: its joints less its torso, if the caller has them for many)."""
         if size is not None:
             self.build.add(*size)
         if now - self.last_seen > TENTATIVE_KEEP or not self.frames:  # a new sighting
             self.since, self.entered, self.born, self.walked = now, person.entering, None, 0.0
         ax, ay, az = person.joints[TORSO].tolist()  # floats: cheaper than numpy for three
         if math.isfinite(ax + ay + az):
-            seen = ~np.isnan(person.joints).any(axis=1)
-            self.shape[seen] = person.joints[seen] - person.joints[TORSO]
+            if relative is None:
+                relative = person.joints - person.joints[TORSO]
+            np.copyto(self.shape, relative, where=relative == relative)  # NaN: unseen
             self.path.append((now, ax, ay))
             while now - self.path[0][0] > VELOCITY_WINDOW:
                 self.path.popleft()
@@ -231,6 +245,10 @@ class PeopleTracker:
         """Feed one frame; returns the live tracks (tentative and confirmed)."""
         unmatched = list(range(len(people)))
         measured: list[tuple[np.ndarray, np.ndarray]] = []
+        relative: np.ndarray | list[None] = [None] * len(people)
+        if people:
+            joints = np.stack([p.joints for p in people])
+            relative = joints - joints[:, TORSO : TORSO + 1]
 
         def size(k: int, build: Build) -> tuple[np.ndarray, np.ndarray] | None:
             """Person k's sizes, if `build` still takes them (measured once per frame,
@@ -252,13 +270,13 @@ class PeopleTracker:
             pairs = self._associate(tracks, candidates, now)
             for i, j in pairs:
                 k = unmatched[j]
-                tracks[i]._seen(candidates[j], now, size(k, tracks[i].build))
+                tracks[i]._seen(candidates[j], now, size(k, tracks[i].build), relative[k])
             taken = {unmatched[j] for _, j in pairs}
             unmatched = [j for j in unmatched if j not in taken]
         for j in unmatched:
             person = people[j]
             track = Track(next(self._ids), person.joints, person.sigma, now, now)
-            track._seen(person, now, size(j, track.build))
+            track._seen(person, now, size(j, track.build), relative[j])
             self.tracks.append(track)
         kept = []
         for t in self.tracks:
@@ -298,8 +316,10 @@ class PeopleTracker:
         sigma = np.stack([t.sigma for t in tracks])
         joints = np.stack([p.joints for p in people])
         noise = np.stack([p.sigma for p in people])
+        at = np.stack([t.joints for t in tracks])
+        velocity = np.array([t.velocity for t in tracks])[:, None, :]
         ahead = normalized_cost(
-            np.stack([t.predicted(now) for t in tracks]),
+            at + velocity * np.array([t.walk_to(now) for t in tracks])[:, None, None],
             sigma,
             joints,
             noise,
@@ -308,7 +328,7 @@ class PeopleTracker:
         if unseen <= 1.5 * FRAME:  # seen last frame: no one turns back in a frame
             return gated_pairs(ahead, GATE_SIGMAS)
         around = normalized_cost(
-            np.stack([t.last_place() for t in tracks]),
+            at - velocity * np.array([t.coasted() for t in tracks])[:, None, None],
             sigma,
             joints,
             noise,
