@@ -118,7 +118,11 @@ def test_unseen_joints_are_put_where_the_bodys_shape_says(x, y, facing, height, 
     # within what a 1.75 m template misses on a body 1.5-2 m tall: a seventh of the
     # 1.6 m from head to feet
     assert np.allclose(guess[:, 2], body[:, 2], atol=0.25 / 1.75 * 1.6), "heights about right"
-    assert np.hypot(*(guess[TORSO, :2] - body[TORSO, :2])) < 0.3, "where they stand"
+    # the template leaves out the side offsets (a hand 27 cm from the torso at 1.75 m),
+    # so a lone joint puts the torso at most that far off, scaled to the body's height
+    assert np.hypot(*(guess[TORSO, :2] - body[TORSO, :2])) <= 0.27 * height / 1.75 + 1e-9, (
+        "where they stand"
+    )
 
 
 def test_where_a_track_began_is_where_its_torso_was_first_seen_not_before():
