@@ -97,6 +97,18 @@ class Build:
         self.weight += w
         self.known = bool((self.weight >= 1.0 / KNOWN**2).all())
 
+    def log_likelihood(self, other: Build) -> tuple[float, int]:
+        """The log-likelihood that `other` is this build (over the sizes both know, and
+        how many), or -inf if beyond the chi-square `SURE` quantile of the noise."""
+        both = (self.weight > 0) & (other.weight > 0)
+        if not both.any():
+            return -math.inf, 0
+        noise = 1.0 / self.weight[both] + 1.0 / other.weight[both] + POSTURE**2
+        d2, k = self.distance(other)
+        if not d2 <= _GATE[k]:
+            return -math.inf, k
+        return -0.5 * (d2 + float(np.log(2 * math.pi * noise).sum())), k
+
     def distance(self, other: Build) -> tuple[float, int]:
         """Squared distance in units of the noise over the sizes both know, and how many."""
         both = (self.weight > 0) & (other.weight > 0)
@@ -108,7 +120,7 @@ class Build:
         return float(np.sum(np.square(a - b) / noise)), int(both.sum())
 
 
-@dataclass
+@dataclass(eq=False)
 class Departed:
     """Someone who left every view: their identity, build, where and when last seen."""
 
@@ -125,25 +137,41 @@ class Gallery:
         self.departed: list[Departed] = []
 
     def leave(self, who: Departed) -> None:
-        """Someone left; remember them for `REMEMBER`."""
-        self.departed.append(who)
+        """Someone left (or an identity given wrongly comes back); remember them for
+        `REMEMBER`."""
+        if who not in self.departed:
+            self.departed.append(who)
 
-    def recognise(self, build: Build, place: tuple[float, float], when: float) -> int | None:
-        """The identity of the one who left whom a newcomer (`build`, first seen at
-        `place` at `when`) clearly is, taken from the gallery; None if no one clearly."""
+    def forget(self, who: Departed | None) -> None:
+        """One thought gone was not: they are no one to know again."""
+        if who in self.departed:
+            self.departed.remove(who)
+
+    def recognise(self, build: Build, place: tuple[float, float], when: float) -> Departed | None:
+        """The one who left whom a newcomer (`build`, first seen at `place` at `when`)
+        clearly is, taken from the gallery; None if no one clearly.
+
+        Each who left is scored by how likely the newcomer's build is theirs (within the
+        noise: `SURE`) and how likely they are to come back here now: anywhere within a
+        walk (`WALK_SPEED`) of where they left, which is a short stretch of the views'
+        edge for someone who left a moment ago and the whole room after a while (the
+        likelihood falls as 1 / reach). The best must be `LIKELIHOOD_RATIO` likelier than
+        the next: one who left a moment ago where the newcomer appears is told from one
+        who left long ago even if their builds are alike, and two who left alike, at
+        once, from the same place are not told apart."""
         self.departed = [d for d in self.departed if when - d.when <= REMEMBER]
         scored = []
         for d in self.departed:
             reach = WALK_SPEED * max(when - d.when, 0.0) + 1.0
-            if math.hypot(place[0] - d.place[0], place[1] - d.place[1]) > reach:
+            if not math.hypot(place[0] - d.place[0], place[1] - d.place[1]) <= reach:
                 continue
-            d2, k = build.distance(d.build)
-            if k and d2 <= _GATE[k]:
-                scored.append((d2, d))
+            log_likelihood, k = build.log_likelihood(d.build)
+            if k and math.isfinite(log_likelihood):
+                scored.append((log_likelihood - math.log(reach), d))
         if not scored:
             return None
-        scored.sort(key=lambda s: s[0])
-        if len(scored) > 1 and scored[1][0] - scored[0][0] < 2 * math.log(LIKELIHOOD_RATIO):
-            return None  # two who left are built alike: no clear answer
+        scored.sort(key=lambda s: -s[0])
+        if len(scored) > 1 and scored[0][0] - scored[1][0] < math.log(LIKELIHOOD_RATIO):
+            return None  # no clear answer
         self.departed.remove(scored[0][1])
-        return scored[0][1].id
+        return scored[0][1]

@@ -5,9 +5,9 @@ Association: each frame's people are paired with the tracks, the most recently s
 tracks first (a track that just lost its person must not take a neighbour's), on the
 median joint distance in units of the noise (`fusion.normalized_cost`): near where
 walking on at the body's velocity would put them, or within a walk (1.6 m/s, any
-direction) of where they were last seen, whichever is nearer (someone who turns back
-at the edge of a view is not where walking on would put them). A person hidden for
-up to `keep_for` (2 s) behind someone is found again where they reappear.
+direction) of where they were last seen, whichever is nearer (someone hidden who
+turns back is not where walking on would put them). A person hidden for up to
+`keep_for` (2 s) behind someone is found again where they reappear.
 
 Confirmation: ghost skeletons (false positives under 1 s, thesis 3.4) are
 single-camera artifacts that stand still and appear anywhere in a view. A track is
@@ -17,10 +17,14 @@ the detector's to say), when they walked beyond the noise (`WALK_SIGMAS`), or af
 `confirm_after`. Only confirmed tracks count as people.
 
 Lives: a tentative track unseen for `TENTATIVE_KEEP` is dropped. A confirmed track
-the detector judges gone (`lose`: it left every view) stops counting but keeps its
-identity for `keep_for`, and counts again once credible, as a new track would. Who
-leaves for longer is remembered by their build (`reid`): a newcomer built clearly
-like one of them is given their identity back.
+the detector judges gone (`lose`: it left every view, or is missed in a clear view)
+stops counting and takes no more detections; it is remembered in a gallery by its
+build, where and when it left (`reid`). Who comes into sight is a newcomer, and once
+credible, takes back the identity of one who left if it is clearly theirs: by where
+and when they appear against where and when each left (someone back a moment later
+where they left is told from one who left long ago), and by their build, checked
+again once it is known. One mechanism serves someone who turns back at the edge of a
+view and someone who comes back a minute later.
 """
 
 from __future__ import annotations
@@ -106,8 +110,8 @@ class Track:
     """When this sighting began: the track's birth, or its first detection after more
     than `TENTATIVE_KEEP` unseen."""
     gone: bool = False
-    """Judged gone (`lose`): it keeps its identity for `keep_for`, but counts again
-    only once credible, as a new track would."""
+    """Judged gone (`lose`): remembered in the gallery, takes no more detections, kept
+    `keep_for` for its last place only."""
     born: tuple[float, float] | None = None
     """The torso's floor position where this sighting began."""
     born_sigma: float = math.inf
@@ -117,7 +121,16 @@ class Track:
     build: Build = field(default_factory=Build)
     """The body's sizes measured so far (`reid`): who it is, should it leave and return."""
     known: bool = False
-    """Its build was compared with the people who left (once, `FRAMES_TO_KNOW` in)."""
+    """Its build was compared with the people who left once known well enough
+    (`FRAMES_TO_KNOW` detections in)."""
+    born_id: int = 0
+    """The identity it was born with (`id` may be one it took from the gallery)."""
+    reclaimed: Departed | None = None
+    """The one who left whose identity it took, until its build confirms it."""
+    departed: Departed | None = None
+    """Its entry in the gallery while judged gone."""
+    was_confirmed: bool = False
+    """It has counted before (a track found again is not a newcomer)."""
     origin: tuple[float, float] = (math.nan, math.nan)
     """The torso's floor position when first seen."""
     shape: np.ndarray = field(default_factory=lambda: UPRIGHT.copy())
@@ -204,6 +217,15 @@ def complete(joints: np.ndarray, shape: np.ndarray = UPRIGHT) -> np.ndarray:
     return out
 
 
+def _appeared(track: Track) -> tuple[float, float]:
+    """Where a track was first seen: its torso then, or where its body puts the torso
+    if it was not seen yet (someone at the edge of a view)."""
+    if math.isfinite(track.origin[0]):
+        return track.origin
+    torso = complete(track.joints, track.shape)[TORSO]
+    return (float(torso[0]), float(torso[1]))
+
+
 def _slope(path: deque[tuple[float, float, float]]) -> np.ndarray:
     """The least-squares velocity (x, y, 0) of (t, x, y) samples; 0 for fewer than two."""
     n = len(path)
@@ -270,39 +292,93 @@ class PeopleTracker:
             pairs = self._associate(tracks, candidates, now)
             for i, j in pairs:
                 k = unmatched[j]
+                if tracks[i].gone:  # judged gone a moment ago, and there after all
+                    self.gallery.forget(tracks[i].departed)
+                    tracks[i].gone, tracks[i].departed = False, None
                 tracks[i]._seen(candidates[j], now, size(k, tracks[i].build), relative[k])
             taken = {unmatched[j] for _, j in pairs}
             unmatched = [j for j in unmatched if j not in taken]
         for j in unmatched:
             person = people[j]
             track = Track(next(self._ids), person.joints, person.sigma, now, now)
+            track.born_id = track.id
             track._seen(person, now, size(j, track.build), relative[j])
             self.tracks.append(track)
         kept = []
         for t in self.tracks:
             if now - t.last_seen <= (self.keep_for if t.confirmed or t.gone else TENTATIVE_KEEP):
                 kept.append(t)
-            elif t.confirmed or t.gone:  # someone who left: remembered by their build
-                where = t.last_place()[TORSO]
-                self.gallery.leave(Departed(t.id, t.build, (where[0], where[1]), t.last_seen))
+            elif t.confirmed:  # unseen too long (the detector loses them before)
+                self._depart(t)
         self.tracks = kept
         for track in self.tracks:
             if track.last_seen < now:  # unseen: coasted on, so it is reported where it walks
                 track.joints, track.at = track.predicted(now), now
+        back: set[int] = set()
         for track in self.tracks:
             if not track.confirmed and track.last_seen == now and self._credible(track, now):
-                track.confirmed, track.gone = True, False
+                if not track.was_confirmed and not track.known:
+                    self._recognise(track)
+                track.confirmed = track.was_confirmed = True
             if track.confirmed and not track.known and track.frames >= FRAMES_TO_KNOW:
                 track.known = True
-                former = self.gallery.recognise(track.build, track.origin, track.first_seen)
-                if former is not None:
-                    track.id = former  # someone who left, back
+                self._recognise(track)
+            if track.reclaimed is not None:
+                back.add(track.id)
+        if back:  # who came back is no longer kept as gone (their envelope is the new track's)
+            self.tracks = [t for t in self.tracks if not (t.gone and t.id in back)]
         return list(self.tracks)
 
+    def _depart(self, track: Track) -> None:
+        """Remember one who left by their build, where and when last seen. Who leaves
+        before their build is known (a moment in sight at the edge of a view) is first
+        asked to be someone who left before, and if clearly so, leaves as them, with
+        that one's better known build: the gallery must not hold one person twice (two
+        entries built alike make every later answer unclear)."""
+        where = complete(track.last_place(), track.shape)[TORSO]
+        place = (float(where[0]), float(where[1]))
+        build = track.build
+        if not track.known and track.was_confirmed:
+            if track.reclaimed is None:
+                track.reclaimed = self.gallery.recognise(
+                    track.build, _appeared(track), track.first_seen
+                )
+            if track.reclaimed is not None:
+                track.id, build = track.reclaimed.id, track.reclaimed.build
+        track.departed = Departed(track.id, build, place, track.last_seen)
+        self.gallery.leave(track.departed)
+
+    def _recognise(self, track: Track) -> None:
+        """Give a confirmed newcomer the identity of one who left, if clearly theirs: at
+        once when confirmed (where and when they appeared, and what little of their build
+        one frame shows), and again once their build is known (`FRAMES_TO_KNOW`), which
+        may keep the identity, take a clearer one, or give it back."""
+        taken = track.reclaimed
+        if taken is not None:
+            self.gallery.leave(taken)  # judged afresh, against everyone who left
+        former = self.gallery.recognise(track.build, _appeared(track), track.first_seen)
+        still_theirs = (
+            former is None
+            and taken is not None
+            and taken in self.gallery.departed
+            and math.isfinite(track.build.log_likelihood(taken.build)[0])
+        )
+        if still_theirs:  # no clearer answer, and the build does not deny it
+            self.gallery.forget(taken)
+            former = taken
+        track.reclaimed = former
+        track.id = former.id if former is not None else track.born_id
+
     def _tiers(self, now: float) -> list[list[int]]:
-        """Track indices grouped by the frames since they were last seen, freshest first."""
+        """Track indices grouped by the frames since they were last seen, freshest first.
+        A track judged gone is associated only for `TENTATIVE_KEEP` after it was last
+        seen (a camera that loses someone at the edge of its view for a frame or two):
+        who comes back later is a newcomer, known again through the gallery (a track
+        kept for longer took the next person to appear where it left)."""
         tiers: dict[int, list[int]] = {}
         for i, track in enumerate(self.tracks):
+            if track.gone and now - track.last_seen > TENTATIVE_KEEP:
+                continue
             tiers.setdefault(round((now - track.last_seen) / FRAME), []).append(i)
         return [tiers[k] for k in sorted(tiers)]
 
@@ -350,13 +426,15 @@ class PeopleTracker:
             or track.walked >= WALK_SIGMAS * math.sqrt(2) * track.born_sigma
         )
 
-    @staticmethod
-    def lose(track: Track) -> None:
+    def lose(self, track: Track) -> None:
         """The person a confirmed track stood for is gone (the detector judged they left
         every view, or a camera that sees the place clearly misses them): it no longer
-        counts, and should it be seen again within `keep_for` (someone walking back in,
-        or a ghost where it was), it keeps its identity but counts only once credible."""
+        counts nor takes detections, and is remembered in the gallery, so that who comes
+        back, once credible as any newcomer, takes their identity again if clearly
+        theirs. The track stays `keep_for` for its last place (the robot keeps its
+        distance a while)."""
         track.confirmed, track.gone = False, True
+        self._depart(track)
 
     @property
     def people(self) -> list[Track]:

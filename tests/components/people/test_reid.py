@@ -90,7 +90,7 @@ def _gallery(*bodies, when=0.0, place=(2.0, 0.0)):
 def test_a_newcomer_built_like_one_who_left_takes_their_identity_once():
     gallery = _gallery(Body(1.60), Body(1.85))
     newcomer = measured(Body(1.85), 15, np.random.default_rng(2))
-    assert gallery.recognise(newcomer, (1.5, 0.5), 5.0) == 2
+    assert gallery.recognise(newcomer, (1.5, 0.5), 5.0).id == 2
     assert gallery.recognise(newcomer, (1.5, 0.5), 5.0) is None, "taken: no one else gets it"
 
 
@@ -124,3 +124,57 @@ def test_someone_who_walks_out_of_every_view_and_back_later_is_the_same_track_id
         tracker.update([both_cameras(bob, (1.0, 0.0)), both_cameras(alice, (-1.0, 0.0))], k * FRAME)
     again = {round(t.joints[2, 0]): t.id for t in tracker.people}
     assert again == {1: first[-1], -1: first[1]}, "known by their build, not their place"
+
+
+def test_one_who_left_a_moment_ago_where_the_newcomer_appears_is_told_from_one_long_gone():
+    # built alike (a centimetre apart): the build alone cannot tell them apart, but one
+    # left here a second ago and the other 40 s ago across the room (reach 2.6 m vs 65 m)
+    rng = np.random.default_rng(6)
+    gallery = Gallery()
+    gallery.leave(Departed(1, measured(Body(1.72), 30, rng), (-2.0, 1.0), -20.0))
+    gallery.leave(Departed(2, measured(Body(1.73), 30, rng), (2.0, 0.0), 19.0))
+    newcomer = measured(Body(1.73), 1, rng)  # one frame: what confirmation sees
+    assert gallery.recognise(newcomer, (2.2, 0.1), 20.0).id == 2
+    # and no one is given an identity the place and time cannot tell
+    gallery = Gallery()
+    gallery.leave(Departed(1, measured(Body(1.72), 30, rng), (2.0, 0.5), 19.0))
+    gallery.leave(Departed(2, measured(Body(1.73), 30, rng), (2.0, -0.5), 19.0))
+    assert gallery.recognise(newcomer, (2.2, 0.0), 20.0) is None
+
+
+def test_a_newcomer_where_someone_just_left_does_not_take_their_identity_if_built_otherwise():
+    rng = np.random.default_rng(7)
+    gallery = Gallery()
+    gallery.leave(Departed(1, measured(Body(1.60, 0.9), 30, rng), (2.0, 0.0), 9.5))
+    assert gallery.recognise(measured(Body(1.90, 1.1), 15, rng), (2.1, 0.0), 10.0) is None
+
+
+def _walker(tracker, body, rng, at, k, cameras=frozenset({"k0", "k1"})):
+    joints = standing(at, 0.0, build=body) + rng.normal(0.0, SIGMA, (15, 3))
+    return Person(joints, np.full(15, SIGMA), cameras)
+
+
+def test_who_turns_back_at_the_edge_of_the_views_has_their_identity_from_the_first_frame_back():
+    tracker, rng = PeopleTracker(), np.random.default_rng(8)
+    alice, bob = Body(1.66), Body(1.78)
+    for k in range(45):  # both seen 1.5 s; alice stands far off, bob walks to the edge
+        tracker.update(
+            [
+                _walker(tracker, alice, rng, (-2.0, 0.0), k),
+                _walker(tracker, bob, rng, (2.0, 0.0), k),
+            ],
+            k * FRAME,
+        )
+    ids = {round(t.joints[2, 0]): t.id for t in tracker.people}
+    bob_track = next(t for t in tracker.tracks if t.id == ids[2])
+    tracker.lose(bob_track)  # the detector judged bob gone out of every view
+    for k in range(45, 60):  # 0.5 s out of sight
+        tracker.update([_walker(tracker, alice, rng, (-2.0, 0.0), k)], k * FRAME)
+    k = 60
+    tracker.update(
+        [_walker(tracker, alice, rng, (-2.0, 0.0), k), _walker(tracker, bob, rng, (2.1, 0.0), k)],
+        k * FRAME,
+    )
+    back = {round(t.joints[2, 0]): t.id for t in tracker.people}
+    assert back == ids, "two cameras confirm him at once, and he is bob again at once"
+    assert not any(t.gone for t in tracker.tracks), "the gone track made way for him"
