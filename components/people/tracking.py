@@ -292,9 +292,8 @@ class PeopleTracker:
             pairs = self._associate(tracks, candidates, now)
             for i, j in pairs:
                 k = unmatched[j]
-                if tracks[i].gone:  # judged gone a moment ago, and there after all
-                    self.gallery.forget(tracks[i].departed)
-                    tracks[i].gone, tracks[i].departed = False, None
+                if tracks[i].gone:
+                    self._found_again(tracks[i])
                 tracks[i]._seen(candidates[j], now, size(k, tracks[i].build), relative[k])
             taken = {unmatched[j] for _, j in pairs}
             unmatched = [j for j in unmatched if j not in taken]
@@ -325,28 +324,32 @@ class PeopleTracker:
                 self._recognise(track)
             if track.reclaimed is not None:
                 back.add(track.id)
-        if back:  # who came back is no longer kept as gone (their envelope is the new track's)
-            self.tracks = [t for t in self.tracks if not (t.gone and t.id in back)]
+        if back:  # who came back is no longer kept as gone (their envelope is the new
+            # track's), once too long unseen to be found again (`_found_again`)
+            self.tracks = [
+                t
+                for t in self.tracks
+                if not (t.gone and t.id in back and now - t.last_seen > TENTATIVE_KEEP)
+            ]
         return list(self.tracks)
 
     def _depart(self, track: Track) -> None:
-        """Remember one who left by their build, where and when last seen. Who leaves
-        before their build is known (a moment in sight at the edge of a view) is first
-        asked to be someone who left before, and if clearly so, leaves as them, with
-        that one's better known build: the gallery must not hold one person twice (two
-        entries built alike make every later answer unclear)."""
+        """Remember one who left by their build, where and when last seen."""
         where = complete(track.last_place(), track.shape)[TORSO]
-        place = (float(where[0]), float(where[1]))
-        build = track.build
-        if not track.known and track.was_confirmed:
-            if track.reclaimed is None:
-                track.reclaimed = self.gallery.recognise(
-                    track.build, _appeared(track), track.first_seen
-                )
-            if track.reclaimed is not None:
-                track.id, build = track.reclaimed.id, track.reclaimed.build
-        track.departed = Departed(track.id, build, place, track.last_seen)
+        track.departed = Departed(track.id, track.build, (where[0], where[1]), track.last_seen)
         self.gallery.leave(track.departed)
+
+    def _found_again(self, track: Track) -> None:
+        """A track judged gone a moment ago is there after all: it is no one to know
+        again, and a newcomer who took its identity meanwhile gives it back (the track
+        followed the person frame to frame; the newcomer only looked like them)."""
+        if track.departed in self.gallery.departed:
+            self.gallery.forget(track.departed)
+        else:
+            for other in self.tracks:
+                if other.reclaimed is track.departed:
+                    other.id, other.reclaimed = other.born_id, None
+        track.gone, track.departed = False, None
 
     def _recognise(self, track: Track) -> None:
         """Give a confirmed newcomer the identity of one who left, if clearly theirs: at

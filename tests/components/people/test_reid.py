@@ -1,6 +1,8 @@
 """Spec: someone who left every view is known again by their build, and only when the
 answer is clear."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -178,3 +180,47 @@ def test_who_turns_back_at_the_edge_of_the_views_has_their_identity_from_the_fir
     back = {round(t.joints[2, 0]): t.id for t in tracker.people}
     assert back == ids, "two cameras confirm him at once, and he is bob again at once"
     assert not any(t.gone for t in tracker.tracks), "the gone track made way for him"
+
+
+@pytest.mark.parametrize(
+    ("variant", "name"),
+    [
+        (1, "thesis-cross-7p2c"),  # a lost track found again after a newcomer took its name
+        (0, "corners-wander-6p2c"),  # people in and out of sight at the far edges
+        (0, "ring-in_out-4p4c"),
+    ],
+)
+def test_no_two_tracks_ever_bear_one_identity(variant, name):
+    from components.bench import scenes
+    from components.bench.people import detector
+    from components.people.kinect_sim import frames
+
+    scene = dataclasses.replace({s.name: s for s in scenes.suite(variant)}[name], seconds=12.0)
+    cams = scenes.cameras_for(scene)
+    core, script = detector(cams), scenes.Script(scene)
+    for k in range(int(scene.seconds / scenes.FRAME)):
+        t = k * scenes.FRAME
+        core.process(frames(cams, script.advance(t, scenes.FRAME), t, scenes.FRAME), t)
+        live = [track.id for track in core.tracker.tracks if not track.gone]
+        assert len(live) == len(set(live)), f"t={t:.2f}: {sorted(live)}"
+
+
+def test_a_track_found_again_takes_its_identity_back_from_a_newcomer_who_took_it():
+    tracker, rng = PeopleTracker(), np.random.default_rng(9)
+    alice = Body(1.70)
+    for k in range(30):
+        tracker.update([_walker(tracker, alice, rng, (2.0, 0.0), k)], k * FRAME)
+    (track,) = tracker.people
+    tracker.lose(track)  # missed for a moment
+    # someone built like her appears 0.6 m away, two cameras at once: her identity
+    tracker.update([_walker(tracker, alice, rng, (2.6, 0.0), 30)], 30 * FRAME)
+    newcomer = next(t for t in tracker.people if t is not track)
+    assert newcomer.id == track.id, "looks like her, where she was a moment ago"
+    tracker.update(  # and she is there after all, where the track left her
+        [
+            _walker(tracker, alice, rng, (2.0, 0.0), 31),
+            _walker(tracker, alice, rng, (2.6, 0.0), 31),
+        ],
+        31 * FRAME,
+    )
+    assert not track.gone and newcomer.id == newcomer.born_id != track.id
