@@ -230,17 +230,20 @@ class PeopleDetectorCore:
                 entering = not self._should_see(joints, cameras, reporting, others)
             people.append(Person(joints, sigma, cameras, trusted, entering))
         tracks = self.tracker.update(people, now)
-        seen = [t.joints for t in tracks if t.last_seen == now]
-        seen_now = np.stack(seen) if seen else np.zeros((0, 15, 3))
+        seen_now: np.ndarray | None = None
         confirmed, lately = [], []
         for t in tracks:
-            if t.confirmed and (
-                t.last_seen == now or self._still_there(t, now, reporting, seen_now)
-            ):
+            verdict = "there"
+            if t.confirmed and t.last_seen < now:
+                if seen_now is None:
+                    seen = [s.joints for s in tracks if s.last_seen == now]
+                    seen_now = np.stack(seen) if seen else np.zeros((0, 15, 3))
+                verdict = self._still_there(t, now, reporting, seen_now)
+            if t.confirmed and verdict == "there":
                 confirmed.append(t)
                 continue
             if t.confirmed:
-                self.tracker.lose(t)
+                self.tracker.lose(t, left=verdict == "left")
             if t.gone and now - t.last_seen <= RECENT:
                 lately.append(t)
         near = 0
@@ -275,38 +278,42 @@ class PeopleDetectorCore:
             envelope[:3],
         )
 
-    def _still_there(
-        self, track: Track, now: float, reporting: list[str], seen: np.ndarray
-    ) -> bool:
-        """Whether a confirmed track no camera saw this frame still stands for someone.
+    def _still_there(self, track: Track, now: float, reporting: list[str], seen: np.ndarray) -> str:
+        """Whether a confirmed track no camera saw this frame still stands for someone
+        ("there"), is missed where cameras look ("missed"), or "left" every view.
         Judged on their whole body where they should be now (the joints no camera saw
         where the body's shape puts them: someone walking out of a view is last seen
-        with only the joints still inside it): in some camera's clear view, for
+        with only the joints still inside it): in some camera's clear view, there for
         `missed_for`; hidden behind others from every camera that has them in view (or
-        where a camera that did not report looks), for up to `hidden_for`; out of every
-        camera's view, or at its edge (under `FULLY_IN_VIEW` of the body inside it,
-        where a camera stops reporting someone walking out), not at all."""
+        where a camera that sent nothing this frame would report them: a dropped frame
+        is no evidence), for up to `hidden_for`; out of every camera's view, or at its
+        edge (under `FULLY_IN_VIEW` of the body inside it, where a camera stops
+        reporting someone walking out), not at all."""
         unseen = now - track.last_seen
         if unseen > self.config.hidden_for:
-            return False
+            return "missed"
         body = track.whole()
         body = body[np.isfinite(body).all(axis=1)]
         if not len(body):
-            return False
+            return "left"
         torsos = seen[:, 2][np.isfinite(seen[:, 2]).all(axis=1)]
         clear = hidden = False
         for name in self.cameras:
             camera_from_base = self._camera_from_base(name)
             points = body @ camera_from_base[:3, :3].T + camera_from_base[:3, 3]
-            if _fraction_in_view(points) < FULLY_IN_VIEW:
+            inside = _fraction_in_view(points)
+            if name not in reporting:  # this camera sent nothing (a dropped frame): unknown
+                hidden |= inside > 0.5  # where it would report them, they may well be
+                continue
+            if inside < FULLY_IN_VIEW:
                 continue  # out of this camera's view, or at its edge: walking out
-            if name not in reporting or _behind(points.mean(axis=0), torsos, camera_from_base):
-                hidden = True  # behind someone, or unknown: this camera sent nothing
+            if _behind(points.mean(axis=0), torsos, camera_from_base):
+                hidden = True  # behind someone
             else:
                 clear = True
         if clear:
-            return unseen <= self.config.missed_for
-        return hidden
+            return "there" if unseen <= self.config.missed_for else "missed"
+        return "there" if hidden else "left"
 
     def _entering(self, joints: np.ndarray, camera: str) -> bool:
         """Whether a body one camera sees stands where people come into its sight: a

@@ -129,6 +129,8 @@ class Track:
     """The one who left whose identity it took, until its build confirms it."""
     departed: Departed | None = None
     """Its entry in the gallery while judged gone."""
+    left: bool = False
+    """Judged gone because it left every view (not missed where cameras look)."""
     was_confirmed: bool = False
     """It has counted before (a track found again is not a newcomer)."""
     origin: tuple[float, float] = (math.nan, math.nan)
@@ -325,11 +327,11 @@ class PeopleTracker:
             if track.reclaimed is not None:
                 back.add(track.id)
         if back:  # who came back is no longer kept as gone (their envelope is the new
-            # track's), once too long unseen to be found again (`_found_again`)
+            # track's), once it cannot be found again (`_found_again`)
             self.tracks = [
                 t
                 for t in self.tracks
-                if not (t.gone and t.id in back and now - t.last_seen > TENTATIVE_KEEP)
+                if not (t.gone and t.id in back and not self._findable(t, now))
             ]
         return list(self.tracks)
 
@@ -374,16 +376,21 @@ class PeopleTracker:
 
     def _tiers(self, now: float) -> list[list[int]]:
         """Track indices grouped by the frames since they were last seen, freshest first.
-        A track judged gone is associated only for `TENTATIVE_KEEP` after it was last
-        seen (a camera that loses someone at the edge of its view for a frame or two):
-        who comes back later is a newcomer, known again through the gallery (a track
-        kept for longer took the next person to appear where it left)."""
+        A track judged gone because it left every view is associated only for
+        `TENTATIVE_KEEP` after it was last seen (a camera that loses someone at the
+        edge of its view for a frame or two): who comes back later is a newcomer, known
+        again through the gallery (a track kept for longer took the next person to
+        appear where it left). One missed where cameras look is associated `keep_for`."""
         tiers: dict[int, list[int]] = {}
         for i, track in enumerate(self.tracks):
-            if track.gone and now - track.last_seen > TENTATIVE_KEEP:
+            if track.gone and not self._findable(track, now):
                 continue
             tiers.setdefault(round((now - track.last_seen) / FRAME), []).append(i)
         return [tiers[k] for k in sorted(tiers)]
+
+    def _findable(self, track: Track, now: float) -> bool:
+        """Whether a track judged gone may still take detections (`_tiers`)."""
+        return now - track.last_seen <= (TENTATIVE_KEEP if track.left else self.keep_for)
 
     def _associate(
         self, tracks: list[Track], people: list[Person], now: float
@@ -429,14 +436,16 @@ class PeopleTracker:
             or track.walked >= WALK_SIGMAS * math.sqrt(2) * track.born_sigma
         )
 
-    def lose(self, track: Track) -> None:
-        """The person a confirmed track stood for is gone (the detector judged they left
-        every view, or a camera that sees the place clearly misses them): it no longer
-        counts nor takes detections, and is remembered in the gallery, so that who comes
-        back, once credible as any newcomer, takes their identity again if clearly
-        theirs. The track stays `keep_for` for its last place (the robot keeps its
-        distance a while)."""
-        track.confirmed, track.gone = False, True
+    def lose(self, track: Track, left: bool = True) -> None:
+        """The person a confirmed track stood for is gone: they `left` every view, or
+        cameras that look where they are miss them. It no longer counts, and is
+        remembered in the gallery, so that who comes back, once credible as any
+        newcomer, takes their identity again if clearly theirs. Who left takes no more
+        detections after `TENTATIVE_KEEP` (someone else may come in where they left);
+        who is missed where cameras look is likely still there, and the track takes
+        their detections for `keep_for` (it counts again once credible). The track
+        stays `keep_for` for its last place (the robot keeps its distance a while)."""
+        track.confirmed, track.gone, track.left = False, True, left
         self._depart(track)
 
     @property

@@ -359,3 +359,22 @@ def test_a_ghost_where_the_master_looks_costs_its_camera_no_trust():
         core.process({"k0": [], "k1": [(50, cams[1].to_camera(ghost))]}, k * FRAME)
     assert core.verified == {"k0", "k1"}
     assert core.process({"k0": [], "k1": []}, 27 * FRAME).people == [], "never someone"
+
+
+def test_a_dropped_frame_is_no_evidence_that_someone_at_the_edge_of_a_view_left():
+    """A camera that sends nothing in a frame says nothing about who it sees; a person
+    with part of their body beyond its edge must not be taken for one walking out."""
+    cams, core = _one_camera()
+    camera = cams[0]
+    spots = [(x, -0.5) for x in np.linspace(1.0, 1.8, 81)]
+    inside = [camera.in_view(camera.to_camera(standing(s))).mean() for s in spots]
+    at_edge = next(s for s, f in zip(spots, inside, strict=True) if 0.55 <= f <= 0.75)
+    for k in range(60):  # seen whole in the middle, then walks to the edge and stands
+        x = 0.6 + (at_edge[0] - 0.6) * min(max(k - 20, 0) / 30, 1.0)
+        frame = run(cams, core, {1: standing((x, at_edge[1]))}, 1, start=k)
+    assert len(frame.people) == 1, "seen and counted"
+    person = {1: standing(at_edge)}
+    frame = run(cams, core, person, 1, start=60, drop=("k0",))
+    assert len(frame.people) == 1, "the camera sent nothing: still counted"
+    frame = run(cams, core, person, 1, start=61)
+    assert [p.id for p in frame.people] == [frame.people[0].id] and frame.people[0].id == 1
