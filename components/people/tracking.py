@@ -17,9 +17,10 @@ the detector's to say), when they walked beyond the noise (`WALK_SIGMAS`), or af
 `confirm_after`. Only confirmed tracks count as people.
 
 Lives: a tentative track unseen for `TENTATIVE_KEEP` is dropped. A confirmed track
-the detector judges gone (`lose`: it left every view, or is missed in a clear view)
-stops counting and takes no more detections; it is remembered in a gallery by its
-build, where and when it left (`reid`). Who comes into sight is a newcomer, and once
+the detector judges gone (`lose`) stops counting and is remembered in a gallery by
+its build, where and when it left (`reid`). If it left every view it takes no more
+detections after `TENTATIVE_KEEP`; if cameras look where it is and miss it, it takes
+them for `keep_for` (and counts again once credible). Who comes into sight is a newcomer, and once
 credible, takes back the identity of one who left if it is clearly theirs: by where
 and when they appear against where and when each left (someone back a moment later
 where they left is told from one who left long ago), and by their build, checked
