@@ -10,7 +10,7 @@ Where the cameras look is what the detector knows and the tracker does not: whet
 someone first seen by one camera stands where people come into sight (at the edge of
 its view, `_entering`), and whether a track no camera sees this frame still stands
 for someone (hidden behind others) or is gone (out of every view, at a view's edge,
-or missed in a clear view: `_still_there`), judged on the whole body.
+or missed in a clear view: `_whereabouts`), judged on the whole body.
 
 Bad input is contained: non-finite joints become unseen joints, a camera that stops
 simply contributes nothing, and a camera whose calibration is wrong cannot create
@@ -238,7 +238,7 @@ class PeopleDetectorCore:
                 if seen_now is None:
                     seen = [s.joints for s in tracks if s.last_seen == now]
                     seen_now = np.stack(seen) if seen else np.zeros((0, 15, 3))
-                verdict = self._still_there(t, now, reporting, seen_now)
+                verdict = self._whereabouts(t, now, reporting, seen_now)
             if t.confirmed and verdict == "there":
                 confirmed.append(t)
                 continue
@@ -278,7 +278,7 @@ class PeopleDetectorCore:
             envelope[:3],
         )
 
-    def _still_there(self, track: Track, now: float, reporting: list[str], seen: np.ndarray) -> str:
+    def _whereabouts(self, track: Track, now: float, reporting: list[str], seen: np.ndarray) -> str:
         """Whether a confirmed track no camera saw this frame still stands for someone
         ("there"), is missed where cameras look ("missed"), or "left" every view.
         Judged on their whole body where they should be now (the joints no camera saw

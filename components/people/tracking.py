@@ -20,8 +20,8 @@ Lives: a tentative track unseen for `TENTATIVE_KEEP` is dropped. A confirmed tra
 the detector judges gone (`lose`) stops counting and is remembered in a gallery by
 its build, where and when it left (`reid`). If it left every view it takes no more
 detections after `TENTATIVE_KEEP`; if cameras look where it is and miss it, it takes
-them for `keep_for` (and counts again once credible). Who comes into sight is a newcomer, and once
-credible, takes back the identity of one who left if it is clearly theirs: by where
+them for `keep_for` (and counts again once credible). Who comes into sight is a
+newcomer, and once credible, takes back the identity of one who left if it is clearly theirs: by where
 and when they appear against where and when each left (someone back a moment later
 where they left is told from one who left long ago), and by their build, checked
 again once it is known. One mechanism serves someone who turns back at the edge of a
@@ -111,8 +111,8 @@ class Track:
     """When this sighting began: the track's birth, or its first detection after more
     than `TENTATIVE_KEEP` unseen."""
     gone: bool = False
-    """Judged gone (`lose`): remembered in the gallery, takes no more detections, kept
-    `keep_for` for its last place only."""
+    """Judged gone (`lose`): remembered in the gallery, counts no more, and takes
+    detections only while `PeopleTracker._findable`."""
     born: tuple[float, float] | None = None
     """The torso's floor position where this sighting began."""
     born_sigma: float = math.inf
@@ -270,10 +270,10 @@ class PeopleTracker:
         """Feed one frame; returns the live tracks (tentative and confirmed)."""
         unmatched = list(range(len(people)))
         measured: list[tuple[np.ndarray, np.ndarray]] = []
-        relative: np.ndarray | list[None] = [None] * len(people)
-        if people:
-            joints = np.stack([p.joints for p in people])
-            relative = joints - joints[:, TORSO : TORSO + 1]
+        # the frame's people as arrays, once: their joints, noise, joints less the torso
+        joints = np.stack([p.joints for p in people]) if people else np.zeros((0, 15, 3))
+        noise = np.stack([p.sigma for p in people]) if people else np.zeros((0, 15))
+        relative = joints - joints[:, TORSO : TORSO + 1]
 
         def size(k: int, build: Build) -> tuple[np.ndarray, np.ndarray] | None:
             """Person k's sizes, if `build` still takes them (measured once per frame,
@@ -281,9 +281,7 @@ class PeopleTracker:
             if build.known:
                 return None
             if not measured:
-                measured.append(
-                    sizes(np.stack([p.joints for p in people]), np.stack([p.sigma for p in people]))
-                )
+                measured.append(sizes(joints, noise))
             values, variances = measured[0]
             return values[k], variances[k]
 
@@ -291,13 +289,12 @@ class PeopleTracker:
             if not unmatched:
                 break
             tracks = [self.tracks[i] for i in tier]
-            candidates = [people[j] for j in unmatched]
-            pairs = self._associate(tracks, candidates, now)
+            pairs = self._associate(tracks, joints[unmatched], noise[unmatched], now)
             for i, j in pairs:
                 k = unmatched[j]
                 if tracks[i].gone:
                     self._found_again(tracks[i])
-                tracks[i]._seen(candidates[j], now, size(k, tracks[i].build), relative[k])
+                tracks[i]._seen(people[k], now, size(k, tracks[i].build), relative[k])
             taken = {unmatched[j] for _, j in pairs}
             unmatched = [j for j in unmatched if j not in taken]
         for j in unmatched:
@@ -394,15 +391,13 @@ class PeopleTracker:
         return now - track.last_seen <= (TENTATIVE_KEEP if track.left else self.keep_for)
 
     def _associate(
-        self, tracks: list[Track], people: list[Person], now: float
+        self, tracks: list[Track], joints: np.ndarray, noise: np.ndarray, now: float
     ) -> list[tuple[int, int]]:
-        """Gated global assignment of these tracks (seen equally long ago) to people:
-        near where walking on would put them, or within a walk in any direction of
-        where they were last seen, whichever is nearer."""
+        """Gated global assignment of these tracks (seen equally long ago) to people
+        (their joints and noise): near where walking on would put them, or within a walk
+        in any direction of where they were last seen, whichever is nearer."""
         unseen = now - tracks[0].last_seen
         sigma = np.stack([t.sigma for t in tracks])
-        joints = np.stack([p.joints for p in people])
-        noise = np.stack([p.sigma for p in people])
         at = np.stack([t.joints for t in tracks])
         velocity = np.array([t.velocity for t in tracks])[:, None, :]
         ahead = normalized_cost(
