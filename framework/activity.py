@@ -172,8 +172,7 @@ class RealTimeExecutor:
         deadline = time.monotonic()
         while not self._stop.is_set():
             component.update()
-            for follower in self._followers.get(component.name, ()):
-                follower.update()
+            _follow(self._followers, component)
             deadline += period * max(1, int(component.periods_per_update))
             delay = deadline - time.monotonic()
             if delay < 0:  # overrun: skip missed periods instead of bunching them up
@@ -198,8 +197,7 @@ class RealTimeExecutor:
             while any(p.pending() for p in ports) and not self._stop.is_set():
                 before = sum(p.pending() for p in ports)
                 component.update()
-                for follower in self._followers.get(component.name, ()):
-                    follower.update()
+                _follow(self._followers, component)
                 if sum(p.pending() for p in ports) >= before:
                     break  # the component did not read: wait for the next sample
 
@@ -211,6 +209,16 @@ class RealTimeExecutor:
         for thread in self._threads:
             thread.join(timeout)
         self._threads.clear()
+
+
+def _follow(followers: dict[str, list[Component]], master: Component) -> int:
+    """Update the components that run `after` `master`, and theirs in turn (a chain:
+    the arm, then the robot interface, then the interpolator); how many updated."""
+    updated = 0
+    for follower in followers.get(master.name, ()):
+        follower.update()
+        updated += 1 + _follow(followers, follower)
+    return updated
 
 
 class SteppedExecutor:
@@ -266,10 +274,7 @@ class SteppedExecutor:
 
     def _update(self, component: Component) -> int:
         component.update()
-        followers = self._followers.get(component.name, ())
-        for follower in followers:
-            follower.update()
-        return 1 + len(followers)
+        return 1 + _follow(self._followers, component)
 
     def advance(self, seconds: float) -> int:
         """Move the clock forward, running every periodic update at its deadline."""

@@ -326,6 +326,12 @@ class _Loader:
                         f"be in one process ({process!r} vs {master.get('process', 'main')!r})",
                         (*here, "activity"),
                     )
+                elif loop := _after_loop(name, data["components"]):
+                    self.error(
+                        "activity",
+                        f"{name!r} runs after itself: {' -> '.join(loop)}",
+                        (*here, "activity"),
+                    )
             values = dict(spec.get("properties") or {})
             if info is not None:
                 if "property_file" in spec:
@@ -902,3 +908,21 @@ def load_topology(path: str | Path, classes: bool = True) -> Topology:
     if topo is None or any(f.severity == "error" for f in findings):
         raise FindingsError(findings)
     return topo
+
+
+def _after_loop(name: str, components: dict) -> list[str]:
+    """The chain of `after` masters from `name` back to itself ([] if it reaches a
+    component with a thread of its own): a loop would never run."""
+    chain = [name]
+    spec = components.get(name)
+    while isinstance(spec, dict) and isinstance(spec.get("activity"), dict):
+        master = spec["activity"].get("after")
+        if not isinstance(master, str):
+            return []
+        chain.append(master)
+        if master == name:
+            return chain
+        if master in chain[:-1]:
+            return []  # a loop further up: reported for the components on it
+        spec = components.get(master)
+    return []

@@ -148,3 +148,24 @@ def test_a_component_after_another_updates_right_after_it_in_its_thread(hub):
 def test_after_must_name_something():
     with pytest.raises(ActivityError, match="after: COMPONENT"):
         Activity.from_spec({"after": 3})
+
+
+def test_a_chain_of_after_activities_runs_whole_in_the_masters_thread():
+    # the arm, then the robot interface after it, then the interpolator after that: a
+    # follower's own follower used to be registered and never run
+    order: list[str] = []
+
+    class Step(Component):
+        def update_hook(self) -> None:
+            order.append(self.name)
+
+    clock = SimulatedClock()
+    executor = SteppedExecutor(clock)
+    arm, robot, interpolator = Step("arm"), Step("robot"), Step("interpolator")
+    for component in (arm, robot, interpolator):
+        assert component.configure() and component.start()
+    executor.add(interpolator, Activity.from_spec({"after": "robot"}))
+    executor.add(robot, Activity.from_spec({"after": "arm"}))
+    executor.add(arm, Activity.from_spec({"periodic": 100}))
+    executor.advance(0.02)
+    assert order == ["arm", "robot", "interpolator"] * 2

@@ -76,6 +76,7 @@ def test_the_toy_topology_is_clean():
         ("activity: {event: inp}", "activity: {event: input}", "activity"),
         ("activity: {event: inp}", "activity: {after: t1}", "activity"),  # another process
         ("activity: {event: inp}", "activity: {after: t9}", "activity"),  # no such component
+        ("activity: {event: inp}", "activity: {after: supervisor}", "activity"),  # itself
         ("process: trackers", "process: tracker", "process"),
         (
             "  trackers: {}\n  control_side: {shutdown: first}\n",
