@@ -19,6 +19,7 @@ capsules join with the SEEG robot model (Pinocchio forward kinematics).
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any
 
@@ -38,6 +39,9 @@ from framework.properties import prop
 from framework.yamlio import load_yaml
 
 SCHEMA = "components.people:cameras.schema.json"
+MAX_FRAME_DELAY = 0.5
+"""s: the most a frame's age moves the tracker's time back (a camera whose clock is
+off, or a garbage stamp, cannot hold the tracker's time still)."""
 
 
 class CameraConfigError(LocatedError):
@@ -158,7 +162,19 @@ class WorkspacePeopleDetector(Component):
         self.robot = None
         self._people = []
         self._seen_at = 0.0  # the oldest camera frame of the latest that arrived
+        self._observed_at = -math.inf
         return True
+
+    def _observed(self, stamps: list[float]) -> float:
+        """The time the cameras saw this frame, on the component's clock: now, less how
+        long ago the newest frame was taken. The tracker counts how long someone lasted
+        in the time they were seen, so frames that a busy host delivers late do not
+        stretch a ghost into a lasting detection; never earlier than the last frame's."""
+        now = self.clock.now()
+        if stamps:
+            now -= min(max(time.time() - max(stamps), 0.0), MAX_FRAME_DELAY)
+        self._observed_at = max(now, self._observed_at)
+        return self._observed_at
 
     def update_hook(self) -> None:
         users, stamps = {}, []
@@ -177,8 +193,7 @@ class WorkspacePeopleDetector(Component):
                 self.kinematics = Kinematics()
             capsules = self.kinematics.capsules(np.asarray(joints.position))
             self.robot = (capsules.a, capsules.b, capsules.radius)
-        now = time.monotonic()
-        frame = self.core.process(users, now, self.robot)
+        frame = self.core.process(users, self._observed(stamps), self.robot)
         self._people = list(frame.people)
         stamp = time.time()
         # the safety-relevant values go out first: the robot keeps its distance from the

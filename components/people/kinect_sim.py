@@ -38,6 +38,7 @@ class KinectModel:
     lateral_noise: float = 0.01
     dropout: float = 0.02
     ghost_rate: float = 0.02  # ghosts started per second
+    floor: float = 0.0  # the floor's height, where ghosts stand as people do
     rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
     _ids: dict[int, int] = field(default_factory=dict)
     _ghosts: list[tuple[float, float, np.ndarray, int]] = field(default_factory=list)
@@ -125,7 +126,9 @@ class KinectModel:
             heading = math.atan2(axis[1], axis[0]) + self.rng.uniform(-H_FOV / 2, H_FOV / 2)
             reach = self.rng.uniform(1.5, 3.5)
             at = (eye[0] + reach * math.cos(heading), eye[1] + reach * math.sin(heading))
-            ghost = self.to_camera(standing(at, self.rng.uniform(0, 2 * math.pi)))
+            body = standing(at, self.rng.uniform(0, 2 * math.pi))
+            body[:, 2] += self.floor
+            ghost = self.to_camera(body)
             inside = self.in_view(ghost)
             if inside.mean() > 0.5:
                 ghost[~inside] = np.nan
@@ -174,6 +177,7 @@ class KinectSim(Component):
     target = prop(list, [0.0, 0.0, 1.0], doc="point the camera looks at (m)")
     seed = prop(int, 0, doc="noise seed")
     ghost_rate = prop(float, 0.02, min=0.0, max=10.0, doc="ghosts per second")
+    floor = prop(float, -0.8, unit="m", doc="floor height in the world frame (people_world's)")
     users = Out(Skeletons, doc="the users this camera sees")
     world = In(Skeletons, doc="true skeletons of the simulated OR (sim/people); else `place`")
 
@@ -182,14 +186,20 @@ class KinectSim(Component):
             self.name,
             look_at(tuple(self.position), tuple(self.target)),
             ghost_rate=self.ghost_rate,
+            floor=self.floor,
             rng=np.random.default_rng(self.seed),
         )
         self.people: dict[int, np.ndarray] = {}
-        self.clock = 0.0
+        self._last: float | None = None
         return True
 
     def update_hook(self) -> None:
-        self.clock += 1.0 / 30.0
+        # the camera lives in the room's time: a frame covers the time since the last
+        # one (a busy host makes fewer, longer frames), so a ghost lasts under a second
+        # of the clock that the people walk by, not a count of frames
+        now = self.clock.now()
+        dt = 1.0 / 30.0 if self._last is None else min(max(now - self._last, 0.0), 0.1)
+        self._last = now
         import time
 
         status, truth = self.world.read()
@@ -198,14 +208,16 @@ class KinectSim(Component):
                 u.user_id: np.array(u.joints, dtype=float).reshape(len(JOINTS), 3)
                 for u in truth.users
             }
-        frame = self.model.observe(self.people, self.clock, 1.0 / 30.0)
+        frame = self.model.observe(self.people, now, dt)
         if frame is not None:  # a dropped frame sends nothing
             self.users.write(self.model.to_message(frame, time.time()))
 
     @operation
     def place(self, person: int, x: float, y: float, facing: float = 0.0) -> None:
         """Put a standing person at floor position (x, y)."""
-        self.people[person] = standing((x, y), facing)
+        joints = standing((x, y), facing)
+        joints[:, 2] += self.floor
+        self.people[person] = joints
 
     @operation
     def remove(self, person: int) -> None:

@@ -378,3 +378,37 @@ def test_a_dropped_frame_is_no_evidence_that_someone_at_the_edge_of_a_view_left(
     assert len(frame.people) == 1, "the camera sent nothing: still counted"
     frame = run(cams, core, person, 1, start=61)
     assert [p.id for p in frame.people] == [frame.people[0].id] and frame.people[0].id == 1
+
+
+def test_frames_a_busy_host_delivers_late_do_not_stretch_a_ghost_into_someone_guarded():
+    # a ghost one camera saw for 0.9 s: the host stalls after its first frame and the
+    # rest arrive 0.35 s late. Counted in arrival time it lasted 1.2 s, a lasting
+    # detection the robot would keep its distance from (a false protective stop seen on
+    # a busy CI host); counted in the time the camera saw it, 0.9 s: no one
+    import time
+
+    from components.people.component import WorkspacePeopleDetector
+    from framework import messages
+    from framework.clock import SimulatedClock
+    from framework.messages import Skeletons
+    from tests.conftest import REPO
+
+    detector = WorkspacePeopleDetector("people_detector")
+    detector.set_property("cameras_file", str(REPO / "procedures/seeg/cameras.yaml"))
+    assert detector.configure()
+    detector.clock = clock = SimulatedClock(50.0)
+    camera = KinectModel(
+        "kinect_0", look_at((0.6, -2.3, 1.3), (0.6, 0.0, 0.0)), dropout=0.0, ghost_rate=0.0
+    )
+    ghost = {1: standing((0.6, -0.2))}
+    guarded = []
+    for k in range(90):
+        taken = k * FRAME  # when the camera saw it
+        late = 0.35 if k else 0.0
+        clock.set(50.0 + taken + late)
+        users = camera.observe(ghost, taken, FRAME) if k < 27 else []
+        message = camera.to_message(users, time.time() - late)
+        detector.camera_ports["kinect_0"].deliver_local(messages.encode(message, Skeletons))
+        detector.update_hook()
+        guarded.append(len(detector.envelopes.last.radius))
+    assert guarded[0] == 0 and max(guarded) == 0, "the ghost was never anyone"
