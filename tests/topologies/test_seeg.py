@@ -1,9 +1,17 @@
 """Spec: `fw deploy topologies/seeg.yaml --scenario F` on real processes, for every
-scenario of the procedure: the simulated OR plays it and every expectation holds."""
+scenario of the procedure: the simulated OR plays it and every expectation holds. These
+test the procedure, not the watches: their safety deadlines are stretched for a shared
+host (`SHARED_HOST_MARGIN`); test_seeg_faults.py proves the watches at the shipped ones."""
 
 import pytest
 
-from tests.conftest import REPO, check_scenarios, explain, play_seeg_scenario
+from tests.conftest import (
+    REPO,
+    SHARED_HOST_MARGIN,
+    check_scenarios,
+    explain,
+    play_seeg_scenario,
+)
 
 SCENARIOS = sorted((REPO / "procedures" / "seeg" / "scenarios").glob("*.yaml"))
 
@@ -21,7 +29,7 @@ LOCAL_SWITCHES = {"tracker_swap": {"tracker_2_up": "robot"}}
 @pytest.mark.parametrize("path", SCENARIOS, ids=[p.stem for p in SCENARIOS])
 def test_scenario_passes_on_real_processes(path, bus_config, tmp_path):
     history: list = []
-    failed = play_seeg_scenario(path, bus_config, tmp_path, history)
+    failed = play_seeg_scenario(path, bus_config, tmp_path, history, SHARED_HOST_MARGIN)
     assert not failed, explain(failed)
     for tag, process in LOCAL_SWITCHES.get(path.stem, {}).items():
         made = [o.switched_by for o in history if o.tag == tag and o.ok]
