@@ -145,7 +145,7 @@ class RealTimeExecutor:
         activity.check(component)
         self._entries.append((component, activity))
         if activity.kind == "after":
-            self._followers.setdefault(activity.master, []).append(component)
+            _add_follower(self._followers, activity.master, component)
         if activity.kind == "event":
             wake = self._wake[component.name] = threading.Event()
             component.wake_on(activity.ports, lambda _port, w=wake: w.set())
@@ -211,6 +211,18 @@ class RealTimeExecutor:
         self._threads.clear()
 
 
+def _add_follower(followers: dict[str, list[Component]], master: str, component: Component) -> None:
+    """Register `component` to run after `master`, refusing a chain that comes back to
+    it (it would never end; topologies are checked for this before anything starts)."""
+    masters = {f.name: m for m, fs in followers.items() for f in fs}
+    at = master
+    while at is not None:
+        if at == component.name:
+            raise ActivityError(f"{component.name!r} would run after itself (via {master!r})")
+        at = masters.get(at)
+    followers.setdefault(master, []).append(component)
+
+
 def _follow(followers: dict[str, list[Component]], master: Component) -> int:
     """Update the components that run `after` `master`, and theirs in turn (a chain:
     the arm, then the robot interface, then the interpolator); how many updated."""
@@ -249,7 +261,7 @@ class SteppedExecutor:
                     self._periodic, (self.clock.now() + period, self._order, component, -period)
                 )
         elif activity.kind == "after":
-            self._followers.setdefault(activity.master, []).append(component)
+            _add_follower(self._followers, activity.master, component)
 
     def start(self) -> None:
         """Nothing to start: time moves in `advance`."""

@@ -169,3 +169,11 @@ def test_a_chain_of_after_activities_runs_whole_in_the_masters_thread():
     executor.add(arm, Activity.from_spec({"periodic": 100}))
     executor.advance(0.02)
     assert order == ["arm", "robot", "interpolator"] * 2
+
+
+def test_an_after_chain_that_comes_back_to_itself_is_refused():
+    executor = SteppedExecutor(SimulatedClock())
+    a, b = Component("a"), Component("b")
+    executor.add(a, Activity.from_spec({"after": "b"}))
+    with pytest.raises(ActivityError, match="after itself"):
+        executor.add(b, Activity.from_spec({"after": "a"}))
