@@ -227,10 +227,20 @@ def play_seeg_scenario(
 ) -> list:
     """Play a scenario on the SEEG deployment (real processes, a private bus); the
     outcomes that failed. `history` receives the Configurator's outcomes; `margin`
-    stretches the safety deadlines (`SHARED_HOST_MARGIN`)."""
+    stretches the safety deadlines (`SHARED_HOST_MARGIN`), the simulated arm's own
+    command watchdog (40 of its cycles) among them."""
     return play_scenario(
         REPO / "topologies" / "seeg.yaml", path, bus_config, tmp_path, history, margin
     )
+
+
+def _arm_watchdog_stretched(topology, margin: float) -> None:
+    """The simulated arm's command watchdog x `margin` (its cycles without a setpoint)."""
+    arm = topology.components.get("arm")
+    declared = arm.info.properties.get("watchdog_cycles") if arm is not None else None
+    if declared is not None and margin != 1.0:
+        cycles = arm.properties.get("watchdog_cycles", declared.default)
+        arm.properties["watchdog_cycles"] = round(cycles * margin)
 
 
 def with_deadlines_stretched(topology, margin: float):
@@ -263,6 +273,7 @@ def play_scenario(
 
     topology = private_topology(topology_file, bus_config, tmp_path)
     topology = with_deadlines_stretched(topology, margin)
+    _arm_watchdog_stretched(topology, margin)
     scenario = load_scenario(path)
     deployment = Deployment(topology, tmp_path / "logs", scenario=scenario)
     log = _ChartEvents()
