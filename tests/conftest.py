@@ -234,26 +234,27 @@ def play_seeg_scenario(
     )
 
 
-def _arm_watchdog_stretched(topology, margin: float) -> None:
-    """The simulated arm's command watchdog x `margin` (its cycles without a setpoint)."""
-    arm = topology.components.get("arm")
-    declared = arm.info.properties.get("watchdog_cycles") if arm is not None else None
-    if declared is not None and margin != 1.0:
-        cycles = arm.properties.get("watchdog_cycles", declared.default)
-        arm.properties["watchdog_cycles"] = round(cycles * margin)
-
-
 def with_deadlines_stretched(topology, margin: float):
-    """`topology` with every safety deadline (watches, process heartbeats) x `margin`."""
+    """`topology` with every safety deadline (watches, process heartbeats) and every
+    component's own command watchdog (a `watchdog_cycles` property: the simulated arm's)
+    x `margin`."""
     import dataclasses
 
-    if margin == 1.0 or topology.safety is None:
+    if margin == 1.0:
         return topology
     safety = topology.safety
-    watches = tuple(dataclasses.replace(w, deadline=w.deadline * margin) for w in safety.watches)
-    topology.safety = dataclasses.replace(
-        safety, watches=watches, process_deadline=safety.process_deadline * margin
-    )
+    if safety is not None:
+        watches = tuple(
+            dataclasses.replace(w, deadline=w.deadline * margin) for w in safety.watches
+        )
+        topology.safety = dataclasses.replace(
+            safety, watches=watches, process_deadline=safety.process_deadline * margin
+        )
+    for component in topology.components.values():
+        declared = component.info.properties.get("watchdog_cycles")
+        if declared is not None:
+            cycles = component.properties.get("watchdog_cycles", declared.default)
+            component.properties["watchdog_cycles"] = round(cycles * margin)
     return topology
 
 
@@ -273,10 +274,9 @@ def play_scenario(
 
     topology = private_topology(topology_file, bus_config, tmp_path)
     topology = with_deadlines_stretched(topology, margin)
-    _arm_watchdog_stretched(topology, margin)
     scenario = load_scenario(path)
     deployment = Deployment(topology, tmp_path / "logs", scenario=scenario)
-    log = _ChartEvents()
+    log = _chart_events()
     deployment.listeners.append(log)
     deployment.start()
     try:
@@ -293,21 +293,20 @@ def play_scenario(
     return failed
 
 
-class _ChartEvents:
-    """Collects the events a deployment's chart processes (configuration acknowledgements
-    left out), with their payloads: the reasons behind a stop."""
+def _chart_events():
+    """A chart listener that collects the events the chart processes (configuration
+    acknowledgements left out), with their payloads: the reasons behind a stop."""
+    from framework.statechart.events import Listener
 
-    def __init__(self):
-        self.seen: list[str] = []
+    class ChartEvents(Listener):
+        def __init__(self):
+            self.seen: list[str] = []
 
-    def __getattr__(self, name):  # the other Listener hooks: nothing to do
-        if name.startswith("on_"):
-            return lambda *args, **kwargs: None
-        raise AttributeError(name)
+        def on_event(self, event) -> None:
+            if not event.name.startswith("config."):
+                self.seen.append(f"{event.name} {event.payload}" if event.payload else event.name)
 
-    def on_event(self, event) -> None:
-        if not event.name.startswith("config."):
-            self.seen.append(f"{event.name} {event.payload}" if event.payload else event.name)
+    return ChartEvents()
 
 
 def interrupt(

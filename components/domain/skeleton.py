@@ -111,10 +111,14 @@ _LEG_LIFT = [9, 10, 12, 13]  # hips and knees rise with longer legs (feet stay d
 
 
 def standing(
-    at: tuple[float, float], facing: float = 0.0, height: float = 1.75, build: Build | None = None
+    at: tuple[float, float],
+    facing: float = 0.0,
+    height: float = 1.75,
+    build: Build | None = None,
+    floor: float = 0.0,
 ) -> np.ndarray:
-    """A standing person's skeleton (world frame, z up) at floor position `at`, of a
-    given height or `build`."""
+    """A standing person's skeleton (world frame, z up) at floor position `at` on a
+    floor at height `floor`, of a given height or `build`."""
     build = build or Build(height)
     s = build.height / 1.75
     local = (
@@ -144,7 +148,7 @@ def standing(
     local[_LEG_LIFT, 2] *= build.legs
     c, w = np.cos(facing), np.sin(facing)
     rotation = np.array([[c, -w, 0.0], [w, c, 0.0], [0.0, 0.0, 1.0]])
-    return local @ rotation.T + np.array([at[0], at[1], 0.0])
+    return local @ rotation.T + np.array([at[0], at[1], floor])
 
 
 def envelope(

@@ -12,6 +12,7 @@ observed. `KinectSim` is the component that publishes it on `kinect/<i>/users`.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -126,9 +127,7 @@ class KinectModel:
             heading = math.atan2(axis[1], axis[0]) + self.rng.uniform(-H_FOV / 2, H_FOV / 2)
             reach = self.rng.uniform(1.5, 3.5)
             at = (eye[0] + reach * math.cos(heading), eye[1] + reach * math.sin(heading))
-            body = standing(at, self.rng.uniform(0, 2 * math.pi))
-            body[:, 2] += self.floor
-            ghost = self.to_camera(body)
+            ghost = self.to_camera(standing(at, self.rng.uniform(0, 2 * math.pi), floor=self.floor))
             inside = self.in_view(ghost)
             if inside.mean() > 0.5:
                 ghost[~inside] = np.nan
@@ -200,8 +199,6 @@ class KinectSim(Component):
         now = self.clock.now()
         dt = 1.0 / 30.0 if self._last is None else min(max(now - self._last, 0.0), 0.1)
         self._last = now
-        import time
-
         status, truth = self.world.read()
         if status is not ReadStatus.NO_DATA and truth is not None:
             self.people = {
@@ -215,9 +212,7 @@ class KinectSim(Component):
     @operation
     def place(self, person: int, x: float, y: float, facing: float = 0.0) -> None:
         """Put a standing person at floor position (x, y)."""
-        joints = standing((x, y), facing)
-        joints[:, 2] += self.floor
-        self.people[person] = joints
+        self.people[person] = standing((x, y), facing, floor=self.floor)
 
     @operation
     def remove(self, person: int) -> None:

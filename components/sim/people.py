@@ -66,8 +66,7 @@ class Person:
     def skeleton(self, floor: float) -> np.ndarray:
         """True joints (15 x 3)."""
         at = (float(self.position[0]), float(self.position[1]))
-        joints = standing(at, self.facing, build=self.build)
-        joints[:, 2] += floor
+        joints = standing(at, self.facing, build=self.build, floor=floor)
         if self.lean > 0:  # arms reach forward to hands at table height
             ahead = np.array([math.cos(self.facing), math.sin(self.facing), 0.0])
             shoulders = joints[[JOINTS.index("left_shoulder"), JOINTS.index("right_shoulder")]]
