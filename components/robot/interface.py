@@ -354,7 +354,10 @@ class RobotInterface(Component):
             self._request("brake", reason=reason, latch=False)
 
     def _publish(self, state: ArmState) -> None:
-        stamp = time.time()
+        # the controller's measurement time, not when this process got to the state: the
+        # trackers' samples carry the time they saw the robot, and a starved process
+        # would otherwise pair them with where the robot was some cycles before
+        stamp = state.stamp if math.isfinite(state.stamp) else time.time()
         previous = self._published_cycle
         # braked, the arm reports every few cycles (monitor mode): the state covers them;
         # released, it reports every cycle, and a state this loop skipped (a busy host)

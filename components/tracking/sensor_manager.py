@@ -26,6 +26,11 @@ For every sensor, each cycle, the fault tree of 3.3.3 in its order:
      tool does not slip back;
    * without `S` (the thesis: a reference tool fixed to the table), the robot in
      the reference tool's frame: a moved reference tool is a fault.
+   A sample is compared once the robot's poses cover its stamp (the pose nearest it
+   can no longer change): while the robot's side runs behind the trackers (a busy
+   host, a slow link), the newest sample it covers is checked, and a sensor whose
+   newest sample is more than `CHECK_LAG_LIMIT` ahead of the robot's newest pose is a
+   `calibration` fault (it cannot be checked) until the robot's side catches up.
 
 The first healthy sensor in priority order wins; a sensor that was unhealthy
 (or at start) is used again only after `hysteresis` consecutive healthy
@@ -42,6 +47,7 @@ from __future__ import annotations
 import bisect
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -66,6 +72,9 @@ STATUS_PERIOD = 0.5  # s between tracking statuses when nothing changes (a chang
 STALE_MARGIN = 0.001
 """Event-driven, the Sensor Manager looks again this long after a staleness deadline (s):
 a sample exactly at the limit is not stale yet."""
+CHECK_LAG_LIMIT = 0.5
+"""The most a sensor's newest sample may be ahead of the robot's newest pose (s) for its
+calibration to count as checked: further ahead, the robot's side is too far behind."""
 CAUSES = ("no_data", "cto_missing", "rto_missing", "stale", "corrupt", "calibration")
 
 
@@ -121,6 +130,12 @@ class SensorManagerCore:
         self._times: list[float] = []  # sorted stamps of `_poses`
         self._poses: list[np.ndarray] = []
         self._stamps = [0.0] * len(config.sensors)  # each sensor's latest CTO stamp
+        # each sensor's recent valid CTO samples (stamp, x y z qw qx qy qz), to check the
+        # newest one the robot's poses cover; and its latest verdict of that check
+        self._samples: list[deque[tuple[float, tuple[float, ...]]]] = [
+            deque() for _ in config.sensors
+        ]
+        self._verdicts: dict[int, Health | None] = {}  # the latest check's, None: passed
         n = self._n = len(config.sensors)
         sensors = config.sensors
         self._index = {s.name: i for i, s in enumerate(sensors)}
@@ -170,6 +185,11 @@ class SensorManagerCore:
         if row == index:
             self._last_cto[index] = sample
             self._stamps[index] = pose.stamp
+            if pose.valid and math.isfinite(pose.stamp) and pose.is_finite():
+                samples = self._samples[index]
+                samples.append((pose.stamp, sample[:7]))
+                while pose.stamp - samples[0][0] > KINEMATICS_MEMORY:
+                    samples.popleft()
         self._fresh[index] = True
 
     def set_kinematics(self, base_from_ee: np.ndarray | None, stamp: float | None = None) -> None:
@@ -186,15 +206,53 @@ class SensorManagerCore:
             cut = bisect.bisect_left(self._times, stamp - KINEMATICS_MEMORY)
             del self._times[:cut], self._poses[:cut]
 
-    def _kinematics_at(self, candidates: np.ndarray) -> np.ndarray:
-        """The end-effector pose nearest in time to each candidate's CTO sample."""
+    def _comparable(
+        self, candidates: np.ndarray
+    ) -> tuple[list[int], list[float], list[tuple[float, ...]], dict[int, Health]]:
+        """Which candidates' calibration can be checked now, and with which CTO sample:
+        (positions in `candidates`, the samples' stamps, the samples), and the verdicts
+        of the sensors too far ahead of the robot's poses. A sample is covered when no
+        later robot pose could be nearer its stamp: before the midpoint to the next pose
+        (due one spacing after the newest). A candidate with nothing covered yet (within
+        the limit) is left out: it keeps its latest verdict."""
+        times = self._times
+        if len(times) < 2:  # no history: the latest pose stands for every sample
+            rows = self._rows
+            stamps = [self._stamps[i] for i in candidates.tolist()]
+            return (
+                list(range(len(candidates))),
+                stamps,
+                [tuple(rows[i, :7]) for i in candidates],
+                {},
+            )
+        horizon = times[-1] + (times[-1] - times[-2]) / 2.0
+        positions, stamps, samples, behind = [], [], [], {}
+        for k, i in enumerate(candidates.tolist()):
+            ahead = self._stamps[i] - times[-1]
+            if not ahead <= CHECK_LAG_LIMIT:  # NaN too: never checked
+                behind[i] = Health(
+                    False,
+                    "calibration",
+                    f"cannot be checked: the robot's poses are {ahead * 1e3:.0f} ms behind "
+                    f"its samples (limit {CHECK_LAG_LIMIT * 1e3:.0f} ms)",
+                )
+                continue
+            for stamp, sample in reversed(self._samples[i]):
+                if stamp <= horizon:
+                    positions.append(k)
+                    stamps.append(stamp)
+                    samples.append(sample)
+                    break
+        return positions, stamps, samples, behind
+
+    def _kinematics_at(self, stamps: list[float]) -> np.ndarray:
+        """The end-effector pose nearest in time to each stamp."""
         assert self.kinematics is not None
         times = self._times
         if len(times) < 2:
             return self.kinematics
         nearest = []
-        for i in candidates:
-            t = self._stamps[i]
+        for t in stamps:
             k = min(bisect.bisect_left(times, t), len(times) - 1)
             if k > 0 and t - times[k - 1] < times[k] - t:
                 k -= 1
@@ -329,30 +387,17 @@ class SensorManagerCore:
         the verdicts of the sensors that fail it, by sensor index."""
         failed: dict[int, Health] = {}
         if self.kinematics is not None:
-            every = len(candidates) == self._n
-            x = self._x if every else self._x[candidates]
-            y = self._y if every else self._y[candidates]
+            positions, stamps, samples, behind = self._comparable(candidates)
+            verdicts = self._verdicts
+            if positions:
+                verdicts.update(self._against_kinematics(candidates[positions], stamps, samples))
+            verdicts.update(behind)  # until checked again, a sensor keeps its verdict
             camera = self._camera[candidates]
-            measured = local
-            if camera.any():  # in the tracker's frame: S K Y against the CTO as seen
-                x = x.copy()
-                x[camera] = self._s[candidates[camera]]
-                measured = local.copy()
-                measured[camera] = self._tool_matrices(candidates[camera])
-            predicted = x @ self._kinematics_at(candidates) @ y
-            diff = measured[:, :3, 3] - predicted[:, :3, 3]
-            offsets2 = (diff * diff).sum(axis=1)
-            # trace(A^T B) = 1 + 2 cos(angle): compare cosines, no arccos for healthy rows
-            cosines = ((measured[:, :3, :3] * predicted[:, :3, :3]).sum(axis=(1, 2)) - 1.0) / 2.0
-            bad = (offsets2 > self._tol_pos2[candidates]) | (cosines < self._tol_cos[candidates])
-            for k in np.flatnonzero(bad):
-                angle = math.degrees(math.acos(min(1.0, max(-1.0, cosines[k]))))
-                failed[int(candidates[k])] = Health(
-                    False,
-                    "calibration",
-                    f"{math.sqrt(offsets2[k]) * 1e3:.1f} mm, "
-                    f"{angle:.2f} deg away from the robot's kinematics",
-                )
+            for index in candidates.tolist():
+                verdict = verdicts.get(index)
+                if verdict is not None:
+                    failed[index] = verdict
+            bad = np.isin(candidates, list(failed))
             agreed = np.flatnonzero(camera & ~bad)
             if len(agreed) >= 2:
                 odd = self._check_references(candidates[agreed])
@@ -374,6 +419,40 @@ class SensorManagerCore:
                     False, "calibration", f"disagrees with {names} beyond tolerance"
                 )
         return failed
+
+    def _against_kinematics(
+        self, checked: np.ndarray, stamps: list[float], samples: list[tuple[float, ...]]
+    ) -> dict[int, Health | None]:
+        """Each checked sensor's CTO sample against the robot's kinematics at its stamp:
+        its verdict (None: within tolerance), by sensor index."""
+        camera = self._camera[checked]
+        x = self._x[checked]
+        x[camera] = self._s[checked[camera]]
+        # the CTO as seen, in the tracker's frame (against S K Y), or in the reference
+        # tool's frame (against X K Y)
+        measured = _matrices(np.array(samples))
+        if not camera.all():
+            rto = self._tool_matrices(checked[~camera], tool=1)
+            measured[~camera] = invert(rto) @ measured[~camera]
+        predicted = x @ self._kinematics_at(stamps) @ self._y[checked]
+        diff = measured[:, :3, 3] - predicted[:, :3, 3]
+        offsets2 = (diff * diff).sum(axis=1)
+        # trace(A^T B) = 1 + 2 cos(angle): compare cosines, no arccos for healthy rows
+        cosines = ((measured[:, :3, :3] * predicted[:, :3, :3]).sum(axis=(1, 2)) - 1.0) / 2.0
+        wrong = (offsets2 > self._tol_pos2[checked]) | (cosines < self._tol_cos[checked])
+        verdicts: dict[int, Health | None] = {}
+        for k, index in enumerate(checked.tolist()):
+            if not wrong[k]:
+                verdicts[index] = None
+                continue
+            angle = math.degrees(math.acos(min(1.0, max(-1.0, cosines[k]))))
+            verdicts[index] = Health(
+                False,
+                "calibration",
+                f"{math.sqrt(offsets2[k]) * 1e3:.1f} mm, "
+                f"{angle:.2f} deg away from the robot's kinematics",
+            )
+        return verdicts
 
     def _latch_moved(self, compared: np.ndarray, odd: dict[int, Health]) -> None:
         """Keep the verdicts of sensors that stayed the odd one out about the patient for
@@ -439,6 +518,15 @@ class SensorManagerCore:
         offset = float(np.linalg.norm(a[:3, 3] - b[:3, 3]))
         angle = float(rotation_angle(a[:3, :3].T @ b[:3, :3]))
         return offset <= cfg.tolerance_position and angle <= cfg.tolerance_angle
+
+
+def _matrices(vectors: np.ndarray) -> np.ndarray:
+    """Poses (x y z qw qx qy qz per row) as 4x4 matrices."""
+    out = np.zeros((len(vectors), 4, 4))
+    out[:, :3, :3] = quat_to_matrix(vectors[:, 3:7])
+    out[:, :3, 3] = vectors[:, :3]
+    out[:, 3, 3] = 1.0
+    return out
 
 
 TOOLS = ("cto", "rto")

@@ -16,7 +16,7 @@ from framework import keys, messages
 from framework.bus import Bus, BusError
 from framework.coordinator import EVENTS_KEY, STATUS_KEY, Admission
 from framework.keystore import OPERATOR, create_keystore, keystore_for
-from framework.messages import ConfigAck, ConfigRequest, EventMessage
+from framework.messages import ConfigAck, ConfigRequest, EventMessage, Scalar
 from tests.conftest import wait_until
 
 
@@ -146,14 +146,19 @@ def test_a_process_may_publish_only_on_its_own_outputs(deployed):
     only, and a local switch report only from the process that made it."""
     assert wait_until(lambda: "Use_T1" in leaves(deployed), timeout=10)
     switched = keys.config_switched("control_side")
-    heard = {"t1/out": 0, EVENTS_KEY: 0, keys.CONFIG_REQUESTS: 0, switched: 0}
+    heard: dict[str, list[bytes]] = {
+        "t1/out": [],
+        EVENTS_KEY: [],
+        keys.CONFIG_REQUESTS: [],
+        switched: [],
+    }
     observer = Bus(deployed.topology.bus, subject=OPERATOR)
     forgers = [Bus(deployed.topology.bus, subject=s) for s in ("trackers", "control_side")]
     try:
         for key in heard:
-            observer.subscribe(key, lambda _s, k=key: heard.__setitem__(k, heard[k] + 1), False)
+            observer.subscribe(key, lambda s, k=key: heard[k].append(s.payload.to_bytes()), False)
         assert all(f.wait_for_peers(3) for f in (observer, *forgers))
-        baseline = heard["t1/out"]
+        baseline = len(heard["t1/out"])
         forged = EventMessage(time.time(), "e_SWAP", "t1", None)
         for forger in forgers:
             forger.session.put(EVENTS_KEY, messages.encode(forged, EventMessage))
@@ -173,18 +178,28 @@ def test_a_process_may_publish_only_on_its_own_outputs(deployed):
             return heard[keys.CONFIG_REQUESTS] and heard[switched]
 
         assert wait_until(real_ones_heard, 10, interval=0.2)
-        time.sleep(0.3)
-        before = heard[keys.CONFIG_REQUESTS], heard[switched]
-        request = ConfigRequest(time.time(), 99, "tracker_2_up", {}, time.time() + 5, True)
+        request = messages.encode(
+            ConfigRequest(time.time(), 99, "tracker_2_up", {}, time.time() + 5, True), ConfigRequest
+        )
+        forged_report = messages.encode(ConfigAck(time.time(), 98, True, "forged"), ConfigAck)
         for forger in forgers:
-            forger.session.put(keys.CONFIG_REQUESTS, messages.encode(request, ConfigRequest))
-        forgers[0].session.put(switched, messages.encode(report, ConfigAck))
-        time.sleep(0.5)
-        assert heard[keys.CONFIG_REQUESTS] == before[0], "requests come from control only"
-        assert heard[switched] == before[1], "a process reports only its own switches"
-        assert heard[EVENTS_KEY] == 0, "nobody here may put on the events key"
+            forger.session.put(keys.CONFIG_REQUESTS, request)
+        forgers[0].session.put(switched, forged_report)
+        # then each forger puts where it may: a session's puts arrive in order, so once
+        # these are heard, any forgery let through before them would have been heard too
+        barriers = {
+            "t1/out": messages.encode(Scalar(time.time(), 0.0), Scalar),
+            switched: messages.encode(ConfigAck(time.time(), 97, True, "barrier"), ConfigAck),
+        }
+        forgers[0].session.put("t1/out", barriers["t1/out"])
+        forgers[1].session.put(switched, barriers[switched])
+        assert wait_until(lambda: all(b in heard[k] for k, b in barriers.items()), 10)
+        assert request not in heard[keys.CONFIG_REQUESTS], "requests come from control only"
+        assert forged_report not in heard[switched], "a process reports only its own switches"
+        assert heard[EVENTS_KEY] == [], "nobody here may put on the events key"
         assert deployed.coordinator.refused == 0, "it never even reached the Coordinator"
-        assert heard["t1/out"] > baseline, "the real t1 keeps publishing"
+        assert b"not a sample" not in heard["t1/out"], "control_side may not put on t1's output"
+        assert len(heard["t1/out"]) > baseline + 1, "the real t1 keeps publishing"
     finally:
         for bus in (observer, *forgers):
             bus.close()

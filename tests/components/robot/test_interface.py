@@ -81,7 +81,7 @@ class Arm:
             self.writers["setpoint"].write(JointState(0.0, tuple(float(v) for v in setpoint)))
         self.cycle_no += 1
         measured = ArmState(
-            0.0,
+            state.get("stamp", 0.0),
             self.cycle_no,
             state.get("served", self.served),
             tuple(self.q),
@@ -726,6 +726,16 @@ def test_a_refused_step_names_the_joint_and_how_far_it_would_move(arm):
     assert arm.report()["reason"] == (
         f"setpoint refused: A4 would move {moved:.2f} deg in 10 cycle(s), 1.5x its rated velocity"
     )
+
+
+def test_joints_and_tcp_carry_the_time_the_controller_measured_them(arm):
+    """Not the time this process got to them: trackers stamp their samples with the time
+    they saw the robot, and the Sensor Manager and the navigator pair each sample with
+    the robot's pose at that stamp, so a starved robot process must not shift them."""
+    measured_at = time.time() - 0.25  # the state waited a quarter second for this process
+    arm.cycle(stamp=measured_at)
+    (joints,), (tcp,) = drained(arm.readers["joints"]), drained(arm.readers["tcp"])
+    assert joints.stamp == tcp.stamp == measured_at
 
 
 def test_await_ready_waits_for_the_arm_to_answer(arm):

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from components.domain.geometry import rigid
 from components.domain.rigs import ee_path, sensors_config, standard_rigs
 from components.domain.sensors import SensorConfigError, load_sensors
-from components.tracking.sensor_manager import SensorManagerCore
+from components.tracking.sensor_manager import CHECK_LAG_LIMIT, SensorManagerCore
 
 TICK = 0.001  # the Sensor Manager's 1 kHz cycle
 
@@ -422,7 +422,7 @@ def test_each_sample_is_checked_against_the_robot_pose_nearest_its_stamp():
         (10.015625, 1),  # exactly between two: the later one
         (10.0703125, 2),  # nearer the third than the fourth
         (10.1171875, 4),  # nearer the fifth
-        (11.0, 5),  # newer than every pose: the newest
+        (10.171875, 5),  # newer than every pose, as near the newest as the next one due
     ]
     for arrival, (stamp, index) in enumerate(cases, start=1):
         offer(core, rig, poses[index][1], stamp, arrival=float(arrival))
@@ -430,6 +430,74 @@ def test_each_sample_is_checked_against_the_robot_pose_nearest_its_stamp():
         assert health.ok, (stamp, index, health)
     offer(core, rig, poses[1][1], 10.0078125, arrival=9.0)  # the robot was not there yet
     assert core.evaluate(9.001).health["certus"].cause == "calibration"
+
+
+@pytest.mark.parametrize(
+    ("stamp", "checked"),
+    [
+        (10.171875, True),  # the midpoint to the next pose due: the newest is the nearest
+        (10.1796875, False),  # past it: the next pose will be nearer
+    ],
+)
+def test_a_sample_newer_than_the_robots_poses_waits_for_the_pose_of_its_time(stamp, checked):
+    """Robot poses every 31.25 ms, each 2 cm from the last; the newest at 10.15625. A
+    sample shows the robot where it is at 10.1875, 2 cm from the newest pose: checked
+    now only if no later pose can be nearer its stamp; else once the pose of its time
+    has come (meanwhile the sensor keeps its verdict)."""
+    rig, core = single_certus()
+    for i in range(6):
+        core.set_kinematics(shifted(ee_path(0.0), 0.02 * i), stamp=10.0 + 0.03125 * i)
+    offer(core, rig, shifted(ee_path(0.0), 0.12), stamp, arrival=1.0)
+    assert core.evaluate(1.001).health["certus"].ok is not checked
+    core.set_kinematics(shifted(ee_path(0.0), 0.12), stamp=10.1875)
+    assert core.evaluate(1.002).health["certus"].ok, "against the pose of its time"
+
+
+@pytest.mark.parametrize("camera", [False, True])
+def test_samples_are_checked_as_the_robots_poses_come_however_far_behind(camera):
+    """The robot moves 10 cm/s; its poses reach the Sensor Manager 200 ms after the
+    tracker's samples of the same moment (a starved robot process). Against the newest
+    pose, each sample would be 2 cm off (tolerance 5 mm); each is checked against the
+    pose of its own time, so a tool that slipped 6 mm on the robot at 10.5 s is found
+    once the pose of 10.5 s has come, not before."""
+    rig = standard_rigs()[0]
+    core = SensorManagerCore(sensors_config([rig], 1, camera))
+
+    def pose(t):
+        return shifted(ee_path(0.0), 0.1 * (t - 10.0))
+
+    seen = {}
+    for cycle in range(100):  # 1 s of 100 Hz samples
+        t = 10.0 + 0.01 * cycle
+        slipped = 0.006 if t >= 10.5 else 0.0
+        offer(core, rig, shifted(pose(t), slipped), t, arrival=t)
+        for late in (0.205, 0.2):  # two poses per cycle, 200 ms late
+            core.set_kinematics(pose(t - late), stamp=t - late)
+        seen[round(t, 2)] = core.evaluate(t).health["certus"]
+    assert all(seen[round(10.0 + 0.01 * k, 2)].ok for k in range(70)), "the slip is not seen yet"
+    assert all(seen[round(10.7 + 0.01 * k, 2)].cause == "calibration" for k in range(30))
+
+
+def test_a_sensor_too_far_ahead_of_the_robots_poses_cannot_be_checked():
+    """The robot's poses stop coming (its side stalled) while the tracker streams on:
+    past `CHECK_LAG_LIMIT`, its calibration cannot be checked, which is a fault; so is
+    a sample without a valid stamp. Once the poses catch up, it is checked again."""
+    rig, core = single_certus()
+    still = ee_path(0.0)
+    core.set_kinematics(still, stamp=9.995)
+    core.set_kinematics(still, stamp=10.0)
+    offer(core, rig, still, 10.0 + CHECK_LAG_LIMIT, arrival=1.0)
+    assert core.evaluate(1.001).health["certus"].ok, "not checked yet, within the limit"
+    offer(core, rig, still, 10.01 + CHECK_LAG_LIMIT, arrival=2.0)
+    health = core.evaluate(2.001).health["certus"]
+    assert (health.cause, health.detail) == (
+        "calibration",
+        "cannot be checked: the robot's poses are 510 ms behind its samples (limit 500 ms)",
+    )
+    core.set_kinematics(still, stamp=10.01 + CHECK_LAG_LIMIT)
+    assert core.evaluate(2.002).health["certus"].ok, "checked again"
+    offer(core, rig, still, math.nan, arrival=2.01)
+    assert core.evaluate(2.011).health["certus"].cause == "calibration"
 
 
 def test_about_a_second_of_robot_poses_is_remembered():
