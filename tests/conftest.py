@@ -235,9 +235,10 @@ def play_seeg_scenario(
 
 
 def with_deadlines_stretched(topology, margin: float):
-    """`topology` with every safety deadline (watches, process heartbeats) and every
+    """`topology` with every safety deadline (watches, process heartbeats), every
     component's own command watchdog (a `watchdog_cycles` property: the simulated arm's)
-    x `margin`."""
+    and reply timeout (a `timeout` property: the NDI driver's) x `margin` (a timeout no
+    further than its property allows)."""
     import dataclasses
 
     if margin == 1.0:
@@ -255,6 +256,10 @@ def with_deadlines_stretched(topology, margin: float):
         if declared is not None:
             cycles = component.properties.get("watchdog_cycles", declared.default)
             component.properties["watchdog_cycles"] = round(cycles * margin)
+        declared = component.info.properties.get("timeout")
+        if declared is not None:
+            seconds = component.properties.get("timeout", declared.default) * margin
+            component.properties["timeout"] = min(seconds, declared.max or seconds)
     return topology
 
 
