@@ -9,7 +9,7 @@ interpolator, and raises the events the SEEG chart reacts to:
 * `e_STOP {reason}`: a possible collision (robot-envelope distance under
   `collision_distance`), on the rising edge and again whenever motion starts while
   it persists;
-* `e_TOK {tracker}` / `e_NOTRACKER`: answers to `report_best_tracker`;
+* `e_TOK {tracker}` / `e_NOTRACKER {why}`: answers to `report_best_tracker`;
 * `e_TFAULT {tracker, failed, fault}`: the tracker in use (`failed`) is no longer the
   best one (its fault, or a better one recovered); `tracker` is the one to use now (as
   in `e_TOK`), so the chart swaps without asking; `e_NOTRACKER` if none is left. The
@@ -55,6 +55,23 @@ from framework.properties import prop
 
 Event = tuple[str, dict[str, Any]]
 HALTING = ("e_STOP", "e_NOTRACKER", "e_PATIENT_MOVED")
+
+
+def untracked(health: dict[str, Any]) -> str:
+    """Why no tracker can be used, from the Sensor Manager's health of each: what the
+    operator reads with "no tracker" (and the flight recording keeps)."""
+    causes = []
+    for name, verdict in sorted(health.items()):
+        verdict = verdict or {}
+        if verdict.get("ok"):
+            causes.append(f"{name}: healthy, not trusted again yet")
+            continue
+        detail = verdict.get("detail")
+        cause = verdict.get("cause") or "unknown"
+        causes.append(f"{name}: {cause}, {detail}" if detail else f"{name}: {cause}")
+    return "; ".join(causes) or "the Sensor Manager has not said"
+
+
 """Events that also halt the interpolator directly (the chart's stop follows)."""
 
 
@@ -97,7 +114,7 @@ class SupervisorCore:
             return []
         self.in_use, self.swapping_to = None, best
         if best is None:
-            return [("e_NOTRACKER", {})]
+            return [("e_NOTRACKER", {"why": untracked(health)})]
         cause = (health.get(current) or {}).get("cause") or f"{best} is better"
         return [("e_TFAULT", {"tracker": best, "failed": current, "fault": cause})]
 
@@ -171,7 +188,7 @@ class SupervisorCore:
         one the chart connects: it is watched from now on, before its first sample
         steers (one that fails in between is no tracker, not silence)."""
         if self.best is None:
-            return ("e_NOTRACKER", {})
+            return ("e_NOTRACKER", {"why": untracked(self.health)})
         if self.in_use != self.best:
             self.swapping_to = self.best
         return ("e_TOK", {"tracker": self.best})

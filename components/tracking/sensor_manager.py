@@ -229,13 +229,14 @@ class SensorManagerCore:
         positions, stamps, samples, behind = [], [], [], {}
         for k, i in enumerate(candidates.tolist()):
             ahead = self._stamps[i] - times[-1]
-            if not ahead <= CHECK_LAG_LIMIT:  # NaN too: never checked
-                behind[i] = Health(
-                    False,
-                    "calibration",
-                    f"cannot be checked: the robot's poses are {ahead * 1e3:.0f} ms behind "
-                    f"its samples (limit {CHECK_LAG_LIMIT * 1e3:.0f} ms)",
+            if not ahead <= CHECK_LAG_LIMIT:
+                why = (
+                    f"the robot's poses are {ahead * 1e3:.0f} ms behind its samples "
+                    f"(limit {CHECK_LAG_LIMIT * 1e3:.0f} ms)"
+                    if math.isfinite(ahead)
+                    else "its sample has no valid stamp"
                 )
+                behind[i] = Health(False, "calibration", f"cannot be checked: {why}")
                 continue
             for stamp, sample in reversed(self._samples[i]):
                 if stamp <= horizon:

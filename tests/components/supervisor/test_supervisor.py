@@ -73,8 +73,8 @@ def test_losing_the_tracker_in_use_is_a_fault_and_losing_all_is_no_tracker():
     assert c.tracking("vicra", sick) == [], "reported once; the chart reselects"
     assert c.report_best_tracker() == ("e_TOK", {"tracker": "vicra"})
     steer(c, "vicra")
-    assert c.tracking(None, {}) == [("e_NOTRACKER", {})]
-    assert c.report_best_tracker() == ("e_NOTRACKER", {})
+    assert c.tracking(None, {}) == [("e_NOTRACKER", {"why": "the Sensor Manager has not said"})]
+    assert c.report_best_tracker() == ("e_NOTRACKER", {"why": "the Sensor Manager has not said"})
 
 
 def test_a_tracker_failing_right_after_the_swap_to_it_is_reported_at_once():
@@ -84,7 +84,9 @@ def test_a_tracker_failing_right_after_the_swap_to_it_is_reported_at_once():
     steer(c, "certus")
     sick = {"certus": {"ok": False, "cause": "cto_missing"}, "vicra": {"ok": True}}
     assert names(c.tracking("vicra", sick)) == ["e_TFAULT"]
-    assert c.tracking(None, {}) == [("e_NOTRACKER", {})], "the Vicra failed before it steered"
+    assert c.tracking(None, {}) == [("e_NOTRACKER", {"why": "the Sensor Manager has not said"})], (
+        "the Vicra failed before it steered"
+    )
     c = core()
     steer(c, "vicra")
     assert names(c.tracking("certus", HEALTHY)) == ["e_TFAULT"]  # back to the Certus...
@@ -103,12 +105,12 @@ def test_a_tracker_failing_after_e_tok_and_before_its_first_sample_steers_is_no_
     would move with no tracker and nobody saying so (found by the bench)."""
     c = core()
     steer(c, "certus")
-    assert c.tracking(None, {}) == [("e_NOTRACKER", {})]
+    assert c.tracking(None, {}) == [("e_NOTRACKER", {"why": "the Sensor Manager has not said"})]
     c.navigation(None, {})  # its samples stopped
     assert c.tracking("certus", HEALTHY) == [], "no tracker in use: nothing to swap"
     assert c.report_best_tracker() == ("e_TOK", {"tracker": "certus"})
     assert c.tracking(None, {"certus": {"ok": False, "cause": "cto_missing"}}) == [
-        ("e_NOTRACKER", {})
+        ("e_NOTRACKER", {"why": "certus: cto_missing"})
     ]
     c = core()
     steer(c, "certus")
@@ -330,7 +332,7 @@ def test_the_tracker_in_use_is_the_one_whose_samples_steer_the_navigator():
 def test_the_same_tracker_connected_again_after_its_samples_stopped_is_in_use_again():
     c = core()
     steer(c, "certus")
-    assert c.tracking(None, {}) == [("e_NOTRACKER", {})]
+    assert c.tracking(None, {}) == [("e_NOTRACKER", {"why": "the Sensor Manager has not said"})]
     c.navigation(None, GOALS)  # no_tracker disconnected it: its samples stopped
     steer(c, "certus")  # RELEASE, reselected, connected again
     assert c.in_use == "certus"
@@ -349,7 +351,7 @@ def test_tracker_names_from_different_messages_are_the_same_tracker():
     of a name: the Supervisor compares names, never string objects."""
     c = core()
     steer(c, decoded("certus"))
-    assert c.tracking(None, {}) == [("e_NOTRACKER", {})]
+    assert c.tracking(None, {}) == [("e_NOTRACKER", {"why": "the Sensor Manager has not said"})]
     c.tracking(decoded("certus"), HEALTHY)
     assert c.report_best_tracker() == ("e_TOK", {"tracker": "certus"})
     steer(c, decoded("certus"))  # its samples steer again, under the same name
@@ -403,3 +405,29 @@ def test_a_target_on_the_patient_is_nowhere_until_the_navigator_says_where():
     c.motion("reached", "target")
     assert c.observe(tcp=TARGET) == []
     assert c.goal_position("home") == pytest.approx(HOME)  # in the base frame: known
+
+
+def test_no_tracker_says_what_each_tracker_lacks():
+    """What the operator reads with "no tracker", from the Sensor Manager's verdicts."""
+    c = core()
+    steer(c, "certus")
+    health = {
+        "vicra": {
+            "ok": False,
+            "cause": "stale",
+            "detail": "no new frame for 230 ms (limit 200 ms)",
+        },
+        "certus": {"ok": False, "cause": "cto_missing", "detail": ""},
+    }
+    assert c.tracking(None, health) == [
+        (
+            "e_NOTRACKER",
+            {"why": "certus: cto_missing; vicra: stale, no new frame for 230 ms (limit 200 ms)"},
+        )
+    ]
+    back = {"certus": {"ok": True}, "vicra": {"ok": False, "cause": "no_data"}}
+    c.tracking(None, back)  # the Certus is healthy again, not yet for its hysteresis
+    assert c.report_best_tracker() == (
+        "e_NOTRACKER",
+        {"why": "certus: healthy, not trusted again yet; vicra: no_data"},
+    )

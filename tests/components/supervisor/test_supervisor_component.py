@@ -228,7 +228,7 @@ def test_a_latched_robot_stop_reaches_the_chart_and_halts(rig):
 def test_all_trackers_lost_halts_the_interpolator_before_the_chart_hears_it(rig):
     rig.steer("certus")
     rig.feed("tracking", EventMessage(0.0, "decision", "sensor_manager", {"best": None}))
-    assert emitted(rig, "e_NOTRACKER") == [{}]
+    assert emitted(rig, "e_NOTRACKER") == [{"why": "the Sensor Manager has not said"}]
     assert wait_until(lambda: rig.halts)
     assert rig.halts[0].payload == {"reason": "no tracker sees the robot"}
 

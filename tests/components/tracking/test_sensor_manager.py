@@ -497,7 +497,11 @@ def test_a_sensor_too_far_ahead_of_the_robots_poses_cannot_be_checked():
     core.set_kinematics(still, stamp=10.01 + CHECK_LAG_LIMIT)
     assert core.evaluate(2.002).health["certus"].ok, "checked again"
     offer(core, rig, still, math.nan, arrival=2.01)
-    assert core.evaluate(2.011).health["certus"].cause == "calibration"
+    health = core.evaluate(2.011).health["certus"]
+    assert (health.cause, health.detail) == (
+        "calibration",
+        "cannot be checked: its sample has no valid stamp",
+    )
 
 
 def test_about_a_second_of_robot_poses_is_remembered():

@@ -207,13 +207,14 @@ def test_a_second_console_sees_every_command_with_its_origin(seeg_console, page)
 
 
 def test_a_failed_setup_opens_a_dialog_and_the_robot_never_moves(bus_config, tmp_path, page):
+    # in the first setup step, before any device must answer in time
     topology = seeg(bus_config, tmp_path)
-    topology.components["people_detector"].properties["cameras_file"] = str(tmp_path / "none.yaml")
+    topology.components["patient"].properties["procedure_file"] = str(tmp_path / "none.yaml")
     with served(topology, tmp_path / "logs") as (server, _):
         page.goto(server.url)
         page.wait_for_selector("#alert[open]", timeout=WAIT_MS)
         assert page.inner_text("#alert-title") == "Setup failed"
-        assert "people_detector" in page.inner_text("#alert-text")
+        assert "setup_components: bring patient to running" in page.inner_text("#alert-text")
         text_is(page, "operation", "stopped")
         assert page.is_disabled("#start")
 
