@@ -478,6 +478,45 @@ def test_samples_are_checked_as_the_robots_poses_come_however_far_behind(camera)
     assert all(seen[round(10.7 + 0.01 * k, 2)].cause == "calibration" for k in range(30))
 
 
+def test_a_frame_that_reported_the_tool_missing_is_never_the_one_checked():
+    """While the robot's poses run behind, the sample checked may be an older one: never
+    a frame that reported the tool missing (its position means nothing)."""
+    rig, core = single_certus()
+    still = ee_path(0.0)
+    for stamp in (9.995, 10.0):
+        core.set_kinematics(still, stamp=stamp)
+    offer(core, rig, still, 10.0, arrival=1.0)
+    cto, rto = rig.observe(still, np.random.default_rng(1), 10.004)
+    core.offer(rig.name, "cto", dataclasses.replace(cto, valid=False, position=(0, 0, 0)), 1.001)
+    core.offer(rig.name, "rto", rto, 1.001)
+    assert core.evaluate(1.0011).health["certus"].cause == "cto_missing"
+    core.set_kinematics(still, stamp=10.005)  # the poses now cover 10.004 too
+    offer(core, rig, still, 10.02, arrival=1.002)
+    assert core.evaluate(1.0021).health["certus"].ok, "checked: the frame of 10.0"
+
+
+def test_a_long_procedure_does_not_grow_the_sensor_managers_memory():
+    """An hour of 100 Hz samples on a standing robot keeps about a second of them."""
+    import tracemalloc
+
+    rig, core = single_certus()
+    still = ee_path(0.0)
+    cto, _ = rig.observe(still, np.random.default_rng(1), 0.0)
+
+    def run(start, count):
+        for k in range(start, start + count):
+            sample = dataclasses.replace(cto, stamp=k * 0.01)
+            core.offer(rig.name, "cto", sample, k * 0.01)
+
+    run(0, 2_000)
+    tracemalloc.start()
+    before = tracemalloc.get_traced_memory()[0]
+    run(2_000, 20_000)
+    grown = tracemalloc.get_traced_memory()[0] - before
+    tracemalloc.stop()
+    assert grown < 100_000, f"{grown} bytes more after 20,000 samples"
+
+
 def test_a_sensor_too_far_ahead_of_the_robots_poses_cannot_be_checked():
     """The robot's poses stop coming (its side stalled) while the tracker streams on:
     past `CHECK_LAG_LIMIT`, its calibration cannot be checked, which is a fault; so is
