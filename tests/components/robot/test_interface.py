@@ -736,6 +736,10 @@ def test_joints_and_tcp_carry_the_time_the_controller_measured_them(arm):
     arm.cycle(stamp=measured_at)
     (joints,), (tcp,) = drained(arm.readers["joints"]), drained(arm.readers["tcp"])
     assert joints.stamp == tcp.stamp == measured_at
+    before = time.time()
+    arm.cycle(stamp=math.nan)  # no valid measurement time: when this process got to it
+    (joints,), (tcp,) = drained(arm.readers["joints"]), drained(arm.readers["tcp"])
+    assert joints.stamp == tcp.stamp and before <= joints.stamp <= time.time()
 
 
 def test_await_ready_waits_for_the_arm_to_answer(arm):
