@@ -232,7 +232,7 @@ class SensorManagerCore:
             if not ahead <= CHECK_LAG_LIMIT:
                 why = (
                     f"the robot's poses are {ahead * 1e3:.0f} ms behind its samples "
-                    f"(limit {CHECK_LAG_LIMIT * 1e3:.0f} ms)"
+                    f"(limit {CHECK_LAG_LIMIT:g} s)"
                     if math.isfinite(ahead)
                     else "its sample has no valid stamp"
                 )

@@ -495,6 +495,19 @@ def test_a_frame_that_reported_the_tool_missing_is_never_the_one_checked():
     assert core.evaluate(1.0021).health["certus"].ok, "checked: the frame of 10.0"
 
 
+def test_samples_a_second_older_than_the_newest_are_still_checked():
+    """The samples kept for the check span a second, both ends included: after a gap,
+    a sample exactly a second older than the newest is still the one the robot's poses
+    (half a second behind) cover; it shows the robot 2 cm off."""
+    rig, core = single_certus()
+    still = ee_path(0.0)
+    for stamp in (10.25, 10.5):
+        core.set_kinematics(still, stamp=stamp)
+    offer(core, rig, shifted(still, 0.02), 10.0, arrival=1.0)
+    offer(core, rig, still, 11.0, arrival=1.5)
+    assert core.evaluate(1.5001).health["certus"].cause == "calibration"
+
+
 def test_a_long_procedure_does_not_grow_the_sensor_managers_memory():
     """An hour of 100 Hz samples on a standing robot keeps about a second of them."""
     import tracemalloc
@@ -529,15 +542,17 @@ def test_a_sensor_too_far_ahead_of_the_robots_poses_cannot_be_checked():
     assert core.evaluate(1.001).health["certus"].ok, "not checked yet, within the limit"
     offer(core, rig, still, 10.01 + CHECK_LAG_LIMIT, arrival=2.0)
     health = core.evaluate(2.001).health["certus"]
-    assert (health.cause, health.detail) == (
+    assert (health.ok, health.cause, health.detail) == (
+        False,
         "calibration",
-        "cannot be checked: the robot's poses are 510 ms behind its samples (limit 500 ms)",
+        "cannot be checked: the robot's poses are 510 ms behind its samples (limit 0.5 s)",
     )
     core.set_kinematics(still, stamp=10.01 + CHECK_LAG_LIMIT)
     assert core.evaluate(2.002).health["certus"].ok, "checked again"
     offer(core, rig, still, math.nan, arrival=2.01)
     health = core.evaluate(2.011).health["certus"]
-    assert (health.cause, health.detail) == (
+    assert (health.ok, health.cause, health.detail) == (
+        False,
         "calibration",
         "cannot be checked: its sample has no valid stamp",
     )
