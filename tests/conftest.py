@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from framework.clock import SimulatedClock
-from framework.statechart.events import Trace
+from framework.statechart.events import Listener, Trace
 from framework.statechart.interpreter import Interpreter
 from framework.statechart.loader import load_statechart
 from framework.statechart.model import Statechart
@@ -281,7 +281,7 @@ def play_scenario(
     topology = with_deadlines_stretched(topology, margin)
     scenario = load_scenario(path)
     deployment = Deployment(topology, tmp_path / "logs", scenario=scenario)
-    log = _chart_events()
+    log = _ChartEvents()
     deployment.listeners.append(log)
     deployment.start()
     try:
@@ -298,20 +298,16 @@ def play_scenario(
     return failed
 
 
-def _chart_events():
-    """A chart listener that collects the events the chart processes (configuration
-    acknowledgements left out), with their payloads: the reasons behind a stop."""
-    from framework.statechart.events import Listener
+class _ChartEvents(Listener):
+    """Collects the events a deployment's chart processes (configuration acknowledgements
+    left out), with their payloads: the reasons behind a stop."""
 
-    class ChartEvents(Listener):
-        def __init__(self):
-            self.seen: list[str] = []
+    def __init__(self):
+        self.seen: list[str] = []
 
-        def on_event(self, event) -> None:
-            if not event.name.startswith("config."):
-                self.seen.append(f"{event.name} {event.payload}" if event.payload else event.name)
-
-    return ChartEvents()
+    def on_event(self, event) -> None:
+        if not event.name.startswith("config."):
+            self.seen.append(f"{event.name} {event.payload}" if event.payload else event.name)
 
 
 def interrupt(

@@ -55,6 +55,7 @@ from framework.properties import prop
 
 Event = tuple[str, dict[str, Any]]
 HALTING = ("e_STOP", "e_NOTRACKER", "e_PATIENT_MOVED")
+"""Events that also halt the interpolator directly (the chart's stop follows)."""
 
 
 def untracked(health: dict[str, Any]) -> str:
@@ -70,9 +71,6 @@ def untracked(health: dict[str, Any]) -> str:
         cause = verdict.get("cause") or "unknown"
         causes.append(f"{name}: {cause}, {detail}" if detail else f"{name}: {cause}")
     return "; ".join(causes) or "the Sensor Manager has not said"
-
-
-"""Events that also halt the interpolator directly (the chart's stop follows)."""
 
 
 @dataclass

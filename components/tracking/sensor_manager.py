@@ -433,7 +433,7 @@ class SensorManagerCore:
         # tool's frame (against X K Y)
         measured = _matrices(np.array(samples))
         if not camera.all():
-            rto = self._tool_matrices(checked[~camera], tool=1)
+            rto = self._rto_matrices(checked[~camera])
             measured[~camera] = invert(rto) @ measured[~camera]
         predicted = x @ self._kinematics_at(stamps) @ self._y[checked]
         diff = measured[:, :3, 3] - predicted[:, :3, 3]
@@ -471,14 +471,9 @@ class SensorManagerCore:
         self._odd_since.pop(self._index[name], None)
         return self._moved.pop(self._index[name], None) is not None
 
-    def _tool_matrices(self, sensors: np.ndarray, tool: int = 0) -> np.ndarray:
-        """The latest CTO (tool 0) or RTO (tool 1) of these sensors, in their own frames."""
-        rows = self._rows[sensors + tool * self._n]
-        out = np.zeros((len(sensors), 4, 4))
-        out[:, :3, :3] = quat_to_matrix(rows[:, 3:7])
-        out[:, :3, 3] = rows[:, :3]
-        out[:, 3, 3] = 1.0
-        return out
+    def _rto_matrices(self, sensors: np.ndarray) -> np.ndarray:
+        """The latest RTO of these sensors, in their own frames."""
+        return _matrices(self._rows[sensors + self._n])
 
     def _check_references(self, sensors: np.ndarray) -> dict[int, Health]:
         """Sensors calibrated to the robot must also agree about where the patient is:
@@ -488,9 +483,7 @@ class SensorManagerCore:
         head moves slowly, so samples of different stamps still compare.) One that
         disagrees with the others (of two, the one further from where the calibration
         found the patient) had its reference tool moved on its mount."""
-        patient = (
-            self._s_inv[sensors] @ self._tool_matrices(sensors, tool=1) @ invert(self._c[sensors])
-        )
+        patient = self._s_inv[sensors] @ self._rto_matrices(sensors) @ invert(self._c[sensors])
         master = self._base_from_rto[self._index[self.config.master]]
         moved = np.linalg.norm(patient[:, :3, 3] - master[:3, 3], axis=1)
         suspects = []
