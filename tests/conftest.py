@@ -237,8 +237,9 @@ def play_seeg_scenario(
 def with_deadlines_stretched(topology, margin: float):
     """`topology` with every safety deadline (watches, process heartbeats), every
     component's own command watchdog (a `watchdog_cycles` property: the simulated arm's)
-    and reply timeout (a `timeout` property: the NDI driver's) x `margin` (a timeout no
-    further than its property allows)."""
+    and reply timeout (a `timeout` property: the NDI driver's), and every tracker's
+    staleness limit (`stale_periods` of a `sensors_file`, in a copy) x `margin` (a
+    timeout no further than its property allows)."""
     import dataclasses
 
     if margin == 1.0:
@@ -260,7 +261,26 @@ def with_deadlines_stretched(topology, margin: float):
         if declared is not None:
             seconds = component.properties.get("timeout", declared.default) * margin
             component.properties["timeout"] = min(seconds, declared.max or seconds)
+        sensors = component.properties.get("sensors_file")
+        if sensors:
+            component.properties["sensors_file"] = _staleness_stretched(sensors, margin)
     return topology
+
+
+def _staleness_stretched(path: str, margin: float) -> str:
+    """A copy of the sensors file at `path` whose trackers are stale `margin` x later."""
+    import yaml
+
+    from components.domain.sensors import SensorConfig
+
+    data = yaml.safe_load((REPO / path).read_text())  # topologies' paths: from the repository
+    for sensor in data["sensors"].values():
+        sensor["stale_periods"] = sensor.get("stale_periods", SensorConfig.stale_periods) * margin
+    folder = tempfile.mkdtemp(prefix="fw-stretched-")
+    atexit.register(shutil.rmtree, folder, True)
+    copy = Path(folder) / Path(path).name
+    copy.write_text(yaml.safe_dump(data))
+    return str(copy)
 
 
 def play_scenario(

@@ -7,9 +7,13 @@ tool on its output port (`cto`, `rto`; metres, quaternion w-x-y-z, RMS error,
 frame number, validity). MISSING and DISABLED tools are published as invalid
 poses, and so is a frame the device marks valid whose values cannot be a
 measurement (NaN, infinite, a non-unit rotation, outside the measurement volume):
-a broken device never moves the robot. Garbage bytes and CRC errors are counted
-and skipped; after `reconnect_after` failed cycles in a row the driver reopens the
-port and initialises the device again (a cable loss and re-plug). The driver says
+a broken device never moves the robot. Every pose is stamped with its capture time,
+from the frame number (`FrameClock`): a reply the line held is as old as it is, and
+one held on the way to the device is not made older. Garbage bytes
+and CRC errors are counted and skipped; a late reply is taken when it comes (the
+request is not repeated behind it); after `reconnect_after` failed cycles in a row
+(a timeout each) the driver reopens the port and initialises the device again (a
+cable loss and re-plug). The driver says
 itself what is wrong: `health` carries its fault state (link lost, no replies,
 corrupt replies, impossible values) on every change, not only through silence.
 """
@@ -26,6 +30,7 @@ from typing import Any
 import serial
 
 from components.tracking import ndi
+from components.tracking.frame_clock import FrameClock
 from components.tracking.ndi_rom import make_srom, read_tool_definition
 from framework import schema
 from framework.component import Component, Out, operation
@@ -133,6 +138,9 @@ class NdiTracker(Component):
     tools_file = prop(str, "", doc="tools YAML (markers, tool definition files)")
     binary = prop(bool, True, doc="stream with BX (binary) instead of TX (text)")
     timeout = prop(float, 0.25, unit="s", min=0.01, max=5.0, doc="reply timeout")
+    frame_rate = prop(
+        float, 20.0, unit="Hz", min=1.0, max=1000.0, doc="how fast the device numbers its frames"
+    )
     reconnect_after = prop(int, 3, min=1, max=100, doc="failed cycles before reconnecting")
     frame = prop(str, "vicra", doc="frame name written in every pose")
     volume = prop(
@@ -159,6 +167,10 @@ class NdiTracker(Component):
         self.firmware = ""  # the device's Freeze Tag (VER), once connected
         self._reported_fault: str | None = None
         self.tools: list[ToolSpec] = []
+        self._rx = b""  # bytes from the device not taken yet (a late reply waits here)
+        self._asked: tuple[float, float] | None = None  # the pending request (mono, wall)
+        self._overdue = 0  # timeouts the pending request has run over
+        self._clock = FrameClock(20.0)
 
     # -- lifecycle -------------------------------------------------------------------
     def configure_hook(self) -> bool:
@@ -184,8 +196,9 @@ class NdiTracker(Component):
             self._try_reconnect()
             return
         try:
-            tools = self._poll()
+            tools, stamp = self._poll()
         except ndi.NdiError as exc:
+            self._asked = None  # answered, badly: ask again
             key = "crc_errors" if "CRC" in str(exc) else "device_errors"
             self.counters[key] += 1
             self._failed(str(exc))
@@ -200,7 +213,9 @@ class NdiTracker(Component):
             return
         self.counters["failed_cycles"] = 0
         self.counters["frames"] += 1
-        stamp = time.time()
+        numbers = [tool.frame for tool in tools if tool.status != ndi.DISABLED]
+        if numbers:  # when the device captured it; else when it was asked for
+            stamp = self._clock.stamp(max(numbers), stamp, time.time())
         impossible = []
         margin = 50.0 if self.volume == "vicra" else None
         for tool in tools:
@@ -253,6 +268,7 @@ class NdiTracker(Component):
             raise DriverError(f"cannot open {self.device!r} as a serial port: {exc}") from None
 
     def _close(self) -> None:
+        self._rx, self._asked = b"", None
         if self.serial is not None:
             with contextlib.suppress(Exception):
                 self.serial.close()
@@ -261,6 +277,7 @@ class NdiTracker(Component):
     def _connect(self) -> None:
         """Open at 9600 baud, INIT, switch baud, set up every tool."""
         self._close()
+        self._clock = FrameClock(self.frame_rate)  # INIT restarts the frame counter
         self._open(9600)
         self.serial.reset_input_buffer()
         try:
@@ -294,6 +311,9 @@ class NdiTracker(Component):
             self._command("PHF", handle)
 
     def _command(self, name: str, params: str = "") -> str:
+        if self._asked is not None:  # a stream reply still pending is dropped with the rest
+            self._rx, self._asked = b"", None
+            self.serial.reset_input_buffer()
         self.serial.write(ndi.command(name, params))
         return ndi.parse_reply(self._read_line())
 
@@ -307,31 +327,78 @@ class NdiTracker(Component):
                 return data
         raise TimeoutError(f"no reply within {self.timeout:g} s")
 
-    def _poll(self) -> list[ndi.ToolFrame]:
-        """One BX/TX round: returns every tool's frame (garbage before the reply skipped)."""
-        self.serial.reset_input_buffer()
+    def _poll(self) -> tuple[list[ndi.ToolFrame], float]:
+        """One BX/TX round: every tool's frame, and when it was asked for (wall clock).
+
+        A reply later than `timeout` is late, not lost: the request is not sent again
+        while it is pending, and its reply is taken when it comes (a busy host can hold
+        a serial line's bytes for a second; sending again would only queue more
+        requests behind them). Until then each cycle fails with `TimeoutError`, one per
+        `timeout` the reply is overdue, so a silent device is still reconnected after
+        `reconnect_after` timeouts."""
+        if self._asked is None:
+            self._rx = b""
+            self.serial.reset_input_buffer()  # nothing pending: what waits is junk
+            self.serial.write(ndi.command("BX" if self.binary else "TX", "0801"))
+            self._asked = (time.monotonic(), time.time())
+            self._overdue = 0
+        asked, stamp = self._asked
+        deadline = asked + self.timeout * (self._overdue + 1)
+        while True:
+            reply = self._take_reply()
+            if reply is not None:
+                self._asked = None
+                return reply, stamp
+            chunk = self._read_some(deadline)
+            if not chunk:
+                break
+            self._rx += chunk
+        self._overdue += 1
+        raise TimeoutError(
+            f"no {'BX' if self.binary else 'TX'} reply within {self.timeout * self._overdue:g} s"
+        )
+
+    def _take_reply(self) -> list[ndi.ToolFrame] | None:
+        """The tools of the reply in the receive buffer, if it is complete (garbage
+        before it is skipped; a text ERROR raises `NdiError`)."""
+        buffer = self._rx
         if not self.binary:
-            self.serial.write(ndi.command("TX", "0801"))
-            tools, _ = ndi.decode_tx(ndi.parse_reply(self._read_line()))
+            if b"\r" not in buffer:
+                return None
+            line, _, self._rx = buffer.partition(b"\r")
+            tools, _ = ndi.decode_tx(ndi.parse_reply(line + b"\r"))
             return tools
-        self.serial.write(ndi.command("BX", "0801"))
-        deadline = time.monotonic() + self.timeout
-        buffer = b""
-        while time.monotonic() < deadline:
-            buffer += self.serial.read(max(1, self.serial.in_waiting))
-            start = buffer.find(b"\xc4\xa5")
-            if start < 0:
-                if b"\r" in buffer and b"ERROR" in buffer:  # a text error instead of BX
-                    ndi.parse_reply(buffer[buffer.index(b"ERROR") : buffer.index(b"\r") + 1])
-                buffer = buffer[-1:]
-                continue
-            if len(buffer) - start < 6:
-                continue
-            total = ndi.bx_length(buffer[start : start + 6])
-            if len(buffer) - start >= total:
-                tools, _ = ndi.decode_bx(buffer[start : start + total])
-                return tools
-        raise TimeoutError(f"no BX reply within {self.timeout:g} s")
+        start = buffer.find(b"\xc4\xa5")
+        if start < 0:
+            if b"\r" in buffer and b"ERROR" in buffer:  # a text error instead of BX
+                error = buffer[buffer.index(b"ERROR") :]
+                self._rx = b""
+                ndi.parse_reply(error[: error.index(b"\r") + 1])
+            self._rx = buffer[-1:]
+            return None
+        if len(buffer) - start < 6:
+            return None
+        total = ndi.bx_length(buffer[start : start + 6])
+        if len(buffer) - start < total:
+            return None
+        self._rx = buffer[start + total :]
+        tools, _ = ndi.decode_bx(buffer[start : start + total])
+        return tools
+
+    def _read_some(self, until: float) -> bytes:
+        """What the device sent, waiting for a first byte until `until` (monotonic)."""
+        waiting = self.serial.in_waiting
+        if waiting:
+            return self.serial.read(waiting)
+        remaining = until - time.monotonic()
+        if remaining <= 0:
+            return b""
+        self.serial.timeout = remaining
+        try:
+            first = self.serial.read(1)
+        finally:
+            self.serial.timeout = self.timeout
+        return first + (self.serial.read(self.serial.in_waiting) if first else b"")
 
     def _failed(self, reason: str) -> None:
         self.counters["failed_cycles"] += 1

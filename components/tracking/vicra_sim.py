@@ -8,7 +8,8 @@ and TX, with and without CRC (upper- or lower-case hex), at 20 Hz with 0.25 mm
 RMS noise, inside the Vicra's pyramid field of view; tools can be occluded, and
 faults injected: `silent` (stops answering), `bad_crc` (replies with a wrong
 CRC), `garbage` (random bytes before each reply), and values a broken device marks
-valid: `nan`, `inf`, `huge` (3e35 mm) positions.
+valid: `nan`, `inf`, `huge` (3e35 mm) positions; and the line can hold its replies
+(`delay_replies`), as a busy host holds a serial device's bytes.
 
 The field of view is an approximation of the Vicra pyramid (557-1336 mm from the
 sensor, +-26 deg horizontally, +-23 deg vertically), enough to put a tool in or out.
@@ -16,9 +17,11 @@ sensor, +-26 deg horizontally, +-23 deg vertically), enough to put a tool in or 
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import math
 import os
+import queue
 import random
 import select
 import threading
@@ -93,8 +96,16 @@ class VicraDevice:
         self.scene: dict[str, ScenePose] = {}  # by the part name in the tool definition
         self.world: Any = None
         """Optional `callable(tool, seconds) -> (translation_mm, quaternion) | None` that
-        moves the tools (the simulated OR); the scene's occlusion flags still apply."""
+        moves the tools (the simulated OR); the scene's occlusion flags still apply.
+        `seconds` is the frame's time since TSTART: a frame shows the world when the
+        device captured it, at its frame rate, not when a request happened to read it."""
+        self.frame_time = 0.0
+        """Wall-clock time of the frame being made (for a world that follows stamped
+        streams, such as the robot's measured TCP)."""
         self.fault = ""
+        self.reply_delay = 0.0
+        """Seconds the line holds each reply (a busy host's serial input), in order."""
+        self.stream_requests = 0  # BX and TX received
         self.commands: list[str] = []
         self._lock = threading.Lock()
         self._master: int | None = None
@@ -125,6 +136,8 @@ class VicraDevice:
         self.link.symlink_to(os.ttyname(slave))
         self._reset_state()
         self._stop.clear()
+        self._held: queue.Queue = queue.Queue()
+        threading.Thread(target=self._deliver_held, name="vicra-line", daemon=True).start()
         self._thread = threading.Thread(target=self._serve, name="vicra-sim", daemon=True)
         self._thread.start()
         return str(self.link)
@@ -134,6 +147,7 @@ class VicraDevice:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(1.0)
+            self._held.put((0.0, None, b""))
         with contextlib.suppress(FileNotFoundError):
             self.link.unlink()
         for fd in (self._master, self._slave):
@@ -162,8 +176,21 @@ class VicraDevice:
                     continue
                 if self.fault == "garbage":
                     response = bytes(self.random.randrange(256) for _ in range(7)) + response
+                if self.reply_delay > 0:
+                    self._held.put((time.monotonic() + self.reply_delay, master, response))
+                    continue
                 with contextlib.suppress(OSError):
                     os.write(master, response)
+
+    def _deliver_held(self) -> None:
+        """Write the replies the line holds, each when its delay is over, in order."""
+        while True:
+            due, master, response = self._held.get()
+            if master is None:
+                return
+            time.sleep(max(0.0, due - time.monotonic()))
+            with contextlib.suppress(OSError):
+                os.write(master, response)
 
     def _answer(self, line: bytes) -> bytes | None:
         if self.fault == "silent" or not line.strip():
@@ -174,6 +201,8 @@ class VicraDevice:
             return self._error(ndi.BAD_CRC)
         if name not in ("BX", "TX"):  # the setup, not the stream
             self.commands.append(name)
+        else:
+            self.stream_requests += 1
         handler = getattr(self, f"_cmd_{name.lower()}", None)
         if handler is None:
             return self._error(ndi.INVALID_COMMAND)
@@ -303,7 +332,10 @@ class VicraDevice:
         return self._reply("OKAY")
 
     def _frames(self) -> list[ndi.ToolFrame]:
-        frame = int((time.monotonic() - self._t0) * self.rate)
+        now = time.monotonic()
+        frame = int((now - self._t0) * self.rate)
+        captured = frame / self.rate  # the newest frame's capture, since TSTART
+        self.frame_time = time.time() - (now - self._t0 - captured)
         if frame != self._noise_frame:  # one noise sample per device frame
             self._noise_frame = frame
             sigma = self.noise_mm / math.sqrt(3.0)  # per axis, so the 3-D RMS is noise_mm
@@ -322,7 +354,7 @@ class VicraDevice:
                 continue
             pose = self.scene.get(tool.name)
             if self.world is not None:
-                seen = self.world(tool.name, time.monotonic() - self._t0)
+                seen = self.world(tool.name, captured)
                 hidden = pose.occluded if pose is not None else False
                 pose = None if seen is None else ScenePose(seen[0], seen[1], hidden)
             outside = pose is not None and not in_field_of_view(pose.translation)
@@ -399,7 +431,12 @@ class VicraSimulator(Component):
     noise = prop(float, 0.25, unit="mm", min=0.0, max=10.0, doc="3-D RMS position noise")
     seed = prop(int, 0, doc="noise seed (repeatable runs)")
     follow_world = prop(bool, False, doc="move the tools with the synthetic tracking world")
-    ee_pose = In(Pose, doc="the robot's TCP in its base frame (with follow_world; else a path)")
+    ee_pose = In(
+        Pose,
+        doc="the robot's TCP in its base frame (with follow_world; else a path); every "
+        "sample is kept for a moment, so a frame shows the TCP of its capture time",
+        policy={"type": "buffer", "size": 256},
+    )
     head = In(Pose, doc="the reference tool in the robot base frame (with follow_world)")
 
     def configure_hook(self) -> bool:
@@ -407,15 +444,23 @@ class VicraSimulator(Component):
 
         path = self.link or str(Path(tempfile.mkdtemp(prefix="fw-vicra-")) / "ttyVICRA")
         self.device = VicraDevice(path, self.rate, self.noise, self.seed)
+        self._tcp: collections.deque = collections.deque(maxlen=512)  # ~1 s at 500 Hz
         if self.follow_world:
             self.device.world = synthetic_world("vicra", self._robot, self._head)
         self.device.plug()
         return True
 
     def _robot(self) -> Any:
-        """The latest robot TCP (4x4), read when the device makes a frame."""
-        status, pose = self.ee_pose.read()
-        return None if status is ReadStatus.NO_DATA or pose is None else pose_matrix(pose)
+        """The robot's TCP (4x4) nearest the frame's capture time, or None before any."""
+        while True:
+            status, pose = self.ee_pose.read()
+            if status is not ReadStatus.NEW or pose is None:
+                break
+            self._tcp.append(pose)
+        if not self._tcp:
+            return None
+        at = self.device.frame_time
+        return pose_matrix(min(self._tcp, key=lambda p: abs(p.stamp - at)))
 
     def _head(self) -> Any:
         """The latest pose of the reference tool on the head clamp (4x4), or None."""
@@ -455,6 +500,14 @@ class VicraSimulator(Component):
         self.device.fault = fault
 
     @operation
+    def delay_replies(self, seconds: float = 0.0) -> None:
+        """Hold every reply this long on the line, in order (0: none): what a busy host
+        does to a serial device's bytes, measured up to seconds (docs/tracking.md)."""
+        if not (math.isfinite(seconds) and 0.0 <= seconds <= 10.0):
+            raise ValueError(f"delay {seconds!r} s: give 0 to 10 s")
+        self.device.reply_delay = float(seconds)
+
+    @operation
     def unplug(self) -> None:
         """Pull the cable."""
         self.device.unplug()
@@ -466,12 +519,14 @@ class VicraSimulator(Component):
 
     @operation(readonly=True)
     def device_state(self) -> dict[str, Any]:
-        """What the device believes: initialised, tracking, baud, tools, and the commands
-        it received since it was made (the first 100; BX and TX are not listed)."""
+        """What the device believes: initialised, tracking, baud, tools, the commands
+        it received since it was made (the first 100; BX and TX are not listed, only
+        counted as `stream_requests`)."""
         return {
             "initialized": self.device.initialized,
             "tracking": self.device.tracking,
             "baud": self.device.baud,
             "tools": len(self.device.tools),
             "commands": self.device.commands[:100],
+            "stream_requests": self.device.stream_requests,
         }

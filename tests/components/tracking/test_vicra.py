@@ -131,7 +131,7 @@ def test_port_status_in_the_stream_agrees_with_phsr(driver, vicra):
     assert sorted(phsr.values()) == [0x31, 0x31]
     vicra.call("occlude", tool="rto")
     vicra.call("place", tool="cto", translation=[10.0, 20.0, 2000.0])  # beyond 1336 mm
-    frames = {f.handle: f for f in driver._poll()}
+    frames = {f.handle: f for f in driver._poll()[0]}
     names = {n: h for h, n in driver.handles.items()}
     assert frames[names["rto"]].port_status == phsr[names["rto"]]
     assert frames[names["cto"]].port_status == phsr[names["cto"]] | 0x40
@@ -232,6 +232,49 @@ def test_a_silent_device_and_a_cable_loss_are_recovered(driver, vicra):
     assert driver.status()["reconnects"] == 1
     driver.update()
     assert driver.cto.last.valid and driver.state.value == "Running"
+
+
+def test_a_late_reply_is_taken_when_it_comes_and_is_as_old_as_it_may_be(driver, vicra, hub):
+    """A line that starts to hold each reply 0.6 s (a busy host, measured up to
+    seconds) against a 0.25 s timeout: the device is not reconnected, it is asked once
+    per reply (not again and again behind a pending one), and each pose is stamped
+    with its capture time (from the frame number), never the time it arrived: the
+    Sensor Manager's staleness check sees the data's real age."""
+    import time
+
+    started(driver)
+    driver.reconnect_after = 3
+    for _ in range(5):  # the stream on a quick line
+        driver.update()
+    before = vicra.call("device_state")["stream_requests"]
+    vicra.call("delay_replies", seconds=0.6)
+    arrivals = []
+    give_up = time.monotonic() + 120.0  # only if replies never come at all
+    while len(arrivals) < 4 and time.monotonic() < give_up:
+        frames = driver.status()["frames"]
+        driver.update()
+        if driver.status()["frames"] > frames:
+            arrivals.append((time.time(), driver.cto.last.stamp))
+    status = driver.status()
+    assert len(arrivals) == 4 and driver.cto.last.valid, status
+    assert status["reconnects"] == 0 and status["connected"], status
+    assert status["timeouts"] >= 4, status  # each reply ran over the timeout
+    for arrived, stamp in arrivals:
+        assert arrived - stamp >= 0.6, (arrived, stamp)  # captured before the line held it
+    asked = vicra.call("device_state")["stream_requests"] - before
+    assert asked <= len(arrivals) + 1, (asked, len(arrivals))
+
+
+def test_a_late_reply_does_not_hide_a_silent_device(driver, vicra):
+    """Waiting for a pending reply is bounded: a device that never answers is
+    reconnected after `reconnect_after` timeouts, as before."""
+    started(driver)
+    driver.reconnect_after = 2
+    vicra.call("delay_replies", seconds=5.0)
+    driver.update()
+    assert driver.status()["connected"] and driver.status()["timeouts"] == 1
+    driver.update()
+    assert driver.status()["timeouts"] == 2 and not driver.status()["connected"]
 
 
 def test_bad_configuration_is_explained(tmp_path):
