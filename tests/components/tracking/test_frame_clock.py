@@ -32,9 +32,10 @@ def test_a_stamp_lies_between_one_frame_before_the_request_and_the_arrival(held)
 
 @given(delays)
 def test_one_quick_reply_in_the_window_gives_every_later_frame_its_capture_time(held):
-    """A reply held for seconds is stamped within the quickest reply's delay (1 ms)."""
+    """A reply held for seconds is stamped within the quickest reply's delay (1 ms),
+    whatever fraction of a second the quick replies' frames fall on."""
     clock = FrameClock(RATE, window=10.0)
-    for frame, asked, arrived in replies(held, quick_every=50):  # one quick per 2.5 s
+    for frame, asked, arrived in replies(held, quick_every=37):  # one quick per 1.85 s
         stamp = clock.stamp(frame, asked, arrived)
         assert abs(stamp - (ORIGIN + frame / RATE)) <= 0.001 + 1e-6
 
@@ -60,3 +61,40 @@ def test_a_device_clock_that_drifts_is_followed_through_the_window():
         stamp = clock.stamp(k, captured - 0.0005, captured + delay)
         worst = max(worst, abs(stamp - captured))
     assert worst < 0.002, worst
+
+
+def test_the_same_frame_twice_is_not_a_counter_that_started_again():
+    """Asked twice within one frame, the device sends the same number twice."""
+    clock = FrameClock(RATE)
+    for k in range(10):
+        clock.stamp(k, ORIGIN + k / RATE, ORIGIN + k / RATE + 0.001)
+    again = ORIGIN + 10 / RATE
+    clock.stamp(10, again, again + 0.001)
+    assert abs(clock.stamp(10, again + 0.01, again + 0.7) - again) <= 0.001 + 1e-9
+
+
+def test_a_counter_slower_than_declared_is_held_at_one_frame_before_the_request():
+    """A device counting at 10 Hz, declared 20 Hz: the estimate falls behind, and the
+    stamp stays at the earliest its request allows, never earlier."""
+    clock = FrameClock(RATE)
+    stamps = []
+    for k in range(100):
+        captured = ORIGIN + k / 10.0
+        asked = captured - 0.0005
+        stamps.append((clock.stamp(k, asked, captured + 0.001), asked))
+    assert all(stamp >= asked - 1.0 / RATE - 1e-9 for stamp, asked in stamps)
+    assert abs(stamps[-1][0] - (stamps[-1][1] - 1.0 / RATE)) < 1e-9
+
+
+def test_the_quickest_reply_sets_the_clock_whatever_frame_it_was():
+    """30 s of replies held 0.4 s, but for two quick ones at frames 250 and 251 (12.5 s
+    in, mid-second): every frame arriving within the window after them is stamped
+    within 1 ms."""
+    clock = FrameClock(RATE)
+    for k in range(600):
+        captured = ORIGIN + k / RATE
+        delay = 0.001 if k in (250, 251) else 0.4
+        stamp = clock.stamp(k, captured - 0.0005, captured + delay)
+        quick = ORIGIN + 251 / RATE + 0.001  # the newest quick arrival
+        if k >= 251 and captured + delay <= quick + 10.0:  # it is still in the window
+            assert abs(stamp - captured) <= 0.001 + 1e-9, k
