@@ -120,6 +120,7 @@ def main() -> int:
         print(f"cycle time, {n} sensors ...", file=sys.stderr)
         results[f"cycle_{n}_sensors"] = cycle_times(n, cycles)
         results[f"cycle_{n}_sensors_at_rate"] = cycle_times(n, cycles, every_cycle=False)
+        results[f"cycle_{n}_sensors_stamped"] = cycle_times(n, cycles, robot_rate=200.0)
     latency = {}
     for cause in ("cto_missing", "stale", "corrupt", "calibration"):
         print(f"detection latency: {cause} ...", file=sys.stderr)
@@ -162,6 +163,17 @@ def main() -> int:
             f"| {n} | {worst['p50_us']:.1f} | {worst['p99_us']:.1f} "  # type: ignore[index]
             f"| {at_rate['p50_us']:.1f} | {at_rate['p99_us']:.1f} |"  # type: ignore[index]
         )
+    lines += [
+        "",
+        "With the robot's stamped poses at 200 Hz and stamped samples (the deployment's "
+        "path: each sample checked against the pose of its time), worst case:",
+        "",
+        "| sensors | p50 µs | p99 µs |",
+        "|---:|---:|---:|",
+    ]
+    for n in (2, 8, 16):
+        stamped = results[f"cycle_{n}_sensors_stamped"]
+        lines.append(f"| {n} | {stamped['p50_us']:.1f} | {stamped['p99_us']:.1f} |")  # type: ignore[index]
     lines += ["", "| fault | trials | median periods | max periods |", "|---|---:|---:|---:|"]
     lines += [
         f"| {c} | {v['n']} | {v['median_periods']:.2f} | {v['max_periods']:.2f} |"
