@@ -21,6 +21,7 @@ corrupt replies, impossible values) on every change, not only through silence.
 from __future__ import annotations
 
 import contextlib
+import select
 import termios
 import time
 from dataclasses import dataclass
@@ -386,19 +387,18 @@ class NdiTracker(Component):
         return tools
 
     def _read_some(self, until: float) -> bytes:
-        """What the device sent, waiting for a first byte until `until` (monotonic)."""
-        waiting = self.serial.in_waiting
-        if waiting:
-            return self.serial.read(waiting)
-        remaining = until - time.monotonic()
-        if remaining <= 0:
-            return b""
-        self.serial.timeout = remaining
-        try:
-            first = self.serial.read(1)
-        finally:
-            self.serial.timeout = self.timeout
-        return first + (self.serial.read(self.serial.in_waiting) if first else b"")
+        """What the device sent, waiting for a first byte until `until` (monotonic).
+        Waits on the descriptor: changing the port's timeout would reconfigure the tty
+        (tcsetattr) twice a read."""
+        if not self.serial.in_waiting:
+            remaining = until - time.monotonic()
+            if remaining <= 0:
+                return b""
+            ready, _, _ = select.select([self.serial.fileno()], [], [], remaining)
+            if not ready:
+                return b""
+        # readable with nothing waiting is a device that went away: read() says so
+        return self.serial.read(max(1, self.serial.in_waiting))
 
     def _failed(self, reason: str) -> None:
         self.counters["failed_cycles"] += 1
