@@ -199,7 +199,6 @@ class NdiTracker(Component):
         try:
             tools, stamp = self._poll()
         except ndi.NdiError as exc:
-            self._asked = None  # answered, badly: ask again
             key = "crc_errors" if "CRC" in str(exc) else "device_errors"
             self.counters[key] += 1
             self._failed(str(exc))
@@ -313,20 +312,28 @@ class NdiTracker(Component):
 
     def _command(self, name: str, params: str = "") -> str:
         if self._asked is not None:  # a stream reply still pending is dropped with the rest
-            self._rx, self._asked = b"", None
-            self.serial.reset_input_buffer()
+            self._discard_input()
         self.serial.write(ndi.command(name, params))
-        return ndi.parse_reply(self._read_line())
-
-    def _read_line(self) -> bytes:
         deadline = time.monotonic() + self.timeout
-        data = b""
-        while time.monotonic() < deadline:
-            chunk = self.serial.read_until(b"\r")
-            data += chunk
-            if data.endswith(b"\r"):
-                return data
-        raise TimeoutError(f"no reply within {self.timeout:g} s")
+        while (line := self._take_line()) is None:
+            chunk = self._read_some(deadline)
+            if not chunk:
+                raise TimeoutError(f"no reply within {self.timeout:g} s")
+            self._rx += chunk
+        return ndi.parse_reply(line)
+
+    def _discard_input(self) -> None:
+        """Forget what the device sent and any pending request (what waits is junk)."""
+        self._rx, self._asked = b"", None
+        self.serial.reset_input_buffer()
+
+    def _take_line(self) -> bytes | None:
+        """The first text reply (up to its CR) in the receive buffer, if complete."""
+        line, cr, rest = self._rx.partition(b"\r")
+        if not cr:
+            return None
+        self._rx = rest
+        return line + cr
 
     def _poll(self) -> tuple[list[ndi.ToolFrame], float]:
         """One BX/TX round: every tool's frame, and when it was asked for (wall clock).
@@ -338,15 +345,18 @@ class NdiTracker(Component):
         `timeout` the reply is overdue, so a silent device is still reconnected after
         `reconnect_after` timeouts."""
         if self._asked is None:
-            self._rx = b""
-            self.serial.reset_input_buffer()  # nothing pending: what waits is junk
+            self._discard_input()
             self.serial.write(ndi.command("BX" if self.binary else "TX", "0801"))
             self._asked = (time.monotonic(), time.time())
             self._overdue = 0
         asked, stamp = self._asked
         deadline = asked + self.timeout * (self._overdue + 1)
         while True:
-            reply = self._take_reply()
+            try:
+                reply = self._take_reply()
+            except ndi.NdiError:
+                self._asked = None  # answered, badly: ask again
+                raise
             if reply is not None:
                 self._asked = None
                 return reply, stamp
@@ -362,20 +372,17 @@ class NdiTracker(Component):
     def _take_reply(self) -> list[ndi.ToolFrame] | None:
         """The tools of the reply in the receive buffer, if it is complete (garbage
         before it is skipped; a text ERROR raises `NdiError`)."""
-        buffer = self._rx
         if not self.binary:
-            if b"\r" not in buffer:
-                return None
-            line, _, self._rx = buffer.partition(b"\r")
-            tools, _ = ndi.decode_tx(ndi.parse_reply(line + b"\r"))
-            return tools
+            line = self._take_line()
+            return None if line is None else ndi.decode_tx(ndi.parse_reply(line))[0]
+        buffer = self._rx
         start = buffer.find(b"\xc4\xa5")
         if start < 0:
             if b"\r" in buffer and b"ERROR" in buffer:  # a text error instead of BX
                 error = buffer[buffer.index(b"ERROR") :]
                 self._rx = b""
-                ndi.parse_reply(error[: error.index(b"\r") + 1])
-            self._rx = buffer[-1:]
+                ndi.parse_reply(error[: error.index(b"\r") + 1])  # raises NdiError
+            self._rx = buffer[-1:]  # a header may start with the last byte
             return None
         if len(buffer) - start < 6:
             return None

@@ -457,10 +457,12 @@ class VicraSimulator(Component):
             if status is not ReadStatus.NEW or pose is None:
                 break
             self._tcp.append(pose)
-        if not self._tcp:
-            return None
-        at = self.device.frame_time
-        return pose_matrix(min(self._tcp, key=lambda p: abs(p.stamp - at)))
+        at, nearest, gap = self.device.frame_time, None, math.inf
+        for pose in reversed(self._tcp):  # stamps rise: the frame's is near the newest
+            if abs(pose.stamp - at) > gap:
+                break
+            nearest, gap = pose, abs(pose.stamp - at)
+        return None if nearest is None else pose_matrix(nearest)
 
     def _head(self) -> Any:
         """The latest pose of the reference tool on the head clamp (4x4), or None."""

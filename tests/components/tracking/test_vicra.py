@@ -74,11 +74,8 @@ def test_setup_follows_the_protocol_and_switches_baud(driver, vicra):
 
 
 def test_stale_handles_are_found_with_phsr_and_freed(driver, vicra):
-    from components.tracking import ndi
-
     started(driver)
-    driver.serial.write(ndi.command("PHRQ", "*********1****"))  # a handle nobody enables
-    assert ndi.parse_reply(driver._read_line()) == "0C"
+    assert ask(driver, "PHRQ", "*********1****") == "0C"  # a handle nobody enables
     assert vicra.call("device_state")["tools"] == 3
     driver._free_stale_handles()
     assert vicra.call("device_state")["tools"] == 2, "PHSR:01 listed it, PHF freed it"
