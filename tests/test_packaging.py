@@ -8,6 +8,7 @@ import shutil
 import subprocess
 import sys
 import venv
+from pathlib import Path
 
 import pytest
 
@@ -16,8 +17,10 @@ from tests.conftest import REPO
 
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory):
-    """A virtual environment with fw installed from a wheel of this tree (its
-    dependencies come from the system's site-packages)."""
+    """A virtual environment with fw installed from a wheel of this tree; its
+    dependencies are those of the environment running the suite (its site-packages
+    on the path, but not its editable install of fw, whose hook a plain path entry
+    does not run), whether that is the system's Python or a virtual environment."""
     root = tmp_path_factory.mktemp("installed")
     source = root / "src"
     source.mkdir()
@@ -34,6 +37,15 @@ def installed(tmp_path_factory):
     env_dir = root / "venv"
     venv.EnvBuilder(system_site_packages=True, with_pip=False).create(env_dir)
     python = env_dir / "bin" / "python"
+    own = subprocess.run(
+        [str(python), "-c", "import site; print(site.getsitepackages()[0])"],
+        check=True, capture_output=True, text=True,
+    ).stdout.strip()  # fmt: skip
+    # every folder the running interpreter imports from beyond its standard library
+    # (a .pth file's own additions, such as Pinocchio's cmeel prefix, included), but
+    # neither the checkout nor an editable install's import hook
+    folders = [p for p in sys.path if "site-packages" in p and Path(p).is_dir()]
+    Path(own, "fw_test_dependencies.pth").write_text("\n".join(folders) + "\n")
     wheel = next(wheels.glob("fw-*.whl"))
     subprocess.run(
         [sys.executable, "-m", "pip", "--python", str(python), "install", "--no-deps",

@@ -2,17 +2,29 @@
 # Install fw for this checkout, then run COMMAND... in its environment:
 #   bash tools/install.sh fw deploy topologies/seeg.yaml
 #   bash tools/install.sh --test python3 -m pytest      (what tools/test.sh does)
+#   bash tools/install.sh --pinned --test ...           the versions last known good
+#                                                       (tools/constraints.txt)
 # What it installs: the Debian packages a run needs when they are missing (graphviz
 # draws the console's live chart; with --test also chromium for the browser tests,
 # and python3-venv where a virtual environment must be made), then fw itself
 # (with --test its test extras) into: the active virtual environment; else ./.venv if
 # it exists; else, when this Python is the system's own ("externally managed", as on
 # Debian 12), a new ./.venv; else this Python.
+# With CI=true it always makes a new environment (./.venv-ci, emptied first) and takes
+# the newest releases the dependencies allow: a release that breaks fw fails CI at once
+# instead of hiding behind what a machine kept from an earlier run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 extras=""
-if [ "${1:-}" = "--test" ]; then extras="[test]"; shift; fi
+constraints=()
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --test) extras="[test]"; shift ;;
+    --pinned) constraints=(-c tools/constraints.txt); shift ;;
+    *) break ;;
+  esac
+done
 
 if [ "$(id -u)" = 0 ]; then SUDO=""; elif command -v sudo >/dev/null 2>&1; then SUDO="sudo"; else SUDO="none"; fi
 apt_install() {
@@ -33,12 +45,20 @@ system_python() {  # PEP 668: pip may not install into this Python
 need=()
 command -v dot >/dev/null 2>&1 || need+=(graphviz)
 if [ -n "$extras" ]; then command -v chromium >/dev/null 2>&1 || need+=(chromium); fi
-if [ -z "${VIRTUAL_ENV:-}" ] && [ ! -d .venv ] && system_python && ! python3 -c 'import ensurepip' 2>/dev/null; then
+fresh=""
+if [ "${CI:-}" = true ]; then fresh=1; fi
+if { [ -n "$fresh" ] || { [ -z "${VIRTUAL_ENV:-}" ] && [ ! -d .venv ] && system_python; }; } \
+  && ! python3 -c 'import ensurepip' 2>/dev/null; then
   need+=(python3-venv)
 fi
 apt_install "${need[@]+"${need[@]}"}"
 
-if [ -z "${VIRTUAL_ENV:-}" ]; then
+if [ -n "$fresh" ]; then
+  echo "CI: a new virtual environment in .venv-ci (the newest releases the dependencies allow)" >&2
+  rm -rf .venv-ci
+  python3 -m venv .venv-ci
+  . .venv-ci/bin/activate
+elif [ -z "${VIRTUAL_ENV:-}" ]; then
   if [ -d .venv ]; then
     . .venv/bin/activate
   elif system_python; then
@@ -47,5 +67,7 @@ if [ -z "${VIRTUAL_ENV:-}" ]; then
     . .venv/bin/activate
   fi
 fi
-python3 -m pip install --disable-pip-version-check -q -e ".$extras"
+python3 -m pip install --disable-pip-version-check -q -e ".$extras" "${constraints[@]+"${constraints[@]}"}"
+[ -z "$fresh" ] || python3 -m pip freeze --exclude-editable | sed 's/^/  ci: /' | grep -iE \
+  ' (numpy|scipy|pyyaml|jsonschema|eclipse-zenoh|pin|mujoco|pytest|hypothesis)==' >&2 || true
 [ $# -eq 0 ] || exec "$@"

@@ -3,7 +3,9 @@
 import math
 
 import pytest
+import yaml
 
+from framework import yamlio
 from framework.errors import YamlError
 from framework.yamlio import load_yaml, load_yaml_text
 
@@ -80,9 +82,34 @@ def _refused(text: str, match: str, **limits) -> YamlError:
     return err.value
 
 
-def test_deep_nesting_is_refused_without_recursion():
-    error = _refused("[" * 50_000 + "]" * 50_000, "nested more than 64 levels")
-    assert error.location.line == 1 and error.location.column == 65
+PARSERS = ["C", "pure Python"] if yaml.__with_libyaml__ else ["pure Python"]
+
+
+@pytest.fixture(params=PARSERS)
+def parser(request, monkeypatch):
+    """Each YAML parser fw may run on: libyaml's where PyYAML was built with it, and
+    PyYAML's own (the fallback)."""
+    if request.param == "pure Python":
+        monkeypatch.setattr(yamlio, "_Loader", yaml.SafeLoader)
+    return request.param
+
+
+def test_deep_nesting_is_refused_without_recursion(parser):
+    """Whichever layer refuses first (libyaml 0.2.5 stops at 1,000 levels by itself,
+    PyYAML's own parser does not), the file is refused with its place, never with a
+    RecursionError."""
+    error = _refused("[" * 50_000 + "]" * 50_000, "nest")
+    assert error.location.line == 1 and error.location.column <= 1001
+
+
+@pytest.mark.parametrize("style", ["flow", "block"])
+def test_fw_limits_nesting_below_what_any_parser_allows(parser, style):
+    if style == "flow":
+        text = "[" * 100 + "]" * 100
+    else:
+        text = "".join("  " * depth + "-\n" for depth in range(100)) + "  " * 100 + "- x\n"
+    error = _refused(text, "nested more than 64 levels")
+    assert error.location.line == (1 if style == "flow" else 65)
 
 
 def test_alias_bombs_are_refused_by_the_expansion_budget():
