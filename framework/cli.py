@@ -17,7 +17,7 @@ from importlib import metadata
 from typing import Any
 
 from framework.clock import SimulatedClock
-from framework.errors import Finding, FindingsError, FwError
+from framework.errors import Finding, FindingsError, FwError, printable
 from framework.statechart.events import Output
 from framework.statechart.model import CONFIG_DONE, CONFIG_FAILED
 from framework.statechart.trace import TracePrinter
@@ -253,7 +253,7 @@ def _interactive(interpreter: Any, apply: Any) -> None:
             for token in _split_tokens(line):
                 apply(token)
         except FwError as exc:
-            print(f"fw: {exc}", file=sys.stderr)
+            print(printable(f"fw: {exc}"), file=sys.stderr)
 
 
 def cmd_new(args: argparse.Namespace) -> int:
@@ -447,7 +447,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(finding.one_line(), file=sys.stderr)
         return 1
     except FwError as exc:
-        print(f"fw: {exc}", file=sys.stderr)
+        print(printable(f"fw: {exc}"), file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         return 130
@@ -457,7 +457,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if os.environ.get("FW_DEBUG"):
             traceback.print_exc()
         print(
-            f"fw: internal error: {type(exc).__name__}: {exc} "
+            f"fw: internal error: {type(exc).__name__}: {printable(str(exc))} "
             "(set FW_DEBUG=1 for a traceback and please report it)",
             file=sys.stderr,
         )

@@ -169,9 +169,10 @@ def _answered(hub: Any, name: str, seen: dict[str, tuple[str, int]]) -> str:
 def cmd_deploy(args: argparse.Namespace) -> int:
     """Run a topology (see EPILOG_DEPLOY)."""
     from framework.deployer import Deployment
+    from framework.filekinds import check_file
     from framework.topology import load_topology
 
-    topology = load_topology(args.topology)
+    topology = load_topology(args.topology, files=check_file)
     for item in args.record_samples:
         key, _, kind = item.partition("=")
         if not key or not kind:

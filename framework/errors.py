@@ -6,7 +6,17 @@ the CLI can print it as one line and exit 1 instead of showing a traceback.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
+
+_UNPRINTABLE = re.compile("[\x00-\x1f\x7f-\x9f\u200e\u200f\u202a-\u202e\u2066-\u2069]")
+
+
+def printable(text: str) -> str:
+    """`text` with every control character escaped (`\\x1b`, `\\n`, `\\u202e`): what a
+    message quotes from a user's file or a peer must not move the cursor, recolour
+    the terminal or reverse the text the operator reads, nor break its one line."""
+    return _UNPRINTABLE.sub(lambda m: m.group().encode("unicode_escape").decode("ascii"), text)
 
 
 @dataclass(frozen=True, slots=True)
@@ -20,7 +30,7 @@ class Location:
 
     def __str__(self) -> str:
         where = f"{self.file}:{self.line}:{self.column}" if self.line else self.file
-        return f"{where}: {self.path}" if self.path else where
+        return printable(f"{where}: {self.path}" if self.path else where)
 
 
 class FwError(Exception):
@@ -39,7 +49,7 @@ class LocatedError(FwError):
     def one_line(self) -> str:
         """The error as the single line the CLI prints."""
         text = f"{self.location}: {self.message}"
-        return f"{text} (hint: {self.hint})" if self.hint else text
+        return printable(f"{text} (hint: {self.hint})" if self.hint else text)
 
 
 class YamlError(LocatedError):
@@ -63,7 +73,7 @@ class Finding:
     def one_line(self) -> str:
         """`file:line:col: path: severity[code]: message (hint: ...)`."""
         text = f"{self.location}: {self.severity}[{self.code}]: {self.message}"
-        return f"{text} (hint: {self.hint})" if self.hint else text
+        return printable(f"{text} (hint: {self.hint})" if self.hint else text)
 
     def as_dict(self) -> dict[str, object]:
         """The finding as JSON-ready data (for `--json`)."""

@@ -72,7 +72,14 @@ def _statechart(path: str) -> list[Finding]:
 def _topology(path: str) -> list[Finding]:
     from framework.topology import check_topology
 
-    return check_topology(path)[1]
+    return check_topology(path, files=check_file)[1]
+
+
+def check_file(kind: str, path: str) -> list[Finding] | None:
+    """Every finding of the file at `path` checked as a file of `kind`, or None when no
+    installed package reads that kind (a topology names a file its components read)."""
+    found = kinds().get(kind)
+    return None if found is None else found.check(path)
 
 
 def _scenario(path: str) -> list[Finding]:

@@ -41,6 +41,9 @@ class Property:
     choices: tuple[Any, ...] | None = None
     name: str = ""
     required: bool = False
+    file: str = ""
+    """The kind of YAML file the value names (`fw validate --kinds`), "" if none: a
+    topology's check then checks that file too."""
 
     def missing(self, value: Any) -> bool:
         """True if a required property still holds nothing (empty or None)."""
@@ -94,6 +97,7 @@ class Property:
             "max": self.max,
             "choices": list(self.choices) if self.choices else None,
             "required": self.required,
+            "file": self.file or None,
         }
 
 
@@ -107,9 +111,12 @@ def prop(
     max: float | None = None,
     choices: list[Any] | tuple[Any, ...] | None = None,
     required: bool = False,
+    file: str = "",
 ) -> Property:
     """Declare a property on a Component class: `rate = prop(float, 100.0, unit="Hz")`.
-    `required`: configure fails, naming the property, while it is empty."""
+    `required`: configure fails, naming the property, while it is empty. `file`: the
+    value names a YAML file of this kind (`procedure`, `sensors`...), which checking
+    the topology checks too."""
     kind = _TYPES[kind] if isinstance(kind, str) else kind
     declared = Property(
         kind,
@@ -120,6 +127,7 @@ def prop(
         max,
         tuple(choices) if choices is not None else None,
         required=required,
+        file=file,
     )
     declared.validate(default, "(default)")
     return declared

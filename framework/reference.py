@@ -78,9 +78,10 @@ def component_reference(cls: type[Component]) -> str:
         ]
         for name, p in properties:
             required = "**required**. " if p.required else ""
+            kind = f"A {p.file} file (checked with the topology). " if p.file else ""
             lines.append(
                 f"| `{name}` | {type_name(p.type)} | `{p.default!r}` | {_cell(p.unit)} "
-                f"| {_cell(_range(p))} | {required}{_cell(p.doc)} |"
+                f"| {_cell(_range(p))} | {required}{kind}{_cell(p.doc)} |"
             )
         lines.append("")
     if inputs or outputs:

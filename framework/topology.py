@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import difflib
 import inspect
+import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -255,12 +257,21 @@ def class_info(cls: type[Component]) -> ClassInfo:
     return ClassInfo(cls, inputs, outputs, props, ops, emits, frozenset(readonly))
 
 
+FileCheck = Callable[[str, str], list[Finding] | None]
+"""Checks a file of a kind (`framework.filekinds.check_file`): its findings, or None
+when no installed package reads that kind."""
+
+
 class _Loader:
-    def __init__(self, doc: Document, classes: bool = True):
+    def __init__(self, doc: Document, classes: bool = True, files: FileCheck | None = None):
         self.doc = doc
+        self.files = files
         self.base = Path(doc.file).parent
         self.findings: list[Finding] = []
         self.classes = classes
+        self.checked_files: dict[str, list[Finding]] = {}  # "kind:path" -> its findings
+        self.bad_files: set[str] = set()  # components a named file of which has errors
+        self.unread_inputs: set[str] = set()  # components whose file inputs are unknown
 
     def error(self, code: str, message: str, path: tuple[Any, ...], hint: str = "") -> None:
         self.findings.append(Finding("error", code, message, self.doc.location(path), hint))
@@ -367,6 +378,7 @@ class _Loader:
                             f"{name!r} needs property {prop!r} ({declared.doc or 'no doc'})",
                             here,
                         )
+                self.named_files(name, info, values, here)
                 for port in spec.get("outputs") or {}:
                     if port not in info.outputs:
                         self.error(
@@ -388,12 +400,59 @@ class _Loader:
             )
         return out
 
+    def named_files(
+        self, name: str, info: ClassInfo, values: dict[str, Any], here: tuple[Any, ...]
+    ) -> None:
+        """Check every file a component's properties name (`prop(..., file=kind)`) with
+        its kind's own check, as `fw validate FILE` would: a procedure or tools file
+        that is wrong fails here, not when the deployed component configures. Paths are
+        relative to where `fw deploy` runs, as the components read them; a file missing
+        from here is a warning (the deployment may run elsewhere)."""
+        if self.files is None:
+            return
+        for prop, declared in info.properties.items():
+            value = values.get(prop, declared.default)
+            if not declared.file or not isinstance(value, str) or not value:
+                continue
+            where = self.doc.location((*here, "properties", prop))
+            path = Path(value)
+            if not path.exists() and not path.is_symlink():
+                self.findings.append(
+                    Finding(
+                        "warning",
+                        "named-file",
+                        f"{name}.{prop}: {value!r} is not found from {Path.cwd()}",
+                        where,
+                        "run fw validate from the folder fw deploy runs in",
+                    )
+                )
+                continue
+            key = f"{declared.file}:{os.path.realpath(path)}"
+            first = key not in self.checked_files
+            if first:
+                self.checked_files[key] = self.files(declared.file, value) or []
+            found = self.checked_files[key]
+            # a file that cannot be read at all has no line: said where it is named (each
+            # time); what is wrong inside it, once, where it is
+            self.findings.extend(
+                Finding(f.severity, f.code, f"{name}.{prop}: {f.message}", where, f.hint)
+                for f in found
+                if f.location.line == 0
+            )
+            if first:
+                self.findings.extend(f for f in found if f.location.line != 0)
+            if any(f.severity == "error" for f in found):
+                self.bad_files.add(name)
+
     def file_inputs(self, topo: Topology) -> None:
         """The input ports components declare from their own files (a tracker per sensor
         of sensors.yaml, a camera per camera of cameras.yaml): ports like the class's own,
         wired by `connections:` (checked by `file_links` once those are read)."""
         for spec in topo.components.values():
-            if spec.info is None:
+            if spec.info is None or not _declares_file_inputs(spec.info.cls):
+                continue
+            self.unread_inputs.add(spec.name)  # until its files are read
+            if spec.name in self.bad_files:  # their errors are reported already
                 continue
             where = ("components", spec.name, "properties")
             try:
@@ -413,6 +472,7 @@ class _Loader:
             except FwError as exc:
                 self.error("file-links", f"{spec.name}: {exc}", where)
                 continue
+            self.unread_inputs.discard(spec.name)
             for link in wanted:
                 if link.port in spec.info.inputs or link.port in spec.info.outputs:
                     self.error(
@@ -495,6 +555,8 @@ class _Loader:
         table = {"in": inputs, "out": comp.info.outputs}.get(direction)
         ports = table if table is not None else {**inputs, **comp.info.outputs}
         if port not in ports:
+            if direction != "out" and comp_name in self.unread_inputs:
+                return None, port, ""  # its files could not be read: said where they are named
             what = {"in": "input port", "out": "output port"}.get(direction, "port")
             self.error(
                 "unknown-port",
@@ -772,7 +834,7 @@ class _Loader:
         from framework.statechart.model import BUILTIN_EVENTS
         from framework.statechart.validator import validate_chart
 
-        chart, found = build_statechart(topo.statechart)
+        chart, found = build_statechart(topo.statechart, at=self.doc.location(("statechart",)))
         self.findings.extend(found)
         if chart is None or any(f.severity == "error" for f in found):
             return
@@ -809,9 +871,14 @@ class _Loader:
             )
 
 
-def check_topology(path: str | Path, classes: bool = True) -> tuple[Topology | None, list[Finding]]:
+def check_topology(
+    path: str | Path, classes: bool = True, files: FileCheck | None = None
+) -> tuple[Topology | None, list[Finding]]:
     """Load and check a topology; the model (None if it cannot be built) and findings.
-    `classes=False` imports no component class (see `load_topology`)."""
+    `classes=False` imports no component class (see `load_topology`). With `files`,
+    every file a component's properties name is checked with it too (`fw validate`
+    and `fw deploy` pass `framework.filekinds.check_file`, which sits above this
+    module)."""
     try:
         doc = load_yaml(path)
     except FwError as exc:
@@ -821,7 +888,7 @@ def check_topology(path: str | Path, classes: bool = True) -> tuple[Topology | N
     if problems:
         return None, problems
     data = doc.data
-    loader = _Loader(doc, classes)
+    loader = _Loader(doc, classes, files)
     base = Path(doc.file).parent
     bus_spec = data.get("bus") or {}
     bus = BusConfig(
@@ -895,7 +962,9 @@ def check_topology(path: str | Path, classes: bool = True) -> tuple[Topology | N
     return topo, findings
 
 
-def load_topology(path: str | Path, classes: bool = True) -> Topology:
+def load_topology(
+    path: str | Path, classes: bool = True, files: FileCheck | None = None
+) -> Topology:
     """Load a topology; raise `FindingsError` with every error found.
 
     `classes=False` gives a client's view (`fw send`, `status`, `ls`, `call`): no
@@ -904,7 +973,7 @@ def load_topology(path: str | Path, classes: bool = True) -> Topology:
     events and the console are read and checked; ports, wiring and what the classes
     declare are not (`ComponentSpec.info` is None): the running deployment knows them.
     """
-    topo, findings = check_topology(path, classes)
+    topo, findings = check_topology(path, classes, files)
     if topo is None or any(f.severity == "error" for f in findings):
         raise FindingsError(findings)
     return topo

@@ -29,6 +29,7 @@ from typing import Any
 import yaml
 
 from framework.errors import Location, MissingFileError, YamlError
+from framework.files import UnreadableFile, read_file
 
 try:  # the C parser is ~10x faster; fall back to pure Python where libyaml is absent
     from yaml import CSafeLoader as _Loader
@@ -362,14 +363,11 @@ def load_yaml(path: str | Path, limits: Limits = DEFAULT_LIMITS) -> Document:
     `YamlError` too (with the line and column of the first bad byte)."""
     name = str(path)
     try:
-        with open(path, "rb") as handle:
-            raw = handle.read(limits.max_bytes + 1)
-    except FileNotFoundError:
-        raise MissingFileError("file not found", Location(name)) from None
-    except OSError as exc:
-        raise YamlError(f"cannot read file: {exc.strerror or exc}", Location(name)) from None
-    if len(raw) > limits.max_bytes:
-        raise YamlError(f"larger than {limits.max_bytes:,} bytes: not an fw file?", Location(name))
+        raw = read_file(path, limits.max_bytes)
+    except UnreadableFile as exc:
+        if exc.missing:
+            raise MissingFileError("file not found", Location(name)) from None
+        raise YamlError(f"cannot read file: {exc.reason}", Location(name)) from None
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -29,6 +29,7 @@ import json
 import math
 import os
 import random
+import re
 import resource
 import selectors
 import shutil
@@ -45,7 +46,7 @@ from typing import Any
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools"))
 FOLDERS = ("topologies", "statecharts", "procedures")
-FAILURES = ("traceback", "unlocated", "crash", "hang", "memory", "slow")
+FAILURES = ("traceback", "unlocated", "unescaped", "crash", "hang", "memory", "slow")
 
 
 # -- the shipped files --------------------------------------------------------------
@@ -212,9 +213,11 @@ def _data_mutation(rng: random.Random, text: str) -> bytes:
     for part in path[:-1]:
         parent = parent[part]
     last = path[-1]
-    op = rng.randrange(6)
+    op = rng.randrange(7)
     if op == 0:  # drop it
         del parent[last]
+    elif op == 6 and isinstance(parent, dict):  # a key with control characters
+        parent[rng.choice(CONTROL_KEYS)] = parent.pop(last)
     elif op == 1 and isinstance(parent, dict):  # misspell the key
         value = parent.pop(last)
         parent[last[:-1] + rng.choice("xsz_") if last else "x"] = value
@@ -230,16 +233,97 @@ def _data_mutation(rng: random.Random, text: str) -> bytes:
     return text.replace("__HUGE_INT__", "9" * 4400).encode()
 
 
+SPECIAL = Path(tempfile.gettempdir()) / f"fw-fuzz-paths-{os.getuid()}"
+"""Where the worker makes the paths that are not regular files (a fixed place, so a
+saved mutant that names one replays)."""
+SPECIAL_PATHS = [
+    str(SPECIAL / "fifo"),  # a named pipe: a blocking open waits for a writer forever
+    str(SPECIAL / "folder"),
+    str(SPECIAL / "socket"),
+    str(SPECIAL / "huge.yaml"),  # 5 GB, sparse
+    str(SPECIAL / "loop.yaml"),  # a symbolic link to itself
+    str(SPECIAL / "missing.yaml"),
+    "/dev/zero",  # endless bytes
+    "/dev/null",
+    "/",
+]
+FILE_KEYS = {
+    "include",
+    "statechart",
+    "procedure",
+    "property_file",
+    "rom",
+    "tools_file",
+    "procedure_file",
+    "sensors_file",
+    "cameras_file",
+}
+"""Keys whose value names another file (any value ending in .yaml or .rom does too)."""
+CONTROL_KEYS = ["a\x1b[2J\x1b[31mred", "tab\there", "rtl\u202egnp.exe", "bell\x07", "cr\rx"]
+"""Keys a hostile file may hold through YAML's escapes: a message quoting one raw would
+clear or recolour the operator's terminal, or show its text reversed."""
+
+
+def make_special_paths() -> None:
+    """Make `SPECIAL_PATHS` that live in `SPECIAL` (idempotent)."""
+    import socket
+
+    SPECIAL.mkdir(parents=True, exist_ok=True)
+    (SPECIAL / "folder").mkdir(exist_ok=True)
+    if not (SPECIAL / "fifo").exists():
+        os.mkfifo(SPECIAL / "fifo")
+    if not (SPECIAL / "socket").exists():
+        sock = socket.socket(socket.AF_UNIX)
+        sock.bind(str(SPECIAL / "socket"))
+        sock.close()  # the socket file stays
+    huge = SPECIAL / "huge.yaml"
+    if not huge.exists():
+        with huge.open("wb") as handle:
+            handle.truncate(5 * 1024**3)
+    if not (SPECIAL / "loop.yaml").is_symlink():
+        (SPECIAL / "loop.yaml").symlink_to(SPECIAL / "loop.yaml")
+
+
+def _path_mutation(rng: random.Random, text: str) -> bytes:
+    """A value that names a file now names what is not one (a FIFO, a folder, a
+    device, a socket, a 5 GB file, a link to itself) or nothing."""
+    import yaml
+
+    from framework.yamlio import load_yaml_text
+
+    data = load_yaml_text(text).data
+    named = []
+    for path in _paths(data)[1:]:
+        value = data
+        for part in path:
+            value = value[part]
+        if isinstance(value, str) and (path[-1] in FILE_KEYS or value.endswith((".yaml", ".rom"))):
+            named.append(path)
+    if not named:
+        return _data_mutation(rng, text)
+    path = rng.choice(named)
+    parent = data
+    for part in path[:-1]:
+        parent = parent[part]
+    parent[path[-1]] = rng.choice(SPECIAL_PATHS)
+    return yaml.safe_dump(data, sort_keys=False, allow_unicode=True, width=120).encode()
+
+
 def mutant(
     seed: int, index: int, files: dict[str, list[str]], root: Path
 ) -> tuple[str, str, bytes]:
-    """Mutant `index` of run `seed`: (kind, relative path, bytes); the same every time."""
+    """Mutant `index` of run `seed`: (kind, relative path, bytes); the same every time.
+    Half change the text, a third the data, the rest the paths it names."""
     rng = random.Random(f"fw-fuzz:{seed}:{index}")
     kind = sorted(files)[index % len(files)]  # every kind gets its share
     rel = rng.choice(files[kind])
     text = (root / rel).read_text(encoding="utf-8")
-    data_level = rng.random() < 0.5
-    return kind, rel, (_data_mutation if data_level else _text_mutation)(rng, text)
+    level = rng.random()
+    if level < 0.5:
+        return kind, rel, _text_mutation(rng, text)
+    if level < 0.85:
+        return kind, rel, _data_mutation(rng, text)
+    return kind, rel, _path_mutation(rng, text)
 
 
 # -- the worker: checks mutants as `fw validate` does ----------------------------------
@@ -254,12 +338,23 @@ def _check(kind: str, path: str) -> list[Any]:
     return kinds()[kind].check(path)
 
 
+UNPRINTABLE = re.compile("[\x00-\x1f\x7f-\x9f\u202a-\u202e\u2066-\u2069]")
+"""What a message must never print raw (framework.errors.printable escapes it)."""
 _HELD: list[bytes] = []
+
+
+def _raise_raw() -> None:
+    from framework.errors import FwError
+
+    raise FwError("a message that clears the screen \x1b[2J")
+
+
 CANARIES: dict[str, Callable[[], object]] = {
     "traceback": lambda: [][1],
     "crash": lambda: os.kill(os.getpid(), 11),
     "hang": lambda: time.sleep(3600),
     "unlocated": lambda: None,
+    "unescaped": lambda: _raise_raw(),
     "memory": lambda: _HELD.append(b"x" * 300_000_000),
     "slow": lambda: time.sleep(2.5),
 }
@@ -289,6 +384,8 @@ def _outcome(kind: str, path: str, canary: str) -> tuple[str, str]:
     except MemoryError:
         return "memory", "MemoryError"
     except FwError as exc:  # a check should return findings, but a located raise is clean
+        if UNPRINTABLE.search(str(exc)):
+            return "unescaped", ascii(str(exc))[:300]
         if isinstance(exc, LocatedError) and exc.location.line > 0:
             return "clean", str(exc)
         return "unlocated", str(exc)
@@ -300,6 +397,9 @@ def _outcome(kind: str, path: str, canary: str) -> tuple[str, str]:
         ]
         where = f" at {Path(frames[-1].filename).name}:{frames[-1].lineno}" if frames else ""
         return "traceback", f"{type(exc).__name__}: {str(exc)[:200]}{where}"
+    for finding in findings:
+        if UNPRINTABLE.search(finding.one_line()):
+            return "unescaped", ascii(finding.one_line())[:300]
     errors = [f for f in findings if f.severity == "error"]
     if not errors:
         return "valid", ""
@@ -317,6 +417,7 @@ def worker(seed: int, indexes: list[int], canary_every: int) -> None:
     """Check the mutants `indexes` one by one in a mirror of the repository's files,
     printing a JSON line before (`begin`) and after each."""
     root = Path(tempfile.mkdtemp(prefix="fw-fuzz-"))
+    make_special_paths()
     try:
         for folder in FOLDERS:
             shutil.copytree(REPO / folder, root / folder)

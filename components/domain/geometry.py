@@ -124,7 +124,7 @@ def as_matrix(value: object) -> np.ndarray:
             raise ValueError("a transform needs 3 position values and 4 quaternion values")
         if not (np.isfinite(position).all() and np.isfinite(quaternion).all()):
             raise ValueError("a transform's values must be finite numbers")
-        norm = float(np.linalg.norm(quaternion))
+        norm = math.hypot(*quaternion)  # no overflow, whatever the values
         if abs(norm - 1.0) > 1e-3:
             raise ValueError(f"the quaternion [w, x, y, z] must have unit length, not {norm:.4g}")
         return transform(position, quaternion / norm)
@@ -136,6 +136,7 @@ def as_matrix(value: object) -> np.ndarray:
     rotation = matrix[:3, :3]
     if (
         not np.isfinite(matrix).all()
+        or np.abs(rotation).max() > 1.0 + 1e-3  # no rotation has such entries (nor overflows)
         or not np.allclose(matrix[3], [0, 0, 0, 1])
         or not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4)
         or np.linalg.det(rotation) < 0

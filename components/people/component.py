@@ -85,17 +85,21 @@ def load_cameras(path: str) -> DetectorConfig:
             )
         )
     cameras.sort(key=lambda c: c.name != master)  # the master first
+    try:
+        base_from_master = as_matrix(data.get("base_from_master", np.eye(4).tolist()))
+    except ValueError as exc:
+        raise CameraConfigError(str(exc), doc.location(("base_from_master",))) from None
     area = data.get("area") or {}
     try:
         config = DetectorConfig(
             cameras,
-            as_matrix(data.get("base_from_master", np.eye(4).tolist())),
+            base_from_master,
             matcher=data.get("matcher", "hungarian"),
             area_center=tuple(area.get("center", (0.0, 0.0))),  # type: ignore[arg-type]
             area_radius=float(area.get("radius", 1.5)),
         )
     except (TypeError, ValueError) as exc:
-        raise CameraConfigError(str(exc), doc.location(())) from None
+        raise CameraConfigError(str(exc), doc.location(("area",))) from None
     return config
 
 
@@ -123,7 +127,9 @@ def _camera_inputs(config: DetectorConfig, file: str) -> dict[str, FileInput]:
 class WorkspacePeopleDetector(Component):
     """Feeds `PeopleDetectorCore` from the cameras' ports and publishes people."""
 
-    cameras_file = prop(str, "", doc="cameras YAML (cameras, calibration, area)", required=True)
+    cameras_file = prop(
+        str, "", doc="cameras YAML (cameras, calibration, area)", required=True, file="cameras"
+    )
     people = Out(EventMessage, doc="tracks: id, confirmed, cameras, torso position")
     users_near = Out(Scalar, doc="confirmed people inside the area around the table")
     min_distance = Out(Scalar, doc="closest robot-person distance (m; inf without a robot)")

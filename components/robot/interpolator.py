@@ -410,7 +410,9 @@ class CartesianInterpolator(Component):
     writes a setpoint every cycle once started, so the robot's watchdog only fires if
     this component dies. `sync` re-reads the measured joints (after the brakes)."""
 
-    procedure_file = prop(str, "", doc="procedure YAML (goals, accelerations)", required=True)
+    procedure_file = prop(
+        str, "", doc="procedure YAML (goals, accelerations)", required=True, file="procedure"
+    )
     max_lag = prop(
         float, 0.05, unit="rad", min=0.001, max=1.0, doc="command-to-arm gap that stops a motion"
     )

@@ -375,8 +375,12 @@ class Navigator(Component):
     goals hold still while a motion beyond the limits awaits confirmation. The interpolator
     steers by it and stops on a refusal; the Supervisor raises e_PATIENT_MOVED."""
 
-    procedure_file = prop(str, "", doc="procedure YAML (goals and their frames)", required=True)
-    sensors_file = prop(str, "", doc="sensors YAML (each tracker's calibration)", required=True)
+    procedure_file = prop(
+        str, "", doc="procedure YAML (goals and their frames)", required=True, file="procedure"
+    )
+    sensors_file = prop(
+        str, "", doc="sensors YAML (each tracker's calibration)", required=True, file="sensors"
+    )
     stale = prop(
         float, 0.25, unit="s", min=0.01, max=5.0, doc="no sample for this long: no tracker steers"
     )

@@ -108,7 +108,10 @@ class PatientHead(Component):
     moves; scenarios move it by operations (module docstring)."""
 
     procedure_file = prop(
-        str, "", doc="procedure YAML whose target on the patient is refereed ('': none)"
+        str,
+        "",
+        doc="procedure YAML whose target on the patient is refereed ('': none)",
+        file="procedure",
     )
     pose = Out(Pose, doc="the reference tool on the head clamp, robot base frame")
     tcp = In(Pose, doc="the real arm's TCP (ground truth), for the referee")

@@ -268,7 +268,9 @@ class Supervisor(Component):
         "e_TARGET",
         "e_PATIENT_MOVED",
     )
-    procedure_file = prop(str, "", doc="procedure YAML (target, areas, speeds)", required=True)
+    procedure_file = prop(
+        str, "", doc="procedure YAML (target, areas, speeds)", required=True, file="procedure"
+    )
     tracking = In(EventMessage, doc="Sensor Manager decisions (best tracker, health)")
     tcp = In(Pose, doc="robot TCP in the base frame")
     users_near = In(Scalar, doc="confirmed people near the table")

@@ -37,6 +37,7 @@ from framework import schema
 from framework.component import Component, Out, operation
 from framework.errors import FwError, LocatedError
 from framework.filekinds import FileKind, schema_then
+from framework.files import UnreadableFile, read_file
 from framework.messages import EventMessage, Pose
 from framework.properties import prop
 from framework.yamlio import load_yaml
@@ -65,6 +66,9 @@ class ToolSpec:
     rom: bytes
 
 
+ROM_MAX_BYTES = 64 * 1024
+"""A tool definition larger than this is not one (an NDI SROM image is under 1 kB)."""
+
 MARKER_AGREEMENT_MM = 0.01
 """How far a tools file's marker may be from the same marker in its `.rom` (float32)."""
 
@@ -82,10 +86,10 @@ def load_tools(path: str | Path) -> list[ToolSpec]:
         if rom_path:
             where = doc.location(("tools", name, "rom"))
             try:
-                rom = (Path(doc.file).parent / rom_path).read_bytes()
-            except OSError as exc:
+                rom = read_file(Path(doc.file).parent / rom_path, ROM_MAX_BYTES)
+            except UnreadableFile as exc:
                 raise ToolsFileError(
-                    f"cannot read tool definition {rom_path!r}: {exc.strerror}", where
+                    f"cannot read tool definition {rom_path!r}: {exc.reason}", where
                 ) from None
             try:
                 definition = read_tool_definition(rom)
@@ -136,7 +140,7 @@ class NdiTracker(Component):
     emits = ()
     device = prop(str, "", doc="serial device (e.g. /dev/ttyUSB0)")
     baud = prop(int, 115200, choices=sorted(BAUD_TO_CODE), doc="baud rate after COMM")
-    tools_file = prop(str, "", doc="tools YAML (markers, tool definition files)")
+    tools_file = prop(str, "", doc="tools YAML (markers, tool definition files)", file="tools")
     binary = prop(bool, True, doc="stream with BX (binary) instead of TX (text)")
     timeout = prop(float, 0.25, unit="s", min=0.01, max=5.0, doc="reply timeout")
     frame_rate = prop(

@@ -554,7 +554,7 @@ class SensorManager(Component):
     tracker that falls silent is found as soon as its limit has passed."""
 
     sensors_file = prop(
-        str, "", doc="sensors YAML (priorities, calibration, limits)", required=True
+        str, "", doc="sensors YAML (priorities, calibration, limits)", required=True, file="sensors"
     )
     ee_pose = In(Pose, doc="end-effector in the robot base frame, from joints (optional)")
     robot_pose = Out(Pose, doc="end-effector in the master frame (eq. 3.5), best sensor")

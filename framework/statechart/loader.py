@@ -9,6 +9,7 @@ them, so a user fixes a file in one pass instead of one error per run.
 from __future__ import annotations
 
 import difflib
+import os
 from pathlib import Path
 from typing import Any
 
@@ -57,7 +58,7 @@ class _Builder:
         at: Location | None,
         text: str | None = None,
     ) -> Document | None:
-        resolved = str(path.resolve())
+        resolved = os.path.realpath(path)  # a link loop is reported by the read
         if resolved in include_chain:
             cycle = " -> ".join([*include_chain, resolved])
             self.error("include-cycle", f"include cycle: {cycle}", at or Location(str(path)))
@@ -66,11 +67,10 @@ class _Builder:
             doc = load_yaml(path) if text is None else load_yaml_text(text, str(path))
         except FwError as exc:  # YamlError and friends
             location = getattr(exc, "location", Location(str(path)))
+            message = getattr(exc, "message", str(exc))
             if at is not None and getattr(location, "line", 0) == 0:
-                location = at
-            self.error(
-                "yaml", getattr(exc, "message", str(exc)), location, getattr(exc, "hint", "")
-            )
+                location, message = at, f"{str(path)!r}: {message}"
+            self.error("yaml", message, location, getattr(exc, "hint", ""))
             return None
         problems = schema.check(doc, "statechart")
         if problems:
@@ -213,7 +213,7 @@ class _Builder:
             if child_doc is not None:
                 child_scope = path if child_doc is not doc else scope
                 child_chain = (
-                    (*chain, str(Path(child_doc.file).resolve())) if child_doc is not doc else chain
+                    (*chain, os.path.realpath(child_doc.file)) if child_doc is not doc else chain
                 )
                 self.build_children(
                     state, child_doc, children, child_base, child_scope, child_chain
@@ -253,7 +253,7 @@ class _Builder:
             self.error("include", "a state with `include` cannot also list `states`", at)
             return None, None
         target = Path(doc.file).parent / spec["include"]
-        sub = self.read(target, (*chain, str(Path(doc.file).resolve())), at)
+        sub = self.read(target, (*chain, os.path.realpath(doc.file)), at)
         if sub is None:
             return None, None
         if state.initial_ref is None:
@@ -438,13 +438,14 @@ def _infer_type(value: Any) -> str:
 
 
 def build_statechart(
-    path: str | Path, text: str | None = None
+    path: str | Path, text: str | None = None, at: Location | None = None
 ) -> tuple[Statechart | None, list[Finding]]:
     """Load a chart file (or `text` named `path`); return the model (None if it cannot be
-    built) and all findings."""
+    built) and all findings. `at` is where another file named this one (a topology's
+    `statechart:`): a file that cannot be read is reported there."""
     builder = _Builder()
     file = Path(path)
-    doc = builder.read(file, (), None, text)
+    doc = builder.read(file, (), at, text)
     if doc is None:
         return None, builder.findings
     data = doc.data
@@ -456,7 +457,7 @@ def build_statechart(
         initial_ref=data.get("initial"),
     )
     builder.states[""] = root
-    builder.build_children(root, doc, data["states"], ("states",), "", (str(file.resolve()),))
+    builder.build_children(root, doc, data["states"], ("states",), "", (os.path.realpath(file),))
     if root.initial_ref is not None:
         builder.pending_refs.append(("initial", root, root.initial_ref, doc.location(("initial",))))
     chart = Statechart(

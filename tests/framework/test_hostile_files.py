@@ -1,6 +1,8 @@
 """Spec: no file a user can write crashes fw. Seeded mutants of every shipped file
 kind (tools/fuzz_files.py, checked as `fw validate` checks them, in real worker
-processes) all end in a clean located error or a valid load."""
+processes) all end in a clean located error or a valid load: their text, their data,
+and the paths they name (a FIFO, a folder, a device, a socket, a 5 GB file, a link to
+itself instead of a file), with no control character of theirs printed raw."""
 
 import json
 import os
@@ -40,7 +42,8 @@ def test_a_thousand_seeded_mutants_of_every_kind_end_cleanly(tmp_path):
 def test_the_fuzzer_sees_each_kind_of_failure(tmp_path):
     """The harness itself bites: checks that fail on purpose are charged to their
     mutant as what they are (a worker crash or hang does not end the run)."""
-    summary = fuzz(tmp_path, "--n", "24", "--canary-every", "4", "--hang-after", "5")
+    summary = fuzz(tmp_path, "--n", "28", "--canary-every", "4", "--hang-after", "5")
     seen = {c["canary"]: c["outcome"] for c in summary["canaries"]}
-    assert seen == {k: k for k in ("traceback", "crash", "hang", "unlocated", "memory", "slow")}
-    assert summary["mutants"] == 18 and summary["clean"] == 18
+    kinds = ("traceback", "crash", "hang", "unlocated", "unescaped", "memory", "slow")
+    assert seen == {k: k for k in kinds}
+    assert summary["mutants"] == 21 and summary["clean"] == 21

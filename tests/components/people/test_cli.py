@@ -1,6 +1,8 @@
 """Spec: `fw calibrate-cameras` calibrates a topology's cameras, writes a cameras file
 the detector loads, keeps the file's other settings, and refuses clearly."""
 
+import warnings
+
 import numpy as np
 import pytest
 import yaml
@@ -83,3 +85,23 @@ def test_a_cameras_file_that_still_names_bus_keys_is_refused_with_what_to_do(tmp
     path.write_text("cameras:\n  k0: {}\n  k1: {key: kinect/1/users}\n")
     with pytest.raises(CameraConfigError, match=r"cameras.yaml:3:8: cameras.k1.key: .*no longer"):
         load_cameras(str(path))
+
+
+@pytest.mark.parametrize("where", ["base_from_master", "cameras.k0.calibration"])
+@pytest.mark.parametrize("value", ["[1e308, 0, 0, 0]", "[1e200, 1e200, 1e200, 1e200]"])
+def test_a_huge_quaternion_is_refused_at_its_line_without_a_numeric_warning(tmp_path, where, value):
+    """Values past float overflow in a transform are a located error like any other
+    wrong transform (numpy's raw 'overflow encountered' never reaches the user)."""
+    transform = f"{{position: [0, 0, 0], quaternion: {value}}}"
+    if where == "base_from_master":
+        text = f"base_from_master: {transform}\ncameras:\n  k0: {{}}\n"
+        line = 1
+    else:
+        text = f"cameras:\n  k0: {{calibration: {transform}}}\n"
+        line = 2
+    path = tmp_path / "cameras.yaml"
+    path.write_text(text)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(CameraConfigError, match=f"cameras.yaml:{line}:.*{where}.*unit length"):
+            load_cameras(str(path))
