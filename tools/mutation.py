@@ -4,16 +4,24 @@
     python tools/mutation.py components/robot/interface.py --tests tests/components/robot
     python tools/mutation.py --core                               every safety module
     python tools/mutation.py framework/configurator.py --lines 150-200 --jobs 2
+    python tools/mutation.py framework/safety.py --operators fw   only fw's own operators
 
-The mutants are cosmic-ray's (its operators find where and how to change the code:
-a comparison flipped, an operator swapped, a constant changed, `True` for `False`, a
-`not` added, a decorator or an exception handler removed, a loop run zero times). This
-driver runs each mutant against the module's own fast tests, in a private copy of the
-repository per worker (so mutants never touch the working tree and run in parallel),
-and says which survived, as file:line before -> after. A mutant meets first the tests
-seen running its line (from a coverage run with per-test contexts), then, if they all
-pass, every test of the module: a kill is quick, and a survivor is one the whole set
-lets through.
+Two families of mutants, scored apart:
+
+* **cosmic-ray's** (its operators find where and how to change the code: a comparison
+  flipped, an operator swapped, a constant changed, `True` for `False`, a `not` added,
+  a decorator or an exception handler removed, a loop run zero times);
+* **fw's own** (`tools/mutation_operators.py`): the slips a reviewer writes by hand
+  and cosmic-ray never makes: a statement deleted, a variable read where another of
+  its type was meant, `min` for `max`, `x is not None` as a truthiness test, a line
+  moved below the next.
+
+This driver runs each mutant against the module's own fast tests, in a private copy
+of the repository per worker (so mutants never touch the working tree and run in
+parallel), and says which survived, as file:line before -> after. A mutant meets
+first the tests seen running its line (from a coverage run with per-test contexts),
+then, if they all pass, every test of the module: a kill is quick, and a survivor is
+one the whole set lets through.
 
 * **killed**: a test failed (or the mutant could not even be imported);
 * **timeout**: the tests ran over 3x their normal time plus 10 s (counted as killed:
@@ -25,12 +33,14 @@ lets through.
   change behaviour (matched by module, operator and the line's text before and after,
   so it survives edits elsewhere); left out of the score.
 
-Score = (killed + timeout) / (all - equivalent). Mutants inside annotations are not
-made at all: with `from __future__ import annotations` they are never evaluated.
+Score = (killed + timeout) / (all - equivalent), per family. Mutants inside
+annotations are not made at all: with `from __future__ import annotations` they are
+never evaluated. The exit status is 1 when a family scores under its target (90% for
+cosmic-ray's, 95% for fw's), so the tool says what the report says.
 
-The table goes to the terminal and, per module, into `docs/results/mutation.md`
-(its section is replaced; the other modules' stay). Needs the `mutation` extra:
-`pip install -e '.[mutation]'` (cosmic-ray, coverage).
+The tables go to the terminal and, per module and family, into
+`docs/results/mutation.md` (its section is replaced; the others stay). Needs the
+`mutation` extra: `pip install -e '.[mutation]'` (cosmic-ray, coverage).
 """
 
 from __future__ import annotations
@@ -52,6 +62,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tools"))
+from mutation_operators import apply, fw_changes  # noqa: E402
+
 REPORT = REPO / "docs" / "results" / "mutation.md"
 EQUIVALENTS = REPO / "tools" / "mutation_equivalents.yaml"
 
@@ -88,8 +101,12 @@ SAFETY_CORE: dict[str, list[str]] = {
         "tests/components/robot/test_interpolator_component.py",
         REFERENCE,
     ],
+    "components/tracking/frame_clock.py": ["tests/components/tracking/test_frame_clock.py"],
 }
 """The modules that keep the robot safe, each with its own fast tests."""
+
+FAMILIES = {"cosmic-ray": 0.90, "fw": 0.95}
+"""The two families of mutants and the score each must reach in every module."""
 
 SKIPPED_OPERATORS = ("core/VariableReplacer", "core/VariableInserter")
 """Random variable swaps (they need arguments and are not reproducible)."""
@@ -175,44 +192,19 @@ def make_mutants(module: str, lines: tuple[int, int] | None = None) -> list[Muta
     return sorted(mutants, key=lambda m: (m.line, m.operator, m.occurrence))
 
 
-DELETE = "fw/DeleteStatement"
-"""A statement inside a function replaced by `pass`: the hand-written mutant cosmic-ray
-does not make (a forgotten update, a call that never happens, a missing raise)."""
-
-
-def deletion_mutants(module: str, lines: tuple[int, int] | None = None) -> list[Mutant]:
-    """Every statement of a function body of `module` deleted, one at a time: calls,
-    assignments, raises and returns (docstrings, `pass` and `...` are left alone). The
-    line count is kept, so line numbers match the original."""
+def fw_mutants(module: str, lines: tuple[int, int] | None = None) -> list[Mutant]:
+    """Every mutant fw's own operators make of `module` (tools/mutation_operators.py);
+    each keeps the line count, so line numbers match the original."""
     code = (REPO / module).read_text(encoding="utf-8")
     original = code.splitlines()
-    kinds = (ast.Expr, ast.Assign, ast.AugAssign, ast.AnnAssign, ast.Raise, ast.Return)
-    mutants: list[Mutant] = []
-    for function in ast.walk(ast.parse(code)):
-        if not isinstance(function, ast.FunctionDef | ast.AsyncFunctionDef):
-            continue
-        for node in ast.walk(function):
-            if not isinstance(node, kinds) or node is function:
-                continue
-            if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant):
-                continue  # a docstring or `...`
-            if isinstance(node, ast.AnnAssign) and node.value is None:
-                continue
-            first, last = node.lineno, node.end_lineno or node.lineno
-            if lines and not lines[0] <= first <= lines[1]:
-                continue
-            text = original[first - 1]
-            if text[: node.col_offset].strip():  # shares its line (`if x: y = 1`)
-                continue
-            mutated = list(original)
-            mutated[first - 1] = " " * node.col_offset + "pass"
-            for row in range(first, last):
-                mutated[row] = ""
-            after = "pass" if last == first else f"pass (and {last - first} more line(s))"
-            mutants.append(
-                Mutant(module, DELETE, first, first, text.strip(), after, "\n".join(mutated) + "\n")
-            )
-    return sorted(mutants, key=lambda m: m.line)
+    mutants = []
+    for n, change in enumerate(fw_changes(code, lines)):
+        before = original[change.first].strip()
+        after = change.lines[0].strip()
+        mutants.append(
+            Mutant(module, change.operator, n, change.line, before, after, apply(code, change))
+        )
+    return mutants
 
 
 def load_equivalents() -> list[dict[str, str]]:
@@ -440,13 +432,13 @@ def run_module(
     jobs: int,
     lines: tuple[int, int] | None,
     coverage: bool,
-    deletions: bool = False,
+    family: str = "cosmic-ray",
 ) -> list[Mutant]:
-    """Make and test every mutant of `module` (cosmic-ray's, or with `deletions` the
-    statement deletions instead); returns them with their status."""
+    """Make and test every mutant of `module` of one family (`FAMILIES`); returns them
+    with their status."""
     known = load_equivalents()
-    mutants = deletion_mutants(module, lines) if deletions else make_mutants(module, lines)
-    print(f"{module}: {len(mutants)} mutants; tests: {' '.join(tests)}", flush=True)
+    mutants = fw_mutants(module, lines) if family == "fw" else make_mutants(module, lines)
+    print(f"{module}: {len(mutants)} {family} mutants; tests: {' '.join(tests)}", flush=True)
     base = Path(tempfile.mkdtemp(prefix="fw-mutation-"))
     spaces: list[Workspace] = []
     try:
@@ -516,13 +508,27 @@ def score(mutants: list[Mutant]) -> dict[str, float]:
     }
 
 
-def section(module: str, tests: list[str], mutants: list[Mutant], rescored: bool = False) -> str:
-    """The report's markdown section of one module."""
+def _marker(module: str, family: str) -> str:
+    """The name of a module's section of one family in the report."""
+    return f"mutation:{module}" if family == "cosmic-ray" else f"mutation-fw:{module}"
+
+
+def section(
+    module: str,
+    tests: list[str],
+    mutants: list[Mutant],
+    rescored: bool = False,
+    family: str = "cosmic-ray",
+) -> str:
+    """The report's markdown section of one module and family."""
     s = score(mutants)
     how = " (rescored: the run's survivors against today's equivalents list)" if rescored else ""
+    title = "cosmic-ray's operators" if family == "cosmic-ray" else "fw's own operators"
+    counts = Counter(m.short for m in mutants)
+    per_operator = ", ".join(f"{name} {n}" for name, n in sorted(counts.items()))
     lines = [
-        f"<!-- mutation:{module} -->",
-        f"### `{module}`",
+        f"<!-- {_marker(module, family)} -->",
+        f"### `{module}`: {title}",
         "",
         f"{time.strftime('%Y-%m-%d')}{how}, tests: {', '.join(f'`{t}`' for t in tests)}",
         "",
@@ -532,6 +538,8 @@ def section(module: str, tests: list[str], mutants: list[Mutant], rescored: bool
         f"| {s['equivalent']} | {s['score']:.1%} |",
         "",
     ]
+    if family == "fw" and per_operator and not rescored:
+        lines += [f"Mutants per operator: {per_operator}.", ""]
     left = [m for m in mutants if m.status in ("survived", "not run")]
     if left:
         lines += ["Survivors:", ""]
@@ -546,23 +554,25 @@ def section(module: str, tests: list[str], mutants: list[Mutant], rescored: bool
         lines += ["Equivalent:", ""]
         lines += [f"- {m.module}:{m.line} {m.short}: {m.detail}" for m in same]
         lines.append("")
-    lines.append(f"<!-- /mutation:{module} -->")
+    lines.append(f"<!-- /{_marker(module, family)} -->")
     return "\n".join(lines)
 
 
-def write_report(module: str, text: str) -> None:
-    """Replace (or add) this module's section of docs/results/mutation.md."""
-    head = (
-        "# Mutation scores of the safety core\n\n"
-        "Regenerated by `python tools/mutation.py MODULE...` (see its docstring): "
-        "cosmic-ray's mutants, each module against its own fast tests. Target: 90% "
-        "of non-equivalent mutants killed in every module (issue 21).\n"
-    )
-    current = REPORT.read_text(encoding="utf-8") if REPORT.exists() else head
-    pattern = re.compile(
-        rf"<!-- mutation:{re.escape(module)} -->.*?<!-- /mutation:{re.escape(module)} -->",
-        re.S,
-    )
+HEAD = (
+    "# Mutation scores of the safety core\n\n"
+    "Regenerated by `python tools/mutation.py MODULE...` (see its docstring): each "
+    "module's mutants against its own fast tests, in two families scored apart: "
+    "cosmic-ray's operators (target 90%) and fw's own (`tools/mutation_operators.py`: "
+    "statement deletion, a variable swapped for another of its type, `min`/`max` "
+    "swapped, a `None` check made a truthiness test, a line moved; target 95%).\n"
+)
+
+
+def write_report(module: str, text: str, family: str = "cosmic-ray") -> None:
+    """Replace (or add) this module's section of one family in docs/results/mutation.md."""
+    current = REPORT.read_text(encoding="utf-8") if REPORT.exists() else HEAD
+    marker = re.escape(_marker(module, family))
+    pattern = re.compile(rf"<!-- {marker} -->.*?<!-- /{marker} -->", re.S)
     if pattern.search(current):
         current = pattern.sub(lambda _: text, current)
     else:
@@ -572,37 +582,57 @@ def write_report(module: str, text: str) -> None:
     if marked.search(current):
         current = marked.sub(lambda _: table, current)
     else:
-        first = current.find("<!-- mutation:")
+        first = current.find("<!-- mutation")
         current = current[:first] + table + "\n\n" + current[first:]
     REPORT.parent.mkdir(parents=True, exist_ok=True)
     REPORT.write_text(current, encoding="utf-8")
 
 
-def summary(report: str) -> str:
-    """One row per reported module: its mutants, survivors, equivalents and score."""
-    rows = [
-        "<!-- summary -->",
-        "| module | mutants | survived | equivalent | score | run |",
-        "|---|---:|---:|---:|---:|---|",
-    ]
-    for section in re.finditer(
-        r"<!-- mutation:(?P<module>\S+) -->(?P<body>.*?)<!-- /mutation:(?P=module) -->",
+def _sections(report: str) -> dict[tuple[str, str], tuple[str, ...]]:
+    """(module, family) -> (mutants, survived + not run, equivalent, score, run) of
+    every section of the report."""
+    found = {}
+    for match in re.finditer(
+        r"<!-- mutation(?P<fw>(?:-fw)?):(?P<module>\S+) -->(?P<body>.*?)"
+        r"<!-- /mutation(?P=fw):(?P=module) -->",
         report,
         re.S,
     ):
-        body = section.group("body")
+        body = match.group("body")
         counts = re.search(
             r"^\| (\d+) \| (\d+) \| (\d+) \| (\d+) \| (\d+) \| (\d+) \| (.+?) \|$", body, re.M
         )
         when = re.search(r"^(\d{4}-\d\d-\d\d)( \(rescored)?", body, re.M)
         if counts is None:
             continue
-        mutants, _, _, survived, not_run, equivalent, score = counts.groups()
+        mutants, _, _, survived, not_run, equivalent, score_text = counts.groups()
         run = (when.group(1) + (", rescored" if when.group(2) else "")) if when else ""
-        rows.append(
-            f"| `{section.group('module')}` | {mutants} | {int(survived) + int(not_run)} "
-            f"| {equivalent} | {score} | {run} |"
+        family = "fw" if match.group("fw") else "cosmic-ray"
+        found[(match.group("module"), family)] = (
+            mutants,
+            str(int(survived) + int(not_run)),
+            equivalent,
+            score_text,
+            run,
         )
+    return found
+
+
+def summary(report: str) -> str:
+    """One row per reported module: each family's mutants, survivors, equivalents,
+    score and run date."""
+    found = _sections(report)
+    rows = [
+        "<!-- summary -->",
+        "| module | cosmic-ray: mutants | survived | equivalent | score | run "
+        "| fw's: mutants | survived | equivalent | score | run |",
+        "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---|",
+    ]
+    for module in dict.fromkeys(m for m, _ in found):
+        cells = []
+        for family in FAMILIES:
+            cells += found.get((module, family), ("", "", "", "not run yet", ""))
+        rows.append(f"| `{module}` | " + " | ".join(cells) + " |")
     rows.append("<!-- /summary -->")
     return "\n".join(rows)
 
@@ -613,24 +643,22 @@ _SURVIVOR = re.compile(
 _EQUIVALENT = re.compile(r"^- (?P<module>[^:]+):(?P<line>\d+) (?P<op>\w+): (?P<reason>.*)$")
 
 
-def rescored(module: str) -> tuple[list[Mutant], list[str]]:
-    """The module's last reported run with the current equivalents list applied: its
-    survivors that the list now explains are set aside (an equivalence is a judgement
-    about the code, not a test outcome). Also the tests that run used."""
+def rescored(module: str, family: str = "cosmic-ray") -> tuple[list[Mutant], list[str]]:
+    """The module's last reported run of a family with the current equivalents list
+    applied: its survivors that the list now explains are set aside (an equivalence is
+    a judgement about the code, not a test outcome). Also the tests that run used."""
     current = REPORT.read_text(encoding="utf-8") if REPORT.exists() else ""
-    match = re.search(
-        rf"<!-- mutation:{re.escape(module)} -->(.*?)<!-- /mutation:{re.escape(module)} -->",
-        current,
-        re.S,
-    )
+    marker = re.escape(_marker(module, family))
+    match = re.search(rf"<!-- {marker} -->(.*?)<!-- /{marker} -->", current, re.S)
     if match is None:
-        raise SystemExit(f"{module}: no reported run to rescore (run it once in full)")
+        raise SystemExit(f"{module}: no reported {family} run to rescore (run it once in full)")
     text = match.group(1)
     tests = re.findall(r"`(tests/[^`]+)`", text.split("|", 1)[0])
     row = re.search(r"^\| (\d+) \| (\d+) \| (\d+) \| (\d+) \| (\d+) \| (\d+) \|", text, re.M)
     assert row is not None, f"{module}: no table in the report"
     _, killed, timeout, _, _, _ = (int(v) for v in row.groups())
     known = load_equivalents()
+    prefix = "fw/" if family == "fw" else "core/"
     mutants = [Mutant(module, "", 0, 0, "", "", "", "killed") for _ in range(killed)]
     mutants += [Mutant(module, "", 0, 0, "", "", "", "timeout") for _ in range(timeout)]
     part = "survivors"
@@ -640,7 +668,7 @@ def rescored(module: str) -> tuple[list[Mutant], list[str]]:
         found = (_SURVIVOR if part == "survivors" else _EQUIVALENT).match(line)
         if found is None:
             continue
-        op = "core/" + found["op"]
+        op = prefix + found["op"]
         if part == "equivalent":
             mutants.append(
                 Mutant(module, op, 0, int(found["line"]), "", "", "", "equivalent", found["reason"])
@@ -669,10 +697,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-coverage", action="store_true", help="run mutants on unrun lines")
     parser.add_argument("--no-report", action="store_true", help="do not update the report")
     parser.add_argument(
-        "--deletions",
-        action="store_true",
-        help="instead of cosmic-ray's mutants, delete each statement of each function "
-        "(the hand-written kind of mutant; reported apart, never in the score's section)",
+        "--operators",
+        choices=["cosmic-ray", "fw", "both"],
+        default="both",
+        help="which family of mutants (default: both, each scored apart)",
     )
     parser.add_argument(
         "--rescore",
@@ -691,6 +719,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.lines:
         first, _, last = args.lines.partition("-")
         lines = (int(first), int(last or first))
+    families = list(FAMILIES) if args.operators == "both" else [args.operators]
     failed = False
     for module in modules:
         if not (REPO / module).is_file():
@@ -701,17 +730,19 @@ def main(argv: list[str] | None = None) -> int:
         missing = [t for t in tests if not (REPO / t).exists()]
         if missing:
             parser.error(f"no such tests: {', '.join(missing)}")
-        if args.rescore:
-            mutants, tests = rescored(module)
-        else:
-            mutants = run_module(
-                module, tests, args.jobs, lines, not args.no_coverage, args.deletions
-            )
-        text = section(module, tests, mutants, args.rescore)
-        print(text)
-        if not args.no_report and lines is None and not args.deletions:
-            write_report(module, text)
-        failed |= score(mutants)["score"] < 0.9
+        for family in families:
+            if args.rescore:
+                mutants, tests = rescored(module, family)
+            else:
+                mutants = run_module(module, tests, args.jobs, lines, not args.no_coverage, family)
+            text = section(module, tests, mutants, args.rescore, family)
+            print(text)
+            if not args.no_report and lines is None:
+                write_report(module, text, family)
+            result = score(mutants)["score"]
+            if result < FAMILIES[family]:
+                print(f"{module}: {family} {result:.1%} is under {FAMILIES[family]:.0%}")
+                failed = True
     return 1 if failed else 0
 
 

@@ -56,21 +56,36 @@ def test_a_kind_of_mutant_is_matched_by_what_the_mutation_introduced():
     assert not mutation.equivalent_reason(elsewhere, KNOWN)
 
 
-def test_the_summary_has_a_row_per_reported_module():
-    section = """<!-- mutation:framework/x.py -->
+SECTION = """<!-- mutation{fw}:framework/x.py -->
 ### `framework/x.py`
 
 2026-11-23 (rescored: ...), tests: `tests/x.py`
 
 | mutants | killed | timeout | survived | not run | equivalent | score |
 |---|---|---|---|---|---|---|
-| 100 | 80 | 2 | 8 | 1 | 9 | 90.1% |
-<!-- /mutation:framework/x.py -->"""
-    table = mutation.summary("# head\n\n" + section)
-    assert (
-        table.splitlines()[3] == "| `framework/x.py` | 100 | 9 | 9 | 90.1% | 2026-11-23, rescored |"
-    )
+| {n} | 80 | 2 | 8 | 1 | 9 | 90.1% |
+<!-- /mutation{fw}:framework/x.py -->"""
+
+
+def test_the_summary_has_a_row_per_reported_module_with_each_family_apart():
+    cosmic = SECTION.format(fw="", n=100)
+    table = mutation.summary("# head\n\n" + cosmic)
+    row = table.splitlines()[3]
+    assert row.startswith("| `framework/x.py` | 100 | 9 | 9 | 90.1% | 2026-11-23, rescored |")
+    assert "not run yet" in row, "fw's family has no run yet: the row says so"
+    both = mutation.summary("# head\n\n" + cosmic + "\n\n" + SECTION.format(fw="-fw", n=55))
+    assert both.splitlines()[3].endswith("| 55 | 9 | 9 | 90.1% | 2026-11-23, rescored |")
     assert table.startswith("<!-- summary -->") and table.endswith("<!-- /summary -->")
+
+
+def make(tmp_path, monkeypatch, source):
+    (tmp_path / "m.py").write_text(source)
+    monkeypatch.setattr(mutation, "REPO", tmp_path)
+    mutants = mutation.fw_mutants("m.py")
+    for m in mutants:
+        compile(m.code, "m.py", "exec")
+        assert len(m.code.splitlines()) == len(source.splitlines()), (m.short, m.after)
+    return mutants
 
 
 def test_statement_deletions_keep_the_module_valid_and_its_line_numbers(tmp_path, monkeypatch):
@@ -86,18 +101,48 @@ def f(x):
         )
     return y
 '''
-    (tmp_path / "m.py").write_text(source)
-    monkeypatch.setattr(mutation, "REPO", tmp_path)
-    mutants = mutation.deletion_mutants("m.py")
-    assert [(m.line, m.before, m.after) for m in mutants] == [
-        (6, "y = x + 1", "pass"),
-        (8, "print(", "pass (and 2 more line(s))"),
-        (11, "return y", "pass"),
-    ]
-    for m in mutants:
-        compile(m.code, "m.py", "exec")
-        assert len(m.code.splitlines()) == len(source.splitlines())
-    assert mutants[0].short == "DeleteStatement"
+    mutants = make(tmp_path, monkeypatch, source)
+    deleted = [(m.line, m.before, m.after) for m in mutants if m.short == "DeleteStatement"]
+    assert deleted == [(6, "y = x + 1", "pass"), (8, "print(", "pass"), (11, "return y", "pass")]
+
+
+def test_a_variable_is_swapped_only_for_another_of_its_type(tmp_path, monkeypatch):
+    source = """class Monitor:
+    def __init__(self):
+        self.best = ""
+        self.in_use = ""
+        self.count = 0
+
+    def limits(self, now: float, name: str) -> float:
+        age = now - 1.0
+        label = f"{name}!"
+        return age + len(self.in_use) + len(label)
+"""
+    swaps = {
+        (m.line, m.after) for m in make(tmp_path, monkeypatch, source) if m.short == "SwapVariable"
+    }
+    assert (10, "return now + len(self.in_use) + len(label)") in swaps  # a number for a number
+    assert (10, "return age + len(self.best) + len(label)") in swaps  # an attribute of its kind
+    assert (10, "return age + len(self.in_use) + len(name)") in swaps  # a str for a str
+    assert not any("len(self.count)" in after or "len(age)" in after for _, after in swaps)
+
+
+def test_min_max_none_checks_and_moved_lines(tmp_path, monkeypatch):
+    source = """def f(x, items):
+    low = min(items)
+    high = items.max()
+    if x is not None and low:
+        return high
+    return None
+"""
+    mutants = make(tmp_path, monkeypatch, source)
+    made = {(m.short, m.line, m.after) for m in mutants}
+    assert ("SwapMinMax", 2, "low = max(items)") in made
+    assert ("SwapMinMax", 3, "high = items.min()") in made
+    assert ("DropNoneCheck", 4, "if x and low:") in made
+    assert ("MoveLine", 2, "high = items.max()") in made  # the next line moved above it
+    moved = next(m for m in mutants if m.short == "MoveLine" and m.line == 2)
+    assert moved.code.splitlines()[1:3] == ["    high = items.max()", "    low = min(items)"]
 
 
 def test_every_listed_equivalent_names_its_module_its_mutants_and_a_reason():

@@ -98,3 +98,16 @@ def test_the_quickest_reply_sets_the_clock_whatever_frame_it_was():
         quick = ORIGIN + 251 / RATE + 0.001  # the newest quick arrival
         if k >= 251 and captured + delay <= quick + 10.0:  # it is still in the window
             assert abs(stamp - captured) <= 0.001 + 1e-9, k
+
+
+def test_a_quick_reply_older_than_ten_seconds_no_longer_sets_the_clock():
+    """The window is 10 s by default: a device clock that drifts is followed from what
+    its recent replies say. A frame 10.5 s after the last quick reply, held 0.3 s on
+    the line, is stamped from its own reply (the only recent one), not from the quick
+    reply that has left the window."""
+    clock = FrameClock(RATE)
+    clock.stamp(0, ORIGIN - 0.0005, ORIGIN + 0.001)
+    frame = 210  # 10.5 s later
+    captured = ORIGIN + frame / RATE
+    stamp = clock.stamp(frame, captured - 0.0005, captured + 0.3)
+    assert stamp == captured + 0.3  # the one bound left: this reply's own arrival
