@@ -337,6 +337,25 @@ def test_the_operator_may_send_only_the_topologys_external_events(guarded):
     assert guarded.coordinator.call("offer", event="e_GO")["accepted"]
 
 
+def test_a_deployment_that_declares_nobody_refuses_every_command_and_sample(hub, peer, write):
+    """No operator events in the topology means the operator may send none (not: any),
+    and no components means no component may put an event: an empty rule refuses, only
+    a Coordinator outside any deployment (no rules at all) takes everything."""
+    rig = Rig(hub, peer, write, admission=Admission(external=frozenset(), emitters={}))
+    try:
+        answer = rig.coordinator.call("offer", event="e_GO")
+        assert answer == {
+            "accepted": False,
+            "reason": "e_GO is not an operator event of this topology (those are: none)",
+        }
+        rig.put("e_SEND", source="supervisor")
+        assert wait_until(lambda: rig.refusals(), 10)
+        assert rig.refusals()[0]["reason"] == "supervisor is not a component of this deployment"
+        assert rig.active() == ["Idle"] and not rig.sent
+    finally:
+        rig.close()
+
+
 def test_a_lost_component_is_a_chart_event_and_its_return_another(hub, peer, write):
     rig = Rig(hub, peer, write, watch={"sink": "workers"})
     try:

@@ -452,6 +452,90 @@ def test_people_approaching_the_moving_arm_slow_it_then_a_protective_stop_latche
         cell.close()
 
 
+class Room:
+    """People for the cell's speed and separation monitoring: one standing person (a
+    capsule 15 cm thick) beside the TCP, on the robot interface's envelopes port."""
+
+    def __init__(self, hub, cell):
+        self.cell = cell
+        self.people = writer_port(hub, "test/envelopes", Envelopes)
+        cell.container.connect("robot", "envelopes", "test/envelopes")
+
+    def person(self, gap: float, age: float = 0.0) -> None:
+        """One envelope: a person `gap` m beyond the TCP's side, seen `age` s ago."""
+        x, y, z = self.cell.model_tcp()
+        a, b = (x, y + 0.15 + gap, z - 0.5), (x, y + 0.15 + gap, z + 0.5)
+        self.people.write(Envelopes(time.time() - age, (*a,), (*b,), (0.15,)))
+
+
+def moving(hub) -> tuple[Cell, Room]:
+    cell = Cell(hub)
+    room = Room(hub, cell)
+    cell.release()
+    cell.interp.call("go_to", goal="target")
+    cell.run(0.5)
+    return cell, room
+
+
+def test_an_envelope_ages_while_the_detector_is_silent(hub):
+    """The envelope's age is paid in distance every cycle, not only when it arrives: a
+    person 35 cm from the moving arm is far enough while the sample is fresh (the arm
+    slows), and too close once nothing new has come for a second (the protective
+    distance standing is then 1.6 m): a protective stop, latched. A detector that
+    stalls never freezes the robot's idea of where people are."""
+    cell, room = moving(hub)
+    try:
+        room.person(0.41)
+        cell.run(0.005)
+        report = cell.robot.call("report")
+        assert 0.3 <= report["separation"] <= 0.4, report["separation"]
+        assert not report["latched"], "fresh, 35 cm is outside the protective distance"
+        cell.run(1.0)  # nothing new from the detector
+        report = cell.robot.call("report")
+        assert report["latched"] and report["reason"].startswith("protective stop: a person")
+        assert "ms old" in report["reason"]
+    finally:
+        cell.close()
+
+
+def test_a_person_close_right_after_everyone_was_far_is_checked_in_the_next_cycle(hub):
+    """With everyone far, the separation need not be measured every cycle (nothing can
+    close the gap that fast); a new envelope is news, checked in the cycle it arrives:
+    a person under the protective distance right after a far verdict stops the arm
+    within two cycles, not after the far verdict's quiet spell (up to 100 cycles)."""
+    cell, room = moving(hub)
+    try:
+        room.person(2.0)
+        cell.run(0.005)
+        assert cell.robot.call("report")["separation"] > 1.8
+        room.person(0.0)
+        cell.run(0.002)
+        report = cell.robot.call("report")
+        assert report["latched"] and report["reason"].startswith("protective stop: a person")
+    finally:
+        cell.close()
+
+
+def test_a_person_who_comes_near_slows_the_arm_and_one_who_leaves_lets_it_go_on(hub):
+    """The speed cap follows the nearest person both ways: capped near, no cap again
+    once everyone is far (the cap sent is the current one, not the lowest ever)."""
+    cell, room = moving(hub)
+    try:
+        for _ in range(9):
+            room.person(0.25)
+            cell.run(1 / 30)
+        capped = cell.robot.call("report")["speed_cap"]
+        assert capped is not None and 0.0 < capped < 0.075
+        for _ in range(9):
+            room.person(2.0)
+            cell.run(1 / 30)
+        report = cell.robot.call("report")
+        assert report["speed_cap"] is None and not report["latched"]
+        assert report["closest"] <= 0.3, "the least separation is kept for the report"
+    finally:
+        cell.close()
+
+
 @pytest.mark.parametrize(
     "garbage",
     [

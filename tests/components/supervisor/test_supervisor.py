@@ -150,6 +150,28 @@ def test_a_safety_stop_the_robot_latched_by_itself_stops_the_task_once():
     assert names(again) == ["e_STOP"], "a new fault after the first was cleared"
 
 
+def test_the_same_robot_fault_again_after_it_cleared_stops_the_task_again():
+    """A fault the operator cleared (RELEASE) that comes back, for the same reason (the
+    same input silent again), is a new stop, not a repeat of the old one."""
+    c = core()
+    assert names(c.robot(braked=True, fault=True, reason="envelopes: no data")) == ["e_STOP"]
+    assert c.robot(braked=True, fault=False, reason="") == []
+    assert names(c.robot(braked=True, fault=True, reason="envelopes: no data")) == ["e_STOP"]
+
+
+def test_the_speed_limit_is_the_cap_of_the_tracker_that_steers_not_the_best_one():
+    """Until the chart swaps, the navigator follows the tracker it connected: that
+    tracker's cap holds, whatever the Sensor Manager now calls best (its cap may be
+    far higher: a limit meant for the Vicra must not speed up a motion the Certus
+    steers)."""
+    c = SupervisorCore(PROCEDURE)
+    c.tracking("certus", HEALTHY, {"max_velocity": 0.002, "max_acceleration": 0.1})
+    c.tracking("vicra", HEALTHY, {"max_velocity": 0.2, "max_acceleration": 0.5})
+    steer(c, "certus")
+    assert (c.in_use, c.best) == ("certus", "vicra")
+    assert c.limits("fast") == {"velocity": 0.002, "acceleration": 0.1}
+
+
 def test_limits_follow_the_tracker_in_use_and_the_area():
     c = core()
     steer(c, "certus")
