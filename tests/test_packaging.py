@@ -94,3 +94,22 @@ def test_fw_bench_needs_a_seeg_home_and_says_where_it_looked(installed, tmp_path
     )  # fmt: skip
     assert found.returncode == 0, found.stdout + found.stderr
     assert (tmp_path / "out" / "report.md").is_file()
+
+
+def test_the_constraints_file_pins_every_dependency_fw_names():
+    """tools/constraints.txt (`tools/install.sh --pinned`) holds a version for every
+    package pyproject.toml asks for, extras included: a reproducible install."""
+    import re
+    import tomllib
+
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    wanted = list(project["dependencies"])
+    for extra in project["optional-dependencies"].values():
+        wanted += extra
+    names = {re.split(r"[<>=!~\[; ]", w, maxsplit=1)[0].lower().replace("_", "-") for w in wanted}
+    pinned = {
+        line.split("==")[0].lower().replace("_", "-")
+        for line in (REPO / "tools" / "constraints.txt").read_text().splitlines()
+        if "==" in line and not line.startswith("#")
+    }
+    assert names - pinned == set()
