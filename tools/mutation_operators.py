@@ -392,8 +392,84 @@ def _moves(function: ast.AST, source: list[str]) -> list[Change]:
                 first_a = source[a.lineno - 1 : a_end]
                 between = source[a_end : b.lineno - 1]
                 first_b = source[b.lineno - 1 : b_end]
-                if first_a == first_b:
+                if first_a == first_b or _commute(a, b):
                     continue
                 moved = (*first_b, *between, *first_a)
                 out.append(Change(MOVE_LINE, a.lineno, a.lineno - 1, moved))
+    return out
+
+
+_PURE_CALLS = {"deque", "dict", "list", "set", "tuple", "float", "int", "str", "bool", "len"}
+_PURE_CALLS |= {"zeros", "ones", "eye", "full", "array", "asarray", "field", "inf", "Health"}
+
+
+def _commute(a: ast.stmt, b: ast.stmt) -> bool:
+    """True when swapping `a` and `b` cannot change anything, so the mutant would be
+    equivalent by construction and is not made: two assignments, neither of which reads
+    or writes what the other writes, whose values call nothing but pure constructors
+    (`self._sent = deque(maxlen=2)` beside `self._commanding = False`)."""
+    if not (_is_plain_assignment(a) and _is_plain_assignment(b)):
+        return False
+    written_a, written_b = _targets(a), _targets(b)  # type: ignore[arg-type]
+    if None in written_a or None in written_b:
+        return False
+    reads_a, reads_b = _chains(a.value), _chains(b.value)  # type: ignore[union-attr]
+    return not (_overlap(written_a, reads_b | written_b) or _overlap(written_b, reads_a))
+
+
+def _overlap(written: set, touched: set) -> bool:
+    """Whether a written chain is, contains or is inside a touched one (self.x and
+    self.x.y overlap; self.x and self.xy do not)."""
+    return any(
+        w == t or t.startswith(w + ".") or w.startswith(t + ".") for w in written for t in touched
+    )
+
+
+def _is_plain_assignment(node: ast.stmt) -> bool:
+    if not isinstance(node, ast.Assign | ast.AnnAssign) or getattr(node, "value", None) is None:
+        return False
+    for sub in ast.walk(node.value):  # type: ignore[arg-type]
+        if isinstance(sub, ast.Call):
+            func = sub.func
+            name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
+            if name not in _PURE_CALLS:
+                return False
+        elif isinstance(sub, ast.Await | ast.Yield | ast.YieldFrom | ast.NamedExpr | ast.Lambda):
+            return False
+    return True
+
+
+def _chain(node: ast.AST) -> str:
+    """`self.a.b` as "self.a.b", a name as itself; "" for anything else."""
+    if isinstance(node, ast.Name):
+        return node.id
+    if isinstance(node, ast.Attribute):
+        inner = _chain(node.value)
+        return f"{inner}.{node.attr}" if inner else ""
+    return ""
+
+
+def _chains(node: ast.AST) -> set[str]:
+    """The longest name and attribute chains read anywhere in `node`."""
+    out: set[str] = set()
+    stack = [node]
+    while stack:
+        sub = stack.pop()
+        chain = _chain(sub)
+        if chain:
+            out.add(chain)
+            continue  # not its inner parts: self.x.y reads self.x.y, not all of self
+        stack.extend(ast.iter_child_nodes(sub))
+    return out
+
+
+def _targets(node: ast.Assign | ast.AnnAssign) -> set[str | None]:
+    """What an assignment writes, as chains; None for what cannot be told apart."""
+    targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+    out: set[str | None] = set()
+    for target in targets:
+        for element in target.elts if isinstance(target, ast.Tuple) else [target]:
+            if isinstance(element, ast.Subscript):
+                element = element.value  # self.x[i] = ... writes (into) self.x
+            out.add(_chain(element) or None)
     return out

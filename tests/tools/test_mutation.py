@@ -157,3 +157,22 @@ def test_every_listed_equivalent_names_its_module_its_mutants_and_a_reason():
                 re.compile(str(entry.get(key, "")))
         else:
             assert {"operator", "before", "after"} <= set(entry), entry
+
+
+def test_two_assignments_that_cannot_affect_each_other_are_not_swapped(tmp_path, monkeypatch):
+    """A move that is equivalent by construction is not made (it would only cost a full
+    test run and a line in the equivalents list): two assignments, neither touching
+    what the other writes, with nothing but pure constructors on the right."""
+    source = '''class C:
+    def reset(self, n):
+        self.a = deque(maxlen=2)
+        self.b = False
+        self.c = self.b
+        self.d = n + 1
+        self.e = compute()
+'''
+    moves = [(m.line, m.after) for m in make(tmp_path, monkeypatch, source) if m.short == "MoveLine"]
+    assert (3, "self.b = False") not in moves, "independent: equivalent by construction"
+    assert (4, "self.c = self.b") in moves, "c reads b"
+    assert (5, "self.d = n + 1") not in moves
+    assert (6, "self.e = compute()") in moves, "a call may do anything"
