@@ -400,7 +400,12 @@ def _moves(function: ast.AST, source: list[str]) -> list[Change]:
 
 
 _PURE_CALLS = {"deque", "dict", "list", "set", "tuple", "float", "int", "str", "bool", "len"}
-_PURE_CALLS |= {"zeros", "ones", "eye", "full", "array", "asarray", "field", "inf", "Health"}
+_PURE_CALLS |= {"zeros", "ones", "eye", "full", "array", "asarray", "field", "inf", "copy"}
+_PURE_CALLS |= {"Lock", "RLock", "Event", "Condition", "now", "monotonic", "perf_counter"}
+_PURE_CALLS |= {"time", "sorted", "min", "max", "abs", "round", "enumerate", "zip", "range"}
+"""Calls that build a value and touch nothing else (a clock read counts: two reads of it
+beside unrelated statements do not depend on their order). A call of a capitalised name
+builds an object too."""
 
 
 def _commute(a: ast.stmt, b: ast.stmt) -> bool:
@@ -413,7 +418,7 @@ def _commute(a: ast.stmt, b: ast.stmt) -> bool:
     written_a, written_b = _targets(a), _targets(b)  # type: ignore[arg-type]
     if None in written_a or None in written_b:
         return False
-    reads_a, reads_b = _chains(a.value), _chains(b.value)  # type: ignore[union-attr]
+    reads_a, reads_b = _reads(a), _reads(b)
     return not (_overlap(written_a, reads_b | written_b) or _overlap(written_b, reads_a))
 
 
@@ -426,13 +431,15 @@ def _overlap(written: set, touched: set) -> bool:
 
 
 def _is_plain_assignment(node: ast.stmt) -> bool:
-    if not isinstance(node, ast.Assign | ast.AnnAssign) or getattr(node, "value", None) is None:
+    if not isinstance(node, ast.Assign | ast.AnnAssign | ast.AugAssign):
+        return False
+    if getattr(node, "value", None) is None:
         return False
     for sub in ast.walk(node.value):  # type: ignore[arg-type]
         if isinstance(sub, ast.Call):
             func = sub.func
             name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
-            if name not in _PURE_CALLS:
+            if name not in _PURE_CALLS and not name[:1].isupper():
                 return False
         elif isinstance(sub, ast.Await | ast.Yield | ast.YieldFrom | ast.NamedExpr | ast.Lambda):
             return False
@@ -449,6 +456,18 @@ def _chain(node: ast.AST) -> str:
     return ""
 
 
+def _reads(node: ast.stmt) -> set[str]:
+    """What an assignment reads: its value's chains, and for `x += v` or `x[i] = v` the
+    target itself (its old value, or the container written into)."""
+    out = _chains(node.value)  # type: ignore[attr-defined]
+    targets = node.targets if isinstance(node, ast.Assign) else [node.target]  # type: ignore[attr-defined]
+    for target in targets:
+        for element in target.elts if isinstance(target, ast.Tuple) else [target]:
+            if isinstance(node, ast.AugAssign) or isinstance(element, ast.Subscript):
+                out |= _chains(element)
+    return out
+
+
 def _chains(node: ast.AST) -> set[str]:
     """The longest name and attribute chains read anywhere in `node`."""
     out: set[str] = set()
@@ -463,7 +482,7 @@ def _chains(node: ast.AST) -> set[str]:
     return out
 
 
-def _targets(node: ast.Assign | ast.AnnAssign) -> set[str | None]:
+def _targets(node: ast.Assign | ast.AnnAssign | ast.AugAssign) -> set[str | None]:
     """What an assignment writes, as chains; None for what cannot be told apart."""
     targets = node.targets if isinstance(node, ast.Assign) else [node.target]
     out: set[str | None] = set()

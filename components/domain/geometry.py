@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -168,3 +169,23 @@ def look_at(position: tuple[float, float, float], target: tuple[float, float, fl
     pose[:3, :3] = np.stack([x, y, z], axis=1)
     pose[:3, 3] = eye
     return pose
+
+
+def pose_list(pose: np.ndarray) -> list[float]:
+    """A 4x4 pose as [x, y, z, qw, qx, qy, qz] (m), for a message."""
+    return [round(float(v), 7) for v in (*pose[:3, 3], *matrix_to_quat(pose[:3, :3]))]
+
+
+def pose_from_list(values: Any) -> np.ndarray:
+    """`pose_list` read back: a 4x4 pose; ValueError unless 7 finite numbers with a unit
+    quaternion (a goal from a message is checked before the robot steers by it)."""
+    v = [float(x) for x in values]
+    if len(v) != 7 or not all(map(math.isfinite, v)):
+        raise ValueError(f"a pose is 7 finite numbers, got {values!r}")
+    w, x, y, z = v[3:]
+    if abs(w * w + x * x + y * y + z * z - 1.0) > 1e-3:
+        raise ValueError("a pose's quaternion must be a unit one")
+    out = np.eye(4)
+    out[:3, :3] = quat_to_matrix(np.array([w, x, y, z]))
+    out[:3, 3] = v[:3]
+    return out

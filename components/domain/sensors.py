@@ -42,6 +42,15 @@ class SensorConfig:
     sensor_from_base: np.ndarray | None = None  # S_i: the tracker's calibration to the robot
     tip: np.ndarray | None = None  # the TCP in the CTO frame, from pivoting (m)
 
+    @property
+    def cto_from_ee(self) -> np.ndarray:
+        """The end-effector in the CTO frame: Y^-1, its translation the TCP pivoting
+        found (`tip`) where there is one (the hand-eye fit's is less exact)."""
+        out = np.linalg.inv(self.ee_from_cto)
+        if self.tip is not None:
+            out[:3, 3] = self.tip
+        return out
+
 
 @dataclass
 class SensorsConfig:

@@ -47,9 +47,9 @@ import numpy as np
 import pinocchio as pin
 from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig
 
+from components.domain.geometry import pose_from_list
 from components.domain.ik import DifferentialIK
 from components.robot.interface import tcp_message
-from components.robot.navigation import pose_from_list
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError
 from framework.messages import EventMessage, JointState, Pose, Scalar

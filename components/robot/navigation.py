@@ -26,14 +26,17 @@ puts the real TCP on the target, within the tracker's accuracy.
   near the filtered view, the Certus (0.1 mm, 100 Hz) with `smoothing`.
 * **A swap is bumpless**: two trackers' calibrations differ by millimetres (each
   hand-eye fit absorbs the arm's model errors its own way). At a swap, the new
-  tracker's view is carried by the offset that makes it agree with `B` as it was,
-  and the offset fades over `swap_settle` (10 s): the robot keeps the
-  previous tracker's registration across the swap and drifts to the new tracker's
-  own view at a tenth of their difference per second, while the new tracker's
-  samples follow the head from the first one. The offset is averaged over the new
-  tracker's first `swap_average` (0.5 s: ten Vicra samples), not taken from one
-  sample, which would carry that sample's whole noise for seconds; head motion in
-  that half second is followed in part at once and in full as the offset fades.
+  tracker's view is carried by what differs between the two trackers' views, as the
+  Sensor Manager measured it with both samples taken at the same instant and
+  averaged over a second (`offsets` of its status: the calibrations' difference,
+  never the patient's or the robot's motion), and the carry fades over
+  `swap_settle` (10 s): the robot keeps the previous tracker's registration across
+  the swap and drifts to the new tracker's own view (after t seconds, at most
+  |offset| e^(-t/10 s) from it), while the new tracker's samples follow the head
+  from the first one. Without a measured offset (the trackers were never healthy
+  together), the carry is what makes the new view agree with `B` as it was, averaged
+  over the new tracker's first `swap_average` (0.5 s); it then also carries whatever
+  the head did between the last sample of the one and the first of the other.
 * **The patient's motion** is measured apart, independent of the arm's model
   errors: the reference tool placed in the base by the tracker's own calibration
   to the robot (`S`), against where the registration found it. Farther than
@@ -64,7 +67,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from components.domain.geometry import invert, matrix_to_quat, pose_matrix
+from components.domain.geometry import invert, pose_from_list, pose_list, pose_matrix
 from components.domain.lwr4 import Kinematics
 from components.domain.procedure import Procedure, load_procedure
 from components.domain.sensors import SensorsConfig, load_sensors
@@ -148,6 +151,7 @@ class NavigatorCore:
         self.refused = ""
         self.suspect = ""  # a motion beyond the limits, not yet confirmed
         self._suspect_since = 0.0
+        self.offsets: dict[str, np.ndarray] = {}  # the trackers' same-instant differences
 
     # --- inputs ------------------------------------------------------------------------
     def joints(self, stamp: float, q: np.ndarray) -> None:
@@ -183,7 +187,8 @@ class NavigatorCore:
         frames = self.trackers.get(tracker)
         if frames is None:
             return False
-        swapped = tracker != self.tracker and self.tracker is not None
+        previous = self.tracker
+        swapped = tracker != previous and previous is not None
         if tracker != self.tracker:
             self._patient.clear()  # another tracker: its own view of the patient's motion
             self.suspect = ""
@@ -200,19 +205,25 @@ class NavigatorCore:
             return True  # the goals hold still: the robot does not chase a moved patient
         if swapped:
             self._carry_t, self._carry_base, self._carry_samples = t, self.base_from_patient, 0
-            self._carry_until = t + self.swap_average
+            new, old = self.offsets.get(tracker), self.offsets.get(previous)  # type: ignore[arg-type]
+            if new is not None and old is not None:
+                # B_old = K E_old^-1 = B_new (E_new E_old^-1), measured at one instant
+                self._carry, self._carry_until = new @ invert(old), -math.inf
+            else:
+                self._carry_until = t + self.swap_average
         if t <= self._carry_until:
-            # the offset between the trackers' views, averaged over the new tracker's first
-            # samples (one sample carries its whole noise into the goals for seconds)
+            # no measured offset: the one that makes the new view agree with B as it was,
+            # averaged over the new tracker's first samples (one sample carries its
+            # whole noise into the goals for seconds)
             self._carry_samples += 1
-            offset = self._carry_base @ invert(measured)
+            offset = invert(measured) @ self._carry_base
             if self._carry_samples == 1:
                 self._carry = offset
             else:
                 self._carry = blend(self._carry, offset, 1.0 / self._carry_samples)
         if self._carry is not None:
             fade = math.exp(-max(0.0, t - self._carry_t) / self.swap_settle)
-            measured = blend(np.eye(4), self._carry, fade) @ measured
+            measured = measured @ blend(np.eye(4), self._carry, fade)
         if self._last_t is None:
             weight = 1.0  # the first sample replaces the registration
         else:
@@ -237,6 +248,11 @@ class NavigatorCore:
             return 1.0
         x = (self.jitter / noise) ** 2
         return 2.0 * x / (1.0 + x)
+
+    def tracker_offsets(self, offsets: dict[str, np.ndarray]) -> None:
+        """The Sensor Manager's same-instant differences of the trackers' views (each
+        against one reference: E_i E_ref^-1), for the next swap's carry."""
+        self.offsets = dict(offsets)
 
     def register(self) -> None:
         """The patient is where the tracking sees it now (the surgeon re-registered):
@@ -311,12 +327,9 @@ def frames_of(sensors: SensorsConfig) -> tuple[dict[str, TrackerFrames], np.ndar
     patient frame in the robot base, from the master's X)."""
     trackers = {}
     for s in sensors.sensors:
-        cto_from_ee = invert(s.ee_from_cto)
-        if s.tip is not None:
-            cto_from_ee[:3, 3] = s.tip  # the TCP where pivoting found it, not the hand-eye fit
         trackers[s.name] = TrackerFrames(
             s.master_from_sensor,
-            cto_from_ee,
+            s.cto_from_ee,
             None if s.sensor_from_base is None else invert(s.sensor_from_base),
         )
     master = next(s for s in sensors.sensors if s.name == sensors.master)
@@ -338,26 +351,6 @@ def core_for(procedure: Procedure, sensors: SensorsConfig) -> NavigatorCore:
         jitter=n.jitter,
         max_model_error=n.max_model_error,
     )
-
-
-def pose_list(pose: np.ndarray) -> list[float]:
-    """A 4x4 pose as [x, y, z, qw, qx, qy, qz] (m), for a message."""
-    return [round(float(v), 7) for v in (*pose[:3, 3], *matrix_to_quat(pose[:3, :3]))]
-
-
-def pose_from_list(values: Any) -> np.ndarray:
-    """`pose_list` read back: a 4x4 pose; ValueError unless 7 finite numbers with a unit
-    quaternion (a goal from a message is checked before the robot steers by it)."""
-    v = [float(x) for x in values]
-    if len(v) != 7 or not all(map(math.isfinite, v)):
-        raise ValueError(f"a pose is 7 finite numbers, got {values!r}")
-    w, x, y, z = v[3:]
-    if abs(w * w + x * x + y * y + z * z - 1.0) > 1e-3:
-        raise ValueError("a pose's quaternion must be a unit one")
-    out = np.eye(4)
-    out[:3, :3] = pin.Quaternion(w, x, y, z).toRotationMatrix()
-    out[:3, 3] = v[:3]
-    return out
 
 
 class Navigator(Component):
@@ -386,6 +379,11 @@ class Navigator(Component):
     )
     cto = In(Pose, doc="the robot's tool as the tracker in use sees it (rewired per tracker)")
     rto = In(Pose, doc="the reference tool on the head clamp, as the same tracker sees it")
+    tracking = In(
+        EventMessage,
+        doc="the Sensor Manager's status: its same-instant offsets between the trackers' "
+        "views (what a swap carries); without it a swap carries the view as it was",
+    )
     joints = In(
         JointState,
         doc="measured joints: the nominal pose at each sample's stamp",
@@ -418,6 +416,9 @@ class Navigator(Component):
             if status is not ReadStatus.NEW:
                 break
             self.core.joints(state.stamp, np.asarray(state.position))
+        status, tracking = self.tracking.read()
+        if status is ReadStatus.NEW and tracking is not None:
+            self._take_offsets(tracking.payload.get("offsets"))
         status, rto = self.rto.read()
         if status is ReadStatus.NEW:
             self._rto = rto
@@ -445,6 +446,22 @@ class Navigator(Component):
 
     def idle_hook(self) -> None:
         self.update_hook()
+
+    def _take_offsets(self, offsets: Any) -> None:
+        """Keep the Sensor Manager's offsets of the trackers this navigator knows; a
+        status whose offsets are not poses is refused (the last good ones stay)."""
+        if not isinstance(offsets, dict):
+            return
+        try:
+            taken = {
+                name: pose_from_list(pose)
+                for name, pose in offsets.items()
+                if name in self.core.trackers
+            }
+        except (TypeError, ValueError) as exc:
+            self.refuse("tracking", f"offsets that are not poses: {exc}")
+            return
+        self.core.tracker_offsets(taken)
 
     def _usable(self, cto: Pose) -> bool:
         """Both tools seen, finite, by the same tracker."""
@@ -500,9 +517,14 @@ class Navigator(Component):
         for name, pose in self.procedure.goals.items():
             goal = core.goal(pose) if self.procedure.frame(name) == "patient" else pose
             goals[name] = pose_list(goal)
+        target = self.procedure.goals.get("target")
         return {
             "goals": goals,
             "revisions": {name: self.revisions.get(name, 0) for name in goals},
+            # the target as defined (the operator's, exact), for whoever scores the approach
+            "target": None
+            if target is None
+            else {"frame": self.procedure.frame("target"), "pose": pose_list(target)},
             "tracker": self.steering(),
             "refused": core.refused,
             "holding": core.suspect,

@@ -28,11 +28,11 @@ from typing import Any
 
 import numpy as np
 
-from components.domain.geometry import invert, matrix_to_quat, pose_matrix
+from components.domain.geometry import invert, matrix_to_quat, pose_from_list, pose_matrix
 from components.domain.rigs import standard_rigs
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError
-from framework.messages import Pose
+from framework.messages import EventMessage, Pose
 from framework.ports import ReadStatus
 from framework.properties import prop
 
@@ -115,6 +115,11 @@ class PatientHead(Component):
     )
     pose = Out(Pose, doc="the reference tool on the head clamp, robot base frame")
     tcp = In(Pose, doc="the real arm's TCP (ground truth), for the referee")
+    goals = In(
+        EventMessage,
+        doc="the navigator's goals: the target as the operator defined it last (the "
+        "referee scores the approach against the current target, not the file's)",
+    )
 
     def __init__(self, name: str):
         super().__init__(name)
@@ -125,22 +130,42 @@ class PatientHead(Component):
         self.home = invert(standard_rigs()[0].rto_from_base)  # base_from_rto at rest
         self.motion = HeadMotion()
         self.frame_number = 0
-        self.target: np.ndarray | None = None  # on the patient
+        self.target: np.ndarray | None = None  # where the target is...
+        self.target_frame = "patient"  # ...on the patient, or in the robot base
         if self.procedure_file:
             from components.domain.procedure import load_procedure
 
             procedure = load_procedure(self.procedure_file)
-            if procedure.frame("target") == "patient":
-                self.target = procedure.target
+            self.target, self.target_frame = procedure.target, procedure.frame("target")
         return True
 
     def target_error(self) -> float | None:
-        """How far (m) the real TCP is from the target on the head now (None: unknown)."""
+        """How far (m) the real TCP is from the target now (None: unknown): the target
+        as the navigator last said it was defined (`e_DEFINE_TARGET`), else the
+        procedure file's; on the head, it moves with the head."""
+        self._follow_target()
         status, tcp = self.tcp.read()
         if self.target is None or status is ReadStatus.NO_DATA or tcp is None:
             return None
-        target = self.base_from_rto() @ self.target
+        target = (
+            self.base_from_rto() @ self.target if self.target_frame == "patient" else self.target
+        )
         return float(np.linalg.norm(pose_matrix(tcp)[:3, 3] - target[:3, 3]))
+
+    def _follow_target(self) -> None:
+        """Take the target the navigator's latest goals say was defined."""
+        status, goals = self.goals.read()
+        if status is not ReadStatus.NEW or goals is None:
+            return
+        defined = goals.payload.get("target")
+        if not isinstance(defined, dict) or defined.get("frame") not in ("patient", "base"):
+            return
+        try:
+            self.target = pose_from_list(defined.get("pose"))
+        except (TypeError, ValueError):
+            self.refuse("goals", f"a target that is not a pose: {defined.get('pose')!r:.80}")
+            return
+        self.target_frame = defined["frame"]
 
     def base_from_rto(self, t: float | None = None) -> np.ndarray:
         """The reference tool's pose in the robot base frame at `t` (default: now)."""

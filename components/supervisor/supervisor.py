@@ -10,8 +10,9 @@ interpolator, and raises the events the SEEG chart reacts to:
   `collision_distance`), on the rising edge and again whenever motion starts while
   it persists;
 * `e_TOK {tracker}` / `e_NOTRACKER {why}`: answers to `report_best_tracker`;
-* `e_TFAULT {tracker, failed, fault}`: the tracker in use (`failed`) is no longer the
-  best one (its fault, or a better one recovered); `tracker` is the one to use now (as
+* `e_TFAULT {tracker, failed, fault, detail, numbers}`: the tracker in use (`failed`)
+  is no longer the best one (its fault, with the Sensor Manager's words and numbers:
+  the poses compared, their times, the tolerance; or a better one recovered); `tracker` is the one to use now (as
   in `e_TOK`), so the chart swaps without asking; `e_NOTRACKER` if none is left. The
   tracker in use is the one whose samples steer the navigator (its `navigation`
   news), not a name handed back by the chart; until the tracker `e_TFAULT` named
@@ -113,8 +114,21 @@ class SupervisorCore:
         self.in_use, self.swapping_to = None, best
         if best is None:
             return [("e_NOTRACKER", {"why": untracked(health)})]
-        cause = (health.get(current) or {}).get("cause") or f"{best} is better"
-        return [("e_TFAULT", {"tracker": best, "failed": current, "fault": cause})]
+        verdict = health.get(current) or {}
+        cause = verdict.get("cause") or f"{best} is better"
+        numbers = verdict.get("numbers")
+        return [
+            (
+                "e_TFAULT",
+                {
+                    "tracker": best,
+                    "failed": current,
+                    "fault": cause,
+                    "detail": str(verdict.get("detail") or ""),
+                    "numbers": numbers if isinstance(numbers, dict) else {},
+                },
+            )
+        ]
 
     def observe(
         self,

@@ -47,7 +47,6 @@ from __future__ import annotations
 import bisect
 import math
 import time
-from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -56,6 +55,7 @@ import numpy as np
 from components.domain.geometry import (
     invert,
     matrix_to_quat,
+    pose_list,
     pose_matrix,
     quat_to_matrix,
     rotation_angle,
@@ -76,16 +76,86 @@ CHECK_LAG_LIMIT = 0.5
 """The most a sensor's newest sample may be ahead of the robot's newest pose (s) for its
 calibration to count as checked: further ahead, the robot's side is too far behind."""
 CAUSES = ("no_data", "cto_missing", "rto_missing", "stale", "corrupt", "calibration")
+STAMP_UNCERTAINTY = 0.002
+"""s: how far a sample's stamp may be from its capture (a Vicra's frame-clock stamp is
+within about 1 ms of it on a quiet line): paid in distance at the tool's speed when two
+trackers' views are compared at one instant."""
+OFFSET_SMOOTHING = 1.0
+"""s: the time constant over which the trackers' same-instant differences are averaged
+(`SensorManagerCore.offsets`): their noise averages out, a slow drift is followed."""
 
 
 @dataclass
 class Health:
-    """A sensor's verdict for one cycle."""
+    """A sensor's verdict for one cycle. A calibration fault carries its `numbers`
+    (the poses compared, their times, the tolerance), for the recording and the event."""
 
     ok: bool
     cause: str = ""
     detail: str = ""
     streak: int = 0  # consecutive healthy samples (the cycle fills it in)
+    numbers: dict[str, Any] = field(default_factory=dict)
+
+
+class History:
+    """One tool's recent valid samples of a tracker: stamps (rising) and poses (x y z
+    qw qx qy qz), the last `KINEMATICS_MEMORY` seconds of them (both ends kept). A
+    stamp older than the newest means the device started again: what was kept goes."""
+
+    def __init__(self) -> None:
+        self.times: list[float] = []
+        self.poses: list[tuple[float, ...]] = []
+
+    def add(self, stamp: float, pose: tuple[float, ...]) -> None:
+        """Keep a sample taken at `stamp`."""
+        times = self.times
+        if times and stamp <= times[-1]:
+            if stamp == times[-1]:
+                self.poses[-1] = pose
+                return
+            times.clear()
+            self.poses.clear()
+        times.append(stamp)
+        self.poses.append(pose)
+        if stamp - times[0] > KINEMATICS_MEMORY:
+            cut = bisect.bisect_left(times, stamp - KINEMATICS_MEMORY)
+            del times[:cut], self.poses[:cut]
+
+    def newest(self) -> float:
+        """The newest stamp (-inf when nothing is kept)."""
+        return self.times[-1] if self.times else -math.inf
+
+    def at_or_before(self, t: float) -> tuple[float, tuple[float, ...]] | None:
+        """The newest sample taken at or before `t` (None: none)."""
+        k = bisect.bisect_right(self.times, t)
+        return (self.times[k - 1], self.poses[k - 1]) if k else None
+
+    def at(self, t: float) -> tuple[np.ndarray, float, float] | None:
+        """The tool's pose at `t` (x y z qw qx qy qz), linear between the samples around
+        it (normalised quaternion), with how far it may be off from that line (m: the
+        tool's fastest speed over those samples and their neighbours, times half their
+        interval; 0 on a sample) and that speed (m/s). None when the samples do not
+        reach `t`."""
+        times = self.times
+        if not times or not times[0] <= t <= times[-1]:
+            return None
+        k = bisect.bisect_left(times, t)  # times[k] >= t
+        lo, hi = max(0, k - 2), min(len(times) - 1, k + 1)
+        speed = 0.0
+        for j in range(lo, hi):
+            dt = times[j + 1] - times[j]
+            if dt > 0.0:
+                speed = max(speed, math.dist(self.poses[j + 1][:3], self.poses[j][:3]) / dt)
+        if times[k] == t:
+            return np.array(self.poses[k]), 0.0, speed
+        t0, t1 = times[k - 1], times[k]
+        w = (t - t0) / (t1 - t0)
+        a, b = np.array(self.poses[k - 1]), np.array(self.poses[k])
+        if float(a[3:] @ b[3:]) < 0.0:  # the same rotation, the nearer way round
+            b[3:] = -b[3:]
+        pose = a + w * (b - a)
+        pose[3:] /= np.linalg.norm(pose[3:])
+        return pose, speed * (t1 - t0) / 2.0, speed
 
 
 @dataclass
@@ -130,11 +200,11 @@ class SensorManagerCore:
         self._times: list[float] = []  # sorted stamps of `_poses`
         self._poses: list[np.ndarray] = []
         self._stamps = [0.0] * len(config.sensors)  # each sensor's latest CTO stamp
-        # each sensor's recent valid CTO samples (stamp, x y z qw qx qy qz), to check the
-        # newest one the robot's poses cover; and its latest verdict of that check
-        self._samples: list[deque[tuple[float, tuple[float, ...]]]] = [
-            deque() for _ in config.sensors
-        ]
+        # each sensor's recent valid samples of both tools, to check the newest CTO the
+        # robot's poses cover and to compare trackers at one instant; the latest verdict
+        # of the check against the robot
+        self._samples = [History() for _ in config.sensors]  # the CTOs
+        self._references = [History() for _ in config.sensors]  # the RTOs
         self._verdicts: dict[int, Health | None] = {}  # the latest check's, None: passed
         n = self._n = len(config.sensors)
         sensors = config.sensors
@@ -151,8 +221,10 @@ class SensorManagerCore:
         self._max_speed = np.array([s.max_speed for s in sensors])
         self._c = np.stack([s.master_from_sensor for s in sensors])
         self._x = np.stack([s.rto_from_base for s in sensors])
-        self._tol_pos2 = np.array([s.tolerance_position**2 for s in sensors])
-        self._tol_cos = np.cos([s.tolerance_angle for s in sensors])
+        self._tol_pos = np.array([s.tolerance_position for s in sensors])
+        self._tol_pos2 = self._tol_pos**2
+        self._tol_angle = np.array([s.tolerance_angle for s in sensors])
+        self._tol_cos = np.cos(self._tol_angle)
         self._y = np.stack([s.ee_from_cto for s in sensors])
         self._y_inv = invert(self._y)
         # sensors calibrated to the robot (S) are checked in their own frame, so a reference
@@ -164,7 +236,12 @@ class SensorManagerCore:
         self._s_inv = invert(self._s)
         self._base_from_rto = invert(self._x)  # where each reference tool was at calibration
         self._moved: dict[int, Health] = {}  # reference tools found moved, by sensor
-        self._odd_since: dict[int, float] = {}  # the odd one out about the patient since
+        self._odd_checks: dict[int, int] = {}  # consecutive checks found the odd one out
+        self._compared: tuple[float, tuple[int, ...]] = (-math.inf, ())  # the last check...
+        self._odd: dict[int, Health] = {}  # ...and whom it found odd
+        self._cto_from_ee = np.stack([s.cto_from_ee for s in sensors])
+        self._offsets: dict[int, np.ndarray] = {}  # same-instant views against the master
+        self._offsets_at: dict[int, float] = {}  # ...and the instant last measured
         self._now = 0.0
         self.last: Decision | None = None
 
@@ -185,11 +262,9 @@ class SensorManagerCore:
         if row == index:
             self._last_cto[index] = sample
             self._stamps[index] = pose.stamp
-            if pose.valid and math.isfinite(pose.stamp) and pose.is_finite():
-                samples = self._samples[index]
-                samples.append((pose.stamp, sample[:7]))
-                while pose.stamp - samples[0][0] > KINEMATICS_MEMORY:
-                    samples.popleft()
+        if pose.valid and math.isfinite(pose.stamp) and pose.is_finite():
+            history = self._samples if row == index else self._references
+            history[index].add(pose.stamp, sample[:7])
         self._fresh[index] = True
 
     def set_kinematics(self, base_from_ee: np.ndarray | None, stamp: float | None = None) -> None:
@@ -238,12 +313,11 @@ class SensorManagerCore:
                 )
                 behind[i] = Health(False, "calibration", f"cannot be checked: {why}")
                 continue
-            for stamp, sample in reversed(self._samples[i]):
-                if stamp <= horizon:
-                    positions.append(k)
-                    stamps.append(stamp)
-                    samples.append(sample)
-                    break
+            covered = self._samples[i].at_or_before(horizon)
+            if covered is not None:
+                positions.append(k)
+                stamps.append(covered[0])
+                samples.append(covered[1])
         return positions, stamps, samples, behind
 
     def _kinematics_at(self, stamps: list[float]) -> np.ndarray:
@@ -338,6 +412,7 @@ class SensorManagerCore:
             verdicts = self._check_calibration(candidates, local)
             for index in verdicts:
                 codes[index] = _CALIBRATION
+            self._measure_offsets([i for i in candidates.tolist() if i not in verdicts])
         best, robot = None, None
         hysteresis, fresh = self.config.hysteresis, self._fresh
         for index, (track, code) in enumerate(zip(self.tracks, codes.tolist(), strict=True)):
@@ -362,6 +437,50 @@ class SensorManagerCore:
         self.best = best
         self.last = Decision(best, {t.config.name: t.health for t in self.tracks}, robot, changed)
         return self.last
+
+    def _measure_offsets(self, healthy: list[int]) -> None:
+        """How each healthy tracker's view of the end-effector on the patient differs
+        from the master's, measured at one instant (both trackers' samples taken at the
+        same `t`, between the samples around it): E_i E_master^-1, with E = C RTO^-1 CTO
+        (the TCP in the CTO frame), averaged over `OFFSET_SMOOTHING`. The calibrations'
+        difference, never the patient's or the robot's motion: what a swap must carry
+        (the navigator). Kept when a tracker stops being healthy: its last one stands."""
+        master = self._index[self.config.master]
+        if master not in healthy:
+            return
+        for index in healthy:
+            if index == master:
+                continue
+            pair = (master, index)
+            t = min(min(self._samples[i].newest(), self._references[i].newest()) for i in pair)
+            if not math.isfinite(t) or t <= self._offsets_at.get(index, -math.inf):
+                continue
+            views = []
+            for i in pair:
+                cto, rto = self._samples[i].at(t), self._references[i].at(t)
+                if cto is None or rto is None:
+                    break
+                tools = _matrices(np.array([cto[0], rto[0]]))
+                views.append(self._c[i] @ invert(tools[1]) @ tools[0] @ self._cto_from_ee[i])
+            if len(views) < 2:
+                continue
+            offset = views[1] @ invert(views[0])
+            last = self._offsets.get(index)
+            if last is None:
+                self._offsets[index] = offset
+            else:
+                weight = 1.0 - math.exp(-(t - self._offsets_at[index]) / OFFSET_SMOOTHING)
+                self._offsets[index] = _nlerp(last, offset, weight)
+            self._offsets_at[index] = t
+
+    def offsets(self) -> dict[str, np.ndarray]:
+        """Each tracker's view of the end-effector on the patient against the master's,
+        measured at one instant and averaged (`_measure_offsets`): a swap from tracker a
+        to b carries offsets[b] @ offsets[a]^-1. The master's is the identity."""
+        out = {self.config.master: np.eye(4)}
+        for index, offset in self._offsets.items():
+            out[self.tracks[index].config.name] = offset
+        return out
 
     def _local_poses(self, candidates: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """The CTO in each candidate sensor's reference-tool frame, batched.
@@ -401,9 +520,7 @@ class SensorManagerCore:
             bad = np.isin(candidates, list(failed))
             agreed = np.flatnonzero(camera & ~bad)
             if len(agreed) >= 2:
-                odd = self._check_references(candidates[agreed])
-                self._latch_moved(candidates[agreed], odd)
-                failed.update(odd)
+                failed.update(self._references_agree(candidates[agreed]))
             for index in candidates.tolist():
                 if index in self._moved and index not in failed:
                     failed[index] = self._moved[index]
@@ -452,58 +569,115 @@ class SensorManagerCore:
                 "calibration",
                 f"{math.sqrt(offsets2[k]) * 1e3:.1f} mm, "
                 f"{angle:.2f} deg away from the robot's kinematics",
+                numbers={
+                    "check": "kinematics",
+                    "time": stamps[k],
+                    "measured_mm": _mm(measured[k, :3, 3]),
+                    "predicted_mm": _mm(predicted[k, :3, 3]),
+                    "apart_mm": round(math.sqrt(offsets2[k]) * 1e3, 3),
+                    "tolerance_mm": round(float(self._tol_pos[index]) * 1e3, 3),
+                    "angle_deg": round(angle, 3),
+                },
             )
         return verdicts
 
-    def _latch_moved(self, compared: np.ndarray, odd: dict[int, Health]) -> None:
-        """Keep the verdicts of sensors that stayed the odd one out about the patient for
-        two periods of the slowest sensor compared."""
-        settle = 2.0 * float(self._period[compared].max())
-        for index in compared.tolist():
-            if index not in odd:
-                self._odd_since.pop(index, None)
-            elif self._now - self._odd_since.setdefault(index, self._now) >= settle:
-                self._moved[index] = odd[index]
+    def _references_agree(self, sensors: np.ndarray) -> dict[int, Health]:
+        """The verdicts of the sensors whose view of the patient is the odd one out, from
+        the latest instant all of them were compared at (a new comparison each time the
+        slowest of them has a new sample; between, the last one's verdicts hold). One
+        found odd at two comparisons running (two samples of the slowest tracker) is
+        latched: it stays distrusted, alone or not, until `trust`."""
+        compared = tuple(sensors.tolist())
+        t = min(self._references[i].newest() for i in compared)
+        if (t, compared) != self._compared and math.isfinite(t):
+            odd = self._check_references(sensors, t)
+            if odd is not None:
+                self._compared, self._odd = (t, compared), odd
+                for index in compared:
+                    if index not in odd:
+                        self._odd_checks.pop(index, None)
+                        continue
+                    self._odd_checks[index] = self._odd_checks.get(index, 0) + 1
+                    if self._odd_checks[index] >= 2:
+                        self._moved[index] = odd[index]
+        return {i: h for i, h in self._odd.items() if i in compared}
 
     def trust(self, name: str) -> bool:
         """Trust again a sensor whose reference tool was found moved (its calibration was
         redone); False if it was not distrusted."""
-        self._odd_since.pop(self._index[name], None)
+        self._odd_checks.pop(self._index[name], None)
+        self._odd.pop(self._index[name], None)
         return self._moved.pop(self._index[name], None) is not None
 
     def _rto_matrices(self, sensors: np.ndarray) -> np.ndarray:
         """The latest RTO of these sensors, in their own frames."""
         return _matrices(self._rows[sensors + self._n])
 
-    def _check_references(self, sensors: np.ndarray) -> dict[int, Health]:
+    def _check_references(self, sensors: np.ndarray, t: float) -> dict[int, Health] | None:
         """Sensors calibrated to the robot must also agree about where the patient is:
         their reference tools sit on the same head clamp, so each one's reference tool,
         placed in the robot base by its calibration (S) and mapped into the master's
-        reference frame (C), is the same pose. (Reference tools, not the robot's tool: the
-        head moves slowly, so samples of different stamps still compare.) One that
-        disagrees with the others (of two, the one further from where the calibration
-        found the patient) had its reference tool moved on its mount."""
-        patient = self._s_inv[sensors] @ self._rto_matrices(sensors) @ invert(self._c[sensors])
+        reference frame (C), is the same pose, at the same instant. Each sensor's
+        reference tool is taken at `t` (between its samples around it), so a head that
+        moves is seen alike by all (a fast tracker sees a bump before a slow one's next
+        frame: their newest samples differ by the motion in between). Two agree within
+        the larger of their tolerances, widened by what the interpolation and the stamps
+        may miss of the motion each measured. One that disagrees with most others (of
+        two, the one further from where the calibration found the patient) had its
+        reference tool moved on its mount: its verdict, with the numbers. None when some
+        sensor's samples do not reach `t`."""
+        aligned = [self._references[i].at(t) for i in sensors.tolist()]
+        if any(a is None for a in aligned):
+            return None
+        rto = _matrices(np.array([a[0] for a in aligned]))  # type: ignore[index]
+        patient = self._s_inv[sensors] @ rto @ invert(self._c[sensors])
+        slack = np.array([a[1] + a[2] * STAMP_UNCERTAINTY for a in aligned])  # type: ignore[index]
         master = self._base_from_rto[self._index[self.config.master]]
         moved = np.linalg.norm(patient[:, :3, 3] - master[:3, 3], axis=1)
+        k_all = range(len(sensors))
+        apart = {
+            (k, j): float(np.linalg.norm(patient[k, :3, 3] - patient[j, :3, 3]))
+            for k in k_all
+            for j in k_all
+        }
+        tolerance = {
+            (k, j): max(self._tol_pos[sensors[k]], self._tol_pos[sensors[j]]) + slack[k] + slack[j]
+            for k in k_all
+            for j in k_all
+        }
+
+        def agree(k: int, j: int) -> bool:
+            turn = float(rotation_angle(patient[k, :3, :3].T @ patient[j, :3, :3]))
+            limit = max(self._tol_angle[sensors[k]], self._tol_angle[sensors[j]])
+            return apart[k, j] <= tolerance[k, j] and turn <= limit
+
         suspects = []
-        for k, i in enumerate(sensors):
-            others = [j for j in range(len(sensors)) if j != k]
-            agree = sum(self._close(int(i), patient[k], patient[j]) for j in others)
-            if agree * 2 < len(others):
+        for k in k_all:
+            others = [j for j in k_all if j != k]
+            if sum(agree(k, j) for j in others) * 2 < len(others):
                 suspects.append(k)
         if len(suspects) == len(sensors):  # nobody has a majority: trust the steadiest
             suspects.remove(int(np.argmin(moved)))
         failed = {}
         for k in suspects:
-            others = [j for j in range(len(sensors)) if j != k]
+            others = [j for j in k_all if j != k]
+            nearest = min(others, key=lambda j: apart[k, j])
             names = ", ".join(self.tracks[sensors[j]].config.name for j in others)
-            apart = min(math.dist(patient[k, :3, 3], patient[j, :3, 3]) for j in others)
             failed[int(sensors[k])] = Health(
                 False,
                 "calibration",
-                f"disagrees with {names} by {apart * 1e3:.1f} mm about where the patient is: "
-                "its reference tool moved on the head clamp",
+                f"disagrees with {names} by {apart[k, nearest] * 1e3:.1f} mm about where the "
+                f"patient is (tolerance {tolerance[k, nearest] * 1e3:.1f} mm at "
+                f"{t:.3f} s): its reference tool moved on the head clamp",
+                numbers={
+                    "check": "patient",
+                    "time": t,
+                    "patient_mm": {
+                        self.tracks[sensors[j]].config.name: _mm(patient[j, :3, 3]) for j in k_all
+                    },
+                    "apart_mm": round(apart[k, nearest] * 1e3, 3),
+                    "tolerance_mm": round(tolerance[k, nearest] * 1e3, 3),
+                },
             )
         return failed
 
@@ -514,6 +688,24 @@ class SensorManagerCore:
         return offset <= cfg.tolerance_position and angle <= cfg.tolerance_angle
 
 
+def _nlerp(a: np.ndarray, b: np.ndarray, weight: float) -> np.ndarray:
+    """The pose `weight` of the way from `a` to `b`: linear in position, normalised
+    linear in the quaternion (the offsets it averages differ by fractions of a degree)."""
+    qa, qb = np.array(matrix_to_quat(a[:3, :3])), np.array(matrix_to_quat(b[:3, :3]))
+    if float(qa @ qb) < 0.0:
+        qb = -qb
+    q = qa + weight * (qb - qa)
+    out = np.eye(4)
+    out[:3, :3] = quat_to_matrix(q / np.linalg.norm(q))
+    out[:3, 3] = a[:3, 3] + weight * (b[:3, 3] - a[:3, 3])
+    return out
+
+
+def _mm(position: np.ndarray) -> list[float]:
+    """A position (m) as millimetres for a report."""
+    return [round(float(v) * 1e3, 3) for v in position]
+
+
 def _matrices(vectors: np.ndarray) -> np.ndarray:
     """Poses (x y z qw qx qy qz per row) as 4x4 matrices."""
     out = np.zeros((len(vectors), 4, 4))
@@ -521,6 +713,11 @@ def _matrices(vectors: np.ndarray) -> np.ndarray:
     out[:, :3, 3] = vectors[:, :3]
     out[:, 3, 3] = 1.0
     return out
+
+
+def _numbers(health: Health) -> dict[str, Any]:
+    """A verdict's numbers for a message (none when it has none)."""
+    return {"numbers": health.numbers} if health.numbers else {}
 
 
 TOOLS = ("cto", "rto")
@@ -630,9 +827,11 @@ class SensorManager(Component):
             "limits": best.limits if best else {},
             "calibration": best.master_from_sensor.tolist() if best else None,
             "health": {
-                n: {"ok": h.ok, "cause": h.cause, "detail": h.detail}
+                n: {"ok": h.ok, "cause": h.cause, "detail": h.detail, **_numbers(h)}
                 for n, h in decision.health.items()
             },
+            # same-instant differences of the trackers' views (what a swap carries)
+            "offsets": {n: pose_list(p) for n, p in self.core.offsets().items()},
         }
 
     @operation

@@ -83,7 +83,10 @@ def test_critical_area_slows_and_safe_area_speeds_up(seeg):
     assert task(r) == "Moving_Fast" and configured(r)[-1] == "move_fast"
 
 
-FAULT = ("e_TFAULT", {"tracker": "vicra", "failed": "certus", "fault": "MISSING"})
+FAULT = (
+    "e_TFAULT",
+    {"tracker": "vicra", "failed": "certus", "fault": "MISSING", "detail": "", "numbers": {}},
+)
 
 
 def test_a_tracker_fault_swaps_to_the_named_best_and_resumes_at_the_right_speed(seeg):

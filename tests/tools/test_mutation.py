@@ -130,7 +130,7 @@ def test_a_variable_is_swapped_only_for_another_of_its_type(tmp_path, monkeypatc
 def test_min_max_none_checks_and_moved_lines(tmp_path, monkeypatch):
     source = """def f(x, items):
     low = min(items)
-    high = items.max()
+    high = low + items.max()
     if x is not None and low:
         return high
     return None
@@ -138,11 +138,11 @@ def test_min_max_none_checks_and_moved_lines(tmp_path, monkeypatch):
     mutants = make(tmp_path, monkeypatch, source)
     made = {(m.short, m.line, m.after) for m in mutants}
     assert ("SwapMinMax", 2, "low = max(items)") in made
-    assert ("SwapMinMax", 3, "high = items.min()") in made
+    assert ("SwapMinMax", 3, "high = low + items.min()") in made
     assert ("DropNoneCheck", 4, "if x and low:") in made
-    assert ("MoveLine", 2, "high = items.max()") in made  # the next line moved above it
+    assert ("MoveLine", 2, "high = low + items.max()") in made  # moved above what it reads
     moved = next(m for m in mutants if m.short == "MoveLine" and m.line == 2)
-    assert moved.code.splitlines()[1:3] == ["    high = items.max()", "    low = min(items)"]
+    assert moved.code.splitlines()[1:3] == ["    high = low + items.max()", "    low = min(items)"]
 
 
 def test_every_listed_equivalent_names_its_module_its_mutants_and_a_reason():
@@ -163,15 +163,17 @@ def test_two_assignments_that_cannot_affect_each_other_are_not_swapped(tmp_path,
     """A move that is equivalent by construction is not made (it would only cost a full
     test run and a line in the equivalents list): two assignments, neither touching
     what the other writes, with nothing but pure constructors on the right."""
-    source = '''class C:
+    source = """class C:
     def reset(self, n):
         self.a = deque(maxlen=2)
         self.b = False
         self.c = self.b
         self.d = n + 1
         self.e = compute()
-'''
-    moves = [(m.line, m.after) for m in make(tmp_path, monkeypatch, source) if m.short == "MoveLine"]
+"""
+    moves = [
+        (m.line, m.after) for m in make(tmp_path, monkeypatch, source) if m.short == "MoveLine"
+    ]
     assert (3, "self.b = False") not in moves, "independent: equivalent by construction"
     assert (4, "self.c = self.b") in moves, "c reads b"
     assert (5, "self.d = n + 1") not in moves

@@ -10,11 +10,10 @@ import json
 import numpy as np
 import pytest
 
-from components.domain.geometry import quat_to_matrix
+from components.domain.geometry import pose_list, quat_to_matrix
 from components.domain.lwr4 import HOME
 from components.domain.procedure import pose_from
 from components.robot.interpolator import CartesianInterpolator
-from components.robot.navigation import pose_list
 from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
 from framework.container import Container

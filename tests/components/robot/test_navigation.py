@@ -14,12 +14,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from components.domain.geometry import invert, pose_matrix, rigid
+from components.domain.geometry import invert, pose_from_list, pose_matrix, rigid
 from components.domain.lwr4 import HOME, Kinematics
 from components.domain.procedure import pose_from
 from components.domain.rigs import sensors_config, standard_rigs
 from components.robot.interpolator import InterpolatorCore, Phase
-from components.robot.navigation import Navigator, NavigatorCore, frames_of, pose_from_list
+from components.robot.navigation import Navigator, NavigatorCore, frames_of
 from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
 from framework.container import Container
@@ -281,6 +281,50 @@ def test_after_a_swap_the_new_tracker_follows_the_head_from_its_first_sample():
     loop.run(3.0, rig=off)  # swapped at 8 s, the head moved 3 mm at 9 s
     faded = 0.002 * (1 - np.exp(-3.0 / loop.nav.swap_settle))  # the Vicra's own view, so far
     assert abs(loop.error() - faded) < 1e-4  # the head's 3 mm followed in full
+
+
+def same_instant_offsets(loop, rigs):
+    """What the Sensor Manager measures (`offsets`): each tracker's view of the
+    end-effector on the patient against the Certus's, both seen at one instant."""
+    views = {}
+    for rig in rigs:
+        quiet = dataclasses.replace(rig, noise=0.0)
+        cto, rto = quiet.observe(loop.real_tcp(), loop.rng, loop.t, base_from_rto=BASE_FROM_RTO)
+        frames = TRACKERS[rig.name]
+        views[rig.name] = (
+            frames.master_from_sensor @ invert(pose_matrix(rto)) @ pose_matrix(cto)
+        ) @ frames.cto_from_ee
+    return {name: view @ invert(views["certus"]) for name, view in views.items()}
+
+
+@pytest.mark.parametrize("measured", [True, False], ids=["offsets measured", "none measured"])
+def test_a_swap_during_a_head_bump_carries_only_the_trackers_difference(measured):
+    """The Certus steers, the head is bumped 5 mm (50 ms ramp) and the swap to a Vicra
+    calibrated 2 mm apart comes 20 ms into it, before the Certus's view settled. With
+    the Sensor Manager's same-instant offset, the carry is the 2 mm of calibration
+    alone (fading over swap_settle): 1 s later the tool is within 0.5 mm of the target
+    and the bump is followed in full. Without it, the carry takes the view as it was
+    and carries part of the bump with it, for seconds."""
+    off = dataclasses.replace(
+        VICRA, ee_from_cto=VICRA.ee_from_cto @ rigid((0.002, 0, 0), (0, 0, 0))
+    )
+    bump_at = 9.0
+
+    def head(t):
+        u = min(max(t - bump_at, 0.0) / 0.05, 1.0)
+        return np.array([0.0, 0.005 * (0.5 - 0.5 * np.cos(np.pi * u)), 0.0])
+
+    loop = Loop(head=head).go().run(bump_at + 0.02)
+    loop.core.set_limits(0.01)
+    if measured:
+        loop.nav.tracker_offsets(same_instant_offsets(loop, [CERTUS, off]))
+    loop.run(1.0, rig=off)
+    settled = 0.002 * (1 - np.exp(-1.0 / loop.nav.swap_settle))  # the Vicra's own view so far
+    if measured:
+        assert loop.error() < 5e-4
+        assert abs(loop.error() - settled) < 1e-4, "the bump followed in full"
+    else:
+        assert abs(loop.error() - settled) > 1e-3, "part of the bump carried"
 
 
 @pytest.mark.parametrize(

@@ -10,6 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from components.domain.geometry import pose_matrix
+from components.robot.navigation import Navigator
 from components.sim.patient import Bump, HeadMotion, PatientHead
 from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
@@ -111,3 +113,36 @@ def test_a_motion_that_is_not_numbers_is_refused(head, operation, arguments, mes
     with pytest.raises(FwError, match=message):
         component.call(operation, **arguments)
     assert component.call("report")["offset_mm"] == [0.0, 0.0, 0.0]
+
+
+def test_the_referee_scores_against_the_target_defined_last(hub):
+    """After e_DEFINE_TARGET (the navigator's define_target), the referee measures the
+    real TCP against the new target on the moving head, as the navigator's goals say it
+    was defined, not against the procedure file's."""
+    container = Container("c", hub, SteppedExecutor(clock := SimulatedClock()))
+    head = container.add(PatientHead("head"), Activity())
+    navigator = container.add(Navigator("navigator"), Activity())
+    head.set_property("procedure_file", str(REPO / "procedures" / "seeg.yaml"))
+    navigator.set_property("procedure_file", str(REPO / "procedures" / "seeg.yaml"))
+    navigator.set_property("sensors_file", str(REPO / "procedures" / "seeg" / "sensors.yaml"))
+    tcp = writer_port(hub, "test/tcp", Pose)
+    container.connect("head", "tcp", "test/tcp")
+    container.connect("head", "goals", "navigator/goals")
+    try:
+        assert head.configure() and head.start() and navigator.configure() and navigator.start()
+        navigator.call("define_target", x=0.01, y=0.02, z=0.03, roll=0, pitch=180, yaw=0)
+        navigator.update_hook()  # publishes its goals
+        new_target = head.base_from_rto() @ pose_matrix(
+            Pose((0.01, 0.02, 0.03), (1.0, 0.0, 0.0, 0.0))
+        )
+        tcp.write(Pose(tuple(new_target[:3, 3]), (1.0, 0.0, 0.0, 0.0), 0.0, 0.0, 1, True))
+        assert head.call("report")["target_error_mm"] == pytest.approx(0.0, abs=1e-3)
+        head.call("bump", dy=4.0, duration_ms=0.0)
+        clock.advance(0.01)
+        assert head.call("report")["target_error_mm"] == pytest.approx(4.0, abs=1e-3)
+        navigator.call("define_target", x=0.5, y=0.0, z=0.3, roll=0, pitch=180, yaw=0, frame="base")
+        navigator.update_hook()
+        tcp.write(Pose((0.5, 0.0, 0.33), (1.0, 0.0, 0.0, 0.0), 0.0, 0.0, 1, True))
+        assert head.call("report")["target_error_mm"] == pytest.approx(30.0, abs=1e-3)
+    finally:
+        container.shutdown()

@@ -68,7 +68,16 @@ def test_losing_the_tracker_in_use_is_a_fault_and_losing_all_is_no_tracker():
     steer(c, "certus")
     sick = {"certus": {"ok": False, "cause": "cto_missing"}, "vicra": {"ok": True}}
     assert c.tracking("vicra", sick) == [
-        ("e_TFAULT", {"tracker": "vicra", "failed": "certus", "fault": "cto_missing"})
+        (
+            "e_TFAULT",
+            {
+                "tracker": "vicra",
+                "failed": "certus",
+                "fault": "cto_missing",
+                "detail": "",
+                "numbers": {},
+            },
+        )
     ]
     assert c.tracking("vicra", sick) == [], "reported once; the chart reselects"
     assert c.report_best_tracker() == ("e_TOK", {"tracker": "vicra"})
@@ -92,7 +101,16 @@ def test_a_tracker_failing_right_after_the_swap_to_it_is_reported_at_once():
     assert names(c.tracking("certus", HEALTHY)) == ["e_TFAULT"]  # back to the Certus...
     events = c.tracking("vicra", sick)  # ...which fails before its first sample steers
     assert events == [
-        ("e_TFAULT", {"tracker": "vicra", "failed": "certus", "fault": "cto_missing"})
+        (
+            "e_TFAULT",
+            {
+                "tracker": "vicra",
+                "failed": "certus",
+                "fault": "cto_missing",
+                "detail": "",
+                "numbers": {},
+            },
+        )
     ]
     assert c.limits("fast")["velocity"] == PROCEDURE.slowest, "no tracker steers yet"
     steer(c, "vicra")
