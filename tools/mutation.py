@@ -265,9 +265,13 @@ for line in sys.stdin:
         except BaseException:
             code = 99
         os._exit(int(code))
-    end = time.monotonic() + timeout
+    end = last = time.monotonic()
+    end += timeout
     outcome = "timeout"
-    while time.monotonic() < end:
+    while (now := time.monotonic()) < end:
+        if now - last > 1.0:  # the run was paused (SIGSTOP): the pause is no test time
+            end += now - last
+        last = now
         done, status = os.waitpid(pid, os.WNOHANG)
         if done:
             outcome = "passed" if os.waitstatus_to_exitcode(status) == 0 else "failed"
@@ -281,7 +285,9 @@ for line in sys.stdin:
         os.waitpid(pid, 0)
     print(outcome, flush=True)
 """
-"""The test server of a workspace (see `Workspace.pytest`)."""
+"""The test server of a workspace (see `Workspace.pytest`). A run paused with SIGSTOP
+(to measure something else on a quiet host) and continued is not a timeout: time
+the server did not run is not counted."""
 
 
 class Workspace:
