@@ -38,7 +38,10 @@ experiments:
   motion      swaps during the approach (Fig. 4.2)
   braking     STOP on the MuJoCo arm at 1-10 cm/s (Fig. 4.6-4.8)
   navigation  the real arm's error on targets on the patient (joints alone, Certus,
-              Vicra), a 5 mm head bump, a swap during motion at 7.5 and 10 cm/s
+              Vicra), a 5 mm head bump, a swap during motion at 7.5 and 10 cm/s;
+              with it, bumps: 5 mm head bumps on the deployed system, each tracker
+              steering (--quick: 4 each; else 60), false faults and swaps, and a
+              real reference-tool slip's detection
   statechart  transition latency vs depth, beside sismic (Fig. 3.8)
   people      Tables 4.1/4.2, Kinect calibration (Fig. 4.4)
   scale       2-16 trackers, 2-8 cameras x 16 people
@@ -80,6 +83,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return 2
     if "zenoh" not in names:
         names.insert(0, "zenoh")  # every run carries its own baseline
+    if "navigation" in names and "bumps" not in names:
+        names.append("bumps")  # navigation's head bumps on the deployed system
     # the deployment's experiments first; it is shut down before the compute-only
     # ones, so its load does not disturb them
     names.sort(key=lambda n: (n != "zenoh", n not in ON_DEPLOYMENT, n != "cost"))

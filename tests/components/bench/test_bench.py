@@ -16,6 +16,10 @@ def test_quick_bench_runs_every_experiment_and_writes_report_summary_and_figures
     assert rows[("collision", "L p50")]["thesis"] == 1.1
     assert rows[("ssm", "detection -> stop command p50")]["n"] == 3, "protective stops"
     assert rows[("zenoh", "hop p50")]["fw"] > 0
+    # head bumps on the deployed system: never a calibration fault or a swap
+    assert rows[("navigation", "deployed bumps: calibration faults said")]["fw"] == 0
+    assert rows[("navigation", "deployed bumps: tracker swaps")]["fw"] == 0
+    assert rows[("navigation", "deployed bumps: tracker swaps")]["n"] == 8
     # what it costs: every process's cores, braked and moving, and the arm loop's pace
     for what in ("braked, waiting", "moving"):
         processes = [q for e, q in rows if e == "cost" and q.startswith(f"{what}: ")]

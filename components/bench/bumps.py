@@ -1,0 +1,194 @@
+"""Head bumps on the deployed SEEG system (issue 42): bus, trackers, Sensor Manager,
+Supervisor, navigator and the MuJoCo arm as `fw deploy` runs them, not the simulated
+clock of `navigation.head_bump`.
+
+The robot holds at the target, steered by one tracker (the Certus; for the Vicra, the
+Certus's robot tool is occluded first). The head is bumped by 5 mm along a cosine
+ramp of 50 ms, in one of 26 directions (the faces, edges and corners of a cube) in
+turn, and bumped back 1.5 s later (each is a bump: the head stays within the
+navigator's 10 mm of where it was registered, and two bumps are never within the
+second over which the patient's speed is measured). For each bump:
+
+* the error before: the median over 0.5 s of the real TCP's distance to the target on
+  the head (`patient.report`, the referee), sampled at 50 Hz;
+* `back_s`: the time from the bump's start until the error is within 0.5 mm of that
+  and stays there for 0.2 s (None: never, within the 1.5 s window);
+* `worst_after_1s_mm`: the largest error from 1 s after the bump's start to the end of
+  its window (the target: no more than the error before + 0.5 mm);
+* `faults`: every calibration verdict the Sensor Manager said in the window, with its
+  numbers, and `swaps`: every e_TFAULT the chart took. A bump must cause neither.
+
+At the end, a real calibration fault: the Certus's reference tool slips 6 mm on its
+mount (`certus.bump_reference`), and `detected_s` is the time until the Sensor
+Manager says so; then it is slipped back and trusted again.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import statistics
+import time
+from typing import Any
+
+from components.bench.seeg_run import SeegRun
+
+BUMP_MM = 5.0
+RAMP_MS = 50.0
+WINDOW = 1.5  # s after each bump before the next (the patient's speed is over 1 s)
+SAMPLE = 0.02  # s between referee samples
+DIRECTIONS = [
+    tuple(v / math.sqrt(sum(c * c for c in (x, y, z))) for v in (x, y, z))
+    for x, y, z in itertools.product((-1, 0, 1), repeat=3)
+    if (x, y, z) != (0, 0, 0)
+]
+"""The 26 unit directions to a cube's faces, edges and corners."""
+
+
+def _error(run: SeegRun) -> float | None:
+    value = run.call("patient.report").get("target_error_mm")
+    return None if value is None else float(value)
+
+
+def _errors(run: SeegRun, seconds: float) -> list[tuple[float, float | None]]:
+    """(time since the start, the referee's error in mm) every `SAMPLE` for `seconds`."""
+    start = time.monotonic()
+    out = []
+    while (elapsed := time.monotonic() - start) < seconds:
+        out.append((elapsed, _error(run)))
+        time.sleep(max(0.0, SAMPLE - (time.monotonic() - start - elapsed)))
+    return out
+
+
+def _settle(run: SeegRun, tracker: str, timeout: float = 30.0) -> None:
+    """Hold at the target with `tracker` steering."""
+    if tracker == "vicra":
+        run.call("certus.occlude", tool="cto")
+    deadline = time.monotonic() + timeout
+    while run.call("supervisor.report").get("steering") != tracker:
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"{tracker} does not steer after {timeout:g} s")
+        time.sleep(0.1)
+    time.sleep(3.0)  # the swap's carry and the filter settle
+
+
+def _faults(run: SeegRun, since: float, until: float) -> list[dict[str, Any]]:
+    """Calibration verdicts the Sensor Manager said between `since` and `until`."""
+    out = []
+    for sample in run.since(since, "sensor_manager/status"):
+        if sample.received > until:
+            break
+        for name, health in sample.message.payload.get("health", {}).items():
+            if isinstance(health, dict) and health.get("cause") == "calibration":
+                out.append({"tracker": name, "detail": health.get("detail"), **health})
+    return out
+
+
+def bump_once(run: SeegRun, offset_mm: tuple[float, float, float]) -> dict[str, Any]:
+    """One bump and what it did (module docstring)."""
+    before = [e for _, e in _errors(run, 0.5) if e is not None]
+    base = statistics.median(before) if before else math.nan
+    started = time.time()
+    dx, dy, dz = offset_mm
+    run.call("patient.bump", dx=dx, dy=dy, dz=dz, duration_ms=RAMP_MS)
+    trace = _errors(run, WINDOW)
+    ended = time.time()
+    back = None
+    for k, (t, e) in enumerate(trace):
+        hold = [x for s, x in trace[k:] if s - t <= 0.2]
+        if e is not None and all(x is not None and x <= base + 0.5 for x in hold):
+            back = t
+            break
+    late = [e for t, e in trace if t >= 1.0 and e is not None]
+    return {
+        "offset_mm": [round(v, 3) for v in offset_mm],
+        "before_mm": round(base, 3),
+        "back_s": None if back is None else round(back, 3),
+        "worst_after_1s_mm": round(max(late), 3) if late else None,
+        "faults": _faults(run, started, ended),
+        "swaps": run.taken_after("e_TFAULT", started) is not None
+        and run.taken_after("e_TFAULT", started) <= ended,
+        "state": run.task_state(),
+    }
+
+
+def bumps(run: SeegRun, tracker: str, count: int, progress: Any = None) -> list[dict[str, Any]]:
+    """`count` bumps (out and back in turn) with `tracker` steering at the target."""
+    _settle(run, tracker)
+    out: list[dict[str, Any]] = []
+    for k in range(count):
+        direction = DIRECTIONS[(k // 2) % len(DIRECTIONS)]
+        sign = 1.0 if k % 2 == 0 else -1.0  # out, then back
+        result = bump_once(run, tuple(sign * BUMP_MM * v for v in direction))  # type: ignore[arg-type]
+        result["tracker"] = tracker
+        out.append(result)
+        if progress:
+            progress(k + 1, count)
+        if result["state"] != "Target_Reached":
+            break  # the procedure stopped: what the bench reports
+    return out
+
+
+def real_fault(run: SeegRun, slip_m: float = 0.006) -> dict[str, Any]:
+    """The Certus's reference tool slips `slip_m` on its mount (the head stays): how long
+    until the Sensor Manager says the Certus's calibration is wrong. The slip is undone
+    and the Certus trusted again afterwards."""
+    run.call("certus.occlude", tool="cto", hidden=False)
+    _settle(run, "certus")
+    started = time.time()
+    run.call("certus.bump_reference", dx=slip_m)
+    detected, detail = None, ""
+    deadline = time.monotonic() + 5.0
+    while detected is None and time.monotonic() < deadline:
+        for sample in run.since(started, "sensor_manager/status"):
+            health = sample.message.payload.get("health", {}).get("certus", {})
+            if isinstance(health, dict) and health.get("cause") == "calibration":
+                detected, detail = sample.received, str(health.get("detail"))
+                break
+        time.sleep(0.01)
+    time.sleep(0.5)
+    latched = not run.call("sensor_manager.current")["health"]["certus"]["ok"]
+    run.call("certus.bump_reference", dx=-slip_m)
+    time.sleep(0.5)
+    if latched:
+        run.call("sensor_manager.trust", sensor="certus")
+    return {
+        "slip_mm": slip_m * 1e3,
+        "detected_s": None if detected is None else round(detected - started, 4),
+        "detail": detail,
+        "latched": latched,
+    }
+
+
+def hold_at_target(run: SeegRun, timeout: float = 120.0) -> None:
+    """Bring the deployment (in whatever state other experiments left it) to holding
+    at the target: START, RELEASE or Go To as the chart needs."""
+    deadline = time.monotonic() + timeout
+    while True:
+        state = run.task_state()
+        goal = run.call("interpolator.report").get("goal")
+        if state == "Target_Reached" and goal == "target":
+            return
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"not holding at the target after {timeout:g} s ({state})")
+        if state == "Wait_Start":
+            run.send("e_START")
+        elif state == "Target_Reached":
+            run.send("e_GOTO", {"where": "target"})
+        elif state in ("Stopped", "No_Tracker"):
+            run.send("e_RELEASE")
+        time.sleep(0.5)
+
+
+def deployed(run: SeegRun, count: int, progress: Any = None) -> dict[str, Any]:
+    """`count` bumps with each tracker steering, then a real calibration fault; the
+    Certus is seen again at the end, as it was."""
+    hold_at_target(run)
+    results = {}
+    try:
+        for tracker in ("certus", "vicra"):
+            results[tracker] = bumps(run, tracker, count, progress)
+        fault = real_fault(run)
+    finally:
+        run.call("certus.occlude", tool="cto", hidden=False)
+    return {"bumps": results, "real_fault": fault}
