@@ -15,6 +15,14 @@ from scipy.linalg import lapack
 
 from components.domain.lwr4 import HOME, Kinematics
 
+try:  # the compiled kernel (components/domain/_fwkernel.c), built by `pip install`
+    from components.domain import _fwkernel
+except ImportError:  # no C compiler where fw was installed: the numpy reference
+    _fwkernel = None
+
+COMPILED = _fwkernel is not None
+"""True when the IK step runs in the compiled kernel (else in numpy, ~5x slower)."""
+
 
 class DifferentialIK:
     """Maps a desired TCP pose to the next joint setpoint, one control cycle at a time."""
@@ -45,7 +53,29 @@ class DifferentialIK:
         return np.concatenate([target[:3, 3] - pose[:3, 3], rotation])
 
     def step(self, q: np.ndarray, target: np.ndarray) -> np.ndarray:
-        """Joints one cycle closer to putting the TCP at `target` (4x4, base frame)."""
+        """Joints one cycle closer to putting the TCP at `target` (4x4, base frame): in
+        the compiled kernel where it was built (the same formulas as `step_reference`,
+        which a spec holds it to), else in numpy."""
+        if _fwkernel is None:
+            return self.step_reference(q, target)
+        out = np.empty(7)
+        solved = _fwkernel.ik_step(
+            self.kin.placements,
+            self.kin.tool,
+            np.ascontiguousarray(q, dtype=float),
+            np.ascontiguousarray(target, dtype=float),
+            self.rest,
+            self.lower,
+            self.upper,
+            self.max_step,
+            out,
+            self.damping2,
+            self.rest_gain * self.dt,
+        )
+        return out if solved else self.step_reference(q, target)
+
+    def step_reference(self, q: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """`step` in numpy: the reference of the compiled kernel, and its fallback."""
         pose, jac = self.kin.jacobian(q)
         err = np.concatenate(
             [target[:3, 3] - pose[:3, 3], pin.log3(target[:3, :3] @ pose[:3, :3].T)]

@@ -258,6 +258,12 @@ class Kinematics:
         self.lower = np.array([-v for v in POSITION_LIMIT])
         self.upper = np.array(POSITION_LIMIT)
         self.velocity_limit = np.array(VELOCITY_LIMIT)
+        self.placements = np.ascontiguousarray(
+            [model.jointPlacements[j].homogeneous for j in range(1, 8)], dtype=float
+        )
+        """Each joint's frame in its parent's (7 x 4 x 4), for the compiled kernel."""
+        self.tool = np.ascontiguousarray(model.frames[self.tcp_frame].placement.homogeneous)
+        """The TCP in the last joint's frame (4 x 4)."""
 
     def tcp(self, q: np.ndarray) -> np.ndarray:
         """Base to TCP (4x4) for joints q."""

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from components.domain.distance import capsule_distances
+from components.domain.distance import least_capsule_distance
 
 
 @dataclass(frozen=True)
@@ -187,7 +187,7 @@ class SeparationMonitor:
         speed = self.robot_speed(a, b, now)
         if people is None or len(people[0]) == 0:
             return Verdict(math.inf, speed, 0.0, math.inf, False, self.tcp_speed)
-        separation = float(np.min(capsule_distances(a, b, radius, *people)))
+        separation = least_capsule_distance(a, b, radius, *people)
         p = self.params
         protective = p.protective_distance(speed, age)
         standing = p.protective_distance(0.0, age)

@@ -1,0 +1,541 @@
+/* fw's compiled kernel: the numerics of the robot's 1 kHz cycle.
+ *
+ * Python spends a microsecond or more per numpy call on 7-element arrays, and one
+ * cycle of the robot's loop made ~60 of them (the differential IK, the capsule
+ * distances). This kernel does the same arithmetic in one call each, on float64
+ * buffers (numpy arrays, C-contiguous), with the same formulas as the Python it
+ * replaces (components/domain/ik.py, components/domain/distance.py), which stay as
+ * the reference the specs compare it with and as the fallback where no C compiler
+ * built it. It holds no state and allocates nothing per call.
+ *
+ * The chain: 7 revolute joints about their local z, joint i's frame placed by the
+ * 4x4 `placements[i]` in its parent's (after the parent's rotation), the TCP by
+ * `tool` in joint 7's frame: T_i = T_{i-1} P_i Rz(q_i), TCP = T_7 F.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <string.h>
+
+#define N 7
+
+typedef struct {
+    double r[9]; /* row-major rotation */
+    double p[3];
+} frame;
+
+static int get_buffer(PyObject *obj, Py_buffer *view, Py_ssize_t count, int writable, const char *name)
+{
+    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, view, flags) < 0)
+        return -1;
+    if (view->itemsize != 8 || (view->format && strcmp(view->format, "d") != 0) ||
+        view->len != count * 8) {
+        PyErr_Format(PyExc_ValueError, "%s: expected %zd float64 values in a C-contiguous array",
+                     name, count);
+        PyBuffer_Release(view);
+        return -1;
+    }
+    return 0;
+}
+
+static void frame_from4x4(const double *m, frame *f)
+{
+    for (int i = 0; i < 3; i++) {
+        for (int j = 0; j < 3; j++)
+            f->r[3 * i + j] = m[4 * i + j];
+        f->p[i] = m[4 * i + 3];
+    }
+}
+
+static void compose(const frame *a, const frame *b, frame *out)
+{
+    frame o;
+    for (int i = 0; i < 3; i++) {
+        for (int j = 0; j < 3; j++)
+            o.r[3 * i + j] = a->r[3 * i] * b->r[j] + a->r[3 * i + 1] * b->r[3 + j] +
+                             a->r[3 * i + 2] * b->r[6 + j];
+        o.p[i] = a->r[3 * i] * b->p[0] + a->r[3 * i + 1] * b->p[1] + a->r[3 * i + 2] * b->p[2] +
+                 a->p[i];
+    }
+    *out = o;
+}
+
+static void rotate_z(frame *f, double q)
+{
+    /* f <- f Rz(q): columns 0 and 1 mix */
+    double c = cos(q), s = sin(q);
+    for (int i = 0; i < 3; i++) {
+        double x = f->r[3 * i], y = f->r[3 * i + 1];
+        f->r[3 * i] = c * x + s * y;
+        f->r[3 * i + 1] = -s * x + c * y;
+    }
+}
+
+/* forward kinematics: the joint frames (after their rotation) and the TCP */
+static void chain(const double *placements, const double *tool, const double *q, frame joints[N],
+                  frame *tcp)
+{
+    frame t = {{1, 0, 0, 0, 1, 0, 0, 0, 1}, {0, 0, 0}};
+    for (int i = 0; i < N; i++) {
+        frame p;
+        frame_from4x4(placements + 16 * i, &p);
+        compose(&t, &p, &t);
+        rotate_z(&t, q[i]);
+        joints[i] = t;
+    }
+    frame f;
+    frame_from4x4(tool, &f);
+    compose(&t, &f, tcp);
+}
+
+/* 6x7 Jacobian at the TCP, base-aligned: rows vx vy vz wx wy wz */
+static void jacobian(const frame joints[N], const frame *tcp, double jac[6 * N])
+{
+    for (int i = 0; i < N; i++) {
+        const double *r = joints[i].r;
+        double z[3] = {r[2], r[5], r[8]};
+        double d[3] = {tcp->p[0] - joints[i].p[0], tcp->p[1] - joints[i].p[1],
+                       tcp->p[2] - joints[i].p[2]};
+        jac[0 * N + i] = z[1] * d[2] - z[2] * d[1];
+        jac[1 * N + i] = z[2] * d[0] - z[0] * d[2];
+        jac[2 * N + i] = z[0] * d[1] - z[1] * d[0];
+        jac[3 * N + i] = z[0];
+        jac[4 * N + i] = z[1];
+        jac[5 * N + i] = z[2];
+    }
+}
+
+/* the rotation vector of a rotation matrix (as pinocchio's log3) */
+static void log3(const double *r, double w[3])
+{
+    double tr = r[0] + r[4] + r[8];
+    double cosine = (tr - 1.0) / 2.0;
+    if (cosine > 1.0)
+        cosine = 1.0;
+    if (cosine < -1.0)
+        cosine = -1.0;
+    double angle = acos(cosine);
+    double v[3] = {r[7] - r[5], r[2] - r[6], r[3] - r[1]};
+    if (angle < 1e-6) { /* first order: R - R^T = 2 [w]x */
+        w[0] = 0.5 * v[0];
+        w[1] = 0.5 * v[1];
+        w[2] = 0.5 * v[2];
+        return;
+    }
+    if (M_PI - angle > 1e-4) {
+        double k = angle / (2.0 * sin(angle));
+        w[0] = k * v[0];
+        w[1] = k * v[1];
+        w[2] = k * v[2];
+        return;
+    }
+    /* near pi: the axis from the diagonal (R = 2 n n^T - I), its sign from v */
+    double n[3];
+    for (int i = 0; i < 3; i++) {
+        double x = (r[4 * i] + 1.0) / 2.0;
+        n[i] = x > 0.0 ? sqrt(x) : 0.0;
+    }
+    if (n[0] >= n[1] && n[0] >= n[2]) {
+        n[1] = copysign(n[1], r[1] + r[3]);
+        n[2] = copysign(n[2], r[2] + r[6]);
+        if (v[0] < 0) { n[0] = -n[0]; n[1] = -n[1]; n[2] = -n[2]; }
+    } else if (n[1] >= n[2]) {
+        n[0] = copysign(n[0], r[1] + r[3]);
+        n[2] = copysign(n[2], r[5] + r[7]);
+        if (v[1] < 0) { n[0] = -n[0]; n[1] = -n[1]; n[2] = -n[2]; }
+    } else {
+        n[0] = copysign(n[0], r[2] + r[6]);
+        n[1] = copysign(n[1], r[5] + r[7]);
+        if (v[2] < 0) { n[0] = -n[0]; n[1] = -n[1]; n[2] = -n[2]; }
+    }
+    double norm = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    for (int i = 0; i < 3; i++)
+        w[i] = angle * n[i] / (norm > 0 ? norm : 1.0);
+}
+
+/* solve the 6x6 symmetric positive definite system a x = b (Cholesky); 0 on success */
+static int cholesky_solve(double a[36], double b[6])
+{
+    for (int j = 0; j < 6; j++) {
+        double d = a[6 * j + j];
+        for (int k = 0; k < j; k++)
+            d -= a[6 * j + k] * a[6 * j + k];
+        if (!(d > 0.0))
+            return -1;
+        d = sqrt(d);
+        a[6 * j + j] = d;
+        for (int i = j + 1; i < 6; i++) {
+            double s = a[6 * i + j];
+            for (int k = 0; k < j; k++)
+                s -= a[6 * i + k] * a[6 * j + k];
+            a[6 * i + j] = s / d;
+        }
+    }
+    for (int i = 0; i < 6; i++) { /* L y = b */
+        double s = b[i];
+        for (int k = 0; k < i; k++)
+            s -= a[6 * i + k] * b[k];
+        b[i] = s / a[6 * i + i];
+    }
+    for (int i = 5; i >= 0; i--) { /* L^T x = y */
+        double s = b[i];
+        for (int k = i + 1; k < 6; k++)
+            s -= a[6 * k + i] * b[k];
+        b[i] = s / a[6 * i + i];
+    }
+    return 0;
+}
+
+static void frame_to4x4(const frame *f, double *m)
+{
+    for (int i = 0; i < 3; i++) {
+        for (int j = 0; j < 3; j++)
+            m[4 * i + j] = f->r[3 * i + j];
+        m[4 * i + 3] = f->p[i];
+    }
+    m[12] = m[13] = m[14] = 0.0;
+    m[15] = 1.0;
+}
+
+/* fk(placements[7*16], tool[16], q[7], out[16]): the TCP pose */
+static PyObject *py_fk(PyObject *self, PyObject *args)
+{
+    PyObject *po, *to, *qo, *oo;
+    if (!PyArg_ParseTuple(args, "OOOO", &po, &to, &qo, &oo))
+        return NULL;
+    Py_buffer pb, tb, qb, ob;
+    if (get_buffer(po, &pb, N * 16, 0, "placements") < 0)
+        return NULL;
+    if (get_buffer(to, &tb, 16, 0, "tool") < 0) goto fail_p;
+    if (get_buffer(qo, &qb, N, 0, "q") < 0) goto fail_t;
+    if (get_buffer(oo, &ob, 16, 1, "out") < 0) goto fail_q;
+    frame joints[N], tcp;
+    chain(pb.buf, tb.buf, qb.buf, joints, &tcp);
+    frame_to4x4(&tcp, ob.buf);
+    PyBuffer_Release(&ob);
+    PyBuffer_Release(&qb);
+    PyBuffer_Release(&tb);
+    PyBuffer_Release(&pb);
+    Py_RETURN_NONE;
+fail_q:
+    PyBuffer_Release(&qb);
+fail_t:
+    PyBuffer_Release(&tb);
+fail_p:
+    PyBuffer_Release(&pb);
+    return NULL;
+}
+
+/* jacobian(placements, tool, q, pose_out[16], jac_out[42]) */
+static PyObject *py_jacobian(PyObject *self, PyObject *args)
+{
+    PyObject *po, *to, *qo, *oo, *jo;
+    if (!PyArg_ParseTuple(args, "OOOOO", &po, &to, &qo, &oo, &jo))
+        return NULL;
+    Py_buffer pb, tb, qb, ob, jb;
+    if (get_buffer(po, &pb, N * 16, 0, "placements") < 0)
+        return NULL;
+    if (get_buffer(to, &tb, 16, 0, "tool") < 0) goto fail_p;
+    if (get_buffer(qo, &qb, N, 0, "q") < 0) goto fail_t;
+    if (get_buffer(oo, &ob, 16, 1, "pose") < 0) goto fail_q;
+    if (get_buffer(jo, &jb, 6 * N, 1, "jacobian") < 0) goto fail_o;
+    frame joints[N], tcp;
+    chain(pb.buf, tb.buf, qb.buf, joints, &tcp);
+    frame_to4x4(&tcp, ob.buf);
+    jacobian(joints, &tcp, jb.buf);
+    PyBuffer_Release(&jb);
+    PyBuffer_Release(&ob);
+    PyBuffer_Release(&qb);
+    PyBuffer_Release(&tb);
+    PyBuffer_Release(&pb);
+    Py_RETURN_NONE;
+fail_o:
+    PyBuffer_Release(&ob);
+fail_q:
+    PyBuffer_Release(&qb);
+fail_t:
+    PyBuffer_Release(&tb);
+fail_p:
+    PyBuffer_Release(&pb);
+    return NULL;
+}
+
+/* ik_step(placements, tool, q[7], target[16], rest[7], lower[7], upper[7],
+ *         max_step[7], out[7], damping2, rest_gain_dt) -> bool (False: not solved)
+ * dq = J^T (J J^T + d^2 I)^-1 (err - J r) + r, r = rest_gain dt (rest - q);
+ * scaled so no joint exceeds its max step; q + dq clamped to [lower, upper]. */
+static PyObject *py_ik_step(PyObject *self, PyObject *args)
+{
+    PyObject *obj[9];
+    double damping2, rest_gain_dt;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOdd", &obj[0], &obj[1], &obj[2], &obj[3], &obj[4],
+                          &obj[5], &obj[6], &obj[7], &obj[8], &damping2, &rest_gain_dt))
+        return NULL;
+    static const Py_ssize_t sizes[9] = {N * 16, 16, N, 16, N, N, N, N, N};
+    static const char *names[9] = {"placements", "tool", "q", "target", "rest",
+                                   "lower", "upper", "max_step", "out"};
+    Py_buffer b[9];
+    int got = 0;
+    for (; got < 9; got++)
+        if (get_buffer(obj[got], &b[got], sizes[got], got == 8, names[got]) < 0)
+            break;
+    if (got < 9) {
+        for (int i = 0; i < got; i++)
+            PyBuffer_Release(&b[i]);
+        return NULL;
+    }
+    const double *q = b[2].buf, *target = b[3].buf, *rest = b[4].buf, *lower = b[5].buf,
+                 *upper = b[6].buf, *max_step = b[7].buf;
+    double *out = b[8].buf;
+    frame joints[N], tcp, goal;
+    chain(b[0].buf, b[1].buf, q, joints, &tcp);
+    double jac[6 * N];
+    jacobian(joints, &tcp, jac);
+    frame_from4x4(target, &goal);
+    double err[6];
+    for (int i = 0; i < 3; i++)
+        err[i] = goal.p[i] - tcp.p[i];
+    double rel[9]; /* goal R tcp R^T */
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            rel[3 * i + j] = goal.r[3 * i] * tcp.r[3 * j] + goal.r[3 * i + 1] * tcp.r[3 * j + 1] +
+                             goal.r[3 * i + 2] * tcp.r[3 * j + 2];
+    log3(rel, err + 3);
+    double r[N], rhs[6], a[36];
+    for (int i = 0; i < N; i++)
+        r[i] = rest_gain_dt * (rest[i] - q[i]);
+    for (int i = 0; i < 6; i++) {
+        double s = 0.0;
+        for (int k = 0; k < N; k++)
+            s += jac[i * N + k] * r[k];
+        rhs[i] = err[i] - s;
+        for (int j = 0; j < 6; j++) {
+            double t = 0.0;
+            for (int k = 0; k < N; k++)
+                t += jac[i * N + k] * jac[j * N + k];
+            a[6 * i + j] = t + (i == j ? damping2 : 0.0);
+        }
+    }
+    int ok = cholesky_solve(a, rhs) == 0;
+    double dq[N], scale = 0.0;
+    for (int k = 0; k < N; k++) {
+        double s = r[k];
+        for (int i = 0; i < 6; i++)
+            s += jac[i * N + k] * rhs[i];
+        dq[k] = ok ? s : 0.0;
+        double x = fabs(dq[k]) / max_step[k];
+        if (x > scale)
+            scale = x;
+    }
+    for (int k = 0; k < N; k++) {
+        double v = q[k] + (scale > 1.0 ? dq[k] / scale : dq[k]);
+        out[k] = v < lower[k] ? lower[k] : (v > upper[k] ? upper[k] : v);
+        if (!isfinite(out[k]))
+            ok = 0;
+    }
+    for (int i = 0; i < 9; i++)
+        PyBuffer_Release(&b[i]);
+    return PyBool_FromLong(ok);
+}
+
+static double clamp01(double x) { return x < 0.0 ? 0.0 : (x > 1.0 ? 1.0 : x); }
+
+/* segment-segment distance, as components/domain/distance.py computes it */
+static double segment_distance(const double *p1, const double *q1, const double *p2,
+                               const double *q2)
+{
+    const double EPS = 1e-12, PARALLEL = 1e-14;
+    double d1[3], d2[3], rr[3];
+    for (int i = 0; i < 3; i++) {
+        d1[i] = q1[i] - p1[i];
+        d2[i] = q2[i] - p2[i];
+        rr[i] = p1[i] - p2[i];
+    }
+    double a = d1[0] * d1[0] + d1[1] * d1[1] + d1[2] * d1[2];
+    double e = d2[0] * d2[0] + d2[1] * d2[1] + d2[2] * d2[2];
+    double b = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2];
+    double c = d1[0] * rr[0] + d1[1] * rr[1] + d1[2] * rr[2];
+    double f = d2[0] * rr[0] + d2[1] * rr[1] + d2[2] * rr[2];
+    double ae = a * e, denom = ae - b * b, s, t;
+    int first_point = a <= EPS, second_point = e <= EPS;
+    double on_first = first_point ? 0.0 : clamp01(-c / a);
+    if (second_point) {
+        s = on_first;
+        t = 0.0;
+    } else {
+        s = denom > PARALLEL * ae ? clamp01((b * f - c * e) / denom) : 0.0;
+        t = (b * s + f) / e;
+    }
+    if (t < 0.0)
+        s = on_first;
+    else if (t > 1.0)
+        s = first_point ? 0.0 : clamp01((b - c) / a);
+    if (first_point)
+        s = 0.0;
+    t = clamp01(t);
+    double sum = 0.0;
+    for (int i = 0; i < 3; i++) {
+        double x = rr[i] + s * d1[i] - t * d2[i];
+        sum += x * x;
+    }
+    return sqrt(sum);
+}
+
+/* capsule_min(a1[n*3], b1[n*3], r1[n], a2[m*3], b2[m*3], r2[m]) -> (min, i, j) */
+static PyObject *py_capsule_min(PyObject *self, PyObject *args)
+{
+    PyObject *obj[6];
+    if (!PyArg_ParseTuple(args, "OOOOOO", &obj[0], &obj[1], &obj[2], &obj[3], &obj[4], &obj[5]))
+        return NULL;
+    Py_buffer b[6];
+    int got = 0;
+    for (; got < 6; got++)
+        if (PyObject_GetBuffer(obj[got], &b[got], PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
+            break;
+    if (got < 6) {
+        for (int i = 0; i < got; i++)
+            PyBuffer_Release(&b[i]);
+        return NULL;
+    }
+    Py_ssize_t n = b[2].len / 8, m = b[5].len / 8;
+    int bad = 0;
+    for (int i = 0; i < 6; i++)
+        if (b[i].itemsize != 8 || (b[i].format && strcmp(b[i].format, "d") != 0))
+            bad = 1;
+    if (bad || b[0].len != 24 * n || b[1].len != 24 * n || b[3].len != 24 * m ||
+        b[4].len != 24 * m) {
+        for (int i = 0; i < 6; i++)
+            PyBuffer_Release(&b[i]);
+        PyErr_SetString(PyExc_ValueError, "capsules: (n, 3), (n, 3), (n,) float64 arrays");
+        return NULL;
+    }
+    const double *a1 = b[0].buf, *b1 = b[1].buf, *r1 = b[2].buf, *a2 = b[3].buf,
+                 *b2 = b[4].buf, *r2 = b[5].buf;
+    double best = INFINITY;
+    Py_ssize_t bi = -1, bj = -1;
+    for (Py_ssize_t i = 0; i < n; i++)
+        for (Py_ssize_t j = 0; j < m; j++) {
+            double d = segment_distance(a1 + 3 * i, b1 + 3 * i, a2 + 3 * j, b2 + 3 * j) - r1[i] -
+                       r2[j];
+            if (d < best || d != d) { /* NaN wins, as in numpy's min: never a clear verdict */
+                best = d;
+                bi = i;
+                bj = j;
+                if (d != d)
+                    goto done;
+            }
+        }
+done:
+    for (int i = 0; i < 6; i++)
+        PyBuffer_Release(&b[i]);
+    return Py_BuildValue("(dnn)", best, bi, bj);
+}
+
+/* the rotation matrix (row-major) of a rotation vector (Rodrigues) */
+static void exp3(const double w[3], double r[9])
+{
+    double angle = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+    double a, b; /* sin(t)/t, (1 - cos(t))/t^2, by their series near 0 */
+    if (angle < 1e-4) {
+        double t2 = angle * angle;
+        a = 1.0 - t2 / 6.0;
+        b = 0.5 - t2 / 24.0;
+    } else {
+        a = sin(angle) / angle;
+        b = (1.0 - cos(angle)) / (angle * angle);
+    }
+    double x = w[0], y = w[1], z = w[2];
+    r[0] = 1.0 - b * (y * y + z * z);
+    r[1] = -a * z + b * x * y;
+    r[2] = a * y + b * x * z;
+    r[3] = a * z + b * x * y;
+    r[4] = 1.0 - b * (x * x + z * z);
+    r[5] = -a * x + b * y * z;
+    r[6] = -a * y + b * x * z;
+    r[7] = a * x + b * y * z;
+    r[8] = 1.0 - b * (x * x + y * y);
+}
+
+static void mul3(const double *a, const double *b, double *out)
+{
+    double o[9];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            o[3 * i + j] = a[3 * i] * b[j] + a[3 * i + 1] * b[3 + j] + a[3 * i + 2] * b[6 + j];
+    memcpy(out, o, sizeof o);
+}
+
+/* path_pose(start[16], delta_p[3], delta_r[3], u, offset[6], out[16]): the pose u of
+ * the way along the straight path (position linear, rotation start R exp(u delta_r)),
+ * the steering offset added (translation, then rotation exp(offset_r) on the left) */
+static PyObject *py_path_pose(PyObject *self, PyObject *args)
+{
+    PyObject *so, *po, *ro, *oo, *out_o;
+    double u;
+    if (!PyArg_ParseTuple(args, "OOOdOO", &so, &po, &ro, &u, &oo, &out_o))
+        return NULL;
+    Py_buffer sb, pb, rb, ob, outb;
+    if (get_buffer(so, &sb, 16, 0, "start") < 0)
+        return NULL;
+    if (get_buffer(po, &pb, 3, 0, "delta_p") < 0) goto fail_s;
+    if (get_buffer(ro, &rb, 3, 0, "delta_r") < 0) goto fail_p;
+    if (get_buffer(oo, &ob, 6, 0, "offset") < 0) goto fail_r;
+    if (get_buffer(out_o, &outb, 16, 1, "out") < 0) goto fail_o;
+    const double *st = sb.buf, *dp = pb.buf, *dr = rb.buf, *off = ob.buf;
+    double *out = outb.buf;
+    double w[3] = {u * dr[0], u * dr[1], u * dr[2]}, e[9], r0[9], r[9];
+    exp3(w, e);
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            r0[3 * i + j] = st[4 * i + j];
+    mul3(r0, e, r);
+    if (off[3] != 0.0 || off[4] != 0.0 || off[5] != 0.0) {
+        exp3(off + 3, e);
+        mul3(e, r, r);
+    }
+    for (int i = 0; i < 3; i++) {
+        for (int j = 0; j < 3; j++)
+            out[4 * i + j] = r[3 * i + j];
+        out[4 * i + 3] = st[4 * i + 3] + u * dp[i] + off[i];
+    }
+    out[12] = out[13] = out[14] = 0.0;
+    out[15] = 1.0;
+    PyBuffer_Release(&outb);
+    PyBuffer_Release(&ob);
+    PyBuffer_Release(&rb);
+    PyBuffer_Release(&pb);
+    PyBuffer_Release(&sb);
+    Py_RETURN_NONE;
+fail_o:
+    PyBuffer_Release(&ob);
+fail_r:
+    PyBuffer_Release(&rb);
+fail_p:
+    PyBuffer_Release(&pb);
+fail_s:
+    PyBuffer_Release(&sb);
+    return NULL;
+}
+
+static PyMethodDef methods[] = {
+    {"path_pose", py_path_pose, METH_VARARGS,
+     "path_pose(start, delta_p, delta_r, u, offset, out): the pose u of the way along the "
+     "straight path, steering offset added."},
+    {"fk", py_fk, METH_VARARGS, "fk(placements, tool, q, out): the TCP pose (4x4) into out."},
+    {"jacobian", py_jacobian, METH_VARARGS,
+     "jacobian(placements, tool, q, pose, jac): the TCP pose and its base-aligned 6x7 Jacobian."},
+    {"ik_step", py_ik_step, METH_VARARGS,
+     "ik_step(placements, tool, q, target, rest, lower, upper, max_step, out, damping2, "
+     "rest_gain_dt) -> bool: one damped least-squares step into out."},
+    {"capsule_min", py_capsule_min, METH_VARARGS,
+     "capsule_min(a1, b1, r1, a2, b2, r2) -> (distance, i, j): the closest pair of capsules."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {
+    PyModuleDef_HEAD_INIT, "_fwkernel",
+    "fw's compiled kernel: the numerics of the robot's 1 kHz cycle (see the C source).", -1,
+    methods};
+
+PyMODINIT_FUNC PyInit__fwkernel(void) { return PyModule_Create(&module); }
