@@ -4,8 +4,13 @@
   ports (with `idle`, the component's `idle_hook` also runs whenever no data came
   for that long: a watchdog that must act when its input falls silent), `after` another component of the same process (in its thread, right
   after each of its updates: OROCOS's slave activity, for a controller that must
-  answer its robot every cycle without a thread hand-over), or `passive` (only
-  operations and lifecycle calls).
+  answer its robot every cycle without a thread hand-over), `paced` by the
+  component's own device (the robot interface by the KRC's measurements: each cycle
+  is read -> update -> the components after it -> write, ros2_control's loop, in one
+  thread; `idle_hook` when the device is silent for `idle`; its operations and its
+  followers' run between cycles, framework/engine.py; real-time priority where the
+  host allows, framework/realtime.py), or `passive` (only operations and lifecycle
+  calls).
 * `RealTimeExecutor` gives each active component its own thread on
   monotonic time (like an RTT activity); missed periods are skipped and
   counted, never bunched up.
@@ -23,8 +28,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from framework.clock import MonotonicClock, SimulatedClock
-from framework.component import Component
+from framework.component import Component, State
+from framework.engine import ExecutionEngine
 from framework.errors import FwError
+from framework.realtime import LoopStats, RealTimePolicy
 
 
 class ActivityError(FwError):
@@ -60,6 +67,14 @@ class Activity:
         return cls("event", 0.0, tuple(ports), idle=float(idle))
 
     @classmethod
+    def paced(cls, idle: float = 0.02) -> Activity:
+        """Update once per cycle of the component's device (its `read_hook` waits for
+        it), `idle_hook` after `idle` seconds without one."""
+        if not (isinstance(idle, int | float) and 0.0 < idle <= 10.0):
+            raise ActivityError(f"idle must be a duration up to 10 s, got {idle!r}")
+        return cls("paced", idle=float(idle))
+
+    @classmethod
     def from_spec(cls, spec: Any) -> Activity:
         """From YAML: `passive`, `{periodic: 100}`, `{event: [port, ...]}` (optionally with
         `idle: 5ms`) or `{after: name}`."""
@@ -82,9 +97,16 @@ class Activity:
                 return cls.event(*([arg] if isinstance(arg, str) else arg))
             if kind == "after" and isinstance(arg, str) and arg.isidentifier():
                 return cls("after", master=arg)
+            if kind == "paced":
+                from framework.durations import parse_duration
+
+                try:
+                    return cls.paced(parse_duration(arg))
+                except ValueError as exc:
+                    raise ActivityError(f"paced: {exc}") from None
         raise ActivityError(
             "activity must be 'passive', {periodic: HZ}, {event: [PORTS]} (optionally with "
-            f"idle: DURATION) or {{after: COMPONENT}}, not {spec!r}"
+            f"idle: DURATION), {{after: COMPONENT}} or {{paced: IDLE}}, not {spec!r}"
         )
 
     def check(self, component: Component) -> None:
@@ -108,6 +130,8 @@ class Activity:
             return {"event": list(self.ports)}
         if self.kind == "after":
             return {"after": self.master}
+        if self.kind == "paced":
+            return {"paced": self.idle}
         return "passive"
 
     def to_dict(self) -> dict[str, Any]:
@@ -131,7 +155,7 @@ def _idle_period(component: Component, activity: Activity) -> float:
 class RealTimeExecutor:
     """One thread per active component, on monotonic time."""
 
-    def __init__(self) -> None:
+    def __init__(self, realtime: RealTimePolicy | None = None) -> None:
         self.clock = MonotonicClock()
         self._entries: list[tuple[Component, Activity]] = []
         self._threads: list[threading.Thread] = []
@@ -139,6 +163,10 @@ class RealTimeExecutor:
         self._wake: dict[str, threading.Event] = {}
         self._followers: dict[str, list[Component]] = {}
         self.overruns: dict[str, int] = {}
+        self.realtime = realtime or RealTimePolicy()
+        """How a paced loop's thread asks the host for real-time priority."""
+        self.loops: dict[str, LoopStats] = {}
+        """Each paced loop's scheduling and cycle statistics, by component."""
 
     def add(self, component: Component, activity: Activity) -> None:
         """Register a component (before or after `start`)."""
@@ -149,18 +177,34 @@ class RealTimeExecutor:
         if activity.kind == "event":
             wake = self._wake[component.name] = threading.Event()
             component.wake_on(activity.ports, lambda _port, w=wake: w.set())
+        if activity.kind == "paced":
+            component.engine = ExecutionEngine(component.name)
+        self._share_engines()
         if self._threads:
             self._spawn(component, activity)
 
+    def _share_engines(self) -> None:
+        """A component that runs after a paced one (or after one that does) has its
+        operations run by that loop too: nobody takes its lock mid-cycle either."""
+        by_name = {c.name: (c, a) for c, a in self._entries}
+        for component, activity in self._entries:
+            seen, at = {component.name}, activity
+            while at.kind == "after" and at.master in by_name and at.master not in seen:
+                master, at = by_name[at.master]
+                seen.add(master.name)
+                if master.engine is not None:
+                    component.engine = master.engine
+                    break
+
     def start(self) -> None:
-        """Start a thread for every periodic or event-driven component."""
+        """Start a thread for every periodic, event-driven or paced component."""
         for component, activity in self._entries:
             self._spawn(component, activity)
 
     def _spawn(self, component: Component, activity: Activity) -> None:
         if activity.kind in ("passive", "after"):
             return
-        target = self._periodic if activity.kind == "periodic" else self._event
+        target = {"periodic": self._periodic, "paced": self._paced}.get(activity.kind, self._event)
         thread = threading.Thread(
             target=target, args=(component, activity), name=f"fw-{component.name}", daemon=True
         )
@@ -170,9 +214,18 @@ class RealTimeExecutor:
     def _periodic(self, component: Component, activity: Activity) -> None:
         period = 1.0 / activity.rate
         deadline = time.monotonic()
+        stats = None
+        if component.realtime:  # a device's own clock (the simulated KRC): as a paced loop
+            stats = self.loops[component.name] = LoopStats(self.realtime.enter(component.name))
+            component.loop_stats = stats
         while not self._stop.is_set():
+            began = time.perf_counter()
             component.update()
             _follow(self._followers, component)
+            if stats is not None:
+                stats.cycle(time.perf_counter() - began)
+                # a device that reports every few cycles (a braked KRC) leaves slack
+                self.realtime.between_cycles(stats, slack=component.periods_per_update > 1)
             deadline += period * max(1, int(component.periods_per_update))
             delay = deadline - time.monotonic()
             if delay < 0:  # overrun: skip missed periods instead of bunching them up
@@ -201,6 +254,41 @@ class RealTimeExecutor:
                 if sum(p.pending() for p in ports) >= before:
                     break  # the component did not read: wait for the next sample
 
+    def _paced(self, component: Component, activity: Activity) -> None:
+        """The device's loop: read -> update -> the components after it -> write, then
+        the operations queued meanwhile; `idle` when the device is silent. Real-time
+        priority for this thread where the host allows it (framework/realtime.py)."""
+        engine = component.engine
+        stats = self.loops[component.name] = LoopStats(self.realtime.enter(component.name))
+        engine.loop = stats
+        engine.thread_id = threading.get_ident()
+        silent_since = time.monotonic()
+        wait = min(activity.idle, 0.005)  # queued operations wait at most this long
+        try:
+            while not self._stop.is_set():
+                cycled = component.read_cycle(wait)
+                if cycled:
+                    began = time.perf_counter()
+                    component.update()
+                    updated = time.perf_counter()
+                    stats.stage(f"update {component.name}", updated - began)
+                    _follow(self._followers, component, stats)
+                    followed = time.perf_counter()
+                    component.write_cycle()
+                    done = time.perf_counter()
+                    stats.stage("send", done - followed)
+                    stats.cycle(done - began)
+                    silent_since = time.monotonic()
+                elif time.monotonic() - silent_since >= activity.idle:
+                    component.idle()
+                    silent_since = time.monotonic()
+                elif component.state is not State.RUNNING:
+                    self._stop.wait(wait)  # nothing to read from: do not spin
+                engine.run_pending()
+                self.realtime.between_cycles(stats, slack=not cycled)
+        finally:
+            engine.stop()
+
     def stop(self, timeout: float = 2.0) -> None:
         """Stop every thread and wait for them."""
         self._stop.set()
@@ -223,13 +311,19 @@ def _add_follower(followers: dict[str, list[Component]], master: str, component:
     followers.setdefault(master, []).append(component)
 
 
-def _follow(followers: dict[str, list[Component]], master: Component) -> int:
+def _follow(
+    followers: dict[str, list[Component]], master: Component, stats: LoopStats | None = None
+) -> int:
     """Update the components that run `after` `master`, and theirs in turn (a chain:
-    the arm, then the robot interface, then the interpolator); how many updated."""
+    the arm, then the robot interface, then the interpolator); how many updated. With
+    `stats` (a paced loop), each one's update is a stage of the cycle."""
     updated = 0
     for follower in followers.get(master.name, ()):
+        began = time.perf_counter() if stats is not None else 0.0
         follower.update()
-        updated += 1 + _follow(followers, follower)
+        if stats is not None:
+            stats.stage(f"update {follower.name}", time.perf_counter() - began)
+        updated += 1 + _follow(followers, follower, stats)
     return updated
 
 
@@ -240,6 +334,7 @@ class SteppedExecutor:
         self.clock = clock
         self._periodic: list[tuple[float, int, Component, float]] = []
         self._event: list[tuple[Component, tuple[str, ...]]] = []
+        self._paced: list[Component] = []
         self._followers: dict[str, list[Component]] = {}
         self._order = 0
 
@@ -262,6 +357,15 @@ class SteppedExecutor:
                 )
         elif activity.kind == "after":
             _add_follower(self._followers, activity.master, component)
+        elif activity.kind == "paced":
+            # a stepped test's device answers at once: each cycle it has ready is run
+            # in `run_pending`, operations directly (no loop thread to queue them to)
+            self._paced.append(component)
+            self._order += 1
+            heapq.heappush(
+                self._periodic,
+                (self.clock.now() + activity.idle, self._order, component, -activity.idle),
+            )
 
     def start(self) -> None:
         """Nothing to start: time moves in `advance`."""
@@ -278,7 +382,13 @@ class SteppedExecutor:
                 for c, ports in self._event
                 if any(c.inputs[p].pending() for p in ports if p in c.inputs)
             ]
-            if not ready:
+            cycled = 0
+            for component in self._paced:
+                while component.read_cycle(0.0) and cycled < limit:
+                    updates += self._update(component)
+                    component.write_cycle()
+                    cycled += 1
+            if not ready and not cycled:
                 break
             for component in ready:
                 updates += self._update(component)

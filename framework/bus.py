@@ -105,6 +105,13 @@ def free_port(host: str = "127.0.0.1") -> int:
         return int(sock.getsockname()[1])
 
 
+def free_udp_port(host: str = "127.0.0.1") -> int:
+    """A UDP port that is free right now (a test's or a benchmark's FRI link)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind((host, 0))
+        return int(sock.getsockname()[1])
+
+
 def zenoh_config(bus: BusConfig, hub: bool = False, subject: str = "") -> zenoh.Config:
     """The Zenoh configuration of one process of the deployment (`hub` listens on the
     deployment's fixed port; everyone else listens on an ephemeral port of its host;

@@ -143,10 +143,36 @@ def live_screen(
             state = f"LOST ({lost_processes.get(spec.process, 'no liveliness')})"
         else:
             state = _answered(deployment.hub, spec.name, {} if seen is None else seen)
+            if state == "Running" and _device_loop(spec) and seen is not None:
+                state += f"   loop: {_scheduling(deployment.hub, spec.name, seen)}"
         lines.append(f"{spec.name:<20} {spec.process:<16} {state}")
     if watch is not None and watch.incidents:
         lines += ["", *watch.incidents[-5:]]
     return "\n".join(lines)
+
+
+def _device_loop(spec: Any) -> bool:
+    """Whether the component runs a device's loop (paced, or a device's own clock)."""
+    return spec.activity.kind == "paced" or bool(
+        getattr(spec.info.cls if spec.info else None, "realtime", False)
+    )
+
+
+def _scheduling(hub: Any, name: str, seen: dict[str, tuple[str, int]]) -> str:
+    """What a device loop got from the host (SCHED_FIFO 80, or why not), asked once."""
+    from framework.remote import RemoteComponent, RemoteError
+
+    key = f"{name}#scheduling"
+    if key in seen:
+        return seen[key][0]
+    try:
+        loop = RemoteComponent(hub, name, 0.5).call("report").get("loop") or {}
+    except RemoteError:
+        return "?"
+    got = str(loop.get("scheduling") or "?")
+    if got != "?":
+        seen[key] = (got, 0)
+    return got
 
 
 def _answered(hub: Any, name: str, seen: dict[str, tuple[str, int]]) -> str:

@@ -137,10 +137,11 @@ class In:
 
 
 class Out:
-    """Declare an output port on a Component class."""
+    """Declare an output port on a Component class. `stream`: written every cycle of a
+    fast loop, encoded only while another process reads it (framework/ports.py)."""
 
-    def __init__(self, type: type, doc: str = ""):
-        self.type, self.doc = type, doc
+    def __init__(self, type: type, doc: str = "", stream: bool = False):
+        self.type, self.doc, self.stream = type, doc, stream
 
 
 def operation(
@@ -202,6 +203,10 @@ class Component:
     """An event-driven component's next idle tick comes at most this long after its last
     update (s; None: the activity's `idle`): a component that knows when its inputs fall
     due (a tracker's staleness deadline) wakes then, not on a fixed beat."""
+    realtime = False
+    """A periodic component that is a device's own clock (the simulated KRC) asks the
+    host for real-time priority for its thread, as a paced loop does
+    (framework/realtime.py)."""
     periods_per_update = 1
     """A periodic component's next update comes this many periods later (it then does
     that many periods' work): a controller in monitor mode wakes less often than in
@@ -235,6 +240,13 @@ class Component:
         self.safety: Any = None
         """The `SafetyMonitor` the container attaches if the topology names this component
         as its safety monitor (only when `hosts_safety_monitor`)."""
+        self.loop_stats: Any = None
+        """A real-time periodic loop's `LoopStats` (framework/realtime.py), set by the
+        executor (a paced loop's are its engine's)."""
+        self.engine: Any = None
+        """The `ExecutionEngine` of the paced loop that runs this component (as its
+        device's component or after it), set by the executor: while the loop runs, its
+        exclusive operations are queued to it (framework/engine.py)."""
         for attr, _ in declarations(type(self)):
             if attr in _RESERVED:
                 raise FwError(
@@ -248,7 +260,7 @@ class Component:
                 self.inputs[attr] = port
                 self.__dict__[attr] = port  # shadows the class-level declaration
             elif isinstance(decl, Out):
-                port = OutputPort(attr, decl.type, decl.doc)
+                port = OutputPort(attr, decl.type, decl.doc, decl.stream)
                 port.owner = name
                 self.outputs[attr] = port
                 self.__dict__[attr] = port
@@ -368,19 +380,36 @@ class Component:
             inspect.signature(method).bind(**kwargs)
         except TypeError as exc:
             raise OperationError(f"{self.name}.{operation_name}: {exc}") from None
-        lock = self._lifecycle_lock if getattr(method, "__fw_exclusive__", True) else None
-        with lock or contextlib.nullcontext():
-            overdue = late(deadline)
-            if overdue:
-                raise OperationError(f"{self.name}.{operation_name}: {overdue}")
-            try:
-                return method(**kwargs)
-            except FwError:
-                raise
-            except Exception as exc:
-                raise OperationError(
-                    f"{self.name}.{operation_name} failed: {type(exc).__name__}: {exc}"
-                ) from exc
+        exclusive = getattr(method, "__fw_exclusive__", True)
+        engine = self.engine
+        if exclusive and engine is not None and engine.running and not engine.in_loop():
+            # the paced loop runs it between cycles: nobody takes its lock mid-cycle
+            return engine.call(
+                lambda: self._run_operation(operation_name, method, kwargs, deadline)
+            )
+        with self._lifecycle_lock if exclusive else contextlib.nullcontext():
+            return self._run_operation(operation_name, method, kwargs, deadline)
+
+    def _run_operation(
+        self,
+        operation_name: str,
+        method: Callable[..., Any],
+        kwargs: dict[str, Any],
+        deadline: float | None,
+    ) -> Any:
+        """Run an operation now: refused if its deadline has passed (checked when it is
+        its turn, not when it was asked for), its failure an `OperationError`."""
+        overdue = late(deadline)
+        if overdue:
+            raise OperationError(f"{self.name}.{operation_name}: {overdue}")
+        try:
+            return method(**kwargs)
+        except FwError:
+            raise
+        except Exception as exc:
+            raise OperationError(
+                f"{self.name}.{operation_name} failed: {type(exc).__name__}: {exc}"
+            ) from exc
 
     # -- lifecycle -----------------------------------------------------------------
     @property
@@ -547,6 +576,39 @@ class Component:
             if self.heartbeat is not None and self._state is State.RUNNING:
                 self.heartbeat.beat()
 
+    def stage(self, name: str, seconds: float) -> None:
+        """Say that a stage of this cycle (safety, separation, IK...) took `seconds`:
+        kept in the paced loop's statistics (`fw bench cost`), nothing otherwise."""
+        engine = self.engine
+        stats = engine.loop if engine is not None else self.loop_stats
+        if stats is not None:
+            stats.stage(name, seconds)
+
+    def read_cycle(self, timeout: float) -> bool:
+        """A paced activity's wait for the device's next cycle (`read_hook`), outside the
+        component's lock (a stop may close the device meanwhile): True if one came; False
+        when it timed out, the component is not Running, or the hook failed (then it
+        goes to Exception)."""
+        if self._state is not State.RUNNING:
+            return False
+        try:
+            return bool(self.read_hook(timeout))
+        except Exception as exc:
+            if self._state is State.RUNNING:
+                self.exception(f"read_hook raised {type(exc).__name__}: {exc}")
+            return False
+
+    def write_cycle(self) -> None:
+        """A paced activity's end of cycle (`write_hook`), after `update` and the
+        components that run after this one."""
+        with self._lifecycle_lock:
+            if self._state is not State.RUNNING and self._state is not State.RUNTIME_ERROR:
+                return
+            try:
+                self.write_hook()
+            except Exception as exc:
+                self.exception(f"write_hook raised {type(exc).__name__}: {exc}")
+
     def idle(self) -> None:
         """Called by an event-driven activity when no data came for a while: `idle_hook`
         runs, and a watched component still proves it runs (its thread is alive and it
@@ -578,7 +640,19 @@ class Component:
         """Runs instead of update_hook while in RunTimeError."""
 
     def idle_hook(self) -> None:
-        """An event-driven activity's input was silent for its `idle` period."""
+        """An event-driven activity's input was silent for its `idle` period (a paced
+        one's device, for its `idle`). Runs in the activity's thread."""
+
+    def read_hook(self, timeout: float) -> bool:
+        """Paced activity only, in the loop's thread, first in every cycle and outside the
+        component's lock: wait (at most `timeout` s) for the device's next cycle and take
+        its data; True if it came. The device is the clock (the KRC's measurement)."""
+        raise FwError(f"{type(self).__name__} has no read_hook: it cannot be paced")
+
+    def write_hook(self) -> None:
+        """Paced activity only, in the loop's thread, last in every cycle (after
+        update_hook and every component that runs after this one): send the cycle's
+        answer to the device."""
 
     def stop_hook(self) -> None:
         """Stopping: make outputs safe."""

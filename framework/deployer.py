@@ -77,25 +77,32 @@ the user may raise priorities): the host's other programs must not starve them p
 their deadlines."""
 CONTROL_NICE = -15
 """The control loop's processes run ahead of the rest (three times their share of a
-busy CPU): the monitor's, and those of the producers it watches with the shortest
-deadline (the arm's controller, which brakes after 40 ms without a setpoint). A
-browser and the other processes on two cores starved the robot process for 41 ms."""
+busy CPU): the monitor's and every process with a device loop (a paced or real-time
+component: the robot interface, the arm's KRC). Their loops run at a real-time
+priority of their own (framework/realtime.py); this is for their other threads (the
+bus's, the heartbeat). A browser and the other processes on two cores starved the
+robot process for 41 ms."""
 
 
 def control_processes(topology: Topology) -> set[str]:
-    """The processes of the safety monitor and of its most urgent watched producers."""
+    """The processes of the safety monitor and of every device loop."""
     safety = topology.safety
     if safety is None:
         return set()
     spec = topology.components.get(safety.monitor)
     out = {spec.process} if spec is not None else set()
-    producers = [w for w in safety.watches if w.producer in topology.components]
-    if producers:
-        shortest = min(w.deadline for w in producers)
-        out |= {
-            topology.components[w.producer].process for w in producers if w.deadline == shortest
-        }
-    return out
+    used = {c.process for c in topology.components.values()}
+    return out | {p for p in used if realtime_process(topology, p)}
+
+
+def realtime_process(topology: Topology, process: str) -> bool:
+    """Whether `process` hosts a device loop (a paced activity, or a component class
+    that says it is `realtime`): its loops run at a real-time priority."""
+    return any(
+        spec.activity.kind == "paced"
+        or getattr(spec.info.cls if spec.info else None, "realtime", False)
+        for spec in topology.components_in(process)
+    )
 
 
 def _resume(popen: subprocess.Popen[bytes]) -> None:
@@ -149,6 +156,8 @@ def container_spec(topology: Topology, process: str) -> dict[str, Any]:
     if topology.safety is not None:
         spec["beat"] = topology.safety.process_beat
         spec["nice"] = CONTROL_NICE if process in control_processes(topology) else SAFETY_NICE
+    if realtime_process(topology, process):
+        spec["realtime"] = True  # a device loop's process: framework/realtime.py
     return spec
 
 

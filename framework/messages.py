@@ -228,6 +228,9 @@ class _Codec:
                 raise CodecError(f"{kind.__name__}.LAYOUT does not list its fields in order")
         signature = f"{type_name(kind)}|{self.layout}"
         self.type_id = zlib.crc32(signature.encode())
+        self.shareable = not any(wire.startswith("json") for _, wire in self.fields)
+        """Its values hold no mutable part (no JSON payload): a reader in the writer's
+        process may be handed the writer's own object (ports), never a copy."""
         fixed = "<"
         self.fixed_names: list[str] = []
         self.fixed_sizes: list[int] = []

@@ -19,6 +19,16 @@ An output port may also publish a *thinned* stream on a key of its own
 needs far fewer than the writer makes (a 30 Hz detector reading 1 kHz joints). A
 sample that is not sent costs nothing on the wire and nothing to the reader's
 process, which is where a 1 kHz stream's cost is (decoding, waking).
+
+Within one process a sample never touches the bus: a reader connected to a key this
+process's own output port writes is handed the written object itself (as RTT's
+in-process connections), with no encoding and no decoding, when its type holds no
+mutable part (every type but those with a JSON payload); so write immutable values
+(tuples) and never change a value read from a port. A *stream* port (`Out(...,
+stream=True)`, written every cycle of a fast loop) is encoded only when a reader in
+another process listens on one of its keys (Zenoh's matching status): a 1 kHz stream
+read only in its own process costs no encoding at all. A stream keeps no cached
+sample for late readers (its next one comes within a cycle).
 """
 
 from __future__ import annotations
@@ -134,20 +144,25 @@ _ids = random.SystemRandom()
 
 
 class OutputPort(Port[T]):
-    """Publishes written samples on the keys it is connected to (latest value cached)."""
+    """Publishes written samples on the keys it is connected to (latest value cached,
+    unless it is a `stream`: see the module docstring)."""
 
-    def __init__(self, name: str, type: type, doc: str = ""):
+    def __init__(self, name: str, type: type, doc: str = "", stream: bool = False):
         super().__init__(name, type, doc)
-        messages.codec_for(type)  # fail at declaration if the type has no codec
+        codec = messages.codec_for(type)  # fail at declaration if the type has no codec
+        self.shareable = codec.shareable
+        self.stream = stream
         self.publisher_id = _ids.getrandbits(63)
         self._seq = itertools.count(1)
         self._publishers: dict[str, Any] = {}
+        self._matching: dict[str, list[Any]] = {}  # stream key -> [matching?, listener]
         self._thinned: dict[str, list[float]] = {}  # key -> [period (s), next send due]
         self._lock = threading.Lock()
         self.clock: Callable[[], float] = time.monotonic
         """What thinned keys measure their period by (a test's simulated clock)."""
         self.last: T | None = None
-        self.last_data: bytes | None = None
+        self.last_data: bytes | None = None  # its encoding, if it was encoded
+        self.last_seq = 0
         self.bus: Any = None
 
     @property
@@ -164,7 +179,21 @@ class OutputPort(Port[T]):
             raise PortError(f"a rate must be a positive number of Hz, not {rate!r}")
         with self._lock:
             if key not in self._publishers:
-                self._publishers[key] = self.bus.publisher(key, remote_only=True)
+                publisher = self.bus.publisher(key, cache=not self.stream, remote_only=True)
+                self._publishers[key] = publisher
+                if self.stream:
+                    # [matching?, listener, when last asked]: the listener's callbacks may
+                    # run out of order on Zenoh's threads, so each asks for the status now
+                    # rather than trusting the one it carries; and a key found unmatched
+                    # is asked again at most every MATCHING_RECHECK s (a reader that came
+                    # while a callback was lost is served within that)
+                    flag: list[Any] = [publisher.matching_status.matching, None, time.monotonic()]
+                    flag[1] = publisher.declare_matching_listener(
+                        lambda _status, f=flag, p=publisher: f.__setitem__(
+                            0, p.matching_status.matching
+                        )
+                    )
+                    self._matching[key] = flag
                 self.bus.local_writers.setdefault(key, {})[id(self)] = self
             if rate:
                 self._thinned[key] = [1.0 / rate, -float("inf")]
@@ -176,21 +205,28 @@ class OutputPort(Port[T]):
             for k in keys:
                 publisher = self._publishers.pop(k, None)
                 self._thinned.pop(k, None)
+                flag = self._matching.pop(k, None)
+                if flag is not None and flag[1] is not None:
+                    flag[1].undeclare()
                 if publisher is not None:
                     self.bus.local_writers.get(k, {}).pop(id(self), None)
                     publisher.undeclare()
 
     def write(self, value: T) -> None:
-        """Publish one sample on every connected key; a wrong type raises `PortError`."""
-        try:
-            data = messages.encode(value, self.type, self.publisher_id, next(self._seq))
-        except messages.CodecError as exc:
-            self.stats.last_error = str(exc)
-            raise PortError(f"cannot write to {self.full_name} ({self.type_name}): {exc}") from None
+        """Publish one sample on every connected key; a wrong type raises `PortError`.
+        Readers in this process get the object itself (or, for a type with a JSON
+        payload, its encoding); it is encoded for the bus only when needed."""
+        if type(value) is not self.type and not (self.type is float and type(value) is int):
+            self._refuse_type(value)
+        seq = self.last_seq = next(self._seq)
+        data: bytes | None = None
+        if not (self.stream and self.shareable):
+            data = self._encode(value, seq)
         self.last, self.last_data = value, data
         self.stats.written += 1
         readers = self.bus.local_readers if self.bus is not None else {}
         thinned = self._thinned
+        matching = self._matching
         now = self.clock() if thinned else 0.0
         for key, publisher in list(self._publishers.items()):
             due = thinned.get(key)
@@ -201,20 +237,82 @@ class OutputPort(Port[T]):
                 # on schedule, so the average rate holds (a late send does not push the
                 # next one back); a writer that paused gets no burst to catch up
                 due[1] = (next_due if next_due >= now - period else now) + period
-            publisher.put(data)
+            flag = matching.get(key)
+            if flag is not None and not flag[0]:
+                _recheck(flag, publisher)
+            if flag is None or flag[0]:  # a stream: only when another process listens
+                if data is None:
+                    data = self.last_data = self._encode(value, seq)
+                publisher.put(data)
             local = readers.get(key)
-            if local:  # same session: the same delivery path, without the network
+            if local:  # same process: no bus, and no encoding for a shareable type
                 for reader in list(local.values()):
-                    reader.deliver_local(data)
+                    if self.shareable:
+                        reader.deliver_value(value, self.publisher_id, seq)
+                    else:
+                        if data is None:
+                            data = self.last_data = self._encode(value, seq)
+                        reader.deliver_local(data)
+
+    def wanted(self) -> bool:
+        """Whether a sample written now would reach anyone: a reader in this process, or
+        (for a stream) one in another process listening (a writer may skip making it)."""
+        readers = self.bus.local_readers if self.bus is not None else {}
+        now = self.clock() if self._thinned else 0.0
+        for key in self._publishers:
+            due = self._thinned.get(key)
+            if due is not None and now < due[1] - 0.1 * due[0]:
+                continue  # a thinned key not due yet (as `write` decides)
+            flag = self._matching.get(key)
+            if flag is not None and not flag[0]:
+                _recheck(flag, self._publishers[key])
+            if flag is None or flag[0] or readers.get(key):
+                return True
+        return False
+
+    def _encode(self, value: T, seq: int) -> bytes:
+        try:
+            return messages.encode(value, self.type, self.publisher_id, seq)
+        except messages.CodecError as exc:
+            self.stats.last_error = str(exc)
+            raise PortError(f"cannot write to {self.full_name} ({self.type_name}): {exc}") from None
+
+    def _refuse_type(self, value: Any) -> None:
+        reason = f"expected {self.type_name}, got {type(value).__name__}"
+        self.stats.last_error = reason
+        raise PortError(f"cannot write to {self.full_name} ({self.type_name}): {reason}")
+
+
+MATCHING_RECHECK = 0.2
+"""s: how often a stream key with no reader elsewhere asks Zenoh again."""
+
+
+def _recheck(flag: list[Any], publisher: Any) -> None:
+    """Ask Zenoh whether a stream key has a reader now (at most every MATCHING_RECHECK)."""
+    now = time.monotonic()
+    if now - flag[2] >= MATCHING_RECHECK:
+        flag[2] = now
+        flag[0] = publisher.matching_status.matching
 
 
 class InputPort(Port[T]):
     """Receives samples from one key and keeps them according to its `ConnPolicy`."""
 
-    def __init__(self, name: str, type: type, doc: str = "", policy: ConnPolicy | None = None):
+    def __init__(
+        self,
+        name: str,
+        type: type,
+        doc: str = "",
+        policy: ConnPolicy | None = None,
+        arrivals_only: bool = False,
+    ):
         super().__init__(name, type, doc)
         messages.codec_for(type)
         self.policy = policy or ConnPolicy()
+        self.arrivals_only = arrivals_only
+        """Only that a sample came matters (a safety watch's deadline): it is counted and
+        `on_data` called, never decoded or kept (no work for the bus's thread, no GIL
+        held against a 1 kHz loop in the same process)."""
         self.key: str | None = None
         self.bus: Any = None
         self.generation = 0
@@ -304,7 +402,12 @@ class InputPort(Port[T]):
                 remote_only=True,
             )
         for writer in list(self.bus.local_writers.get(key, {}).values()):
-            if writer.last_data is not None:  # a local writer's latest value, at once
+            if writer.last is None:
+                continue
+            # a local writer's latest value, at once
+            if writer.shareable:
+                self.deliver_value(writer.last, writer.publisher_id, writer.last_seq)
+            elif writer.last_data is not None:
                 self._deliver(generation, writer.last_data)
         if old is not None:
             old.undeclare()
@@ -338,13 +441,37 @@ class InputPort(Port[T]):
         self._seen.clear()
 
     def deliver_local(self, data: bytes) -> None:
-        """A sample written by an output port of the same session."""
+        """A sample written by an output port of the same session, encoded."""
         self._deliver(self.generation, data)
+
+    def deliver_value(self, value: T, publisher: int, seq: int) -> None:
+        """A sample written by an output port of the same process: the object itself
+        (its type holds no mutable part), no decoding."""
+        if self.arrivals_only:
+            self._arrived()
+            return
+        generation = self.generation
+        with self._lock:
+            if generation != self.generation:
+                self.stats.dropped_stale += 1
+                return
+            if seq <= self._seen.get(publisher, 0):
+                self.stats.dropped_duplicate += 1
+                return
+            self._seen[publisher] = seq
+            self.stats.received += 1
+            self._store(value)
+        callback = self.on_data
+        if callback is not None:
+            callback(self)
 
     def _deliver(self, generation: int, data: bytes) -> None:
         """Called on Zenoh's thread for every sample of the connected key."""
         if generation != self.generation:
             self.stats.dropped_stale += 1
+            return
+        if self.arrivals_only:
+            self._arrived()
             return
         try:
             value, publisher, seq = messages.decode(data, self.type)
@@ -367,6 +494,12 @@ class InputPort(Port[T]):
         if callback is not None:
             callback(self)
 
+    def _arrived(self) -> None:
+        self.stats.received += 1
+        callback = self.on_data
+        if callback is not None:
+            callback(self)
+
     def _store(self, value: T) -> None:
         if self.policy.type == "data":
             self._latest = value
@@ -383,6 +516,12 @@ class InputPort(Port[T]):
 
     def read(self) -> tuple[ReadStatus, T | None]:
         """(NEW, value) for an unread sample, (OLD, last value), or (NO_DATA, None)."""
+        if not self._fresh and not self._queue:  # nothing new: no lock to take (1 kHz)
+            latest = self._latest
+            if self._ever and latest is not None:
+                return ReadStatus.OLD, latest
+            if not self._ever:
+                return ReadStatus.NO_DATA, None
         with self._lock:
             if self.policy.type == "buffer":
                 if self._queue:

@@ -170,7 +170,9 @@ class SafetyMonitor:
         """Subscribe to every watched key and to the components' liveliness tokens."""
         for index, watch in enumerate(self.spec.watches):
             kind = messages.resolve_type(watch.type_name)
-            port: InputPort[Any] = InputPort(f"watch_{index}", kind, policy=ConnPolicy())
+            port: InputPort[Any] = InputPort(
+                f"watch_{index}", kind, policy=ConnPolicy(), arrivals_only=True
+            )
             port.owner, port.bus = owner, bus
             port.on_data = lambda _port, i=index: self.arrived(i)
             port.connect(watch.key)

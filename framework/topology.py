@@ -786,11 +786,11 @@ class _Loader:
             if comp is None:
                 continue
             activity = comp.activity
-            if activity.kind not in ("periodic", "event"):
+            if activity.kind not in ("periodic", "event", "paced"):
                 self.error(
                     "safety-watch",
                     f"{name!r} is watched by its heartbeat, but its activity is "
-                    f"{activity.kind}: only a periodic or event-driven component beats",
+                    f"{activity.kind}: only a periodic, event-driven or paced component beats",
                     where,
                     "watch one of its output ports instead, or give it an activity",
                 )

@@ -407,8 +407,9 @@ def test_an_event_a_scenario_says_must_never_come_is_reported_with_its_reason(wr
 
 
 def test_the_control_loops_processes_run_ahead_of_the_rest():
-    """The robot side (the monitor's process and the arm it watches at 50 ms) gets three
-    times the others' share of a busy CPU; every process runs ahead of the host's."""
+    """The robot side (the monitor's process and the arm's KRC, both device loops) gets
+    three times the others' share of a busy CPU, and its loops a real-time priority;
+    every process runs ahead of the host's."""
     from framework.deployer import CONTROL_NICE, SAFETY_NICE, container_spec
     from framework.topology import load_topology
     from tests.conftest import REPO
@@ -419,5 +420,7 @@ def test_the_control_loops_processes_run_ahead_of_the_rest():
     assert {p for p, n in nice.items() if n == CONTROL_NICE} == {"robot", "arm"}
     assert all(n == SAFETY_NICE for p, n in nice.items() if p not in ("robot", "arm"))
     assert CONTROL_NICE < SAFETY_NICE < 0
+    realtime = {p for p in processes if container_spec(seeg, p).get("realtime")}
+    assert realtime == {"robot", "arm"}
     demo = load_topology(REPO / "topologies" / "demo.yaml")
     assert "nice" not in container_spec(demo, "robot"), "no safety monitor: the host's own"

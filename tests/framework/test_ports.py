@@ -266,3 +266,46 @@ def test_a_rate_must_be_a_positive_number(hub):
     for bad in (-1.0, float("inf"), float("nan")):
         with pytest.raises(PortError, match="rate"):
             out.connect("k/x", rate=bad)
+
+
+def test_a_reader_in_the_writers_process_gets_the_object_itself_never_the_bus(hub):
+    """Within a process a sample is handed over, not encoded and decoded (RTT's
+    in-process connection): the reader reads the very object written. A type with a
+    JSON payload (mutable) is still handed over encoded, so no reader shares the
+    writer's dict."""
+    out, inp = make_out(hub, kind=Pose), make_in(hub, kind=Pose)
+    out.connect("k/obj")
+    inp.connect("k/obj")
+    sample = Pose((1.0, 2.0, 3.0), (1.0, 0.0, 0.0, 0.0), 5.0)
+    out.write(sample)
+    assert inp.read()[1] is sample
+    events_out = make_out(hub, "ev", messages.EventMessage)
+    events_in = make_in(hub, kind=messages.EventMessage)
+    events_out.connect("k/ev")
+    events_in.connect("k/ev")
+    event = messages.EventMessage(1.0, "e", "src", {"a": [1]})
+    events_out.write(event)
+    got = events_in.read()[1]
+    assert got == event and got.payload is not event.payload
+
+
+def test_a_stream_is_encoded_only_while_another_process_listens(hub, peer, monkeypatch):
+    """A port written every cycle costs no encoding while its only readers are in its
+    own process; a reader in another process gets its samples as soon as it listens."""
+    encoded = []
+    real = messages.encode
+    monkeypatch.setattr(messages, "encode", lambda *a: encoded.append(a) or real(*a))
+    out = OutputPort("joints", Scalar, stream=True)
+    out.owner, out.bus = "src", hub
+    out.connect("k/stream")
+    local = make_in(hub)
+    local.connect("k/stream")
+    for i in range(100):
+        out.write(Scalar(0.0, float(i)))
+    assert encoded == [] and values(local)[-1] == 99.0
+    remote = make_in(peer)
+    remote.connect("k/stream")
+    assert wait_until(lambda: out.write(Scalar(0.0, 1.0)) or remote.stats.received > 0)
+    assert encoded, "encoded once a reader in another process listens"
+    with pytest.raises(PortError, match="expected Scalar, got Pose"):
+        out.write(Pose())

@@ -174,7 +174,7 @@ def test_safety_watches_must_exist_beat_and_keep_their_deadline(write):
         "{t1: 100ms, t2.out: 50ms}", "{supervisor: 100ms}"
     )
     watches = [f.message for f in findings(write, text) if f.code == "safety-watch"]
-    assert watches and "only a periodic or event-driven component beats" in watches[0]
+    assert watches and "only a periodic, event-driven or paced component beats" in watches[0]
 
 
 def test_the_safety_spec_watches_heartbeats_ports_processes_and_every_component(write):
@@ -182,7 +182,7 @@ def test_the_safety_spec_watches_heartbeats_ports_processes_and_every_component(
 
     robot = (
         "  robot:\n    class: components.robot.interface:RobotInterface\n"
-        "    process: control_side\n    activity: {event: [measured]}\n"
+        "    process: control_side\n    activity: {paced: 20ms}\n"
     )
     text = SAFE.replace("monitor: supervisor", "monitor: robot").replace(
         "safety:", robot + "safety:"

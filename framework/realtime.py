@@ -1,0 +1,189 @@
+"""Real-time priority for a paced loop's thread, and what it got.
+
+A device loop that must answer every millisecond (the robot interface answering the
+KRC) runs as OROCOS lwr_fri, lbr_fri_ros2_stack and ros2_control run theirs: its
+thread at `SCHED_FIFO` (priority `PRIORITY`, 80: above the kernel's threaded
+interrupts at 50 and below its watchdogs at 99), the process's memory locked
+(`mlockall`: no page fault in a cycle), and Python's garbage collector kept out of the
+cycles: the objects that exist once the loop starts are frozen out of collection, the
+automatic collector is off in that process, and the loop collects the young
+generation itself between cycles (`between_cycles`), timing each collection.
+
+Where the host does not allow it (no CAP_SYS_NICE, an rtprio limit of 0, a container
+without the capability), the loop says so in one line and keeps the process's nice
+value (the deployer's -15 for safety processes). Either way `LoopStats.scheduling`
+says what the loop got, for `fw deploy`'s screen and `fw bench cost`.
+
+Only the loop's thread runs at real-time priority, never its process's other threads
+(the bus's, the heartbeat's): with all of them at SCHED_FIFO 70 (tried, to spare the
+loop a priority inversion through the GIL) the bus threads of the robot and KRC
+processes starved the rest of the deployment, and the Sensor Manager's heartbeat
+missed its 100 ms deadline on a quiet 2-core host. The GIL: a thread of the same
+process holding it makes the loop wait up to the interpreter's switch interval (5 ms
+by default); `enter` lowers that interval to `SWITCH_INTERVAL` so any other thread
+yields it within 0.2 ms, and the loop measures its wake-up (the `wake` stage: from
+the datagram's arrival in the kernel to the loop holding it).
+
+What that leaves is a priority inversion through the GIL: a thread of the loop's
+process (a bus callback, an operation's caller encoding its answer) that holds the
+interpreter when the host preempts it makes the loop wait until it runs again, a
+scheduler slice (milliseconds) later on a busy host. Measured on the SEEG deployment:
+a report whose loop statistics (percentiles over 2000 cycles of 12 stages) were computed
+in the caller's thread, polled at 2 Hz, cost enough missed answers for the KRC to brake
+within seconds; computed on request only (`fw bench cost`), the approach reached its
+target with the same polling. So the other threads of a loop's process must do little
+Python: decode, store, return.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import gc
+import logging
+import os
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+log = logging.getLogger("fw.realtime")
+
+PRIORITY = 80
+"""SCHED_FIFO priority of a device loop (OROCOS lwr_fri and lbr_fri_ros2_stack use 80-90)."""
+SWITCH_INTERVAL = 0.0002
+"""s: how soon another thread of the loop's process must yield the GIL."""
+GC_YOUNG = 700
+"""Allocations beyond which the loop collects the young generation between cycles."""
+_MCL_CURRENT, _MCL_FUTURE = 1, 2
+
+
+KEEP = 2000
+"""How many recent cycles the statistics are over."""
+
+
+def _percentile(values: list[float], q: float) -> float | None:
+    """The q-quantile of `values` (us, rounded), None for none."""
+    if not values:
+        return None
+    return round(float(np.quantile(values, q, method="lower")) * 1e6, 1)
+
+
+def _keep(samples: list[float], value: float) -> None:
+    samples.append(value)
+    if len(samples) > 2 * KEEP:
+        del samples[:KEEP]
+
+
+@dataclass
+class LoopStats:
+    """A paced loop's scheduling and what its cycles, their stages and the collections
+    took (the last `KEEP` cycles)."""
+
+    scheduling: str
+    cycles: int = 0
+    durations: list[float] = field(default_factory=list)  # s: read done to write sent
+    stages: dict[str, list[float]] = field(default_factory=dict)  # s, by stage
+    longest: float = 0.0
+    collections: int = 0
+    longest_collection: float = 0.0
+
+    def cycle(self, seconds: float) -> None:
+        """One cycle's work (read done to write sent) took `seconds`."""
+        self.cycles += 1
+        self.longest = max(self.longest, seconds)
+        _keep(self.durations, seconds)
+
+    def stage(self, name: str, seconds: float) -> None:
+        """A stage of this cycle (receive, safety, interpolation, IK, separation,
+        send...) took `seconds`; called by the loop and the components it runs."""
+        samples = self.stages.get(name)
+        if samples is None:
+            samples = self.stages[name] = []
+        _keep(samples, seconds)
+
+    def report(self) -> dict[str, object]:
+        """Scheduling, cycles, the cycle work's and each stage's p50/p99 (us), the
+        longest cycle, the collections. Safe from any thread while the loop runs (it
+        reads copies): a report's percentiles are never computed in a cycle's time."""
+        recent = self.durations[-KEEP:]
+        return {
+            "scheduling": self.scheduling,
+            "cycles": self.cycles,
+            "work_p50_us": _percentile(recent, 0.5),
+            "work_p99_us": _percentile(recent, 0.99),
+            "work_max_us": round(self.longest * 1e6, 1),
+            "stages_us": {
+                name: {
+                    "p50": _percentile(values[-KEEP:], 0.5),
+                    "p99": _percentile(values[-KEEP:], 0.99),
+                }
+                for name, values in list(self.stages.items())
+            },
+            "collections": self.collections,
+            "longest_collection_us": round(self.longest_collection * 1e6, 1),
+        }
+
+
+class RealTimePolicy:
+    """How a paced loop's thread asks for real-time priority (module docstring)."""
+
+    def __init__(self, enabled: bool = True, priority: int = PRIORITY, manage_gc: bool = True):
+        self.enabled = enabled
+        self.priority = priority
+        self.manage_gc = manage_gc
+
+    def enter(self, name: str) -> str:
+        """In the loop's own thread, before its first cycle: ask for SCHED_FIFO, lock
+        memory, take the collector over; what the thread got, in words."""
+        sys.setswitchinterval(SWITCH_INTERVAL)
+        if self.manage_gc:
+            gc.collect()
+            gc.freeze()  # what exists now is never scanned again
+            gc.disable()  # the loop collects between its cycles
+        if not self.enabled:
+            return f"SCHED_OTHER, nice {os.nice(0)} (real-time not asked for)"
+        try:
+            os.sched_setscheduler(
+                threading.get_native_id(), os.SCHED_FIFO, os.sched_param(self.priority)
+            )
+        except (PermissionError, OSError) as exc:
+            why = exc.strerror or str(exc)
+            got = f"SCHED_OTHER, nice {os.nice(0)} (SCHED_FIFO refused: {why})"
+            log.warning("%s: no real-time priority for its loop: %s", name, got)
+            print(
+                f"fw: {name}: no real-time priority for its loop ({why}): "
+                f"it runs at nice {os.nice(0)}; see docs/safety.md",
+                file=sys.stderr,
+            )
+            return got
+        locked = _lock_memory()
+        return f"SCHED_FIFO {self.priority}" + ("" if locked else " (memory not locked)")
+
+    def between_cycles(self, stats: LoopStats, slack: bool = False) -> None:
+        """After a cycle's write, in the loop's thread: collect the young generations
+        when due (tens of microseconds), timed; the whole heap (milliseconds: three
+        missed answers at 1 kHz) only with `slack`, when the device left time (a
+        braked arm's KRC sends every 10 ms)."""
+        if not self.manage_gc:
+            return
+        young, middle, old = gc.get_count()
+        if young < GC_YOUNG and not (slack and old > 10):
+            return
+        generation = 2 if slack and old > 10 else (1 if middle > 10 else 0)
+        began = time.perf_counter()
+        gc.collect(generation)
+        took = time.perf_counter() - began
+        stats.collections += 1
+        stats.longest_collection = max(stats.longest_collection, took)
+
+
+def _lock_memory() -> bool:
+    """mlockall(MCL_CURRENT | MCL_FUTURE); False if the host refuses."""
+    name = ctypes.util.find_library("c")
+    if name is None:
+        return False
+    libc = ctypes.CDLL(name, use_errno=True)
+    return libc.mlockall(_MCL_CURRENT | _MCL_FUTURE) == 0
