@@ -227,17 +227,32 @@ def play_seeg_scenario(
 ) -> list:
     """Play a scenario on the SEEG deployment (real processes, a private bus); the
     outcomes that failed. `history` receives the Configurator's outcomes; `margin`
-    stretches the safety deadlines (`SHARED_HOST_MARGIN`), the simulated arm's own
-    command watchdog (40 of its cycles) among them."""
+    stretches the safety deadlines (`SHARED_HOST_MARGIN`), the simulated KRC's FRI
+    quality counter among them."""
     return play_scenario(
         REPO / "topologies" / "seeg.yaml", path, bus_config, tmp_path, history, margin
     )
 
 
+def with_free_fri_port(topology):
+    """`topology` with its FRI link (the KRC's `fri_remote`, the interface's
+    `fri_listen`) on a free port: two deployments on one host never share it."""
+    from framework.bus import free_udp_port
+
+    port = free_udp_port()
+    for component in topology.components.values():
+        for prop in ("fri_remote", "fri_listen"):
+            if prop in (component.info.properties if component.info else {}):
+                component.properties[prop] = f"127.0.0.1:{port}"
+    return topology
+
+
 def with_deadlines_stretched(topology, margin: float):
     """`topology` with every safety deadline (watches, process heartbeats), every
-    component's own command watchdog (a `watchdog_cycles` property: the simulated arm's)
-    and reply timeout (a `timeout` property: the NDI driver's), and every tracker's
+    component's own command watchdog (a `watchdog_cycles` property, or the simulated
+    KRC's FRI quality counter: `quality_top`, `quality_bad`, `quality_ok`)
+    and reply timeout (a `timeout` property: the NDI driver's; `krc_timeout`: the FRI
+    interface's wait for the KRC), and every tracker's
     staleness limit (`stale_periods` of a `sensors_file`, in a copy) x `margin` (a
     timeout no further than its property allows)."""
     import dataclasses
@@ -253,14 +268,16 @@ def with_deadlines_stretched(topology, margin: float):
             safety, watches=watches, process_deadline=safety.process_deadline * margin
         )
     for component in topology.components.values():
-        declared = component.info.properties.get("watchdog_cycles")
-        if declared is not None:
-            cycles = component.properties.get("watchdog_cycles", declared.default)
-            component.properties["watchdog_cycles"] = round(cycles * margin)
-        declared = component.info.properties.get("timeout")
-        if declared is not None:
-            seconds = component.properties.get("timeout", declared.default) * margin
-            component.properties["timeout"] = min(seconds, declared.max or seconds)
+        for name in ("watchdog_cycles", "quality_top", "quality_bad", "quality_ok"):
+            declared = component.info.properties.get(name)  # the KRC's FRI quality counter
+            if declared is not None:
+                cycles = component.properties.get(name, declared.default)
+                component.properties[name] = round(cycles * margin)
+        for name in ("timeout", "krc_timeout"):  # the NDI driver's; the FRI interface's
+            declared = component.info.properties.get(name)
+            if declared is not None:
+                seconds = component.properties.get(name, declared.default) * margin
+                component.properties[name] = min(seconds, declared.max or seconds)
         sensors = component.properties.get("sensors_file")
         if sensors:
             component.properties["sensors_file"] = _staleness_stretched(sensors, margin)
@@ -361,13 +378,13 @@ def explain(failed: list) -> str:
 
 
 def private_topology(path, bus_config, device_dir: Path | None = None):
-    """A topology on the test's private bus; with `device_dir`, a simulated Vicra's
-    device node there instead of the shared path, so tests never share a pty."""
+    """A topology on the test's private bus and FRI port; with `device_dir`, a simulated
+    Vicra's device node there instead of the shared path, so tests never share a pty."""
     import dataclasses
 
     from framework.topology import load_topology
 
-    topology = load_topology(path)
+    topology = with_free_fri_port(load_topology(path))
     topology.bus = dataclasses.replace(
         topology.bus, namespace=bus_config.namespace, hub_port=bus_config.hub_port
     )

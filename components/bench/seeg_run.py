@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from components.bench.files import seeg_home
-from framework.bus import free_port
+from framework.bus import free_port, free_udp_port
 from framework.deployer import Deployment
 from framework.errors import FwError
 from framework.messages import ConfigAck, EventMessage, Scalar, decode
@@ -108,6 +108,9 @@ class SeegRun:
             hub_port=free_port(),
             secure=self.secure,
         )
+        port = free_udp_port()  # the FRI link of this deployment alone
+        topology.components["arm"].properties["fri_remote"] = f"127.0.0.1:{port}"
+        topology.components["robot"].properties["fri_listen"] = f"127.0.0.1:{port}"
         link = str(self.workdir / "ttyVICRA")
         topology.components["vicra_sim"].properties["link"] = link
         topology.components["vicra"].properties["device"] = link

@@ -1,11 +1,20 @@
 """The robot interface (the FRI role): the only component that commands the arm, and
 where the robot-side safety monitor runs.
 
-It is the client of the arm's own controller (`controller.py`, a machine of its own
-in simulation): each measured `ArmState` (1 kHz) is answered on `command` with the
-interpolator's latest joint setpoint, and joints and TCP go out to everyone. A real
-FRI driver is another component with the same ports and operations, swapped in the
-topology.
+It is the PC side of KUKA's FRI 1.x (components/domain/fri.py): the KRC (a real one
+given its address, or the simulated one, `components/sim/arm_controller.py`) sends a
+measurement datagram every cycle over UDP and this component answers each at once,
+in one loop at real-time priority (`activity: {paced: ...}`): **read** the
+measurement (only from the KRC, of the right size, id and sequence; anything else is
+refused and counted, never a crash) -> **update** (the safety monitor, speed and
+separation monitoring, the state every other component reads) -> the components that
+run after it in the same thread (the interpolator: the setpoint of this very
+measurement) -> **write** the command (the setpoint, the protective stop's next step,
+the hold position, or in monitor mode cmdJntPos + cmdJntPosFriOffset as FRI demands,
+with the next request to the KRC in its KRL data). Nothing on that path goes over the
+bus or is encoded, and no operation takes this component's lock mid-cycle (they run
+between cycles, framework/engine.py). Joints and TCP go out to everyone, stamped with
+the measurement's arrival in the kernel (not when this process got to it).
 
 Safety, fastest first (docs/safety.md):
 
@@ -18,7 +27,9 @@ Safety, fastest first (docs/safety.md):
 * the latch opens only through `acknowledge` (the operator's RELEASE, applied by the
   chart's `release` configuration) with every watched input healthy; `release` and
   every setpoint are refused while latched, so nothing but RELEASE restarts motion;
-* if this process dies or hangs, the arm's controller brakes by itself;
+* if this process dies or hangs, the KRC's answers stop and it brakes by itself (FRI
+  quality, within 10 of its cycles); if the KRC falls silent for `krc_timeout`, that
+  is a trip too (the chart hears of a dead KRC process through its liveliness);
 * with people's `envelopes` wired, **speed and separation monitoring** runs every
   cycle the arm is released (`separation.py`, ISO/TS 15066's protective separation
   distance): a separation under it is a protective stop, latched like a trip, taken
@@ -31,26 +42,34 @@ goal): they do not latch.
 
 from __future__ import annotations
 
+import contextlib
 import math
+import select
+import socket
+import struct
 import time
 from collections import deque
 from typing import Any
 
 import numpy as np
 
+from components.domain import fri
 from components.domain.geometry import matrix_to_quat
 from components.domain.lwr4 import POSITION_LIMIT, VELOCITY_LIMIT, Kinematics
 from components.domain.separation import CLEAR, SeparationMonitor, SsmParams, Verdict
 from components.robot.safe_stop import SafeStop
-from framework.component import Component, In, Out, operation
+from framework.component import Component, ConfigureError, In, Out, operation
 from framework.errors import FwError
 from framework.messages import ArmState, Envelopes, EventMessage, JointState, Pose, Scalar
 from framework.ports import ReadStatus
 from framework.properties import prop
 
+_NO_LOCK = contextlib.nullcontext()
+
 CYCLE = 0.001  # s: the controller's cycle
 POSITION_LIMIT_RAD = np.array(POSITION_LIMIT)
 MAX_STEP_RAD = np.array(VELOCITY_LIMIT) * CYCLE  # the rated velocity, per cycle
+MAX_STEP = tuple(MAX_STEP_RAD.tolist())
 STEP_MARGIN = 1.5  # a setpoint step may be 1.5x the rated joint velocity, no more
 FIRST_STEP_CYCLES = 10  # the first setpoint of a motion: this many cycles from the arm
 STILL_RAD_S = 2e-3  # rad/s: every joint slower than this...
@@ -58,6 +77,26 @@ STILL_CYCLES = 50  # ...for this many cycles: the arm stands still (brake when s
 STILL_TIMEOUT_CYCLES = 2000  # brake when still brakes anyway after 2 s
 STATUS_PERIOD = 0.5  # s between statuses when nothing changes (a change: at once)
 CAP_CHANGE = 0.02  # a speed cap that moved by less than this share is not sent again
+REQUESTS = {
+    ("brake", False): fri.Request.BRAKE,
+    ("brake", True): fri.Request.BRAKE_LATCHED,
+    ("release", False): fri.Request.RELEASE,
+    ("reset", False): fri.Request.RESET,
+    ("mode", "position"): fri.Request.MODE_POSITION,
+    ("mode", "impedance"): fri.Request.MODE_IMPEDANCE,
+}
+_TIMESTAMP = struct.Struct("ll")  # SO_TIMESTAMPNS: seconds, nanoseconds
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+"""Linux's option (asm-generic/socket.h: 35) for the kernel's receive time of a datagram
+(Python's socket module does not name it)."""
+
+
+def parse_address(text: str) -> tuple[str, int]:
+    """`host:port` as a socket address; ValueError naming what is wrong."""
+    host, sep, port = str(text).rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"an FRI address is HOST:PORT (e.g. 127.0.0.1:49938), not {text!r}")
+    return host, int(port)
 
 
 def tcp_message(tcp: np.ndarray, stamp: float, frame: str = "base") -> Pose:
@@ -104,22 +143,59 @@ class RobotInterface(Component):
     max_speed = prop(
         float, 0.075, unit="m/s", min=0.001, max=0.25, doc="the cap far from everyone's band"
     )
-    measured = In(ArmState, doc="the controller's measured state, every cycle")
+    fri_listen = prop(
+        str, "127.0.0.1:49938", doc="where this PC listens for the KRC's FRI datagrams"
+    )
+    krc = prop(
+        str, "", doc="the KRC's FRI address (HOST:PORT; '': learned from its first datagram)"
+    )
+    krc_timeout = prop(
+        float, 0.05, unit="s", min=0.005, max=5.0, doc="no measurement for this long: a trip"
+    )
     envelopes = In(Envelopes, doc="people's envelopes (speed and separation monitoring)")
     speed_cap = Out(Scalar, doc="the TCP speed people allow (m/s; inf: none), on change")
     setpoint = In(JointState, doc="joint position setpoints (rad) from the interpolator")
-    command = Out(JointState, doc="joint setpoints for the controller, one per cycle")
-    arm_request = Out(EventMessage, doc="brake {reason, latch}, release, reset, mode {mode}")
-    joints = Out(JointState, doc="measured joints, every cycle")
-    tcp = Out(Pose, doc="measured TCP in the robot base frame, every cycle")
+    joints = Out(JointState, doc="measured joints, every cycle", stream=True)
+    tcp = Out(Pose, doc="measured TCP in the robot base frame, every cycle", stream=True)
     status = Out(EventMessage, doc="brakes, latch and reason, mode (on change and at 2 Hz)")
 
     def __init__(self, name: str):
         super().__init__(name)
         self._arm: ArmState | None = None
         """The arm's last measured state."""
+        self._socket: socket.socket | None = None
+        self._kinematics: Kinematics | None = None
 
     def configure_hook(self) -> bool:
+        try:
+            listen = parse_address(self.fri_listen)
+            self._krc_fixed = parse_address(self.krc) if self.krc else None
+        except ValueError as exc:
+            raise ConfigureError(str(exc)) from None
+        self._close()
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+            sock.bind(listen)
+        except OSError as exc:
+            sock.close()
+            raise ConfigureError(
+                f"cannot listen for FRI on {self.fri_listen}: {exc.strerror or exc}"
+            ) from None
+        sock.setblocking(False)
+        self._socket = sock
+        self._krc_address = self._krc_fixed
+        self._measurement: fri.Measurement | None = None  # the cycle's, until answered
+        self._last_seen: fri.Measurement | None = None
+        self._received = 0.0  # its arrival in the kernel (wall clock)
+        self._last_seq: int | None = None
+        self._last_measured = -math.inf  # this component's clock
+        self._previous: tuple[int, tuple[float, ...]] | None = None  # (cycle, joints) before
+        self._pending: deque[tuple[fri.Request, str]] = deque()  # requests for the KRC
+        self._answer = np.zeros(7)  # what the next command carries
+        self._requests_sent = 0  # the number of the last request sent to the KRC
+        self._brake_reason = ""  # why this side last asked for the brakes (not latched)
+        self.link = {"measurements": 0, "answered": 0, "skipped": 0, "refused": 0}
         self.latched = ""
         self.mode = "position"
         self._arm = None
@@ -141,7 +217,8 @@ class RobotInterface(Component):
             slow_band=self.slow_band,
         )
         self._ssm = SeparationMonitor(params, self.max_speed)
-        self._kinematics: Kinematics | None = None
+        # built here (~50 ms with Pinocchio's model), never in a cycle
+        self._kinematics: Kinematics | None = Kinematics()
         self._people: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._age_at_arrival = 0.0  # the envelopes' age when they arrived (wall clock, s)
         self._arrived = 0.0  # ...and when, on this component's clock
@@ -155,19 +232,117 @@ class RobotInterface(Component):
         return True
 
     def stop_hook(self) -> None:
+        # its answers stop: the KRC brakes by itself within 10 of its cycles (FRI quality)
         self._request("brake", reason="robot interface stopped", latch=True)
 
-    # -- the cycle -----------------------------------------------------------------------
+    def cleanup_hook(self) -> None:
+        self._close()
+
+    def _close(self) -> None:
+        if self._socket is not None:
+            self._socket.close()
+            self._socket = None
+
+    # -- the cycle: read, update, (the interpolator), write --------------------------------
+    def read_hook(self, timeout: float) -> bool:
+        """Wait (at most `timeout` s) for the KRC's next measurement and take it: the
+        newest valid one if several queued up (the ones skipped are counted, only the
+        newest is answered). A datagram from another sender, of the wrong size or id,
+        or out of sequence is refused and counted. Runs in the loop's thread."""
+        sock = self._socket
+        if sock is None:
+            return False
+        taken = None
+        try:
+            while True:
+                try:
+                    data, ancillary, _, sender = sock.recvmsg(2048, 64)
+                except BlockingIOError:
+                    if taken is not None or timeout <= 0:
+                        break
+                    if not select.select([sock], [], [], timeout)[0]:
+                        break
+                    timeout = 0.0
+                    continue
+                began = time.perf_counter()
+                found = self._take(data, ancillary, sender)
+                self.stage("receive", time.perf_counter() - began)
+                if found is not None:
+                    if taken is not None:
+                        self.link["skipped"] += 1
+                    taken = found
+        except OSError:  # the socket was closed (stopping)
+            return False
+        if taken is None:
+            return False
+        measurement, self._received = taken
+        self._measurement = self._last_seen = measurement
+        self.link["measurements"] += 1
+        # from the datagram's arrival in the kernel to now: waking, and the GIL
+        self.stage("wake", max(0.0, time.time() - self._received))
+        return True
+
+    def _take(
+        self, data: bytes, ancillary: list[Any], sender: tuple[str, int]
+    ) -> tuple[fri.Measurement, float] | None:
+        """One datagram: a measurement of the KRC's, newer than the last, with its
+        arrival time in the kernel; None (refused and counted) for anything else."""
+        expected = self._krc_address
+        if expected is not None and sender != expected:
+            return self._refused(f"a datagram from {sender[0]}:{sender[1]}, not the KRC")
+        try:
+            measurement = fri.decode_measurement(data)
+        except fri.DatagramError as exc:
+            return self._refused(str(exc))
+        last = self._last_seq
+        if last is not None and not fri.seq_after(measurement.send_seq, last):
+            return self._refused(
+                f"measurement {measurement.send_seq} out of sequence (after {last})"
+            )
+        self._last_seq = measurement.send_seq
+        self._krc_address = expected or sender  # the first valid datagram's sender
+        received = time.time()
+        for level, kind, value in ancillary:
+            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS:
+                seconds, nanoseconds = _TIMESTAMP.unpack(value[: _TIMESTAMP.size])
+                received = seconds + nanoseconds * 1e-9
+        return measurement, received
+
+    def _refused(self, reason: str) -> None:
+        self.link["refused"] += 1
+        self.refuse("fri", reason)
+        return None
+
     def update_hook(self) -> None:
-        status, state = self.measured.read()
-        if status is not ReadStatus.NEW or state is None:
+        measurement = self._measurement
+        if measurement is None:
             return
+        began = time.perf_counter()
+        state = self._state_of(measurement)
         self._arm = state
+        self._last_measured = self.clock.now()
         if state.braked:
             self._commanding = False
             self._sent.clear()
         self._guard(state)
+        guarded = time.perf_counter()
         self._separation(state)
+        separated = time.perf_counter()
+        if self._brake_when_still is not None:
+            self._brake_once_still(state)
+        self._publish(state)
+        self.stage("safety", guarded - began)
+        self.stage("separation", separated - guarded)
+        self.stage("publish", time.perf_counter() - separated)
+
+    def write_hook(self) -> None:
+        """Answer the cycle's measurement: the protective stop's next step, the
+        interpolator's setpoint of this very cycle (once found plausible), the hold
+        position, or in monitor mode what FRI demands; with the next request."""
+        measurement, state = self._measurement, self._arm
+        if measurement is None or state is None:
+            return
+        self._measurement = None
         if self._stop is not None:
             self._send(self._stop.step())
             self._reacted()
@@ -182,23 +357,88 @@ class RobotInterface(Component):
                 if wrong:
                     self.refuse("setpoint", wrong)
                     self._trip(f"setpoint refused: {wrong}", state)
+                    if self._stop is not None:  # its first command goes out now
+                        self._send(self._stop.step())
+                        self._reacted()
                 else:
                     self._send(q)
                     self._since_setpoint = 0
             elif self._commanding:
                 self._since_setpoint += 1
-        if self._brake_when_still is not None:
-            self._brake_once_still(state)
-        self._publish(state)
+        if state.braked or not self._commanding:  # hold: the measurement's own answer
+            self._answer = np.asarray(measurement.monitor_answer)
+        self._answer_krc(measurement)
+
+    def _answer_krc(self, measurement: fri.Measurement) -> None:
+        """Send the command answering `measurement`, with the next queued request."""
+        number, request = self._requests_sent, fri.Request.NONE
+        if self._pending and measurement.served >= self._requests_sent:
+            request, _ = self._pending.popleft()
+            number = self._requests_sent = self._requests_sent + 1
+        datagram = fri.encode_command(
+            self.link["answered"] + 1,
+            measurement.send_seq,
+            tuple(self._answer.tolist()),
+            request_number=number,
+            request=request,
+        )
+        sock, address = self._socket, self._krc_address
+        if sock is None or address is None:
+            return
+        try:
+            sock.sendto(datagram, address)
+            self.link["answered"] += 1
+        except OSError as exc:
+            self.refuse("fri", f"cannot answer the KRC: {exc.strerror or exc}")
+
+    def _state_of(self, m: fri.Measurement) -> ArmState:
+        """The measurement as the arm's state: joints and (by finite difference over the
+        KRC's cycles) their velocities, torques, brakes, latch and why, stamped with its
+        arrival in the kernel."""
+        q = m.msr_jnt_pos
+        previous = self._previous
+        if previous is not None and m.cycle > previous[0]:
+            dt = (m.cycle - previous[0]) * CYCLE
+            velocity = tuple((a - b) / dt for a, b in zip(q, previous[1], strict=True))
+        else:
+            velocity = (0.0,) * 7
+        self._previous = (m.cycle, q)
+        if self._kinematics is None:
+            self._kinematics = Kinematics()
+        reason = fri.REASONS[m.reason] if 0 <= m.reason < len(fri.REASONS) else "unknown"
+        if m.reason == fri.reason_code(fri.REASONS[2]):  # asked for: by this side, and why
+            reason = self._brake_reason or reason
+        elif m.reason == fri.reason_code(fri.REASONS[6]):
+            reason = self.latched or reason
+        return ArmState(
+            self._received,
+            m.cycle,
+            m.served,
+            m.msr_jnt_pos,
+            velocity,
+            m.msr_jnt_trq,
+            (),  # the TCP: computed only for a cycle whose pose someone reads (_publish)
+            m.braked,
+            m.latched,
+            reason if m.braked else "",
+        )
 
     def idle_hook(self) -> None:
-        """No measured state for the activity's `idle` period (the arm's controller is
-        silent or slow): the monitor still checks every input, the controller's own
-        state among them if the topology watches it, and a trip asks for the brakes; so
-        does a protective stop still under way (it has no cycles left to run on)."""
+        """No measurement for the activity's `idle` period (the KRC is silent or slow):
+        the monitor still checks every input, the KRC's silence beyond `krc_timeout` is a
+        trip of its own, and a protective stop still under way cannot go on (it has no
+        cycles to decelerate with: the KRC brakes when its answers stop). Runs in the
+        loop's thread."""
         state = self._arm
         if state is None:
             return
+        silent = self.clock.now() - self._last_measured
+        if silent > self.krc_timeout and not self.latched:
+            self._trip(
+                f"the KRC is silent: no measurement for {silent * 1e3:.0f} ms "
+                f"(timeout {self.krc_timeout * 1e3:.0f} ms)",
+                state,
+            )
         self._guard(state)
         if self._stop is not None:  # no cycles to decelerate with: brake at once
             self._stop = None
@@ -312,35 +552,44 @@ class RobotInterface(Component):
         beyond a joint's limit, or a step from the last command faster than the joint's
         rated velocity (with the cycles since then, and a margin). The first setpoint of
         a motion is measured from where the arm stands."""
-        if q.shape != (7,) or not np.isfinite(q).all():
+        values = q.tolist() if q.ndim == 1 else []
+        if len(values) != 7 or not all(math.isfinite(v) for v in values):
             return f"not 7 finite joint positions: {q.tolist()!r:.80}"
-        over = np.abs(q) > POSITION_LIMIT_RAD
-        if over.any():
-            j = int(np.argmax(over))
-            return f"A{j + 1} at {np.degrees(q[j]):.1f} deg is beyond its limit"
+        # plain floats: seven numbers cost less than numpy's calls at 1 kHz
+        for j, (v, limit) in enumerate(zip(values, POSITION_LIMIT, strict=True)):
+            if abs(v) > limit:
+                return f"A{j + 1} at {math.degrees(v):.1f} deg is beyond its limit"
         if self._commanding and self._sent:
-            reference, cycles = self._sent[-1], self._since_setpoint + 1
+            reference, cycles = self._sent[-1].tolist(), self._since_setpoint + 1
         else:
-            reference, cycles = np.asarray(state.position, dtype=float), FIRST_STEP_CYCLES
-        step = np.abs(q - reference) / (MAX_STEP_RAD * cycles)
-        worst = float(step.max())
+            reference, cycles = list(state.position), FIRST_STEP_CYCLES
+        worst, j = max(
+            (abs(v - r) / (step * cycles), k)
+            for k, (v, r, step) in enumerate(zip(values, reference, MAX_STEP, strict=True))
+        )
         self.peak_step = max(self.peak_step, worst)
         if worst > STEP_MARGIN:
-            j = int(np.argmax(step))
             return (
-                f"A{j + 1} would move {np.degrees(abs(q[j] - reference[j])):.2f} deg in "
-                f"{cycles} cycle(s), {step[j]:.1f}x its rated velocity"
+                f"A{j + 1} would move {math.degrees(abs(values[j] - reference[j])):.2f} deg in "
+                f"{cycles} cycle(s), {worst:.1f}x its rated velocity"
             )
         return ""
 
     def _send(self, q: np.ndarray) -> None:
-        self.command.write(JointState(time.time(), tuple(q.tolist())))
+        """The joints the command of this cycle carries."""
+        self._answer = q
         self._sent.append(q)
         self._commanding = True
 
     def _request(self, name: str, **payload: Any) -> None:
+        """Queue a request for the KRC (fw's KRL convention: one per command, in order):
+        brake {reason, latch}, release, reset, mode {mode}."""
+        key = payload.get("mode") if name == "mode" else bool(payload.get("latch", False))
         self._requests += 1
-        self.arm_request.write(EventMessage(time.time(), name, self.name, payload))
+        reason = str(payload.get("reason", ""))
+        if name == "brake" and not key:
+            self._brake_reason = reason  # FRI carries a code: this side keeps the words
+        self._pending.append((REQUESTS[(name, key)], reason))
 
     def _brake_once_still(self, state: ArmState) -> None:
         assert self._brake_when_still is not None
@@ -366,8 +615,9 @@ class RobotInterface(Component):
         cycles = covered if state.braked else 1
         self._published_cycle = state.cycle
         self.joints.write(JointState(stamp, state.position, state.velocity, state.effort, cycles))
-        x, y, z, qw, qx, qy, qz = state.tcp
-        self.tcp.write(Pose((x, y, z), (qw, qx, qy, qz), stamp, 0.0, 0, True, "base", "tcp"))
+        if self.tcp.wanted():  # its readers take it at 200 Hz: no FK on the other cycles
+            tcp = self._kinematics.tcp(np.asarray(state.position))
+            self.tcp.write(tcp_message(tcp, stamp))
         self._publish_status(state)
 
     def _publish_status(self, state: ArmState) -> None:
@@ -376,7 +626,8 @@ class RobotInterface(Component):
         now = self.clock.now()
         if seen != self._reported or now - self._last_status >= STATUS_PERIOD:
             self._reported, self._last_status = seen, now
-            self.status.write(EventMessage(time.time(), "robot", self.name, self.report()))
+            payload = self._state_report()  # the loop's statistics: on demand only
+            self.status.write(EventMessage(time.time(), "robot", self.name, payload))
 
     # -- operations ------------------------------------------------------------------------
     @operation
@@ -390,7 +641,7 @@ class RobotInterface(Component):
             self._still_cycles = 0
         else:
             self._request("brake", reason=reason, latch=False)
-        return self.report()
+        return self._state_report()
 
     @operation
     def release(self) -> dict[str, Any]:
@@ -406,7 +657,7 @@ class RobotInterface(Component):
                 raise FwError(why)
         self._brake_when_still = None
         self._request("release")
-        return self.report()
+        return self._state_report()
 
     @operation
     def acknowledge(self) -> dict[str, Any]:
@@ -420,7 +671,7 @@ class RobotInterface(Component):
                 raise FwError(why)
         self.latched = ""
         self._request("reset")
-        return self.report()
+        return self._state_report()
 
     @operation(exclusive=False)
     def await_ready(self, timeout: float = 5.0) -> dict[str, Any]:
@@ -433,7 +684,7 @@ class RobotInterface(Component):
             if not why and self.safety is not None:
                 why = self.safety.ready()
             if not why:
-                return self.report()
+                return self._state_report()
             if time.monotonic() >= end:
                 raise FwError(f"not ready after {timeout:g} s: {why}")
             time.sleep(0.01)
@@ -445,11 +696,48 @@ class RobotInterface(Component):
             raise FwError(f"unknown mode {mode!r}: position or impedance")
         self.mode = mode
         self._request("mode", mode=mode)
-        return self.report()
+        return self._state_report()
 
-    @operation(readonly=True)
-    def report(self) -> dict[str, Any]:
-        """Brakes, latch and why, servo mode, the controller's time, joints, the monitor."""
+    def _link_report(self) -> dict[str, Any]:
+        """The FRI link as this side sees it: the KRC's address, the last measurement's
+        state and quality, and the counters (measurements, answered, skipped as too
+        late, refused)."""
+        m = self._last_seen
+        out: dict[str, Any] = dict(self.link)
+        address = self._krc_address
+        out["krc"] = f"{address[0]}:{address[1]}" if address else None
+        if m is not None:
+            out.update(
+                state=("OFF", "MON", "CMD")[m.state] if 0 <= m.state <= 2 else m.state,
+                quality=_quality(m.quality),
+                answer_rate=round(m.answer_rate, 3),
+                misses=m.miss_counter,
+            )
+        return out
+
+    @operation(readonly=True, exclusive=False)
+    def report(self, loop: bool = False) -> dict[str, Any]:
+        """Brakes, latch and why, servo mode, the controller's time, joints, the monitor,
+        the FRI link, and (with `loop`, for `fw bench cost`: percentiles over thousands of
+        cycles cost milliseconds of this process's interpreter, which its loop shares)
+        the loop's scheduling and per-stage times.
+        Runs in the caller's thread: the state is taken by the loop between cycles
+        (a copy, in microseconds), the loop's statistics (percentiles over thousands of
+        cycles, milliseconds) are computed here, never in a cycle's time."""
+        engine = self.engine
+        if engine is not None and engine.running and not engine.in_loop():
+            out = engine.call(self._state_report)
+        else:
+            with self._lifecycle_lock if engine is None or not engine.running else _NO_LOCK:
+                out = self._state_report()
+        if engine is not None and "fri" in out:
+            stats = engine.report() if loop else {"scheduling": engine.scheduling()}
+            out["loop"] = stats
+        return out
+
+    def _state_report(self) -> dict[str, Any]:
+        """`report` without the loop's statistics: what an operation returns, and the
+        status says at 2 Hz (in the loop's thread, or under the component's lock)."""
         state = self._arm
         if state is None:
             return {"braked": True, "latched": False, "fault": False, "reason": "no arm state"}
@@ -472,10 +760,17 @@ class RobotInterface(Component):
             "closest": _cm(self.closest),
             "speed_cap": _cm(self._cap_sent),
             "protective_stop": self.protective_stop,
+            "fri": self._link_report(),
+            "refused_datagrams": self.link["refused"],  # flat, for scenarios' checks
+            "loop": None,
         }
         if self.safety is not None:
             out["safety"] = self.safety.report()
         return out
+
+
+def _quality(code: int) -> str:
+    return fri.Quality(code).name if 0 <= code <= 3 else str(code)
 
 
 def _cm(metres: float) -> float | None:

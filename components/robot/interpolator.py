@@ -48,7 +48,7 @@ import pinocchio as pin
 from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig
 
 from components.domain.geometry import pose_from_list
-from components.domain.ik import DifferentialIK
+from components.domain.ik import DifferentialIK, _fwkernel
 from components.robot.interface import tcp_message
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError
@@ -133,6 +133,8 @@ class InterpolatorCore:
         self._return_after_stop = True
         self.offset = np.zeros(6)  # applied correction: translation (m), rotation vector (rad)
         self._wanted = np.zeros(6)  # the correction the goal asks for
+        self.ik_seconds = 0.0
+        """s the IK of the steps since the component last set it to 0 took."""
         self._slowed = False
         self.cap = math.inf
         """The speed people nearby allow (m/s; speed and separation monitoring)."""
@@ -165,6 +167,7 @@ class InterpolatorCore:
         self.pose = self.ik.kin.tcp(self.q)
         self.offset = np.zeros(6)
         self._wanted = np.zeros(6)
+        self._steered = False  # no goal was steered since: no correction to make
         self._start_path(self.pose, self.pose)
         self.phase = Phase.IDLE
         self._pending = None
@@ -202,6 +205,7 @@ class InterpolatorCore:
         if beyond > 0.0:
             wanted = wanted * (self.max_correction / size)
         self._wanted = wanted
+        self._steered = True
         return max(0.0, beyond)
 
     def set_limits(self, velocity: float, acceleration: float | None = None) -> None:
@@ -273,17 +277,19 @@ class InterpolatorCore:
                 self._finished()
             elif result not in (Result.Working,):
                 raise RuntimeError(f"ruckig failed: {result}")
-            if steering:  # the straight path's translation this cycle
+            if steering and self._steered:  # the straight path's translation this cycle
                 share = abs(self.s - before) / self.length  # a path moved on is >= 1 nm
-                self._correct(share * _length(self._delta_p))
-            self.pose = self._offset_pose(self._pose_at(self.s))
-        elif steering and self._pending_correction():
+                self._correct(share * self._delta_length)
+            self.pose = self._path_pose(self.s)
+        elif steering and self._steered and self._pending_correction():
             self._correct(0.0)
-            self.pose = self._offset_pose(self._pose_at(self.s))
+            self.pose = self._path_pose(self.s)
             self._settled = False
         elif self._settled:  # at rest and converged: the same setpoint, no IK to solve
             return self.q
+        began = time.perf_counter()
         q = self.ik.step(self.q, self.pose)
+        self.ik_seconds += time.perf_counter() - began
         self._settled = not self.moving and float(np.max(np.abs(q - self.q))) < 1e-10
         self.q = q
         return self.q
@@ -325,10 +331,12 @@ class InterpolatorCore:
         return out
 
     def _start_path(self, start: np.ndarray, goal: np.ndarray) -> None:
-        self._start = start.copy()
+        self._start = np.ascontiguousarray(start, dtype=float)
         self._goal = goal.copy()
-        self._delta_p = goal[:3, 3] - start[:3, 3]
-        self._delta_r = pin.log3(start[:3, :3].T @ goal[:3, :3])  # in the start frame
+        self._delta_p = np.ascontiguousarray(goal[:3, 3] - start[:3, 3])
+        self._delta_length = _length(self._delta_p)
+        # in the start frame
+        self._delta_r = np.ascontiguousarray(pin.log3(start[:3, :3].T @ goal[:3, :3]))
         self.length = max(
             float(np.linalg.norm(self._delta_p)),
             float(np.linalg.norm(self._delta_r)) * self.ROTATION_RADIUS,
@@ -341,6 +349,7 @@ class InterpolatorCore:
         self.goal = goal.copy()
         self.offset = np.zeros(6)  # the new path starts where the command is, offset included
         self._wanted = np.zeros(6)
+        self._steered = False
         self._slowed = False
         self._start_path(self.pose, goal)
         if self.length < 1e-9:
@@ -395,6 +404,17 @@ class InterpolatorCore:
         elif self.phase is Phase.RETURNING:
             self.phase = Phase.STOPPED
 
+    def _path_pose(self, s: float) -> np.ndarray:
+        """The commanded pose at path position `s`, the steering offset added: in the
+        compiled kernel where it was built, else in numpy (`_offset_pose(_pose_at(s))`,
+        which a spec holds it to)."""
+        if _fwkernel is None:
+            return self._offset_pose(self._pose_at(s))
+        out = np.empty((4, 4))
+        u = 0.0 if self.length < 1e-12 else s / self.length
+        _fwkernel.path_pose(self._start, self._delta_p, self._delta_r, u, self.offset, out)
+        return out
+
     def _pose_at(self, s: float) -> np.ndarray:
         u = 0.0 if self.length < 1e-12 else s / self.length
         out = IDENTITY.copy()
@@ -425,8 +445,12 @@ class CartesianInterpolator(Component):
         doc="where the goals are now (the navigator): the motion steers toward its goal; "
         "a refusal stops it",
     )
-    setpoint = Out(JointState, doc="joint setpoints for the robot interface, every cycle")
-    command = Out(Pose, doc="commanded TCP in the robot base frame (every cycle unless idle)")
+    setpoint = Out(
+        JointState, doc="joint setpoints for the robot interface, every cycle", stream=True
+    )
+    command = Out(
+        Pose, doc="commanded TCP in the robot base frame (every cycle unless idle)", stream=True
+    )
     status = Out(EventMessage, doc="phase (idle, moving, reached, stopping, returning, stopped)")
 
     def __init__(self, name: str):
@@ -479,7 +503,7 @@ class CartesianInterpolator(Component):
             status, goals = self.goals.read()
             if status is ReadStatus.NEW:
                 self._navigate(core, goals.payload)
-            lag = float(np.max(np.abs(core.q - np.asarray(measured.position))))
+            lag = max(abs(a - b) for a, b in zip(core.q.tolist(), measured.position, strict=True))
             if core.moving and core.phase is not Phase.STOPPING and lag > self.max_lag:
                 # the arm does not follow (brakes, contact): stop commanding a motion
                 # nobody executes; the STOP returns the command to where the arm stands
@@ -488,12 +512,16 @@ class CartesianInterpolator(Component):
                 core.stop()
             # one step per cycle of the arm: braked, its controller reports every few
             # cycles (monitor mode) and a motion nobody executes still lags at once
+            began, core.ik_seconds = time.perf_counter(), 0.0
             for _ in range(min(max(1, measured.cycles), MAX_STEPS_PER_STATE)):
                 q = core.step()
+            self.stage("IK", core.ik_seconds)
+            self.stage("interpolation", time.perf_counter() - began - core.ik_seconds)
             phase = core.phase
         stamp = time.time()
         self.setpoint.write(JointState(stamp, tuple(q.tolist())))
-        if phase is not Phase.IDLE or self._phase is not phase:  # not 1 kHz of the same pose
+        moved = phase is not Phase.IDLE or self._phase is not phase  # not 1 kHz of one pose
+        if moved and self.command.wanted():
             self.command.write(tcp_message(core.pose, stamp))
         if phase is not self._phase:
             self._phase = phase

@@ -1,62 +1,99 @@
-"""The simulated KUKA LWR 4+ as a machine of its own: MuJoCo physics and its controller.
+"""The simulated KUKA LWR 4+ as a machine of its own: MuJoCo physics and its KRC, talking
+FRI 1.x over UDP (components/domain/fri.py) to the robot interface.
 
-A real LWR 4+ has its own controller (the KRC): the robot interface commands it
-over FRI, and the controller brakes by itself when the commands stop. `ArmController`
-is that machine in simulation, hosted in a process of its own (topology process
-`arm`), so that killing or hanging the robot interface's process brakes the arm as
-pulling the FRI cable would:
+A real LWR 4+ has its own controller (the KRC), the clock of the robot's loop: every
+cycle it sends the robot interface a measurement datagram and expects the answer (a
+command) before its next cycle; it rates the answers and brakes by itself when they
+stop. `ArmController` is that machine in simulation, hosted in a process of its own
+(topology process `arm`), so that killing or hanging the robot interface's process
+brakes the arm as pulling the FRI cable would:
 
-* every cycle (1 kHz) it steps `SimulatedArm` and publishes its `measured` state (the
-  encoders' joints, the TCP its nominal model computes from them, brakes, latch) and,
-  at `truth_rate`, the ground-truth `tcp` that the simulated OR's trackers observe:
-  with `model_errors: lwr4` the two differ by a few millimetres, as a real arm's do;
-  while braked it runs `monitor_cycles` cycles per update and publishes once per
-  update (FRI's monitor mode: nothing is commanded, nothing moves), which is what
-  keeps the idle deployment cheap; released, every cycle again (command mode);
-* joint setpoints arrive on `command`; brake, release, reset and mode requests on
-  `request` (the FRI commands that switch the controller's mode);
-* **command watchdog**: released and being commanded, no setpoint for
-  `watchdog_cycles` of its own cycles (a hung interface) engages the brakes;
-* **link watch**: the liveliness token of its `commander` vanishes (the interface's
-  process died and its link closed): brakes at the next cycle;
-* brakes the controller applies by itself (watchdog, link, the setpoint guard of
-  `SimulatedArm`) and brakes the interface asks for as a safety stop **latch**:
-  `release` is refused until a `reset`, which the interface sends only on the
-  operator's RELEASE.
+* every cycle it reads the answers that came (only from `fri_remote`, the PC's address,
+  of the right size and id, answering its latest measurement: anything else is
+  refused and counted), rates the cycle (`fri.QualityMeter`: KUKA's thresholds are not
+  public, these are the open ubi-agni KRC simulator's, properties here), serves the
+  request the answer carries (fw's KRL convention: brake, release, reset, servo mode),
+  applies the setpoint in command mode, steps `SimulatedArm` and sends the next
+  measurement (encoders, commanded joints, torques, brakes, latch, the request served);
+* **command mode only with a perfect link**: a release is taken once the quality is
+  PERFECT and the monitor-mode answers echo cmdJntPos + cmdJntPosFriOffset (its KRL
+  program waits for that up to `RELEASE_WAIT`, then refuses); in
+  command mode a quality at or below BAD (10 cycles without an answer, from PERFECT)
+  leaves it: monitor mode, brakes on, **latched**;
+* brakes the controller applies by itself (quality, the setpoint guard of
+  `SimulatedArm`, a stop) and brakes the interface asks for as a safety stop latch:
+  a release is refused until a reset, which the interface sends only on the operator's
+  RELEASE;
+* while braked (monitor mode) it sends a measurement every `monitor_cycles` of its
+  1 ms cycles (the sample time its KRL program opens FRI with then; the datagram says
+  it), released every cycle again: what keeps the idle deployment cheap;
+* at `truth_rate` the ground-truth `tcp` goes out on the bus for the simulated OR's
+  trackers: with `model_errors: lwr4` it differs from the nominal model by a few
+  millimetres, as a real arm's does. `measured` mirrors each measurement on the bus
+  for instruments (`fw bench`), encoded only while one listens; `status` says the
+  link's quality and counters twice a second.
 
-Its cycles count its own time: if the whole host stalls, the arm stalls with it and
-no cycle passes without the interface having had the chance to answer.
+Its cycles count its own time: if the whole host stalls, the arm stalls with it. It
+waits up to `lockstep_ms` (2 ms) for an answer still on its way while the interface
+keeps up: a simulation allowance, since the simulated KRC shares two cores with the
+interface and the whole simulated OR, where a real KRC is a machine of its own and
+its PC has cores to itself. On a starved host the simulated arm then slows down
+(`fw bench cost` reports its real-time factor) rather than braking. Once an answer is
+missed it waits no more until one comes in time again, so a dead or hung interface
+costs it one wait and then 10 cycles at full rate: braked within about 12 ms.
 """
 
 from __future__ import annotations
 
-import threading
+import contextlib
+import math
+import select
+import socket
 import time
+from collections import deque
 from typing import Any
 
 import numpy as np
 
+from components.domain import fri
 from components.domain.geometry import matrix_to_quat
 from components.domain.lwr4 import HOME, LWR4_ERRORS, NOMINAL, Kinematics
 from components.sim.arm import MODES, SimulatedArm
-from framework import keys
-from framework.component import Component, In, Out, operation
-from framework.messages import ArmState, EventMessage, JointState, Pose
-from framework.ports import ReadStatus
+from components.sim.link_faults import LinkFaults
+from framework.component import Component, ConfigureError, OperationError, Out, operation
+from framework.messages import ArmState, EventMessage, Pose
 from framework.properties import prop
 
 MODEL_ERRORS = {"lwr4": LWR4_ERRORS, "none": NOMINAL}
 """How the simulated arm differs from its model: as a real LWR 4+ (components/domain/lwr4.py),
 or not at all."""
-SELF_BRAKES = ("watchdog", "setpoint", "link")
-"""Brake reasons of the controller's own safety: they latch."""
+ECHO_TOLERANCE = 1e-4
+"""rad: how close a monitor-mode answer must be to cmdJntPos + cmdJntPosFriOffset."""
+RELEASE_WAIT = 1000
+"""Cycles (ms) a release waits for a PERFECT link before it is refused."""
+STATUS_PERIOD = 0.5
+"""s between link statuses on the bus."""
+_REQUESTS = {
+    fri.Request.MODE_POSITION: "position",
+    fri.Request.MODE_IMPEDANCE: "impedance",
+}
+
+
+def parse_address(text: str) -> tuple[str, int]:
+    """`host:port` as a socket address; ValueError naming what is wrong."""
+    host, sep, port = str(text).rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"an FRI address is HOST:PORT (e.g. 127.0.0.1:49938), not {text!r}")
+    return host, int(port)
 
 
 class ArmController(Component):
-    """The simulated LWR 4+ and its controller-side safety (see the module docstring)."""
+    """The simulated LWR 4+ and its KRC (see the module docstring)."""
 
-    watchdog_cycles = prop(
-        int, 40, min=1, max=10000, doc="own cycles without a setpoint, while commanded, that brake"
+    realtime = True  # the KRC is the robot's clock: SCHED_FIFO where the host allows
+
+    fri_remote = prop(
+        str, "127.0.0.1:49938", doc="the robot interface's FRI address (KRL friSetup's)"
     )
     mode = prop(str, "position", choices=list(MODES), doc="joint servo mode at power on")
     model_errors = prop(
@@ -65,40 +102,55 @@ class ArmController(Component):
         choices=list(MODEL_ERRORS),
         doc="the arm vs its nominal model: a real LWR 4+'s errors, or none",
     )
-    commander = prop(str, "", doc="component whose lost link brakes the arm ('' for none)")
     lockstep_ms = prop(
-        float, 2.0, unit="ms", min=0.0, max=100.0, doc="wait for a late setpoint (0: never)"
+        float,
+        2.0,
+        unit="ms",
+        min=0.0,
+        max=100.0,
+        doc="wait for a late answer while the interface keeps up (0: never; a real KRC does not)",
     )
     monitor_cycles = prop(
         int,
         10,
         min=1,
         max=40,
-        doc="while braked (FRI monitor mode), cycles per update and per measured state",
+        doc="while braked (FRI monitor mode), cycles per measurement sent",
     )
+    quality_top = prop(int, 20, min=3, max=1000, doc="FRI quality counter's top")
+    quality_bad = prop(
+        int, 10, min=1, max=999, doc="at or below: BAD (command mode is left, brakes latched)"
+    )
+    quality_ok = prop(int, 15, min=2, max=999, doc="above: PERFECT (a release is taken)")
     truth_rate = prop(
         float, 200.0, unit="Hz", min=1.0, max=1000.0, doc="how often the ground-truth tcp goes out"
     )
-    command = In(JointState, doc="joint position setpoints (rad), one per cycle")
-    request = In(
-        EventMessage,
-        doc="brake {reason, latch}, release, reset, mode {mode}",
-        policy={"type": "buffer", "size": 16},
-    )
-    measured = Out(ArmState, doc="joints, flange tool pose, brakes and latch, every cycle")
     tcp = Out(Pose, doc="ground-truth tool pose in the base frame (what trackers see)")
+    measured = Out(
+        ArmState,
+        doc="each FRI measurement mirrored for instruments (encoded only while one listens)",
+        stream=True,
+    )
+    status = Out(EventMessage, doc="FRI state and quality, counters, brakes (2 Hz, on change)")
 
     def __init__(self, name: str):
         super().__init__(name)
         self.arm: SimulatedArm | None = None
         """The machine, made by `configure`."""
+        self._socket: socket.socket | None = None
+        self._forger: socket.socket | None = None
+        self.faults = LinkFaults()
+        """What the network between this KRC and the PC does (`impair`)."""
+        self._inbox: deque[tuple[float, bytes, tuple[str, int]]] = deque()
 
     def configure_hook(self) -> bool:
+        try:
+            self.remote = parse_address(self.fri_remote)
+            self.meter = fri.QualityMeter(self.quality_top, self.quality_bad, self.quality_ok)
+        except ValueError as exc:
+            raise ConfigureError(str(exc)) from None
         self.arm = SimulatedArm(
-            HOME,
-            watchdog_cycles=self.watchdog_cycles,
-            mode=self.mode,
-            errors=MODEL_ERRORS[self.model_errors],
+            HOME, watchdog_cycles=10**9, mode=self.mode, errors=MODEL_ERRORS[self.model_errors]
         )
         self.kinematics = Kinematics()
         self.latched = ""
@@ -106,32 +158,33 @@ class ArmController(Component):
         self.refused = ""
         self.cycle = 0
         self.served = 0
+        self.send_seq = 0
+        self._sent_at = 0.0
         self._on_time = True
-        self._link_lost = ""
-        self._commander_seen = False
-        self._arrived = threading.Event()
-        self._link: Any = None
-        return True
-
-    def start_hook(self) -> bool:
-        self.command.on_data = lambda _port: self._arrived.set()
-        if self.commander and self.bus is not None and self._link is None:
-            self._link = self.bus.watch(keys.alive(self.commander), self._on_link)
+        self.counts = {"answered": 0, "missed": 0, "late": 0, "refused": 0, "echo": 0}
+        self._last_status = -math.inf
+        self._cmd_jnt_pos: tuple[float, ...] = tuple(HOME)
+        self._echo_ok = True  # the last monitor-mode answer echoed cmdJntPos + offset
+        self._release_asked: int | None = None  # the cycle a pending release was asked at
+        self.faults = LinkFaults()
+        self._inbox.clear()
+        self._close()
+        self._socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._socket.bind((self.remote[0], 0))
+        self._socket.setblocking(False)
         return True
 
     def stop_hook(self) -> None:
         self._brake("controller stopped", latch=True)
 
     def cleanup_hook(self) -> None:
-        if self._link is not None:
-            self._link.undeclare()
-            self._link = None
+        self._close()
 
-    def _on_link(self, _key: str, alive: bool) -> None:
-        if alive:
-            self._commander_seen = True
-        elif self._commander_seen:
-            self._link_lost = f"link to {self.commander} lost"
+    def _close(self) -> None:
+        for sock in (self._socket, self._forger):
+            if sock is not None:
+                sock.close()
+        self._socket = self._forger = None
 
     def _brake(self, reason: str, latch: bool) -> None:
         self.arm.brake(reason)
@@ -141,88 +194,235 @@ class ArmController(Component):
     # -- the cycle -----------------------------------------------------------------------
     def update_hook(self) -> None:
         arm = self.arm
-        # wait for a late setpoint, but only while the commander keeps up: once it has
-        # missed a cycle, waiting would only stretch the watchdog's cycles
-        if arm.commanded and self.lockstep_ms > 0 and self._on_time and not self.command.pending():
-            self._arrived.clear()
-            if not self.command.pending():
-                self._arrived.wait(self.lockstep_ms / 1000.0)
-        self._on_time = self.command.pending() > 0
-        while True:
-            status, request = self.request.read()
-            if status is not ReadStatus.NEW:
-                break
-            self._serve(request)
-            self.served += 1
-        was_braked = arm.braked
-        status, sample = self.command.read()
-        if status is ReadStatus.NEW and not arm.braked:
-            arm.command(np.asarray(sample.position))  # the setpoint guard may brake
-        if self._link_lost:
-            reason, self._link_lost = self._link_lost, ""
-            self._brake(reason, latch=True)
+        answer = self._answer()
+        if answer is None and self.lockstep_ms > 0 and self._on_time and self.send_seq:
+            answer = self._answer(self.lockstep_ms / 1000.0)
+        self._on_time = answer is not None
+        quality = self.meter.cycle(answer is not None, time.monotonic() - self._sent_at)
+        if answer is not None:
+            self.counts["answered"] += 1
+            self._serve(answer, quality)
+            commanded = not arm.braked and answer.flags & fri.CMD_JNTPOS
+            if commanded and not arm.command(np.asarray(answer.jnt_pos)):
+                self.latched = self.latched or f"setpoint: {arm.reason}"  # the guard braked
+        else:
+            self.counts["missed"] += 1
+        self._release(quality)
+        if not arm.braked and quality <= fri.Quality.BAD:
+            self._brake(f"{fri.REASONS[3]} ({self.meter.counter})", latch=True)
         steps = self.periods_per_update  # the cycles since the last update
         for _ in range(steps):
-            arm.step()  # the command watchdog may brake
-        if arm.braked and not was_braked and arm.reason.startswith(SELF_BRAKES):
-            self.latched = self.latched or arm.reason
+            arm.step()
         self.cycle += steps
-        # Braked, nothing moves and nothing is commanded: report every few cycles (FRI's
-        # monitor mode); released, every cycle again (command mode).
         self.periods_per_update = self.monitor_cycles if arm.braked else 1
+        self._send(quality)
         self._publish(steps)
 
-    def _serve(self, request: EventMessage) -> None:
-        payload = request.payload or {}
-        if request.name == "brake":
-            self._brake(str(payload.get("reason", "interface")), bool(payload.get("latch")))
-        elif request.name == "release":
-            if self.latched:
-                self.refused = f"release refused: latched ({self.latched}); reset first"
-            elif self.arm.braked:
-                self.arm.release()
-                self.releases += 1
-                self.refused = ""
-        elif request.name == "reset":
-            self.latched = ""
-        elif request.name == "mode":
+    def _answer(self, wait: float = 0.0) -> fri.Command | None:
+        """The answer to the latest measurement, if it came (waiting at most `wait`);
+        every other datagram is refused and counted. What arrives reaches the KRC when
+        the link (`faults`) lets it: at once, later, or never (on the component's clock:
+        the host's, or a stepped test's)."""
+        sock = self._socket
+        if sock is None:
+            return None
+        deadline = time.monotonic() + wait
+        while True:
+            found = self._due()
+            if found is not None:
+                return found
             try:
-                self.arm.set_mode(str(payload.get("mode")))
-            except ValueError as exc:
-                self.refused = str(exc)
+                data, sender = sock.recvfrom(2048)
+            except BlockingIOError:
+                left = deadline - time.monotonic()
+                if left <= 0 or not select.select([sock], [], [], left)[0]:
+                    return None
+                continue
+            self._inbox.append((self.faults.due(self.clock.now()), data, sender))
 
-    def _publish(self, steps: int = 1) -> None:
-        arm, stamp = self.arm, time.time()
-        q = arm.q
-        nominal = self.kinematics.tcp(q)
-        data = arm.data
-        self.measured.write(
-            ArmState(
-                stamp,
-                self.cycle,
-                self.served,
-                tuple(q.tolist()),
-                tuple(data.qvel[:7].tolist()),
-                tuple(data.actuator_force[:7].tolist()),
-                (*nominal[:3, 3].tolist(), *matrix_to_quat(nominal[:3, :3])),
-                arm.braked,
-                bool(self.latched),
-                self.latched or arm.reason,
-            )
+    def _due(self) -> fri.Command | None:
+        """The first datagram due that answers the latest measurement; the others due
+        before it are refused or counted late."""
+        inbox, now = self._inbox, self.clock.now()
+        while inbox and inbox[0][0] <= now:
+            _, data, sender = inbox.popleft()
+            if sender != self.remote:
+                self.counts["refused"] += 1
+                continue
+            try:
+                command = fri.decode_command(data)
+            except fri.DatagramError:
+                self.counts["refused"] += 1
+                continue
+            if command.refl_seq != self.send_seq & 0xFFFF:
+                self.counts["late"] += 1  # an answer to an older measurement
+                continue
+            if self.faults.lost(now):
+                continue
+            return command
+        return None
+
+    def _serve(self, command: fri.Command, quality: fri.Quality) -> None:
+        """The request the answer carries, once (fw's KRL convention), and the
+        monitor-mode echo rule."""
+        arm = self.arm
+        if arm.braked:
+            apart = max(abs(a - b) for a, b in zip(command.jnt_pos, self._cmd_jnt_pos, strict=True))
+            self._echo_ok = apart <= ECHO_TOLERANCE
+            if not self._echo_ok:
+                self.counts["echo"] += 1
+        number = command.request_number
+        if number <= self.served:
+            return
+        self.served = number
+        request = command.request
+        if request in (fri.Request.BRAKE, fri.Request.BRAKE_LATCHED):
+            latch = request == fri.Request.BRAKE_LATCHED
+            self._brake(fri.REASONS[6] if latch else fri.REASONS[2], latch)
+        elif request == fri.Request.RELEASE:
+            self._release_asked = self.cycle  # its KRL program waits for PERFECT, then friStart
+        elif request == fri.Request.RESET:
+            self.latched = ""
+        elif request in _REQUESTS:
+            arm.set_mode(_REQUESTS[request])
+
+    def _release(self, quality: fri.Quality) -> None:
+        """A release asked for is taken once the link is PERFECT and the monitor-mode
+        answers echo as FRI demands (KRL: WAIT FOR $FriQuality == #PERFECT; friStart()),
+        refused if that takes over `RELEASE_WAIT` cycles or the brakes are latched."""
+        asked = self._release_asked
+        if asked is None:
+            return
+        arm = self.arm
+        if self.latched:
+            self.refused = f"release refused: latched ({self.latched}); reset first"
+        elif quality == fri.Quality.PERFECT and self._echo_ok:
+            if arm.braked:
+                arm.release()
+                self.releases += 1
+            self.refused = ""
+        elif self.cycle - asked < RELEASE_WAIT:
+            return  # still waiting for the link
+        else:
+            why = fri.REASONS[5] if not self._echo_ok else f"FRI quality {quality.name}"
+            self.refused = f"release refused: {why}, not PERFECT within {RELEASE_WAIT} ms"
+        self._release_asked = None
+
+    def _send(self, quality: fri.Quality) -> None:
+        arm = self.arm
+        q = tuple(arm.q.tolist())
+        self._cmd_jnt_pos = q if arm.braked else tuple(arm._last_setpoint.tolist())
+        self.send_seq += 1
+        reason = self.latched or arm.reason
+        datagram = fri.encode_measurement(
+            self.send_seq,
+            0,
+            timestamp=arm.time,
+            state=fri.State.MON if arm.braked else fri.State.CMD,
+            quality=quality,
+            stats=self.meter.stats(),
+            control=fri.Control.JNT_IMP if arm.mode == "impedance" else fri.Control.POSITION,
+            msr_jnt_pos=q,
+            cmd_jnt_pos=self._cmd_jnt_pos,
+            msr_jnt_trq=tuple(arm.torque.tolist()),
+            served=self.served,
+            reason=fri.reason_code(reason) if arm.braked else 0,
+            cycle=self.cycle,
+            braked=arm.braked,
+            latched=bool(self.latched),
+            sample_time=0.001 * self.periods_per_update,
         )
+        self._sent_at = time.monotonic()
+        faults = self.faults
+        if self._socket is None or faults.silent(self.clock.now()):
+            return
+        # nobody may listen yet (ECONNREFUSED on loopback): the next cycle sends again
+        with contextlib.suppress(OSError):
+            self._socket.sendto(datagram, self.remote)
+            bad = faults.next_garbage(datagram)
+            if bad is not None:
+                self._socket.sendto(bad, self.remote)
+            if faults.next_foreign():
+                self._foreign_socket().sendto(datagram, self.remote)
+
+    def _foreign_socket(self) -> socket.socket:
+        """Another sender on the KRC's host (a forged measurement comes from it)."""
+        if self._forger is None:
+            self._forger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self._forger.bind((self.remote[0], 0))
+        return self._forger
+
+    def _publish(self, steps: int) -> None:
+        arm, stamp = self.arm, time.time()
+        if self.measured.wanted():
+            q = arm.q
+            nominal = self.kinematics.tcp(q)
+            self.measured.write(
+                ArmState(
+                    stamp,
+                    self.cycle,
+                    self.served,
+                    tuple(q.tolist()),
+                    tuple(arm.qd.tolist()),
+                    tuple(arm.torque.tolist()),
+                    (*nominal[:3, 3].tolist(), *matrix_to_quat(nominal[:3, :3])),
+                    arm.braked,
+                    bool(self.latched),
+                    self.latched or arm.reason,
+                )
+            )
         every = max(1, round(1000.0 / self.truth_rate))
         if self.cycle % every < steps:  # a multiple of `every` was passed: trackers sample slower
             tcp = arm.tcp()
             position = tuple(float(v) for v in tcp[:3, 3])
             quaternion = matrix_to_quat(tcp[:3, :3])
             self.tcp.write(Pose(position, quaternion, stamp, 0.0, self.cycle, True, "base", "tcp"))  # type: ignore[arg-type]
+        now = self.clock.now()
+        if now - self._last_status >= STATUS_PERIOD:
+            self._last_status = now
+            self.status.write(EventMessage(stamp, "fri", self.name, self.report()))
+
+    @operation()
+    def impair(
+        self,
+        drop_every: int = 0,
+        delay_ms: float = 0.0,
+        silence_ms: float = 0.0,
+        garbage: int = 0,
+        foreign: int = 0,
+        seconds: float = 1.0,
+    ) -> dict[str, Any]:
+        """Make the network between this KRC and the PC fail (a fault at the physical
+        edge, for scenarios and `fw bench chaos`): for `seconds`, lose every
+        `drop_every`-th answer (1: all) and delay answers by `delay_ms`; send no
+        measurement for `silence_ms`; send `garbage` datagrams that are no measurement
+        (empty, truncated, oversized, a wrong id, in turn) and `foreign` measurements
+        from another address to the PC's port, one per cycle. What the KRC and the
+        interface make of it is theirs: quality, brakes, refusals."""
+        try:
+            self.faults.impair(
+                self.clock.now(),
+                drop_every=drop_every,
+                delay=delay_ms / 1000.0,
+                silence=silence_ms / 1000.0,
+                garbage=garbage,
+                foreign=foreign,
+                seconds=seconds,
+            )
+        except (TypeError, ValueError) as exc:
+            raise OperationError(f"{self.name}.impair: {exc}") from None
+        return self.faults.report()
 
     @operation(readonly=True)
-    def report(self) -> dict[str, Any]:
-        """Brakes, latch, why, releases so far, servo mode, simulated time, joints."""
+    def report(self, loop: bool = False) -> dict[str, Any]:
+        """Brakes, latch, why, releases so far, servo mode, simulated time, joints, and the
+        FRI link: state, quality, the statistics of the last 100 cycles and counters; with
+        `loop` (for `fw bench cost`), its loop's cycle statistics (milliseconds of work
+        for this process's interpreter: on request only)."""
         arm = self.arm
         if arm is None:
             return {"braked": True, "latched": False, "reason": "not configured"}
+        rate, latency, jitter, miss_rate, misses = self.meter.stats()
         return {
             "braked": arm.braked,
             "latched": bool(self.latched),
@@ -233,4 +433,23 @@ class ArmController(Component):
             "cycle": self.cycle,
             "time": round(arm.time, 4),
             "q": [round(v, 5) for v in arm.q.tolist()],
+            "loop": (
+                None
+                if self.loop_stats is None
+                else self.loop_stats.report()
+                if loop
+                else {"scheduling": self.loop_stats.scheduling}
+            ),
+            "fri": {
+                "state": "MON" if arm.braked else "CMD",
+                "quality": self.meter.quality.name,
+                "counter": self.meter.counter,
+                "answer_rate": round(rate, 3),
+                "latency_ms": round(latency * 1e3, 3),
+                "jitter_ms": round(jitter * 1e3, 3),
+                "miss_rate": round(miss_rate, 3),
+                "misses": misses,
+                **self.counts,
+                **self.faults.report(),
+            },
         }

@@ -5,11 +5,15 @@ the controller's own brake trip a protective stop that latches; only acknowledge
 operator's RELEASE) opens it."""
 
 import math
+import socket
 import time
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
 
+from components.domain import fri
+from components.domain.lwr4 import Kinematics
 from components.robot.interface import (
     FIRST_STEP_CYCLES,
     MAX_STEP_RAD,
@@ -19,38 +23,60 @@ from components.robot.interface import (
     tcp_message,
 )
 from framework.activity import Activity, SteppedExecutor
+from framework.bus import free_udp_port
 from framework.clock import SimulatedClock
 from framework.container import Container
 from framework.errors import FwError
-from framework.messages import ArmState, EventMessage, JointState, Pose
+from framework.messages import EventMessage, JointState, Pose
 from framework.ports import ReadStatus
 from tests.conftest import drained, reader_port, writer_port
 
 HOME = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.6, 0.0])
-TCP = (0.5, 0.1, 0.4, 1.0, 0.0, 0.0, 0.0)
+
+
+@dataclass
+class Request:
+    """A request the interface sent the KRC in a command's KRL data (fw's convention)."""
+
+    name: str
+    payload: dict
+
+
+REQUESTS = {
+    fri.Request.BRAKE: ("brake", {"latch": False}),
+    fri.Request.BRAKE_LATCHED: ("brake", {"latch": True}),
+    fri.Request.RELEASE: ("release", {}),
+    fri.Request.RESET: ("reset", {}),
+    fri.Request.MODE_POSITION: ("mode", {"mode": "position"}),
+    fri.Request.MODE_IMPEDANCE: ("mode", {"mode": "impedance"}),
+}
 
 
 class Arm:
-    """The interface in a stepped container on the hub session; the test's ports on the
-    same session, so every sample is delivered before `cycle` returns."""
+    """The interface in a stepped container, paced by the test playing the KRC over real
+    UDP (FRI datagrams on loopback are there to read at once); the interpolator's
+    setpoints on a port of the same session, so every sample is delivered before
+    `cycle` returns."""
 
     def __init__(self, hub, safety=None):
         self.clock = SimulatedClock()
         self.container = Container("c", hub, SteppedExecutor(self.clock))
+        self.krc = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.krc.bind(("127.0.0.1", 0))
+        self.krc.setblocking(False)
+        self.port = free_udp_port()
+        krc = f"127.0.0.1:{self.krc.getsockname()[1]}"
         self.robot = self.container.add(
-            RobotInterface("robot"), Activity.event("measured"), safety=safety
+            RobotInterface("robot"),
+            Activity.paced(0.02),
+            properties={"fri_listen": f"127.0.0.1:{self.port}", "krc": krc},
+            safety=safety,
         )
-        self.container.connect("robot", "measured", "arm/measured")
         self.container.connect("robot", "setpoint", "interpolator/setpoint")
-        self.writers = {
-            "measured": writer_port(hub, "arm/measured", ArmState),
-            "setpoint": writer_port(hub, "interpolator/setpoint", JointState),
-        }
+        self.writers = {"setpoint": writer_port(hub, "interpolator/setpoint", JointState)}
         self.readers = {
             name: reader_port(hub, f"robot/{name}", kind)
             for name, kind in [
-                ("command", JointState),
-                ("arm_request", EventMessage),
                 ("joints", JointState),
                 ("tcp", Pose),
                 ("status", EventMessage),
@@ -61,54 +87,84 @@ class Arm:
         self.cycle_no = 0
         self.served = 0
         self.q = HOME.copy()
-        self.v = np.zeros(7)
+        self.v = np.zeros(7)  # the arm drifts at this speed (rad/s) from cycle to cycle
         self.braked = True
         self.latched = False
         self.reason = ""
+        self.commanded = HOME.copy()  # the KRC's commanded position (cmdJntPos)
+        self.serving = True  # the KRC serves each request at once (a test may hold them)
         self.commands: list[np.ndarray] = []
-        self._requests: list[EventMessage] = []
+        """New commanded positions the interface sent while the arm was released."""
+        self.answers: list[fri.Command] = []
+        self._requests: list[Request] = []
+        self.refusals: list = []
+        self.robot.add_refusal_listener(self.refusals.append)
 
     @property
-    def requests(self) -> list[EventMessage]:
+    def requests(self) -> list[Request]:
         """What the interface asked of the arm so far (brake, release, reset, mode)."""
-        self._collect()
         return self._requests
 
+    def measure(self, **state):
+        """Send the KRC's measurement of this cycle (its fields from `state` or the arm)."""
+        self.cycle_no += 1
+        braked = state.get("braked", self.braked)
+        reason = state.get("reason", self.reason)
+        datagram = fri.encode_measurement(
+            self.cycle_no,
+            0,
+            timestamp=self.cycle_no * 0.001,
+            state=fri.State.MON if braked else fri.State.CMD,
+            quality=fri.Quality.PERFECT,
+            msr_jnt_pos=tuple(self.q),
+            cmd_jnt_pos=tuple(self.q if braked else self.commanded),
+            served=state.get("served", self.served),
+            reason=fri.reason_code(reason) if braked else 0,
+            cycle=self.cycle_no,
+            braked=braked,
+            latched=state.get("latched", self.latched),
+        )
+        self.krc.sendto(datagram, ("127.0.0.1", self.port))
+        return braked
+
     def cycle(self, setpoint=None, **state):
-        """One controller cycle: maybe a setpoint, then the measured state; the
-        interface's answer is collected."""
+        """One KRC cycle: maybe a setpoint from the interpolator, then the KRC's
+        measurement; the loop runs it (read, update, write) and its answer is taken."""
         if setpoint is not None:
             self.writers["setpoint"].write(JointState(0.0, tuple(float(v) for v in setpoint)))
-        self.cycle_no += 1
-        measured = ArmState(
-            state.get("stamp", 0.0),
-            self.cycle_no,
-            state.get("served", self.served),
-            tuple(self.q),
-            tuple(self.v),
-            (0.0,) * 7,
-            TCP,
-            state.get("braked", self.braked),
-            state.get("latched", self.latched),
-            state.get("reason", self.reason),
-        )
-        self.writers["measured"].write(measured)
-        self.robot.update_hook()
-        self._collect()
+        self.q = self.q + self.v * 0.001
+        braked = self.measure(**state)
+        self.container.executor.run_pending()
+        self._collect(braked)
 
-    def _collect(self):
-        self.commands += [np.array(s.position) for s in drained(self.readers["command"])]
-        self._requests += drained(self.readers["arm_request"])
+    def _collect(self, braked):
+        while True:
+            try:
+                data = self.krc.recv(2048)
+            except BlockingIOError:
+                return
+            answer = fri.decode_command(data)
+            self.answers.append(answer)
+            q = np.array(answer.jnt_pos)
+            if not braked and not np.allclose(q, self.commanded, atol=1e-6):
+                self.commands.append(q)
+                self.commanded = q
+            if answer.request_number > len(self._requests):
+                name, payload = REQUESTS[fri.Request(answer.request)]
+                self._requests.append(Request(name, payload))
+                if self.serving:
+                    self.served = len(self._requests)  # the KRC serves it at once
 
     def released(self):
         """The brakes are off, as the controller reports after a release."""
         self.braked = False
         self.served = len(self.requests)
+        self.commanded = self.q.copy()
 
     def follow(self, q):
-        """The arm follows a command exactly (what the measured state says next)."""
-        self.v = (np.asarray(q) - self.q) / 0.001
+        """The arm follows a command exactly (what the measurement says next)."""
         self.q = np.asarray(q, dtype=float)
+        self.v = np.zeros(7)
 
     def names(self):
         return [r.name for r in self.requests]
@@ -118,6 +174,7 @@ class Arm:
 
     def close(self):
         self.container.shutdown()
+        self.krc.close()
 
 
 @pytest.fixture
@@ -159,7 +216,10 @@ def test_every_measured_state_is_answered_with_the_latest_setpoint(arm):
     status, joints = arm.readers["joints"].read()
     assert status is ReadStatus.NEW and np.allclose(joints.position, HOME)
     status, tcp = arm.readers["tcp"].read()
-    assert status is ReadStatus.NEW and tcp.position == TCP[:3] and tcp.orientation == TCP[3:]
+    expected = tcp_message(Kinematics().tcp(HOME), 0.0)
+    assert status is ReadStatus.NEW
+    assert tcp.position == pytest.approx(expected.position, abs=1e-6)  # FRI sends float32
+    assert tcp.orientation == pytest.approx(expected.orientation, abs=1e-6)
     assert (tcp.rms, tcp.frame_number, tcp.valid, tcp.frame, tcp.tool) == (
         0.0,
         0,
@@ -231,7 +291,7 @@ def test_a_joint_exactly_at_its_limit_is_allowed(arm):
     arm.q = np.where(np.arange(7) == 1, POSITION_LIMIT_RAD[1], HOME)
     arm.cycle()
     arm.released()
-    arm.cycle(arm.q.copy())
+    arm.cycle(arm.q + step(0.1, joint=2))
     assert arm.commands and not arm.report()["latched"]
 
 
@@ -254,19 +314,17 @@ def test_a_silent_interpolator_trips_after_its_cycles_and_the_arm_stops_on_its_p
     assert np.all(deltas >= -1e-12) and deltas[-1] < deltas[0] / 100
     assert np.all(np.diff(deltas) <= 1e-12), "slowing down, never speeding up"
     assert arm.commands[-1][2] > last[2], "carried on the way it went"
-    assert arm.names()[-1] == "brake" and arm.requests[-1].payload == {
-        "reason": report["reason"],
-        "latch": True,
-    }
+    assert arm.names()[-1] == "brake" and arm.requests[-1].payload == {"latch": True}
 
 
 def test_the_controllers_own_brake_latches_the_interface_once_it_is_not_ours(arm):
     moving(arm)
+    arm.serving = False  # the KRC has not served the brake it is asked for yet
     arm.robot.call("brake", reason="holding")
-    arm.cycle(arm.q, braked=True, latched=True, reason="holding", served=arm.served)
+    arm.cycle(arm.q, braked=True, latched=True, reason=fri.REASONS[3], served=arm.served)
     assert not arm.report()["latched"], "our own request, not yet served: not a fault"
-    arm.cycle(arm.q, braked=True, latched=True, reason="watchdog", served=len(arm.requests))
-    assert arm.report()["reason"] == "the arm braked by itself: watchdog"
+    arm.cycle(arm.q, braked=True, latched=True, reason=fri.REASONS[3], served=len(arm.requests))
+    assert arm.report()["reason"] == f"the arm braked by itself: {fri.REASONS[3]}"
 
 
 def test_a_latched_stop_opens_only_with_acknowledge(arm):
@@ -283,8 +341,10 @@ def test_a_latched_stop_opens_only_with_acknowledge(arm):
     arm.cycle(arm.q)
     assert arm.report()["latched"]
     assert arm.robot.call("acknowledge")["latched"] is False
+    arm.cycle(arm.q)  # the reset goes out with the next answer
     assert arm.names()[-1] == "reset" and not arm.report()["latched"]
     assert arm.robot.call("release")["braked"] is True, "answers with the report"
+    arm.cycle(arm.q)
     assert arm.names()[-1] == "release"
 
 
@@ -316,7 +376,10 @@ def test_brake_when_still_waits_until_the_arm_stands_still(arm):
     assert len(arm.requests) == requests, "not yet still long enough"
     arm.cycle(arm.q)
     assert arm.requests[-1].name == "brake"
-    assert arm.requests[-1].payload == {"reason": "at goal", "latch": False}
+    assert arm.requests[-1].payload == {"latch": False}
+    arm.braked = True
+    arm.cycle(arm.q, reason=fri.REASONS[2])  # the KRC: braked, as the interface asked
+    assert arm.report()["reason"] == "at goal", "the words stay on this side"
 
 
 def test_brake_when_still_gives_up_waiting_after_two_seconds(arm):
@@ -345,11 +408,16 @@ def test_brake_when_still_is_dropped_once_the_arm_is_braked(arm):
 
 
 def test_brake_and_release_without_a_latch_and_the_servo_mode(arm):
+    """Requests travel in the answers' KRL data, one per answer, each once the one
+    before was served; the KRC says a code, the words stay on this side."""
     arm.robot.call("brake", reason="waiting")
-    assert arm.requests[-1].payload == {"reason": "waiting", "latch": False}
     answer = arm.robot.call("set_mode", mode="impedance")
     assert answer == arm.report()  # the caller reads where the robot stands in the answer
+    arm.cycle()
+    assert arm.requests[-1].payload == {"latch": False}
+    arm.cycle(reason=fri.REASONS[2])
     assert arm.requests[-1].name == "mode" and arm.requests[-1].payload == {"mode": "impedance"}
+    assert arm.report()["reason"] == "waiting"
     with pytest.raises(FwError, match="unknown mode 'torque'"):
         arm.robot.call("set_mode", mode="torque")
     arm.cycle()
@@ -366,20 +434,23 @@ def test_the_report_before_and_after_the_first_state(arm):
     with pytest.raises(FwError, match=r"not ready after 0\.05 s: no state from the arm"):
         arm.robot.call("await_ready", timeout=0.05)
     arm.q = HOME + 1e-7
-    arm.cycle(reason="powered up")
+    arm.cycle(reason=fri.REASONS[1])
     report = arm.report()
     assert report["q"] == [round(v, 5) for v in arm.q] and report["time"] == 0.001
-    assert report["reason"] == "powered up" and report["ready"] and not report["stopping"]
+    assert report["reason"] == "power on" and report["ready"] and not report["stopping"]
+    assert report["fri"]["state"] == "MON" and report["fri"]["quality"] == "PERFECT"
     assert arm.robot.call("await_ready", timeout=0.05)["braked"]
 
 
-def test_stopping_the_interface_asks_for_the_brakes_latched(arm):
-    arm.cycle()
+def test_a_stopped_interface_answers_no_measurement(arm):
+    """Stopped (or dead, or hung), the interface answers nothing: the KRC's quality falls
+    and it brakes by itself within ten of its cycles, latched (FRI)."""
+    moving(arm)
+    answered = len(arm.answers)
     arm.robot.stop()
-    assert arm.readers["arm_request"].read()[1].payload == {
-        "reason": "robot interface stopped",
-        "latch": True,
-    }
+    for _ in range(3):
+        arm.cycle()
+    assert len(arm.answers) == answered
 
 
 def test_a_monitor_trip_while_the_controller_is_silent_brakes_at_once(hub):
@@ -410,6 +481,7 @@ def test_a_monitor_trip_while_the_controller_is_silent_brakes_at_once(hub):
         assert not report["stopping"], "no cycles to stop on: the brakes at once"
         said = [s.payload for s in drained(arm.readers["status"])]
         assert said[-1]["latched"] and said[-1]["reason"] == report["reason"], "said at once"
+        arm.cycle(arm.q)  # the KRC speaks again: the brake goes out with the answer
         assert arm.requests[-1].name == "brake" and arm.requests[-1].payload["latch"] is True
         with pytest.raises(FwError, match="safety stop latched"):
             arm.robot.call("release")
@@ -527,12 +599,13 @@ def test_a_protective_stop_under_way_when_the_controller_falls_silent_brakes_at_
     requests = len(arm.requests)
     arm.robot.idle_hook()  # then no state from the controller for an idle period
     assert not arm.report()["stopping"]
+    arm.cycle(arm.q)  # the request travels in the next answer (the KRC brakes anyway)
     assert arm.names()[requests:] == ["brake"] and arm.requests[-1].payload["latch"] is True
 
 
 def test_an_interface_that_starts_beside_an_arm_its_controller_latched_latches_too(arm):
-    arm.cycle(latched=True, reason="watchdog", served=7)  # requests of a previous run
-    assert arm.report()["reason"] == "the arm braked by itself: watchdog"
+    arm.cycle(latched=True, reason=fri.REASONS[3], served=7)  # requests of a previous run
+    assert arm.report()["reason"] == f"the arm braked by itself: {fri.REASONS[3]}"
 
 
 def test_fewer_setpoint_cycles_set_while_the_interpolator_is_silent_trip_at_once(arm):
@@ -664,6 +737,7 @@ def still_brake_pending(arm):
     arm.v = np.full(7, 0.05)
     answer = arm.robot.call("brake", reason="at goal", when_still=True)
     assert answer["braked"] is False, "the operation answers with the report"
+    arm.cycle(arm.q)  # a cycle of that motion: the arm is seen moving
     return len(arm.requests)
 
 
@@ -728,18 +802,19 @@ def test_a_refused_step_names_the_joint_and_how_far_it_would_move(arm):
     )
 
 
-def test_joints_and_tcp_carry_the_time_the_controller_measured_them(arm):
-    """Not the time this process got to them: trackers stamp their samples with the time
+def test_joints_and_tcp_carry_the_time_the_measurement_arrived(arm):
+    """Not the time this process got to it: trackers stamp their samples with the time
     they saw the robot, and the Sensor Manager and the navigator pair each sample with
-    the robot's pose at that stamp, so a starved robot process must not shift them."""
-    measured_at = time.time() - 0.25  # the state waited a quarter second for this process
-    arm.cycle(stamp=measured_at)
-    (joints,), (tcp,) = drained(arm.readers["joints"]), drained(arm.readers["tcp"])
-    assert joints.stamp == tcp.stamp == measured_at
+    the robot's pose at that stamp, so a starved robot process must not shift them. The
+    kernel stamps the datagram's arrival (SO_TIMESTAMPNS)."""
     before = time.time()
-    arm.cycle(stamp=math.nan)  # no valid measurement time: when this process got to it
+    arm.measure()
+    sent = time.time()
+    time.sleep(0.25)  # the state waits a quarter second for this process
+    arm.container.executor.run_pending()
     (joints,), (tcp,) = drained(arm.readers["joints"]), drained(arm.readers["tcp"])
-    assert joints.stamp == tcp.stamp and before <= joints.stamp <= time.time()
+    assert joints.stamp == tcp.stamp
+    assert before <= joints.stamp < sent + 0.2 < time.time(), "when it arrived, not later"
 
 
 def test_await_ready_waits_for_the_arm_to_answer(arm):
@@ -767,3 +842,84 @@ def test_after_three_missed_cycles_the_next_step_may_span_four(arm):
         arm.cycle()
     arm.cycle(last + step(1.4, joint=1, cycles=4))
     assert not arm.report()["latched"], "5.6 rated steps over 4 cycles"
+
+
+def test_every_answer_reflects_the_measurement_it_answers(arm):
+    """FRI: the PC answers each measurement at once, with its sequence number reflected;
+    the command of cycle k is computed from the measurement of cycle k."""
+    moving(arm)
+    for _ in range(5):
+        target = arm.q + step(0.5)
+        arm.cycle(target)
+        arm.follow(target)
+    assert [a.refl_seq for a in arm.answers] == list(range(1, arm.cycle_no + 1))
+    assert np.allclose(arm.answers[-1].jnt_pos, arm.q, atol=1e-6)  # this cycle's setpoint
+
+
+def said(arm):
+    """The reasons of the FRI refusals the interface said (every one: a new fixture's
+    first refusal is always said)."""
+    return " | ".join(r.reason for r in arm.refusals if r.port == "fri")
+
+
+def _send(arm, data, sock=None):
+    (sock or arm.krc).sendto(data, ("127.0.0.1", arm.port))
+    arm.container.executor.run_pending()
+    arm._collect(arm.braked)
+
+
+@pytest.mark.parametrize(
+    "garbage, why",
+    [
+        (b"", "916 bytes, not 0"),
+        (b"\x00" * 17, "916 bytes, not 17"),
+        (b"\xff" * fri.MSR_SIZE, "id"),
+    ],
+)
+def test_a_datagram_that_is_no_measurement_is_refused_counted_and_not_answered(arm, garbage, why):
+    arm.cycle()
+    answered = len(arm.answers)
+    _send(arm, garbage)
+    link = arm.report()["fri"]
+    assert link["refused"] == 1 and link["measurements"] == 1
+    assert len(arm.answers) == answered
+    assert why in said(arm)
+    arm.cycle()  # the next real measurement is answered as ever
+    assert len(arm.answers) == answered + 1
+    assert arm.robot.state.value == "Running"
+
+
+def test_a_measurement_from_another_sender_is_refused(arm):
+    arm.cycle()
+    forger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        datagram = fri.encode_measurement(
+            arm.cycle_no + 1,
+            0,
+            timestamp=0.0,
+            state=fri.State.CMD,
+            quality=fri.Quality.PERFECT,
+            msr_jnt_pos=tuple(arm.q),
+            cmd_jnt_pos=tuple(arm.q),
+            served=0,
+            reason=0,
+            cycle=arm.cycle_no + 1,
+            braked=False,
+            latched=False,
+        )
+        _send(arm, datagram, forger)
+    finally:
+        forger.close()
+    assert arm.report()["fri"]["refused"] == 1
+    assert "not the KRC" in said(arm)
+    assert arm.report()["braked"] is True  # the forged "released" changed nothing
+
+
+def test_a_replayed_or_older_measurement_is_refused(arm):
+    arm.cycle()
+    arm.cycle()
+    arm.cycle_no -= 1  # the same sequence number again
+    arm.cycle()
+    assert arm.report()["fri"]["refused"] == 1
+    assert "out of sequence" in said(arm)
+    assert [a.refl_seq for a in arm.answers] == [1, 2]

@@ -1,7 +1,8 @@
-"""Spec: the arm's controller, the robot interface, the interpolator and the navigator
-(no tracker connected: the goals where the calibration puts them) as components, on a
-stepped clock: one millisecond of physics per update, setpoints and measured states
-through real ports, deterministic runs."""
+"""Spec: the arm's KRC, the robot interface, the interpolator and the navigator (no
+tracker connected: the goals where the calibration puts them) as components, on a
+stepped clock: one millisecond of physics per update, FRI datagrams over real UDP
+between the KRC and the interface (a datagram sent on loopback is there to read at
+once), deterministic runs."""
 
 import dataclasses
 import time
@@ -9,12 +10,14 @@ import time
 import numpy as np
 import pytest
 
+from components.domain import fri
 from components.domain.procedure import load_procedure
 from components.robot.interface import RobotInterface
 from components.robot.interpolator import CartesianInterpolator
 from components.robot.navigation import Navigator
 from components.sim.arm_controller import ArmController
 from framework.activity import Activity, SteppedExecutor
+from framework.bus import free_udp_port
 from framework.clock import SimulatedClock
 from framework.container import Container
 from framework.errors import FwError
@@ -37,17 +40,20 @@ class Cell:
         self.clock = SimulatedClock()
         self.executor = SteppedExecutor(self.clock)
         self.container = Container("cell", bus, self.executor)
-        self.arm = self.container.add(ArmController("arm"), Activity.periodic(1000))
+        port = free_udp_port()
+        self.arm = self.container.add(
+            ArmController("arm"),
+            Activity.periodic(1000),
+            properties={"fri_remote": f"127.0.0.1:{port}", "lockstep_ms": 0.0},
+        )
         self.robot = self.container.add(
-            RobotInterface("robot"), Activity.event("measured"), safety=safety
+            RobotInterface("robot"),
+            Activity.paced(0.02),
+            properties={"fri_listen": f"127.0.0.1:{port}"},
+            safety=safety,
         )
         self.interp = self.container.add(
             CartesianInterpolator("interpolator"), Activity("after", master="robot")
-        )
-        self.container.connect("robot", "measured", "arm/measured")
-        self.container.connect("arm", "command", "robot/command")
-        self.container.connect(
-            "arm", "request", "robot/arm_request", {"type": "buffer", "size": 16}
         )
         self.navigator = self.container.add(Navigator("navigator"), Activity.periodic(20))
         self.container.connect("interpolator", "joints", "robot/joints")
@@ -60,7 +66,9 @@ class Cell:
         self.container.start()
         for component in (self.arm, self.robot, self.interp, self.navigator):
             assert component.configure() and component.start(), component.last_error
-        self.run(0.06)  # the interpolator learns the joints, the navigator the goals
+        # the interpolator learns the joints, the navigator the goals, and the FRI link
+        # is PERFECT (16 answered measurements, every 10 ms in monitor mode)
+        self.run(0.2)
         self.interp.call("set_limits", velocity=0.075)  # the Supervisor's, Certus in use
 
     def run(self, seconds: float) -> None:
@@ -169,29 +177,33 @@ def test_a_dead_interpolator_trips_a_protective_stop_that_latches(cell):
         cell.robot.call("release")
 
 
-def test_the_arms_controller_brakes_by_itself_when_commands_stop(cell):
-    """The interface's process hangs (here: its command link is cut): the controller's
-    own watchdog brakes and latches; the interface then latches too."""
+def test_the_arms_controller_brakes_by_itself_when_answers_stop(cell):
+    """The interface's process hangs (here: it is stopped, so nothing answers the KRC's
+    measurements): the KRC's FRI quality falls and it brakes by itself, latched; the
+    interface, back, finds it latched and latches too."""
     cell.release()
     cell.interp.call("go_to", goal="target")
     cell.run(1.0)
-    cell.container.disconnect("arm", "command")
+    cell.robot.stop()
     cell.run(0.1)
     arm = cell.arm.call("report")
-    assert arm["braked"] and arm["latched"] and arm["reason"].startswith("watchdog")
+    assert arm["braked"] and arm["latched"] and arm["reason"].startswith(fri.REASONS[3])
+    assert arm["fri"]["quality"] == "BAD"
+    assert cell.robot.start()
+    cell.run(0.1)
     robot = cell.robot.call("report")
-    assert robot["latched"] and "the arm braked by itself: watchdog" in robot["reason"]
+    assert robot["latched"] and robot["reason"] == f"the arm braked by itself: {fri.REASONS[3]}"
 
 
 def test_a_latched_stop_opens_only_with_acknowledge_then_release(cell):
     cell.release()
     cell.interp.call("go_to", goal="target")
     cell.run(1.0)
-    cell.container.disconnect("arm", "command")
+    cell.robot.stop()
     cell.run(0.1)
-    cell.container.connect("arm", "command", "robot/command")  # the link is back
+    assert cell.robot.start()  # the interface answers again
     cell.run(0.5)
-    assert cell.arm.call("report")["braked"], "a link that comes back restarts nothing"
+    assert cell.arm.call("report")["braked"], "answers that come back restart nothing"
     cell.robot.call("acknowledge")
     cell.run(SERVED)
     assert cell.arm.call("report")["braked"], "acknowledge clears the latch, not the brakes"
@@ -358,6 +370,10 @@ def test_a_setpoint_no_arm_could_follow_trips_and_stays_braked_until_release(
     cell.release()
     cell.interp.call("go_to", goal="target")
     cell.run(0.5)
+    # the interpolator falls silent (its setpoint of each cycle would overwrite a forged
+    # one before the interface reads it) and the interface waits for it long enough
+    cell.robot.set_property("setpoint_cycles", 1000)
+    cell.interp.stop()
     q = np.asarray(cell.robot.call("report")["q"]) + shift
     forged = JointState(0.0, tuple(q.tolist()))
     _forge(cell, peer, "interpolator/setpoint", forged, JointState, lambda: cell.robot.latched)
@@ -391,16 +407,16 @@ def test_a_braked_arm_reports_every_ten_cycles_and_every_cycle_once_released(cel
     its time still runs at one cycle per millisecond, and the robot interface says how
     many cycles each state stands for, so the interpolator keeps the arm's time."""
     assert cell.arm.call("report")["braked"]
-    cycle, written = cell.arm.call("report")["cycle"], cell.arm.measured.stats.written
+    cycle, received = cell.arm.call("report")["cycle"], cell.robot.link["measurements"]
     cell.run(0.1)
     assert cell.arm.call("report")["cycle"] - cycle == 100
-    assert cell.arm.measured.stats.written - written == 10
+    assert cell.robot.link["measurements"] - received == 10
     assert cell.robot.joints.last.cycles == 10
     cell.release()
-    cycle, written = cell.arm.call("report")["cycle"], cell.arm.measured.stats.written
+    cycle, received = cell.arm.call("report")["cycle"], cell.robot.link["measurements"]
     cell.run(0.1)
     assert cell.arm.call("report")["cycle"] - cycle == 100
-    assert cell.arm.measured.stats.written - written == 100
+    assert cell.robot.link["measurements"] - received == 100
     assert cell.robot.joints.last.cycles == 1
 
 
@@ -578,3 +594,99 @@ def test_a_state_the_busy_interface_skipped_is_no_cycle_to_catch_up_while_releas
     braked = dataclasses.replace(state, cycle=state.cycle + 13, braked=True)
     cell.robot._publish(braked)
     assert cell.robot.joints.last.cycles == 10
+
+
+# -- the FRI link fails (components/sim/link_faults.py: faults at the physical edge) --
+
+
+def moving_cell(cell) -> None:
+    cell.release()
+    cell.interp.call("go_to", goal="target")
+    cell.run(0.5)
+    assert not cell.arm.call("report")["braked"]
+
+
+def test_every_answer_lost_for_a_moment_brakes_the_arm_latched_until_release(cell):
+    """Ten cycles without an answer take the KRC's quality from PERFECT to BAD: it leaves
+    command mode and brakes, latched; the interface latches too; only the operator's
+    acknowledge (RELEASE) and a release move it again."""
+    moving_cell(cell)
+    cell.arm.call("impair", drop_every=1, seconds=0.03)
+    cell.run(0.2)
+    arm = cell.arm.call("report")
+    assert arm["braked"] and arm["latched"] and arm["reason"].startswith(fri.REASONS[3])
+    assert arm["fri"]["dropped"] >= 10
+    robot = cell.robot.call("report")
+    assert robot["latched"] and fri.REASONS[3] in robot["reason"]
+    cell.run(1.0)  # the link is healthy again: still braked
+    assert cell.arm.call("report")["braked"] and cell.robot.call("report")["latched"]
+    with pytest.raises(FwError):
+        cell.robot.call("release")
+    cell.robot.call("acknowledge")
+    cell.run(0.1)
+    cell.release()
+    cell.interp.call("go_to", goal="target")
+    cell.run(0.3)
+    assert not cell.arm.call("report")["braked"]
+
+
+def test_every_second_answer_lost_keeps_the_link_ok_and_the_arm_moving(cell):
+    """The counter rises and falls by one in turn: the quality holds; the cycles whose
+    answer was lost hold the last setpoint."""
+    moving_cell(cell)
+    cell.arm.call("impair", drop_every=2, seconds=0.5)
+    cell.run(0.5)
+    arm = cell.arm.call("report")
+    assert not arm["braked"], arm["reason"]
+    assert arm["fri"]["quality"] in ("OK", "PERFECT")
+    assert 200 <= arm["fri"]["dropped"] <= 260
+    assert not cell.robot.call("report")["latched"]
+
+
+def test_answers_later_than_a_cycle_count_as_missing_and_brake_the_arm(cell):
+    moving_cell(cell)
+    cell.arm.call("impair", delay_ms=3.0, seconds=0.1)
+    cell.run(0.2)
+    arm = cell.arm.call("report")
+    assert arm["braked"] and arm["latched"]
+    assert arm["fri"]["late"] >= 10
+    assert cell.robot.call("report")["latched"]
+
+
+def test_a_silent_krc_trips_the_interface_and_brakes_the_arm(cell):
+    """The KRC's measurements stop for 60 ms (a cable pulled and put back): the
+    interface trips on its `krc_timeout` (50 ms), the KRC brakes on the answers that
+    stopped; both stay latched when the measurements come back."""
+    moving_cell(cell)
+    cell.arm.call("impair", silence_ms=60.0)
+    cell.run(0.3)
+    arm, robot = cell.arm.call("report"), cell.robot.call("report")
+    assert arm["braked"] and arm["latched"]
+    assert robot["latched"]
+
+
+def test_datagrams_that_are_no_measurement_and_a_foreign_sender_are_refused_and_change_nothing(
+    cell,
+):
+    moving_cell(cell)
+    before = cell.robot.call("report")["fri"]["refused"]
+    cell.arm.call("impair", garbage=8, foreign=3)
+    cell.run(0.3)
+    arm, robot = cell.arm.call("report"), cell.robot.call("report")
+    assert arm["fri"]["garbage_sent"] == 8 and arm["fri"]["foreign_sent"] == 3
+    assert robot["fri"]["refused"] - before == 11
+    assert not arm["braked"] and not robot["latched"]
+
+
+@pytest.mark.parametrize(
+    "args, why",
+    [
+        ({"drop_every": -1}, "drop_every must be a whole number"),
+        ({"delay_ms": float("nan")}, "delay must be 0 to 60 s"),
+        ({"garbage": 1.5}, "garbage must be a whole number"),
+        ({"seconds": 100}, "seconds must be 0 to 60 s"),
+    ],
+)
+def test_an_impairment_that_makes_no_sense_is_refused_with_its_reason(cell, args, why):
+    with pytest.raises(FwError, match=why):
+        cell.arm.call("impair", **args)

@@ -1,0 +1,416 @@
+"""KUKA's Fast Research Interface 1.x (LWR 4+): the datagrams, byte for byte.
+
+The KRC and the robot's PC exchange UDP datagrams laid out as KUKA's `friComm.h`
+(Rev 1.17) declares them: little-endian, IEEE float32, uint16 sequence counters that
+wrap. The KRC is the clock: every cycle it sends a **measurement** (`tFriMsrData`,
+916 bytes, datagram id 0x2006) and the PC answers it at once with a **command**
+(`tFriCmdData`, 376 bytes, id 0x1005) that echoes the measurement's send counter in
+its `reflSeqCount`. Offsets (bytes from the datagram's start):
+
+    header            0   sendSeqCount u16, reflSeqCount u16, packetSize u16, datagramId u16
+    krl               8   realData f32[16], intData i32[16], boolData u16, fill u16
+    measurement:
+      intf          140   timestamp f32, state u16 (OFF 0 / MON 1 / CMD 2),
+                          quality u16 (UNACCEPTABLE 0 / BAD 1 / OK 2 / PERFECT 3),
+                          desiredMsrSampleTime f32, desiredCmdSampleTime f32,
+                          safetyLimits f32, stat: answerRate, latency, jitter,
+                          missRate f32, missCounter u32
+      robot         180   power u16, control u16 (POSITION 1 / CART_IMP 2 / JNT_IMP 3),
+                          error u16, warning u16, temperature f32[7]
+      data          216   msrJntPos[7] 216, msrCartPos[12] 244, cmdJntPos[7] 292,
+                          cmdJntPosFriOffset[7] 320, cmdCartPos[12] 348,
+                          cmdCartPosFriOffset[12] 396, msrJntTrq[7] 444,
+                          estExtJntTrq[7] 472, estExtTcpFT[6] 500, jacobian[42] 524,
+                          massMatrix[49] 692, gravity[7] 888 (all f32)
+    command:
+      cmdFlags      140   u32 (JNTPOS 0x1, JNTTRQ 0x4, JNTSTIFF 0x10, JNTDAMP 0x20,
+                          CARTPOS 0x100, TCPFT 0x400, CARTSTIFF 0x1000, CARTDAMP 0x2000)
+      jntPos[7]     144, cartPos[12] 172, addJntTrq[7] 220, addTcpFT[6] 248,
+      jntStiffness[7] 272, jntDamping[7] 300, cartStiffness[6] 328, cartDamping[6] 352
+
+In monitor mode (or with the drives off) the PC must answer with jntPos =
+cmdJntPos + cmdJntPosFriOffset, else the KRC reports an interpolation error.
+
+**fw's KRL convention** (what the KRL program on a real KRC implements, and the
+simulated KRC does): the PC's requests travel in the command's KRL data, the KRC's
+answers in the measurement's:
+
+    command      intData[0] request number (rising; the KRC serves each once)
+                 intData[1] request: BRAKE 1, BRAKE_LATCHED 2, RELEASE 3, RESET 4,
+                            MODE_POSITION 5, MODE_IMPEDANCE 6
+    measurement  intData[0] the last request number served
+                 intData[1] why the brakes are on: a `REASONS` code
+                 intData[2] the KRC's cycle counter (its 1 ms ticks)
+                 boolData   bit 0 braked, bit 1 latched (only a RESET clears it)
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from enum import IntEnum
+
+MSR_ID = 0x2006
+CMD_ID = 0x1005
+MSR_SIZE = 916
+CMD_SIZE = 376
+PORT = 49938
+"""The client's default port in KUKA's examples (KRL `friSetup` sets the real one)."""
+
+_MSR = struct.Struct("<4H 16f16iHH fHHfff ffffI 4H7f 175f")
+_CMD = struct.Struct("<4H 16f16iHH I 58f")
+assert _MSR.size == MSR_SIZE and _CMD.size == CMD_SIZE
+
+OFFSETS: dict[str, int] = {
+    "sendSeqCount": 0,
+    "reflSeqCount": 2,
+    "packetSize": 4,
+    "datagramId": 6,
+    "krl.realData": 8,
+    "krl.intData": 72,
+    "krl.boolData": 136,
+    "intf.timestamp": 140,
+    "intf.state": 144,
+    "intf.quality": 146,
+    "intf.desiredMsrSampleTime": 148,
+    "intf.desiredCmdSampleTime": 152,
+    "intf.safetyLimits": 156,
+    "intf.stat.answerRate": 160,
+    "intf.stat.latency": 164,
+    "intf.stat.jitter": 168,
+    "intf.stat.missRate": 172,
+    "intf.stat.missCounter": 176,
+    "robot.power": 180,
+    "robot.control": 182,
+    "robot.error": 184,
+    "robot.warning": 186,
+    "robot.temperature": 188,
+    "data.msrJntPos": 216,
+    "data.msrCartPos": 244,
+    "data.cmdJntPos": 292,
+    "data.cmdJntPosFriOffset": 320,
+    "data.cmdCartPos": 348,
+    "data.cmdCartPosFriOffset": 396,
+    "data.msrJntTrq": 444,
+    "data.estExtJntTrq": 472,
+    "data.estExtTcpFT": 500,
+    "data.jacobian": 524,
+    "data.massMatrix": 692,
+    "data.gravity": 888,
+    "cmd.cmdFlags": 140,
+    "cmd.jntPos": 144,
+    "cmd.cartPos": 172,
+    "cmd.addJntTrq": 220,
+    "cmd.addTcpFT": 248,
+    "cmd.jntStiffness": 272,
+    "cmd.jntDamping": 300,
+    "cmd.cartStiffness": 328,
+    "cmd.cartDamping": 352,
+}
+"""Where each field begins (bytes), as friComm.h lays them out; a spec packs a datagram
+and reads every field back at its offset."""
+
+
+class State(IntEnum):
+    """The FRI interface state."""
+
+    OFF = 0
+    MON = 1
+    CMD = 2
+
+
+class Quality(IntEnum):
+    """FRI's communication quality; only UNACCEPTABLE forbids commanding."""
+
+    UNACCEPTABLE = 0
+    BAD = 1
+    OK = 2
+    PERFECT = 3
+
+
+class Control(IntEnum):
+    """The LWR's control strategy."""
+
+    POSITION = 1
+    CART_IMP = 2
+    JNT_IMP = 3
+
+
+class Request(IntEnum):
+    """fw's requests in the command's KRL data (module docstring)."""
+
+    NONE = 0
+    BRAKE = 1
+    BRAKE_LATCHED = 2
+    RELEASE = 3
+    RESET = 4
+    MODE_POSITION = 5
+    MODE_IMPEDANCE = 6
+
+
+CMD_JNTPOS = 0x1
+CMD_JNTSTIFF = 0x10
+CMD_JNTDAMP = 0x20
+
+REASONS: tuple[str, ...] = (
+    "",  # 0: not braked
+    "power on",
+    "interface",  # 2: the PC asked (a procedure's brake)
+    "FRI quality too low: the answers stopped or came late",
+    "setpoint: a step no arm can follow",
+    "interpolation error: monitor mode needs cmdJntPos + cmdJntPosFriOffset",
+    "safety stop asked by the robot interface",
+    "controller stopped",
+    "KRC reset",
+)
+"""Why the brakes are on, by the code the measurement carries (intData[1])."""
+
+
+def reason_code(reason: str) -> int:
+    """The `REASONS` code of a reason (the first that begins it; 2 for any other)."""
+    for code, text in enumerate(REASONS):
+        if code and reason.startswith(text):
+            return code
+    return 2 if reason else 0
+
+
+@dataclass(frozen=True, slots=True)
+class Measurement:
+    """A KRC measurement, decoded: what fw uses of `tFriMsrData`."""
+
+    send_seq: int
+    refl_seq: int
+    timestamp: float
+    state: int
+    quality: int
+    answer_rate: float
+    latency: float
+    jitter: float
+    miss_rate: float
+    miss_counter: int
+    control: int
+    msr_jnt_pos: tuple[float, ...]
+    cmd_jnt_pos: tuple[float, ...]
+    cmd_jnt_pos_fri_offset: tuple[float, ...]
+    msr_jnt_trq: tuple[float, ...]
+    served: int
+    reason: int
+    cycle: int
+    braked: bool
+    latched: bool
+
+    @property
+    def monitor_answer(self) -> tuple[float, ...]:
+        """What the PC must answer in monitor mode: cmdJntPos + cmdJntPosFriOffset."""
+        return tuple(
+            a + b for a, b in zip(self.cmd_jnt_pos, self.cmd_jnt_pos_fri_offset, strict=True)
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """A PC command, decoded: what fw uses of `tFriCmdData`."""
+
+    send_seq: int
+    refl_seq: int
+    flags: int
+    jnt_pos: tuple[float, ...]
+    request_number: int
+    request: int
+
+
+class DatagramError(ValueError):
+    """A datagram that is not what it claims: size, id or declared length wrong."""
+
+
+def encode_measurement(
+    send_seq: int,
+    refl_seq: int,
+    *,
+    timestamp: float,
+    state: int,
+    quality: int,
+    stats: tuple[float, float, float, float, int] = (1.0, 0.0, 0.0, 0.0, 0),
+    control: int = Control.POSITION,
+    msr_jnt_pos: tuple[float, ...] = (0.0,) * 7,
+    cmd_jnt_pos: tuple[float, ...] = (0.0,) * 7,
+    cmd_jnt_pos_fri_offset: tuple[float, ...] = (0.0,) * 7,
+    msr_jnt_trq: tuple[float, ...] = (0.0,) * 7,
+    served: int = 0,
+    reason: int = 0,
+    cycle: int = 0,
+    braked: bool = True,
+    latched: bool = False,
+    sample_time: float = 0.001,
+) -> bytes:
+    """A measurement datagram (the KRC's side). `stats`: answerRate, latency, jitter,
+    missRate, missCounter over the last 100 packets."""
+    ints = [0] * 16
+    ints[0], ints[1], ints[2] = served, reason, cycle & 0x7FFFFFFF
+    data = [0.0] * 175
+    data[0:7] = msr_jnt_pos
+    data[19:26] = cmd_jnt_pos
+    data[26:33] = cmd_jnt_pos_fri_offset
+    data[57:64] = msr_jnt_trq
+    flags = (1 if braked else 0) | (2 if latched else 0)
+    return _MSR.pack(
+        send_seq & 0xFFFF,
+        refl_seq & 0xFFFF,
+        MSR_SIZE,
+        MSR_ID,
+        *([0.0] * 16),
+        *ints,
+        flags,
+        0,
+        timestamp,
+        state,
+        quality,
+        sample_time,
+        sample_time,
+        0.0,
+        *stats,
+        1 if not braked else 0,  # power: the drives are on while released
+        control,
+        0,
+        0,
+        *([30.0] * 7),
+        *data,
+    )
+
+
+def decode_measurement(datagram: bytes) -> Measurement:
+    """A measurement datagram, decoded; `DatagramError` if it is not one."""
+    if len(datagram) != MSR_SIZE:
+        raise DatagramError(f"a measurement is {MSR_SIZE} bytes, not {len(datagram)}")
+    v = _MSR.unpack(datagram)
+    if v[3] != MSR_ID or v[2] != MSR_SIZE:
+        raise DatagramError(f"datagram id 0x{v[3]:04x} size {v[2]} is no measurement")
+    ints = v[20:36]
+    flags = v[36]
+    data = v[60:]
+    return Measurement(
+        v[0],
+        v[1],
+        v[38],
+        v[39],
+        v[40],
+        v[44],
+        v[45],
+        v[46],
+        v[47],
+        v[48],
+        v[50],
+        data[0:7],
+        data[19:26],
+        data[26:33],
+        data[57:64],
+        ints[0],
+        ints[1],
+        ints[2],
+        bool(flags & 1),
+        bool(flags & 2),
+    )
+
+
+def encode_command(
+    send_seq: int,
+    refl_seq: int,
+    jnt_pos: tuple[float, ...],
+    *,
+    flags: int = CMD_JNTPOS,
+    request_number: int = 0,
+    request: int = Request.NONE,
+) -> bytes:
+    """A command datagram (the PC's side) answering measurement `refl_seq`."""
+    ints = [0] * 16
+    ints[0], ints[1] = request_number, request
+    floats = [0.0] * 58
+    floats[0:7] = jnt_pos
+    return _CMD.pack(
+        send_seq & 0xFFFF,
+        refl_seq & 0xFFFF,
+        CMD_SIZE,
+        CMD_ID,
+        *([0.0] * 16),
+        *ints,
+        0,
+        0,
+        flags,
+        *floats,
+    )
+
+
+def decode_command(datagram: bytes) -> Command:
+    """A command datagram, decoded; `DatagramError` if it is not one."""
+    if len(datagram) != CMD_SIZE:
+        raise DatagramError(f"a command is {CMD_SIZE} bytes, not {len(datagram)}")
+    v = _CMD.unpack(datagram)
+    if v[3] != CMD_ID or v[2] != CMD_SIZE:
+        raise DatagramError(f"datagram id 0x{v[3]:04x} size {v[2]} is no command")
+    return Command(v[0], v[1], v[38], v[39:46], v[20], v[21])
+
+
+def seq_after(a: int, b: int) -> bool:
+    """True if uint16 counter `a` comes after `b` (within half the wrap)."""
+    return 0 < (a - b) & 0xFFFF < 0x8000
+
+
+class QualityMeter:
+    """How the KRC rates the PC's answers, one verdict per cycle.
+
+    KUKA's own thresholds are not public; this follows the open KRC simulator of
+    ubi-agni/lwr_robot (`lwr_controller.cpp`): a counter from 0 to `top` (20) rises by
+    one for each cycle answered in time and falls by one for each cycle without an
+    answer; at or below `bad` (10) the quality is BAD, above `ok` (15) PERFECT, OK
+    between; UNACCEPTABLE at 0. Starting at 0, 11 answered cycles make it OK and 16
+    PERFECT; from PERFECT, 10 cycles without an answer (10 ms at 1 kHz) make it BAD.
+    Also the statistics of the last 100 cycles (answer rate, latency, jitter, miss
+    rate, misses in all) that the measurement carries."""
+
+    def __init__(self, top: int = 20, bad: int = 10, ok: int = 15, window: int = 100):
+        if not 0 < bad < ok < top:
+            raise ValueError("need 0 < bad < ok < top")
+        self.top, self.bad, self.ok = top, bad, ok
+        self.counter = 0
+        self.window = window
+        self._answered: list[bool] = []
+        self._latencies: list[float] = []
+        self.misses = 0
+
+    def cycle(self, answered: bool, latency: float = 0.0) -> Quality:
+        """Rate one cycle (answered in time, or not) and return the quality now."""
+        self.counter = min(self.top, self.counter + 1) if answered else max(0, self.counter - 1)
+        self._answered.append(answered)
+        if answered:
+            self._latencies.append(latency)
+        else:
+            self.misses += 1
+        if len(self._answered) > self.window:
+            del self._answered[0]
+        if len(self._latencies) > self.window:
+            del self._latencies[0]
+        return self.quality
+
+    @property
+    def quality(self) -> Quality:
+        """The quality the counter stands for."""
+        if self.counter == 0:
+            return Quality.UNACCEPTABLE
+        if self.counter <= self.bad:
+            return Quality.BAD
+        return Quality.PERFECT if self.counter > self.ok else Quality.OK
+
+    def stats(self) -> tuple[float, float, float, float, int]:
+        """answerRate, latency (s, mean), jitter (s, max - min), missRate, missCounter."""
+        n = len(self._answered)
+        rate = sum(self._answered) / n if n else 0.0
+        lat = self._latencies
+        mean = sum(lat) / len(lat) if lat else 0.0
+        jitter = max(lat) - min(lat) if lat else 0.0
+        return rate, mean, jitter, 1.0 - rate if n else 0.0, self.misses
+
+    def reset(self) -> None:
+        """Forget every answer (a new connection)."""
+        self.counter = 0
+        self._answered.clear()
+        self._latencies.clear()

@@ -1,0 +1,228 @@
+"""Spec: FRI 1.x datagrams byte for byte (KUKA's friComm.h, Rev 1.17), the KRC's rating
+of the PC's answers, and fw's KRL convention for requests and reasons."""
+
+import struct
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from components.domain import fri
+
+# friComm.h's declarations, in order: (field, C type, count). The offsets below are
+# computed from these with C's rules (every member here is 2- or 4-byte aligned), so a
+# wrong entry in fri.OFFSETS or a wrong struct format cannot agree with them by chance.
+HEADER = [("sendSeqCount", "u16", 1), ("reflSeqCount", "u16", 1), ("packetSize", "u16", 1),
+          ("datagramId", "u16", 1)]  # fmt: skip
+KRL = [("krl.realData", "f32", 16), ("krl.intData", "i32", 16), ("krl.boolData", "u16", 1),
+       ("krl.fill", "u16", 1)]  # fmt: skip
+MEASUREMENT = HEADER + KRL + [
+    ("intf.timestamp", "f32", 1), ("intf.state", "u16", 1), ("intf.quality", "u16", 1),
+    ("intf.desiredMsrSampleTime", "f32", 1), ("intf.desiredCmdSampleTime", "f32", 1),
+    ("intf.safetyLimits", "f32", 1), ("intf.stat.answerRate", "f32", 1),
+    ("intf.stat.latency", "f32", 1), ("intf.stat.jitter", "f32", 1),
+    ("intf.stat.missRate", "f32", 1), ("intf.stat.missCounter", "u32", 1),
+    ("robot.power", "u16", 1), ("robot.control", "u16", 1), ("robot.error", "u16", 1),
+    ("robot.warning", "u16", 1), ("robot.temperature", "f32", 7),
+    ("data.msrJntPos", "f32", 7), ("data.msrCartPos", "f32", 12),
+    ("data.cmdJntPos", "f32", 7), ("data.cmdJntPosFriOffset", "f32", 7),
+    ("data.cmdCartPos", "f32", 12), ("data.cmdCartPosFriOffset", "f32", 12),
+    ("data.msrJntTrq", "f32", 7), ("data.estExtJntTrq", "f32", 7),
+    ("data.estExtTcpFT", "f32", 6), ("data.jacobian", "f32", 42),
+    ("data.massMatrix", "f32", 49), ("data.gravity", "f32", 7),
+]  # fmt: skip
+COMMAND = HEADER + KRL + [
+    ("cmd.cmdFlags", "u32", 1), ("cmd.jntPos", "f32", 7), ("cmd.cartPos", "f32", 12),
+    ("cmd.addJntTrq", "f32", 7), ("cmd.addTcpFT", "f32", 6),
+    ("cmd.jntStiffness", "f32", 7), ("cmd.jntDamping", "f32", 7),
+    ("cmd.cartStiffness", "f32", 6), ("cmd.cartDamping", "f32", 6),
+]  # fmt: skip
+SIZES = {"u16": 2, "i32": 4, "u32": 4, "f32": 4}
+FORMATS = {"u16": "H", "i32": "i", "u32": "I", "f32": "f"}
+
+
+def layout(fields):
+    """Each field's offset under C's alignment rules, and the struct's size."""
+    offsets, at = {}, 0
+    for name, kind, count in fields:
+        size = SIZES[kind]
+        at += -at % size  # padding up to the member's alignment
+        offsets[name] = at
+        at += size * count
+    return offsets, at + (-at % 4)  # the struct's own alignment
+
+
+def field(datagram, fields, name):
+    """A field read back at its friComm.h offset."""
+    offsets, _ = layout(fields)
+    kind, count = next((k, c) for n, k, c in fields if n == name)
+    values = struct.unpack_from(f"<{count}{FORMATS[kind]}", datagram, offsets[name])
+    return values if count > 1 else values[0]
+
+
+def test_the_offsets_and_sizes_are_friComms():
+    msr_offsets, msr_size = layout(MEASUREMENT)
+    cmd_offsets, cmd_size = layout(COMMAND)
+    assert (msr_size, cmd_size) == (fri.MSR_SIZE, fri.CMD_SIZE) == (916, 376)
+    for name, offset in fri.OFFSETS.items():
+        expected = cmd_offsets[name] if name.startswith("cmd.") else msr_offsets[name]
+        assert offset == expected, name
+    # the ones FACTS.md measured in open copies of friComm.h
+    assert msr_offsets["data.cmdJntPosFriOffset"] == 320 and cmd_offsets["cmd.jntPos"] == 144
+
+
+floats7 = st.tuples(*[st.floats(-3.0, 3.0, width=32)] * 7)
+
+
+@given(
+    seq=st.integers(0, 0xFFFF),
+    refl=st.integers(0, 0xFFFF),
+    q=floats7,
+    cmd=floats7,
+    offset=floats7,
+    served=st.integers(0, 2**31 - 1),
+    reason=st.integers(0, len(fri.REASONS) - 1),
+    cycle=st.integers(0, 2**31 - 1),
+    braked=st.booleans(),
+    latched=st.booleans(),
+    quality=st.sampled_from(list(fri.Quality)),
+)
+def test_a_measurement_says_each_field_where_friComm_puts_it(
+    seq, refl, q, cmd, offset, served, reason, cycle, braked, latched, quality
+):
+    datagram = fri.encode_measurement(
+        seq,
+        refl,
+        timestamp=12.5,
+        state=fri.State.MON if braked else fri.State.CMD,
+        quality=quality,
+        stats=(0.75, 0.002, 0.0005, 0.25, 7),
+        msr_jnt_pos=q,
+        cmd_jnt_pos=cmd,
+        cmd_jnt_pos_fri_offset=offset,
+        served=served,
+        reason=reason,
+        cycle=cycle,
+        braked=braked,
+        latched=latched,
+    )
+    assert len(datagram) == 916
+    at = lambda name: field(datagram, MEASUREMENT, name)  # noqa: E731
+    assert (at("sendSeqCount"), at("reflSeqCount")) == (seq, refl)
+    assert (at("packetSize"), at("datagramId")) == (916, 0x2006)
+    assert at("data.msrJntPos") == q and at("data.cmdJntPos") == cmd
+    assert at("data.cmdJntPosFriOffset") == offset
+    assert at("intf.quality") == quality and at("intf.stat.missCounter") == 7
+    assert at("intf.state") == (1 if braked else 2)
+    assert at("krl.intData")[:3] == (served, reason, cycle)
+    assert at("krl.boolData") == braked | latched << 1
+    decoded = fri.decode_measurement(datagram)
+    assert (decoded.send_seq, decoded.refl_seq, decoded.quality) == (seq, refl, quality)
+    assert decoded.msr_jnt_pos == q and decoded.cmd_jnt_pos == cmd
+    assert (decoded.served, decoded.reason, decoded.cycle) == (served, reason, cycle)
+    assert (decoded.braked, decoded.latched, decoded.miss_counter) == (braked, latched, 7)
+    assert decoded.monitor_answer == tuple(a + b for a, b in zip(cmd, offset, strict=True))
+
+
+@given(
+    seq=st.integers(0, 0xFFFF),
+    refl=st.integers(0, 0xFFFF),
+    q=floats7,
+    number=st.integers(0, 2**31 - 1),
+    request=st.sampled_from(list(fri.Request)),
+    flags=st.sampled_from([fri.CMD_JNTPOS, fri.CMD_JNTPOS | fri.CMD_JNTSTIFF]),
+)
+def test_a_command_says_each_field_where_friComm_puts_it(seq, refl, q, number, request, flags):
+    datagram = fri.encode_command(seq, refl, q, flags=flags, request_number=number, request=request)
+    assert len(datagram) == 376
+    at = lambda name: field(datagram, COMMAND, name)  # noqa: E731
+    assert (at("sendSeqCount"), at("reflSeqCount"), at("packetSize")) == (seq, refl, 376)
+    assert at("datagramId") == 0x1005 and at("cmd.cmdFlags") == flags
+    assert at("cmd.jntPos") == q and at("krl.intData")[:2] == (number, request)
+    decoded = fri.decode_command(datagram)
+    assert (decoded.send_seq, decoded.refl_seq, decoded.flags) == (seq, refl, flags)
+    assert decoded.jnt_pos == q and (decoded.request_number, decoded.request) == (number, request)
+
+
+def test_floats_travel_as_float32():
+    datagram = fri.encode_command(1, 1, (0.1,) * 7)
+    assert fri.decode_command(datagram).jnt_pos[0] == struct.unpack("f", struct.pack("f", 0.1))[0]
+    assert fri.decode_command(datagram).jnt_pos[0] != 0.1
+
+
+@pytest.mark.parametrize(
+    ("datagram", "why"),
+    [
+        (b"", "a measurement is 916 bytes, not 0"),
+        (bytes(915), "a measurement is 916 bytes, not 915"),
+        (fri.encode_command(1, 1, (0.0,) * 7) + bytes(540), "datagram id 0x1005 size 376"),
+        (bytes(916), "datagram id 0x0000 size 0 is no measurement"),
+    ],
+)
+def test_anything_but_a_measurement_is_refused_with_what_it_is(datagram, why):
+    with pytest.raises(fri.DatagramError, match=why):
+        fri.decode_measurement(datagram)
+
+
+def test_a_measurement_is_no_command():
+    datagram = fri.encode_measurement(1, 0, timestamp=0.0, state=1, quality=3)
+    with pytest.raises(fri.DatagramError, match="a command is 376 bytes, not 916"):
+        fri.decode_command(datagram)
+    forged = bytearray(fri.encode_command(1, 1, (0.0,) * 7))
+    forged[6:8] = struct.pack("<H", 0x2006)
+    with pytest.raises(fri.DatagramError, match="id 0x2006 size 376 is no command"):
+        fri.decode_command(bytes(forged))
+
+
+@pytest.mark.parametrize(
+    ("a", "b", "after"),
+    [(1, 0, True), (0, 1, False), (5, 5, False), (0, 0xFFFF, True), (0x7FFF, 0, True),
+     (0x8000, 0, False), (3, 0xFFF0, True)],
+)  # fmt: skip
+def test_sequence_counters_wrap(a, b, after):
+    assert fri.seq_after(a, b) is after
+
+
+def test_quality_rises_one_step_per_answered_cycle_and_falls_one_per_miss():
+    meter = fri.QualityMeter()
+    assert meter.quality is fri.Quality.UNACCEPTABLE
+    seen = [meter.cycle(True) for _ in range(16)]
+    assert seen[:10] == [fri.Quality.BAD] * 10, "1..10: BAD"
+    assert seen[10:15] == [fri.Quality.OK] * 5, "11..15: OK"
+    assert seen[15] is fri.Quality.PERFECT, "16 answered cycles: PERFECT"
+    for _ in range(10):
+        meter.cycle(True)
+    assert meter.counter == 20, "it saturates at 20"
+    fallen = [meter.cycle(False) for _ in range(10)]
+    assert fallen[:4] == [fri.Quality.PERFECT] * 4 and fallen[4] is fri.Quality.OK
+    assert fallen[-1] is fri.Quality.BAD, "from PERFECT, 10 silent cycles: BAD"
+    for _ in range(20):
+        meter.cycle(False)
+    assert meter.counter == 0 and meter.quality is fri.Quality.UNACCEPTABLE
+
+
+def test_the_statistics_cover_the_last_hundred_cycles():
+    meter = fri.QualityMeter()
+    for _ in range(100):
+        meter.cycle(False)
+    for i in range(100):
+        meter.cycle(True, latency=0.001 + (i % 2) * 0.0004)
+    rate, latency, jitter, miss_rate, misses = meter.stats()
+    assert (rate, miss_rate, misses) == (1.0, 0.0, 100), "misses in all: 100"
+    assert latency == pytest.approx(0.0012) and jitter == pytest.approx(0.0004)
+    meter.reset()
+    assert meter.counter == 0 and meter.stats()[:4] == (0.0, 0.0, 0.0, 0.0)
+
+
+def test_thresholds_are_parameters_but_must_be_ordered():
+    meter = fri.QualityMeter(top=8, bad=2, ok=5)
+    assert [meter.cycle(True) for _ in range(6)][-1] is fri.Quality.PERFECT
+    with pytest.raises(ValueError, match="0 < bad < ok < top"):
+        fri.QualityMeter(top=10, bad=12, ok=15)
+
+
+def test_reasons_travel_as_codes_and_unknown_words_as_the_interfaces():
+    for code, text in enumerate(fri.REASONS):
+        assert fri.reason_code(text) == code
+    assert fri.reason_code(fri.REASONS[3] + " (10)") == 3, "details after the words"
+    assert fri.reason_code("at goal") == 2, "a procedure's own words: the PC asked"
