@@ -1,5 +1,6 @@
-"""`fw bench chaos`: every process of the SEEG deployment crashed or hung while the arm
-approaches the target at 7.5 cm/s, on a fresh deployment each time.
+"""`fw bench chaos`: every process of the SEEG deployment crashed or hung, and the FRI
+link between the robot interface and the KRC failed, while the arm approaches the
+target at 7.5 cm/s, on a fresh deployment each time.
 
 For each case (a process, a fault: KILL, STOP 2 s, STOP 0.3 s) the run keeps every
 state the arm's controller published (`arm/measured`, 1 kHz) and every status of the
@@ -14,6 +15,10 @@ on this host, so their clocks compare). From them:
 * **moved without RELEASE**: after the brakes were on, any state of the arm released
   or moving faster than 1 mrad/s, until the end of the observation (2 s after the
   process resumed, for a hang); no RELEASE is sent during a case.
+
+The FRI link's faults (`LINK_FAULTS`, injected by `arm.impair` at the time the case
+calls "the fault") are timed the same way; the garbage case must *not* brake: refused
+datagrams change no decision.
 
 The arm's own process is the machine: killed, it is a power loss (the brakes hold by
 construction, there is no state to read); hung, its physics stands still. Its rows
@@ -33,6 +38,13 @@ from framework.messages import ArmState, EventMessage
 
 PROCESSES = ("vicra_device", "trackers", "cameras", "arm", "robot", "supervision")
 FAULTS = (("KILL", 0.0), ("STOP", 2.0), ("STOP", 0.3))
+LINK_FAULTS = (
+    ("answers lost 50ms", {"drop_every": 1, "seconds": 0.05}, True),
+    ("answers late 5ms", {"delay_ms": 5.0, "seconds": 0.5}, True),
+    ("KRC silent 60ms", {"silence_ms": 60.0}, True),
+    ("garbage+foreign", {"garbage": 40, "foreign": 10}, False),
+)
+"""The FRI link's faults: name, `arm.impair` arguments, whether the arm must brake."""
 STILL = 1e-3  # rad/s
 AFTER = 2.0  # s of observation after the fault (after the resume, for a hang)
 
@@ -51,15 +63,23 @@ class Case:
     chart: str = ""
     detail: str = ""
     notes: list[str] = field(default_factory=list)
+    link: str = ""
+    """An FRI link fault's name (`LINK_FAULTS`; process `fri`, signal `LINK`)."""
+    must_brake: bool = True
 
     @property
     def name(self) -> str:
-        """KILL, STOP 2s, STOP 0.3s."""
+        """KILL, STOP 2s, STOP 0.3s, or the link fault's name."""
+        if self.link:
+            return self.link
         return "KILL" if self.signal == "KILL" else f"STOP {self.hold:g}s"
 
     @property
     def ok(self) -> bool:
-        """Braked at the end, and no motion after the brakes without a RELEASE."""
+        """Braked at the end, and no motion after the brakes without a RELEASE; for a
+        fault that must not brake (garbage), never braked nor latched."""
+        if not self.must_brake:
+            return self.to_braking_ms is None and not self.ended_braked
         return self.ended_braked and not self.moved_without_release
 
     def line(self) -> str:
@@ -77,11 +97,14 @@ class Case:
         )
 
 
-def run_case(process: str, signal_name: str, hold: float) -> Case:
-    """Deploy, start the approach, inject the fault, watch, shut down."""
+def run_case(process: str, signal_name: str, hold: float, link: tuple | None = None) -> Case:
+    """Deploy, start the approach, inject the fault (a signal to `process`, or the FRI
+    link fault `link` of `LINK_FAULTS`), watch, shut down."""
     from components.bench.seeg_run import SeegRun
 
     case = Case(process, signal_name, hold)
+    if link is not None:
+        case.link, case.must_brake = link[0], link[2]
     run = SeegRun().start()
     try:
         run.watch("arm/measured", ArmState)
@@ -91,6 +114,15 @@ def run_case(process: str, signal_name: str, hold: float) -> Case:
         time.sleep(0.6)  # well into the approach: at speed
         deployment = run.deployment
         assert deployment is not None
+        if link is not None:
+            fault = time.time()
+            run.call("arm.impair", **link[1])
+            time.sleep(AFTER)
+            _judge(case, run, fault)
+            case.chart = run.last_entered(
+                ("Fault", "Stopped", "Moving_Fast", "Moving_Slow", "Target_Reached")
+            )
+            return case
         popen = next(p.popen for p in deployment.processes if p.name == process)
         assert popen is not None
         fault = time.time()
@@ -145,15 +177,19 @@ def _judge(case: Case, run: Any, fault: float) -> None:
 
 
 def chaos(repetitions: int, progress: Any = None) -> list[Case]:
-    """Every process x fault kind, `repetitions` times each, one line per case printed."""
+    """Every process x fault kind and every FRI link fault, `repetitions` times each,
+    one line per case printed."""
     cases = []
-    total = repetitions * len(PROCESSES) * len(FAULTS)
+    total = repetitions * (len(PROCESSES) * len(FAULTS) + len(LINK_FAULTS))
+    plan: list[tuple[str, str, float, tuple | None]] = [
+        (process, signal_name, hold, None) for process in PROCESSES for signal_name, hold in FAULTS
+    ]
+    plan += [("fri", "LINK", 0.0, link) for link in LINK_FAULTS]
     for _ in range(repetitions):
-        for process in PROCESSES:
-            for signal_name, hold in FAULTS:
-                case = run_case(process, signal_name, hold)
-                cases.append(case)
-                print(case.line(), file=sys.stderr, flush=True)
-                if progress is not None:
-                    progress(len(cases), total)
+        for process, signal_name, hold, link in plan:
+            case = run_case(process, signal_name, hold, link)
+            cases.append(case)
+            print(case.line(), file=sys.stderr, flush=True)
+            if progress is not None:
+                progress(len(cases), total)
     return cases

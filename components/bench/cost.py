@@ -3,15 +3,21 @@ keeps real time.
 
 On the running SEEG deployment (`SeegRun`), over a window each: the robot braked and
 waiting for START (idle), then moving toward the target with the people of the
-scene in the room. For every process of the deployment, and for this one (the
+scene in the room (only while the chart is in a motion state: a window that ran on
+past the target would average the motion with the hold). For every process of the
+deployment, for a process that holds nothing but a Zenoh session (the floor any
+process of fw stands on), and for this one (the
 Coordinator and Configurator, with the bench's own listener), the CPU it used
 (user + system, from /proc/<pid>/stat) divided by the window: the cores it took.
 The arm's loop: how many 1 ms cycles it ran per millisecond of wall time (its
 real-time factor, from `arm.report` at both ends of the window), and the intervals
 between the stamps its cycles put on `arm/measured`, per cycle they cover (the
 stamps are taken in the arm's own process, so delivery does not blur them; braked,
-the arm reports every 10 cycles). `load` busy loops run on the
-host meanwhile, as other jobs of a shared machine would.
+the arm reports every 10 cycles). The robot loop's own account at the window's end:
+its scheduling class, its cycle's work and each stage's p50/p99 (receive, wake,
+safety, separation, interpolation, IK, publish, send), the FRI link's quality and its
+missed, late and refused datagrams. `load` busy loops run on the host meanwhile, as
+other jobs of a shared machine would.
 """
 
 from __future__ import annotations
@@ -48,6 +54,10 @@ class Window:
     cores: dict[str, float]  # process -> cores used
     realtime: float  # arm cycles per millisecond of wall time
     cycle_ms: list[float] = field(default_factory=list)  # wall ms per arm cycle, per state
+    loop: dict[str, Any] = field(default_factory=dict)  # the robot loop's report
+    krc_loop: dict[str, Any] = field(default_factory=dict)  # the simulated KRC's
+    fri: dict[str, Any] = field(default_factory=dict)  # link quality and counters
+    zenoh_idle: float = 0.0  # cores a process holding only a Zenoh session took
 
     @property
     def total(self) -> float:
@@ -64,26 +74,82 @@ def processes(run: SeegRun) -> dict[str, int]:
     return out
 
 
-def measure(run: SeegRun, seconds: float, jitter_seconds: float) -> Window:
-    """CPU per process and the arm's real-time factor over `seconds`, then the arm's
-    cycle intervals over `jitter_seconds` (a subscriber of its 1 kHz output costs
-    something, so it is not there while the CPU is counted)."""
-    pids = processes(run)
-    before = {name: cpu_seconds(pid) for name, pid in pids.items()}
-    first = run.call("arm.report")
-    t0 = time.monotonic()
-    time.sleep(seconds)
-    elapsed = time.monotonic() - t0
-    last = run.call("arm.report")
-    after = {name: cpu_seconds(pid) for name, pid in pids.items()}
-    cores = {name: (after[name] - before[name]) / elapsed for name in pids}
-    realtime = (last["cycle"] - first["cycle"]) / (elapsed * 1000.0)
+MOTION_STATES = ("Moving_Fast", "Moving_Slow")
+"""The chart's states in which the robot moves toward a goal."""
+ZENOH_IDLE = (
+    "import sys, time, zenoh\n"
+    "config = zenoh.Config()\n"
+    "config.insert_json5('mode', '\"peer\"')\n"
+    "config.insert_json5('scouting/multicast/enabled', 'false')\n"
+    "session = zenoh.open(config)\n"
+    "print('ready', flush=True)\n"
+    "time.sleep(3600)\n"
+)
+"""A process that only holds a Zenoh session: the floor any fw process stands on."""
+
+
+def measure(
+    run: SeegRun,
+    seconds: float,
+    jitter_seconds: float,
+    while_in: tuple[str, ...] = (),
+) -> Window:
+    """The arm's cycle intervals over `jitter_seconds` (a subscriber of its 1 kHz output
+    costs something, so it is there first, not while the CPU is counted), then CPU per
+    process and the arm's real-time factor over `seconds`, or less if the chart leaves
+    the states `while_in` (the moving window covers only motion). Also what the robot's
+    loop and the FRI link report at the window's end: the loop's per-stage cycle times
+    (its last 2000 cycles), scheduling class, the link's quality and counters."""
     subscription = run.watch("arm/measured", ArmState)
     start = time.time()
     time.sleep(jitter_seconds)
     run.unwatch(subscription)
     states = [s.message for s in run.since(start, "arm/measured")]
-    return Window(elapsed, cores, realtime, cycle_intervals(states))
+    pids = processes(run)
+    pids["zenoh_idle"] = _zenoh_idle(run)
+    before = {name: cpu_seconds(pid) for name, pid in pids.items()}
+    first = run.call("arm.report")
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < seconds:
+        if while_in and run.task_state() not in while_in:
+            break
+        time.sleep(0.05)
+    elapsed = time.monotonic() - t0
+    robot = run.call("robot.report", loop=True)
+    last = run.call("arm.report", loop=True)
+    after = {name: cpu_seconds(pid) for name, pid in pids.items()}
+    cores = {name: (after[name] - before[name]) / elapsed for name in pids}
+    reference = cores.pop("zenoh_idle")
+    realtime = (last["cycle"] - first["cycle"]) / (elapsed * 1000.0)
+    window = Window(elapsed, cores, realtime, cycle_intervals(states))
+    window.loop = robot.get("loop") or {}
+    window.krc_loop = last.get("loop") or {}
+    window.fri = {
+        "quality_end": last["fri"]["quality"],
+        **{k: last["fri"][k] - first["fri"][k] for k in ("missed", "late", "refused")},
+        "interface_refused": robot["fri"]["refused"],
+        "interface_skipped": robot["fri"]["skipped"],
+    }
+    window.zenoh_idle = reference
+    return window
+
+
+_ZENOH: list[subprocess.Popen[bytes]] = []
+
+
+def _zenoh_idle(run: SeegRun) -> int:
+    """The pid of a process holding only a Zenoh session (started once per bench run)."""
+    if not _ZENOH or _ZENOH[0].poll() is not None:
+        _ZENOH[:] = [
+            subprocess.Popen(
+                [sys.executable, "-c", ZENOH_IDLE],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.DEVNULL,
+            )
+        ]
+        assert _ZENOH[0].stdout is not None
+        _ZENOH[0].stdout.readline()  # ready: its session is open
+    return _ZENOH[0].pid
 
 
 def cycle_intervals(states: list[ArmState]) -> list[float]:
@@ -114,9 +180,9 @@ def stop(loops: list[subprocess.Popen[bytes]]) -> None:
 def idle_and_moving(
     run: SeegRun, seconds: float, jitter_seconds: float, load: int = 0
 ) -> dict[str, Window]:
-    """The deployment braked and waiting for START, then moving toward the target, each
-    measured over `seconds`, with `load` busy loops on the host. Leaves the robot
-    moving (the next experiment takes it from there)."""
+    """The deployment braked and waiting for START, measured over `seconds`; then moving
+    toward the target, measured while the chart is in a motion state (at most
+    `seconds`), with `load` busy loops on the host."""
     run.wait_state("Wait_Start", 60.0)
     state = run.task_state()
     if state != "Wait_Start":
@@ -127,9 +193,13 @@ def idle_and_moving(
         mark = run.mark()
         run.send("e_START")
         run.wait_state("Moving_Fast", 30.0, since=mark)
-        moving = measure(run, seconds, jitter_seconds)
+        moving = measure(run, seconds, jitter_seconds, while_in=MOTION_STATES)
     finally:
         stop(loops)
+        for process in _ZENOH:
+            process.kill()
+            process.wait()
+        _ZENOH.clear()
     return {"idle": idle, "moving": moving}
 
 
@@ -141,6 +211,10 @@ def summary(window: Window) -> dict[str, Any]:
         "cores": {k: round(v, 4) for k, v in sorted(window.cores.items())},
         "total_cores": round(window.total, 4),
         "realtime": round(window.realtime, 4),
+        "zenoh_idle_cores": round(window.zenoh_idle, 4),
+        "loop": window.loop,
+        "krc_loop": window.krc_loop,
+        "fri": window.fri,
         "cycle_ms": {
             "p50": round(float(np.percentile(cycles, 50)), 4),
             "p99": round(float(np.percentile(cycles, 99)), 4),

@@ -2,9 +2,11 @@
 (SIGSTOP, then SIGCONT) of the robot, supervision or cameras process while the arm
 approaches the target ends braked with the fault latched; nothing moves before the
 surgeon's RELEASE (the arm's controller counts its releases), and then the approach
-resumes where the process can come back. One scenario per process and fault kind lives
-in procedures/seeg/scenarios/faults/; these six run in the suite, every one of them in
-`fw bench chaos`."""
+resumes where the process can come back. The same holds when the FRI link between the
+robot interface and the KRC fails (answers lost or late, a silent KRC, garbage and a
+foreign sender: `arm.impair`, a fault at the physical edge). One scenario per process
+and fault kind, and per link fault, lives in procedures/seeg/scenarios/faults/; the ones
+in `IN_SUITE` run here, every one of them in `fw bench chaos`."""
 
 import pytest
 
@@ -15,7 +17,13 @@ from framework.topology import load_topology
 from tests.conftest import REPO, explain, play_seeg_scenario
 
 FAULTS = REPO / "procedures" / "seeg" / "scenarios" / "faults"
-IN_SUITE = [f"{p}_{kind}" for p in ("robot", "supervision", "cameras") for kind in ("kill", "hang")]
+IN_SUITE = [
+    *(f"{p}_{kind}" for p in ("robot", "supervision", "cameras") for kind in ("kill", "hang")),
+    "fri_answers_lost",
+]
+LINK_FAULTS = {"fri_answers_lost", "fri_answers_late", "fri_krc_silent", "fri_garbage"}
+"""The FRI link's faults that must each have a scenario (`fri_loss_tolerated` shows
+what the link tolerates)."""
 
 
 def test_there_is_a_scenario_per_process_and_fault_kind_and_each_checks():
@@ -24,6 +32,7 @@ def test_there_is_a_scenario_per_process_and_fault_kind_and_each_checks():
     processes = {c.process for c in topology.components.values()}
     names = {p.stem for p in FAULTS.glob("*.yaml")}
     assert {f"{p}_{k}" for p in processes for k in ("kill", "hang")} <= names
+    assert names >= LINK_FAULTS
     operations = {f"{n}.{op}" for n, c in topology.components.items() for op in c.info.operations}
     for path in sorted(FAULTS.glob("*.yaml")):
         scenario = load_scenario(
@@ -33,7 +42,8 @@ def test_there_is_a_scenario_per_process_and_fault_kind_and_each_checks():
             {s.path for s in chart.states.values()},
             processes,
         )
-        assert any(s.fault is not None for s in scenario.steps), path.name
+        injects = [s for s in scenario.steps if s.fault is not None or s.call == "arm.impair"]
+        assert injects, f"{path.name} injects no fault"
 
 
 @pytest.mark.parametrize("name", IN_SUITE)
