@@ -21,7 +21,7 @@ def test_every_scenario_is_checked_against_the_chart_and_topology():
     check_scenarios(REPO / "topologies" / "seeg.yaml", SCENARIOS)
 
 
-LOCAL_SWITCHES = {"tracker_swap": {"tracker_2_up": "robot"}}
+LOCAL_SWITCHES = {"tracker_swap": {"tracker_2_up": "supervision"}}
 """Configurations a scenario makes: switched by the process of the ports it rewires
 (framework/local_switch.py), not over a round trip from the Configurator."""
 

@@ -196,11 +196,10 @@ def test_a_second_console_sees_every_command_with_its_origin(seeg_console, page)
     text_is(page, "answer", "e_START: accepted")
     log_has(other, "command e_START from console@127.0.0.1")
     # approaching, unless a starved host tripped the robot side (its job: the deadline
-    # monitor stops the arm when the arm's state is 50 ms late, the arm's own watchdog
-    # when setpoints are 40 ms late; issue 18 is about the CPU that starves it)
+    # monitor stops the arm when an input is late, the KRC when its FRI answers stop)
     script = (
         "() => document.querySelector('[data-testid=operation]').textContent"
-        ".startsWith('approaching') || /SAFETY STOP: .*(no data for|watchdog: no setpoint)/"
+        ".startsWith('approaching') || /SAFETY STOP: .*(no data for|the arm braked by itself)/"
         ".test(document.querySelector('[data-testid=robot]').textContent)"
     )
     wait_for(other, script, None, "[data-testid=operation]", "'approaching' (or a safety stop)")
