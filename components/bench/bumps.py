@@ -65,9 +65,17 @@ def _settle(run: SeegRun, tracker: str, timeout: float = 30.0) -> None:
     if tracker == "vicra":
         run.call("certus.occlude", tool="cto")
     deadline = time.monotonic() + timeout
-    while run.call("supervisor.report").get("steering") != tracker:
+    while (report := run.call("supervisor.report")).get("steering") != tracker:
         if time.monotonic() > deadline:
-            raise RuntimeError(f"{tracker} does not steer after {timeout:g} s")
+            health = run.call("sensor_manager.current").get("health", {})
+            why = "; ".join(
+                f"{name}: {'ok' if h.get('ok') else h.get('cause')} {h.get('detail') or ''}".strip()
+                for name, h in health.items()
+            )
+            raise RuntimeError(
+                f"{tracker} does not steer after {timeout:g} s (steering: "
+                f"{report.get('steering')}, chart: {run.task_state()}; trackers: {why})"
+            )
         time.sleep(0.1)
     time.sleep(3.0)  # the swap's carry and the filter settle
 
@@ -183,11 +191,13 @@ def hold_at_target(run: SeegRun, timeout: float = 120.0) -> None:
 def deployed(run: SeegRun, count: int, progress: Any = None) -> dict[str, Any]:
     """`count` bumps with each tracker steering, then a real calibration fault; the
     Certus is seen again at the end, as it was."""
-    hold_at_target(run)
     results = {}
     try:
         for tracker in ("certus", "vicra"):
+            hold_at_target(run)  # a bump that stopped the procedure is in its result
             results[tracker] = bumps(run, tracker, count, progress)
+        run.call("certus.occlude", tool="cto", hidden=False)
+        hold_at_target(run)
         fault = real_fault(run)
     finally:
         run.call("certus.occlude", tool="cto", hidden=False)

@@ -815,6 +815,15 @@ def run_bumps(quick: bool, context: dict[str, Any]) -> list[Row]:
             unit="",
             n=len(every),
         ),
+        Row(
+            "navigation",
+            "deployed bumps after which the procedure had stopped (the next tracker's "
+            "bumps start from a RELEASE)",
+            float(sum(b["state"] != "Target_Reached" for b in every)),
+            target=0.0,
+            unit="",
+            n=len(every),
+        ),
     ]
     detected = result["real_fault"]["detected_s"]
     rows.append(
