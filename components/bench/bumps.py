@@ -60,12 +60,29 @@ def _errors(run: SeegRun, seconds: float) -> list[tuple[float, float | None]]:
     return out
 
 
+STOPS: list[dict[str, Any]] = []
+"""Stops of the procedure while the bench waited for a tracker to steer (each then
+RELEASEd): what the chart stopped on, reported beside the bumps, never hidden."""
+
+
 def _settle(run: SeegRun, tracker: str, timeout: float = 30.0) -> None:
-    """Hold at the target with `tracker` steering."""
+    """Hold at the target with `tracker` steering (a procedure that stops meanwhile is
+    recorded in `STOPS` and brought back to the target)."""
     if tracker == "vicra":
         run.call("certus.occlude", tool="cto")
     deadline = time.monotonic() + timeout
     while (report := run.call("supervisor.report")).get("steering") != tracker:
+        if run.task_state() in ("Stopped", "No_Tracker") and len(STOPS) < 10:
+            STOPS.append(
+                {
+                    "waiting_for": tracker,
+                    "state": run.task_state(),
+                    "e_STOP": run.last_payload("e_STOP"),
+                    "e_NOTRACKER": run.last_payload("e_NOTRACKER"),
+                }
+            )
+            hold_at_target(run)
+            continue
         if time.monotonic() > deadline:
             health = run.call("sensor_manager.current").get("health", {})
             why = "; ".join(
@@ -74,7 +91,9 @@ def _settle(run: SeegRun, tracker: str, timeout: float = 30.0) -> None:
             )
             raise RuntimeError(
                 f"{tracker} does not steer after {timeout:g} s (steering: "
-                f"{report.get('steering')}, chart: {run.task_state()}; trackers: {why})"
+                f"{report.get('steering')}, chart: {run.task_state()}; trackers: {why}; "
+                f"last e_STOP: {run.last_payload('e_STOP')}, "
+                f"e_NOTRACKER: {run.last_payload('e_NOTRACKER')})"
             )
         time.sleep(0.1)
     time.sleep(3.0)  # the swap's carry and the filter settle
@@ -192,6 +211,7 @@ def deployed(run: SeegRun, count: int, progress: Any = None) -> dict[str, Any]:
     """`count` bumps with each tracker steering, then a real calibration fault; the
     Certus is seen again at the end, as it was."""
     results = {}
+    STOPS.clear()
     try:
         for tracker in ("certus", "vicra"):
             hold_at_target(run)  # a bump that stopped the procedure is in its result
@@ -201,4 +221,4 @@ def deployed(run: SeegRun, count: int, progress: Any = None) -> dict[str, Any]:
         fault = real_fault(run)
     finally:
         run.call("certus.occlude", tool="cto", hidden=False)
-    return {"bumps": results, "real_fault": fault}
+    return {"bumps": results, "real_fault": fault, "stops_while_settling": list(STOPS)}

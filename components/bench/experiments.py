@@ -817,6 +817,15 @@ def run_bumps(quick: bool, context: dict[str, Any]) -> list[Row]:
         ),
         Row(
             "navigation",
+            "deployed: procedure stops while waiting for a tracker to steer (RELEASEd; "
+            "reasons in summary.json)",
+            float(len(result.get("stops_while_settling", []))),
+            target=0.0,
+            unit="",
+            n=1,
+        ),
+        Row(
+            "navigation",
             "deployed bumps after which the procedure had stopped (the next tracker's "
             "bumps start from a RELEASE)",
             float(sum(b["state"] != "Target_Reached" for b in every)),

@@ -67,12 +67,14 @@ class _States(Listener):
     def __init__(self) -> None:
         self.entered: list[tuple[str, float]] = []
         self.taken: list[tuple[str, float]] = []  # events as the chart takes them
+        self.payloads: dict[str, Any] = {}  # the last payload of each event taken
         self.requested: list[tuple[str, float]] = []  # configurations the chart asks for
         self.changed = threading.Condition()
 
     def on_event(self, event: Any) -> None:
         with self.changed:
             self.taken.append((event.name, time.time()))
+            self.payloads[event.name] = getattr(event, "payload", None)
 
     def on_entry(self, state: Any) -> None:
         with self.changed:
@@ -226,6 +228,11 @@ class SeegRun:
     def last_entered(self, names: tuple[str, ...]) -> str:
         """The most recently entered of `names` ("" if none yet)."""
         return self._last_of(self._states.entered, names)
+
+    def last_payload(self, event: str) -> Any:
+        """The payload of the last `event` the chart took (None: none yet)."""
+        with self._states.changed:
+            return self._states.payloads.get(event)
 
     def task_state(self) -> str:
         """The task state the chart entered last ("" before any)."""
