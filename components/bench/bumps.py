@@ -136,6 +136,14 @@ def bump_once(run: SeegRun, offset_mm: tuple[float, float, float]) -> dict[str, 
         "swaps": run.taken_after("e_TFAULT", started) is not None
         and run.taken_after("e_TFAULT", started) <= ended,
         "state": run.task_state(),
+        # why the procedure stopped, if it did (the chart's last e_STOP / e_NOTRACKER)
+        "stopped_on": None
+        if run.task_state() == "Target_Reached"
+        else {
+            "e_STOP": run.last_payload("e_STOP"),
+            "e_NOTRACKER": run.last_payload("e_NOTRACKER"),
+            "e_PATIENT_MOVED": run.last_payload("e_PATIENT_MOVED"),
+        },
     }
 
 
