@@ -652,11 +652,14 @@ def run_navigation(quick: bool, context: dict[str, Any]) -> list[Row]:
         v: [navigation.swap_transient(v, seed, trace=seed == 0) for seed in range(seeds)]
         for v in (0.075, 0.10)
     }
-    context.setdefault("series", {})["navigation"] = {
-        "final_errors_mm": errors,
-        "head_bump": bumps,
-        "swaps": {f"{v * 100:g} cm/s": runs for v, runs in swaps.items()},
-    }
+    # beside what `bumps` (run first) keeps there, not over it
+    context.setdefault("series", {}).setdefault("navigation", {}).update(
+        {
+            "final_errors_mm": errors,
+            "head_bump": bumps,
+            "swaps": {f"{v * 100:g} cm/s": runs for v, runs in swaps.items()},
+        }
+    )
     rows = []
     for mode, values in errors.items():
         s = stats(values)
