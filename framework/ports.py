@@ -450,20 +450,7 @@ class InputPort(Port[T]):
         if self.arrivals_only:
             self._arrived()
             return
-        generation = self.generation
-        with self._lock:
-            if generation != self.generation:
-                self.stats.dropped_stale += 1
-                return
-            if seq <= self._seen.get(publisher, 0):
-                self.stats.dropped_duplicate += 1
-                return
-            self._seen[publisher] = seq
-            self.stats.received += 1
-            self._store(value)
-        callback = self.on_data
-        if callback is not None:
-            callback(self)
+        self._accept(self.generation, value, publisher, seq)
 
     def _deliver(self, generation: int, data: bytes) -> None:
         """Called on Zenoh's thread for every sample of the connected key."""
@@ -479,6 +466,11 @@ class InputPort(Port[T]):
             self.stats.dropped_invalid += 1
             self.stats.last_error = f"{self.full_name}: {exc}"
             return
+        self._accept(generation, value, publisher, seq)
+
+    def _accept(self, generation: int, value: T, publisher: int, seq: int) -> None:
+        """Keep a sample of connection `generation` unless the port was reconnected
+        since or it repeats one already kept; then tell the owner."""
         with self._lock:
             if generation != self.generation:
                 self.stats.dropped_stale += 1
