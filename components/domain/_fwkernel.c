@@ -198,35 +198,6 @@ static void frame_to4x4(const frame *f, double *m)
     m[15] = 1.0;
 }
 
-/* fk(placements[7*16], tool[16], q[7], out[16]): the TCP pose */
-static PyObject *py_fk(PyObject *self, PyObject *args)
-{
-    PyObject *po, *to, *qo, *oo;
-    if (!PyArg_ParseTuple(args, "OOOO", &po, &to, &qo, &oo))
-        return NULL;
-    Py_buffer pb, tb, qb, ob;
-    if (get_buffer(po, &pb, N * 16, 0, "placements") < 0)
-        return NULL;
-    if (get_buffer(to, &tb, 16, 0, "tool") < 0) goto fail_p;
-    if (get_buffer(qo, &qb, N, 0, "q") < 0) goto fail_t;
-    if (get_buffer(oo, &ob, 16, 1, "out") < 0) goto fail_q;
-    frame joints[N], tcp;
-    chain(pb.buf, tb.buf, qb.buf, joints, &tcp);
-    frame_to4x4(&tcp, ob.buf);
-    PyBuffer_Release(&ob);
-    PyBuffer_Release(&qb);
-    PyBuffer_Release(&tb);
-    PyBuffer_Release(&pb);
-    Py_RETURN_NONE;
-fail_q:
-    PyBuffer_Release(&qb);
-fail_t:
-    PyBuffer_Release(&tb);
-fail_p:
-    PyBuffer_Release(&pb);
-    return NULL;
-}
-
 /* jacobian(placements, tool, q, pose_out[16], jac_out[42]) */
 static PyObject *py_jacobian(PyObject *self, PyObject *args)
 {
@@ -522,7 +493,6 @@ static PyMethodDef methods[] = {
     {"path_pose", py_path_pose, METH_VARARGS,
      "path_pose(start, delta_p, delta_r, u, offset, out): the pose u of the way along the "
      "straight path, steering offset added."},
-    {"fk", py_fk, METH_VARARGS, "fk(placements, tool, q, out): the TCP pose (4x4) into out."},
     {"jacobian", py_jacobian, METH_VARARGS,
      "jacobian(placements, tool, q, pose, jac): the TCP pose and its base-aligned 6x7 Jacobian."},
     {"ik_step", py_ik_step, METH_VARARGS,
