@@ -278,13 +278,20 @@ def encode_measurement(
     )
 
 
+def _unpack(datagram: bytes, layout: struct.Struct, datagram_id: int, what: str) -> tuple:
+    """The fields of a datagram of `layout`; `DatagramError` unless its length, its
+    declared size and its id are those of a `what`."""
+    if len(datagram) != layout.size:
+        raise DatagramError(f"a {what} is {layout.size} bytes, not {len(datagram)}")
+    v = layout.unpack(datagram)
+    if v[3] != datagram_id or v[2] != layout.size:
+        raise DatagramError(f"datagram id 0x{v[3]:04x} size {v[2]} is no {what}")
+    return v
+
+
 def decode_measurement(datagram: bytes) -> Measurement:
     """A measurement datagram, decoded; `DatagramError` if it is not one."""
-    if len(datagram) != MSR_SIZE:
-        raise DatagramError(f"a measurement is {MSR_SIZE} bytes, not {len(datagram)}")
-    v = _MSR.unpack(datagram)
-    if v[3] != MSR_ID or v[2] != MSR_SIZE:
-        raise DatagramError(f"datagram id 0x{v[3]:04x} size {v[2]} is no measurement")
+    v = _unpack(datagram, _MSR, MSR_ID, "measurement")
     ints = v[20:36]
     flags = v[36]
     data = v[60:]
@@ -342,11 +349,7 @@ def encode_command(
 
 def decode_command(datagram: bytes) -> Command:
     """A command datagram, decoded; `DatagramError` if it is not one."""
-    if len(datagram) != CMD_SIZE:
-        raise DatagramError(f"a command is {CMD_SIZE} bytes, not {len(datagram)}")
-    v = _CMD.unpack(datagram)
-    if v[3] != CMD_ID or v[2] != CMD_SIZE:
-        raise DatagramError(f"datagram id 0x{v[3]:04x} size {v[2]} is no command")
+    v = _unpack(datagram, _CMD, CMD_ID, "command")
     return Command(v[0], v[1], v[38], v[39:46], v[20], v[21])
 
 
