@@ -243,25 +243,30 @@ class Bus:
     def subscribe(
         self,
         key: str,
-        callback: Callable[[Any], None],
+        callback: Callable[[Any], None] | None,
         history: bool = True,
         remote_only: bool = False,
     ) -> Any:
         """Subscribe to `key`; with `history`, the last cached sample arrives at once;
-        `remote_only` ignores this session's own publications."""
+        `remote_only` ignores this session's own publications. With `callback` None,
+        the samples go to a ring of one (the newest) that the reader polls with
+        `try_recv`: Zenoh's network thread then never waits for the interpreter."""
         where = zenoh.Locality.REMOTE if remote_only else None
-        # On Zenoh's network thread: a port's delivery is short (decode, queue, wake),
-        # and the default thread per subscriber cost a hand-over per sample.
-        callback = zenoh.handlers.Callback(callback, indirect=False)
+        if callback is None:
+            handler: Any = zenoh.handlers.RingChannel(1)
+        else:
+            # On Zenoh's network thread: a port's delivery is short (decode, queue,
+            # wake), and the default thread per subscriber cost a hand-over per sample.
+            handler = zenoh.handlers.Callback(callback, indirect=False)
         if history:
             return zenoh.ext.declare_advanced_subscriber(
                 self.session,
                 key,
-                callback,
+                handler,
                 allowed_origin=where,
                 history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
             )
-        return self.session.declare_subscriber(key, callback, allowed_origin=where)
+        return self.session.declare_subscriber(key, handler, allowed_origin=where)
 
     def queryable(self, key: str, handler: Callable[[Any], None]) -> Any:
         """Answer queries on `key` (remote operations, introspection)."""

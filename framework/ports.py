@@ -316,7 +316,8 @@ class InputPort(Port[T]):
         self.key: str | None = None
         self.bus: Any = None
         self.generation = 0
-        self.on_data: Callable[[InputPort[T]], None] | None = None
+        self._on_data: Callable[[InputPort[T]], None] | None = None
+        self._ring: Any = None  # a polled subscription's (see `connect`)
         self._lock = threading.Lock()
         self._queue: deque[T] = deque()
         self._latest: T | None = None
@@ -326,6 +327,24 @@ class InputPort(Port[T]):
         self._subscriber: Any = None
         self._standby: dict[str, Any] = {}
         self._standby_latest: dict[str, bytes] = {}
+
+    @property
+    def on_data(self) -> Callable[[InputPort[T]], None] | None:
+        """Called (on the bus's thread) after each sample is kept: an event activity's
+        wake, a safety watch's arrival. A port with none, keeping only the latest
+        sample, is polled instead (`connect`)."""
+        return self._on_data
+
+    @on_data.setter
+    def on_data(self, callback: Callable[[InputPort[T]], None] | None) -> None:
+        self._on_data = callback
+        if callback is not None and self._ring is not None and self.key is not None:
+            self.connect(self.key)  # someone waits on it now: delivered, not polled
+
+    @property
+    def polled(self) -> bool:
+        """Whether the port's samples wait in Zenoh's ring for `read` to take them."""
+        return self._ring is not None
 
     @property
     def connected(self) -> bool:
@@ -377,6 +396,12 @@ class InputPort(Port[T]):
         sample arrives at once: from a local writer, from a standby subscription (see
         `prepare`), or from the publisher's cache over the network. A new subscription is
         declared before the old one is undeclared, so the teardown overlaps that fetch.
+
+        A `data` port nobody waits on (no `on_data`) is *polled*: Zenoh keeps the key's
+        newest sample in a ring of one and `read` takes and decodes it, so no sample
+        costs this process's interpreter on Zenoh's network thread, and a reader slower
+        than the writer (a starved process) never lets a backlog build on the link: the
+        samples it would never read are dropped by Zenoh, not queued behind the GIL.
         """
         if self.bus is None:
             raise PortError(f"input port {self.full_name} is not attached to a bus")
@@ -386,7 +411,7 @@ class InputPort(Port[T]):
             self.policy = new_policy
             generation = self.generation
             old_key, self.key = self.key, key
-            old, self._subscriber = self._subscriber, None
+            old, self._subscriber, self._ring = self._subscriber, None, None
         readers = self.bus.local_readers
         if old_key is not None:
             readers.get(old_key, {}).pop(id(self), None)
@@ -395,6 +420,8 @@ class InputPort(Port[T]):
             cached = self._standby_latest.get(key)
             if cached is not None:
                 self._deliver(generation, cached)
+        elif self._on_data is None and self.policy.type == "data" and not self.arrivals_only:
+            self._subscriber = self._ring = self.bus.subscribe(key, None, remote_only=True)
         else:
             self._subscriber = self.bus.subscribe(
                 key,
@@ -418,7 +445,7 @@ class InputPort(Port[T]):
         with self._lock:
             self._reset()
             key, self.key = self.key, None
-            subscriber, self._subscriber = self._subscriber, None
+            subscriber, self._subscriber, self._ring = self._subscriber, None, None
         if key is not None and self.bus is not None:
             self.bus.local_readers.get(key, {}).pop(id(self), None)
         if subscriber is not None:
@@ -482,13 +509,13 @@ class InputPort(Port[T]):
                 self._seen[publisher] = seq
             self.stats.received += 1
             self._store(value)
-        callback = self.on_data
+        callback = self._on_data
         if callback is not None:
             callback(self)
 
     def _arrived(self) -> None:
         self.stats.received += 1
-        callback = self.on_data
+        callback = self._on_data
         if callback is not None:
             callback(self)
 
@@ -506,8 +533,22 @@ class InputPort(Port[T]):
             queue.append(value)
         self._ever = True
 
+    def _poll(self) -> None:
+        """Take a polled port's newest sample from Zenoh's ring, if one came."""
+        ring = self._ring
+        if ring is None:
+            return
+        try:
+            sample = ring.try_recv()
+        except Exception:  # undeclared meanwhile (a rewire from another thread)
+            return
+        if sample is not None:
+            self._deliver(self.generation, sample.payload.to_bytes())
+
     def read(self) -> tuple[ReadStatus, T | None]:
         """(NEW, value) for an unread sample, (OLD, last value), or (NO_DATA, None)."""
+        if self._ring is not None:
+            self._poll()
         if not self._fresh and not self._queue:  # nothing new: no lock to take (1 kHz)
             latest = self._latest
             if self._ever and latest is not None:
@@ -529,6 +570,7 @@ class InputPort(Port[T]):
     def latest(self) -> T | None:
         """The newest sample received, without reading it (NEW stays NEW); None before
         any. For an operation that waits on what the component's loop also reads."""
+        self._poll()
         with self._lock:
             if self.policy.type == "buffer" and self._queue:
                 return self._queue[-1]
@@ -536,5 +578,6 @@ class InputPort(Port[T]):
 
     def pending(self) -> int:
         """Unread samples (0 or 1 for a data port)."""
+        self._poll()
         with self._lock:
             return len(self._queue) if self.policy.type == "buffer" else int(self._fresh)

@@ -35,8 +35,15 @@ def routed(out, inp):
     cached latest value)."""
     before = inp.stats.received
     out.write(Scalar(0.0, 0.0))
-    assert wait_until(lambda: inp.stats.received > before)
+    assert wait_until(lambda: counted(inp).received > before)
     values(inp)
+
+
+def counted(port):
+    """The port's counters once it took what waits in Zenoh's ring (a polled port
+    counts a sample when it takes it: `pending` takes it)."""
+    port.pending()
+    return port.stats
 
 
 def values(port):
@@ -70,8 +77,38 @@ def test_a_data_port_keeps_only_the_latest(pair):
     routed(out, inp)
     for i in range(1, 6):
         out.write(Scalar(0.0, float(i)))
-    assert wait_until(lambda: inp.stats.received == 6)
+    assert wait_until(lambda: inp.latest() == Scalar(0.0, 5.0))
     assert values(inp) == [5.0]
+
+
+def test_a_data_port_nobody_waits_on_is_polled_and_never_queues_a_backlog(hub, peer):
+    """Its samples wait in Zenoh's ring of one, not in the interpreter: a reader that
+    falls behind its writer by a thousand samples takes the newest, and the ones it
+    never read cost it no decoding."""
+    out, inp = make_out(hub), make_in(peer)
+    out.connect("k/a")
+    inp.connect("k/a")
+    assert inp.polled
+    routed(out, inp)
+    taken = inp.stats.received
+    for i in range(1, 1001):
+        out.write(Scalar(0.0, float(i)))
+    assert wait_until(lambda: inp.latest() == Scalar(0.0, 1000.0))
+    assert values(inp) == [1000.0]
+    assert inp.stats.received - taken < 10, "the samples skipped were never decoded"
+
+
+def test_a_port_someone_waits_on_gets_every_sample_delivered(hub, peer):
+    """An event activity's trigger (or a watch) is called for each sample, so it is
+    delivered by the bus, never polled; a callback set after connecting switches it."""
+    out, inp = make_out(hub), make_in(peer)
+    out.connect("k/a")
+    inp.connect("k/a")
+    routed(out, inp)
+    calls = []
+    inp.on_data = lambda port: calls.append(port.latest())
+    assert not inp.polled
+    assert wait_until(lambda: out.write(Scalar(0.0, 7.0)) or Scalar(0.0, 7.0) in calls)
 
 
 @pytest.mark.parametrize(
@@ -138,7 +175,7 @@ def test_samples_of_the_wrong_type_are_dropped_and_reported(hub, peer):
     inp = make_in(peer)
     inp.connect("k/pose")
     raw_publisher(hub, "k/pose").put(messages.encode(Pose(), Pose))
-    assert wait_until(lambda: inp.stats.dropped_invalid == 1)
+    assert wait_until(lambda: counted(inp).dropped_invalid == 1)
     assert "expected Scalar" in inp.stats.last_error
     assert inp.read()[0] is ReadStatus.NO_DATA
 
@@ -147,7 +184,7 @@ def test_corrupt_bytes_are_dropped_and_reported(hub, peer):
     inp = make_in(peer)
     inp.connect("k/x")
     raw_publisher(hub, "k/x").put(b"\x00garbage")
-    assert wait_until(lambda: inp.stats.dropped_invalid == 1)
+    assert wait_until(lambda: counted(inp).dropped_invalid == 1)
 
 
 def test_misuse_is_a_clear_error(hub):
@@ -305,7 +342,7 @@ def test_a_stream_is_encoded_only_while_another_process_listens(hub, peer, monke
     assert encoded == [] and values(local)[-1] == 99.0
     remote = make_in(peer)
     remote.connect("k/stream")
-    assert wait_until(lambda: out.write(Scalar(0.0, 1.0)) or remote.stats.received > 0)
+    assert wait_until(lambda: out.write(Scalar(0.0, 1.0)) or counted(remote).received > 0)
     assert encoded, "encoded once a reader in another process listens"
     with pytest.raises(PortError, match="expected Scalar, got Pose"):
         out.write(Pose())
