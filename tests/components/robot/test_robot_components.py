@@ -690,3 +690,76 @@ def test_datagrams_that_are_no_measurement_and_a_foreign_sender_are_refused_and_
 def test_an_impairment_that_makes_no_sense_is_refused_with_its_reason(cell, args, why):
     with pytest.raises(FwError, match=why):
         cell.arm.call("impair", **args)
+
+
+class LateInterface:
+    """An FRI interface that answers every measurement `delay` seconds after it came
+    (a process a host without real-time priority runs a scheduler slice late)."""
+
+    def __init__(self, port: int, delay: float):
+        import socket
+        import threading
+
+        self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.socket.bind(("127.0.0.1", port))
+        self.socket.settimeout(0.1)
+        self.delay, self.done = delay, threading.Event()
+        self.thread = threading.Thread(target=self._answer, daemon=True)
+        self.thread.start()
+
+    def _answer(self) -> None:
+        seq = 0
+        while not self.done.is_set():
+            try:
+                data, sender = self.socket.recvfrom(2048)
+            except OSError:
+                continue
+            measurement = fri.decode_measurement(data)
+            time.sleep(self.delay)
+            seq += 1
+            self.socket.sendto(
+                fri.encode_command(seq, measurement.send_seq, measurement.msr_jnt_pos), sender
+            )
+
+    def close(self) -> None:
+        self.done.set()
+        self.thread.join()
+        self.socket.close()
+
+
+@pytest.mark.parametrize("real_time", [False, True])
+def test_a_simulated_krc_without_real_time_waits_for_each_answer_instead_of_braking(hub, real_time):
+    """On a host that gives its loop no real-time priority the simulated KRC waits for
+    every answer (up to `lockstep_ms`): the simulation slows down and the link stays
+    PERFECT. With real-time priority it waits only while the answers come in time, as
+    the 1 ms deadline is then the interface's to keep: answers 5 ms late are misses."""
+    from framework.clock import MonotonicClock
+
+    port = free_udp_port()
+    container = Container("krc", hub, SteppedExecutor(SimulatedClock()))
+    arm = container.add(
+        ArmController("arm"),
+        Activity.periodic(1000),
+        properties={"fri_remote": f"127.0.0.1:{port}", "lockstep_ms": 100.0},
+    )
+    interface = LateInterface(port, delay=0.005)
+    try:
+        assert arm.configure() and arm.start(), arm.last_error
+        arm.clock = MonotonicClock()  # the host's clock, in this (not real-time) thread
+        arm._real_time = True if real_time else None  # None: the loop asks its thread
+        arm.update_hook()  # the first measurement: nothing to answer before it
+        first = arm.call("report")["fri"]
+        for _ in range(30):
+            arm.update_hook()
+        report = arm.call("report")
+        lost = sum(report["fri"][k] - first[k] for k in ("missed", "late"))
+    finally:
+        interface.close()
+        container.shutdown()
+    if real_time:
+        assert lost >= 10
+        assert report["fri"]["quality"] != "PERFECT"
+    else:
+        assert report["real_time"] is False
+        assert lost == 0
+        assert report["fri"]["quality"] == "PERFECT"
