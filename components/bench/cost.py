@@ -88,23 +88,24 @@ ZENOH_IDLE = (
 """A process that only holds a Zenoh session: the floor any fw process stands on."""
 
 
+MIN_WINDOW = 1.0
+"""s: the shortest window whose CPU figures mean anything (a motion that ended sooner
+is an error of the bench, never a number of cores)."""
+
+
 def measure(
     run: SeegRun,
     seconds: float,
     jitter_seconds: float,
     while_in: tuple[str, ...] = (),
 ) -> Window:
-    """The arm's cycle intervals over `jitter_seconds` (a subscriber of its 1 kHz output
-    costs something, so it is there first, not while the CPU is counted), then CPU per
-    process and the arm's real-time factor over `seconds`, or less if the chart leaves
-    the states `while_in` (the moving window covers only motion). Also what the robot's
-    loop and the FRI link report at the window's end: the loop's per-stage cycle times
-    (its last 2000 cycles), scheduling class, the link's quality and counters."""
-    subscription = run.watch("arm/measured", ArmState)
-    start = time.time()
-    time.sleep(jitter_seconds)
-    run.unwatch(subscription)
-    states = [s.message for s in run.since(start, "arm/measured")]
+    """CPU per process and the arm's real-time factor over `seconds`, or less if the
+    chart leaves the states `while_in` (the moving window covers only motion); then
+    the arm's cycle intervals over `jitter_seconds` (a subscriber of its 1 kHz output
+    costs something, so it comes after the CPU is counted), only those taken while
+    still in `while_in`. Also what the robot's loop and the FRI link report at the CPU
+    window's end: the loop's per-stage cycle times (its last 2000 cycles), scheduling
+    class, the link's quality and counters."""
     pids = processes(run)
     pids["zenoh_idle"] = _zenoh_idle(run)
     before = {name: cpu_seconds(pid) for name, pid in pids.items()}
@@ -115,12 +116,27 @@ def measure(
             break
         time.sleep(0.05)
     elapsed = time.monotonic() - t0
+    after = {name: cpu_seconds(pid) for name, pid in pids.items()}
     robot = run.call("robot.report", loop=True)
     last = run.call("arm.report", loop=True)
-    after = {name: cpu_seconds(pid) for name, pid in pids.items()}
+    if elapsed < MIN_WINDOW:
+        raise BenchError(
+            f"the window lasted {elapsed:.2f} s (the chart left {', '.join(while_in)} for "
+            f"{run.task_state()}): too short to count cores"
+        )
     cores = {name: (after[name] - before[name]) / elapsed for name in pids}
     reference = cores.pop("zenoh_idle")
     realtime = (last["cycle"] - first["cycle"]) / (elapsed * 1000.0)
+    states = []
+    if not while_in or run.task_state() in while_in:
+        subscription = run.watch("arm/measured", ArmState)
+        start = time.time()
+        time.sleep(jitter_seconds)
+        run.unwatch(subscription)
+        left = run.left_after(while_in, start) if while_in else None
+        states = [
+            s.message for s in run.since(start, "arm/measured") if left is None or s.received < left
+        ]
     window = Window(elapsed, cores, realtime, cycle_intervals(states))
     window.loop = robot.get("loop") or {}
     window.krc_loop = last.get("loop") or {}

@@ -210,6 +210,16 @@ class SeegRun:
         """When the chart first took event `name` at or after time `t` (None: not yet)."""
         return self._first_after(self._states.taken, name, t)
 
+    def left_after(self, names: tuple[str, ...], t: float) -> float | None:
+        """When the chart first entered a task state other than `names` at or after
+        time `t` (None: it stayed in them)."""
+        with self._states.changed:
+            history = self._states.entered
+            start = bisect.bisect_left(history, t, key=lambda item: item[1])
+            return next(
+                (at for s, at in history[start:] if s in TASK_STATES and s not in names), None
+            )
+
     def requested_after(self, tag: str, t: float) -> float | None:
         """When the chart first asked for configuration `tag` at or after `t` (None: not yet)."""
         return self._first_after(self._states.requested, tag, t)
