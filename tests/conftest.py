@@ -399,3 +399,39 @@ def private_topology(path, bus_config, device_dir: Path | None = None):
 def toy(bus_config):
     """The toy topology (tests/data/toy) on this test's private bus."""
     return private_topology(REPO / "tests" / "data" / "toy" / "toy.yaml", bus_config)
+
+
+def _host_capabilities() -> str:
+    """What this host lets a deployment have: cores, real-time priority, a raised nice
+    level, the load when the suite ended (a CI log then says what its host allowed).
+    Asked in a thread of its own, which ends with whatever it got."""
+    import threading
+
+    got: dict[str, str] = {}
+
+    def ask() -> None:
+        tid = threading.get_native_id()
+        try:
+            os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) - 1)
+            got["nice"] = "yes"
+        except OSError as exc:
+            got["nice"] = f"no ({exc.strerror})"
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(1))
+            got["fifo"] = "yes"
+        except OSError as exc:
+            got["fifo"] = f"no ({exc.strerror})"
+
+    thread = threading.Thread(target=ask)
+    thread.start()
+    thread.join()
+    load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
+    return (
+        f"host: {os.cpu_count()} cores, SCHED_FIFO allowed: {got['fifo']}, "
+        f"raise nice: {got['nice']}, load average {load}"
+    )
+
+
+def pytest_terminal_summary(terminalreporter) -> None:  # type: ignore[no-untyped-def]
+    """End the run with what the host allowed (see `_host_capabilities`)."""
+    terminalreporter.write_line(_host_capabilities())
