@@ -40,12 +40,53 @@ def seeg_console(bus_config, tmp_path):
         yield running
 
 
+BROWSER_NICE = 10
+"""The browser's nice level here. In an operating room the operator's browser runs on
+a machine of its own; in these tests it shares 2 cores with the whole simulated OR,
+whose producers it starved past their deadlines (CI: the people detector's 300 ms, a
+tracker), so the console's behaviour failed on the host's capacity. Lowered, it takes
+what the deployment leaves, as its own machine would give it."""
+
+
+def lower_the_browser(nice: int = BROWSER_NICE) -> int:
+    """Lower every thread of this process's browser processes (Chromium and
+    Playwright's driver, and whatever they start later: threads inherit it) to `nice`;
+    how many threads. Never needs a privilege: it only lowers."""
+    mine, children = os.getpid(), {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            children.setdefault(int(stat.rsplit(")", 1)[1].split()[1]), []).append(int(entry.name))
+    lowered, todo = 0, list(children.get(mine, []))
+    while todo:
+        pid = todo.pop()
+        todo.extend(children.get(pid, []))
+        try:
+            command = (Path("/proc") / str(pid) / "cmdline").read_bytes()
+        except OSError:
+            continue
+        if b"chrom" not in command and b"playwright" not in command:
+            continue  # the deployment's own processes
+        for task in (Path("/proc") / str(pid) / "task").glob("*"):
+            try:
+                if os.getpriority(os.PRIO_PROCESS, int(task.name)) < nice:
+                    os.setpriority(os.PRIO_PROCESS, int(task.name), nice)
+                    lowered += 1
+            except OSError:
+                continue
+    return lowered
+
+
 @pytest.fixture
 def page():
     with playwright.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
         page = browser.new_page(viewport={"width": 1400, "height": 1000})
         page.set_default_timeout(WAIT_MS)
+        lower_the_browser()
         yield page
         browser.close()
 
