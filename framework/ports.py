@@ -317,7 +317,7 @@ class InputPort(Port[T]):
         self.bus: Any = None
         self.generation = 0
         self._on_data: Callable[[InputPort[T]], None] | None = None
-        self._ring: Any = None  # a polled subscription's (see `connect`)
+        self._ring: tuple[int, Any] | None = None  # a polled subscription, its generation
         self._lock = threading.Lock()
         self._queue: deque[T] = deque()
         self._latest: T | None = None
@@ -421,7 +421,8 @@ class InputPort(Port[T]):
             if cached is not None:
                 self._deliver(generation, cached)
         elif self._on_data is None and self.policy.type == "data" and not self.arrivals_only:
-            self._subscriber = self._ring = self.bus.subscribe(key, None, remote_only=True)
+            self._subscriber = self.bus.subscribe(key, None, remote_only=True)
+            self._ring = (generation, self._subscriber)
         else:
             self._subscriber = self.bus.subscribe(
                 key,
@@ -534,16 +535,18 @@ class InputPort(Port[T]):
         self._ever = True
 
     def _poll(self) -> None:
-        """Take a polled port's newest sample from Zenoh's ring, if one came."""
-        ring = self._ring
-        if ring is None:
+        """Take a polled port's newest sample from Zenoh's ring, if one came: as of the
+        connection it came on (a rewire in between makes it stale, never mixed in)."""
+        entry = self._ring
+        if entry is None:
             return
+        generation, ring = entry
         try:
             sample = ring.try_recv()
         except Exception:  # undeclared meanwhile (a rewire from another thread)
             return
         if sample is not None:
-            self._deliver(self.generation, sample.payload.to_bytes())
+            self._deliver(generation, sample.payload.to_bytes())
 
     def read(self) -> tuple[ReadStatus, T | None]:
         """(NEW, value) for an unread sample, (OLD, last value), or (NO_DATA, None)."""
