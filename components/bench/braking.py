@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from components.bench.files import seeg_file
+from components.bench.seeg_run import BenchError
 from components.domain import lwr4
 from components.domain.procedure import load_procedure
 from components.robot.interpolator import InterpolatorCore, Phase
@@ -109,7 +110,7 @@ class Rig:
                 still_since = self.arm.time
             elif self.arm.time - still_since >= SETTLE:
                 return
-        raise RuntimeError("the arm did not come to rest")
+        raise BenchError("the arm did not come to rest")
 
 
 def stop_trial(speed: float, delay: float) -> dict[str, float]:

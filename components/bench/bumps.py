@@ -31,7 +31,7 @@ import statistics
 import time
 from typing import Any
 
-from components.bench.seeg_run import SeegRun
+from components.bench.seeg_run import BenchError, SeegRun
 
 BUMP_MM = 5.0
 RAMP_MS = 50.0
@@ -89,7 +89,7 @@ def _settle(run: SeegRun, tracker: str, timeout: float = 30.0) -> None:
                 f"{name}: {'ok' if h.get('ok') else h.get('cause')} {h.get('detail') or ''}".strip()
                 for name, h in health.items()
             )
-            raise RuntimeError(
+            raise BenchError(
                 f"{tracker} does not steer after {timeout:g} s (steering: "
                 f"{report.get('steering')}, chart: {run.task_state()}; trackers: {why}; "
                 f"last e_STOP: {run.last_payload('e_STOP')}, "
@@ -205,7 +205,7 @@ def hold_at_target(run: SeegRun, timeout: float = 120.0) -> None:
         if state == "Target_Reached" and goal == "target":
             return
         if time.monotonic() > deadline:
-            raise RuntimeError(f"not holding at the target after {timeout:g} s ({state})")
+            raise BenchError(f"not holding at the target after {timeout:g} s ({state})")
         if state == "Wait_Start":
             run.send("e_START")
         elif state == "Target_Reached":

@@ -19,6 +19,7 @@ from typing import Any
 
 from components.bench.experiments import EXPERIMENTS, OPT_IN
 from components.bench.report import ON_DEPLOYMENT, Row, report
+from components.bench.seeg_run import BenchError
 
 EPILOG = """\
 examples:
@@ -101,7 +102,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
     try:
         for i, name in enumerate(names):
             started = time.monotonic()
-            rows += EXPERIMENTS[name](args.quick, context)
+            try:
+                rows += EXPERIMENTS[name](args.quick, context)
+            except BenchError as exc:  # said, and the other experiments still run
+                context.setdefault("failed", []).append(f"{name}: {exc}")
+                print(f"{name}: could not run: {exc}", file=sys.stderr)
+                continue
             rows += context.pop("extra_rows", [])
             if "seeg" in context and not any(n in ON_DEPLOYMENT for n in names[i + 1 :]):
                 context.pop("seeg").stop()

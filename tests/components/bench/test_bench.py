@@ -76,3 +76,27 @@ def test_a_target_that_is_a_minimum_is_met_at_or_above_it_and_says_so():
     assert (low.met, high.met) == (False, True)
     assert ">= 2 MISSED" in report([low], {}, quick=True)
     assert Row("x", "y", 0.4, target=0.5).met, "a maximum by default"
+
+
+def test_an_experiment_that_cannot_run_is_said_and_the_others_still_run(
+    tmp_path, monkeypatch, capsys
+):
+    """A bench of several experiments loses none to one that fails: it is named with
+    its reason, the report still holds the others' rows, and the exit status says 1."""
+    from components.bench import cli
+    from components.bench.report import Row
+    from components.bench.seeg_run import BenchError
+
+    def broken(quick, context):
+        raise BenchError("the deployment did not reach Target_Reached in 30 s")
+
+    def fine(quick, context):
+        return [Row("statechart", "a quantity", 1.0, n=1)]
+
+    monkeypatch.setitem(cli.EXPERIMENTS, "statechart", fine)
+    monkeypatch.setitem(cli.EXPERIMENTS, "braking", broken)
+    assert main(["bench", "--quick", "--out", str(tmp_path), "braking", "statechart"]) == 1
+    assert "FAILED braking: the deployment did not reach" in capsys.readouterr().err
+    rows = json.loads((tmp_path / "summary.json").read_text())["rows"]
+    assert ("statechart", "a quantity") in {(r["experiment"], r["quantity"]) for r in rows}
+    assert not [r for r in rows if r["experiment"] == "braking"]
