@@ -112,8 +112,9 @@ class Container:
                 raise ContainerError(
                     f"{name} ({type(component).__name__}) cannot host the safety monitor"
                 )
+            # checked by the component's own cycle, which takes the arrivals itself
             component.safety = SafetyMonitor(safety, component.clock, self.name).attach(
-                self.bus, name
+                self.bus, name, polled=True
             )
         for port in (*component.inputs.values(), *component.outputs.values()):
             port.bus = self.bus

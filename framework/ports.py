@@ -318,6 +318,7 @@ class InputPort(Port[T]):
         self.generation = 0
         self._on_data: Callable[[InputPort[T]], None] | None = None
         self._ring: tuple[int, Any] | None = None  # a polled subscription, its generation
+        self._came = False  # an arrival nobody was called for, since the last `poll`
         self._lock = threading.Lock()
         self._queue: deque[T] = deque()
         self._latest: T | None = None
@@ -420,7 +421,7 @@ class InputPort(Port[T]):
             cached = self._standby_latest.get(key)
             if cached is not None:
                 self._deliver(generation, cached)
-        elif self._on_data is None and self.policy.type == "data" and not self.arrivals_only:
+        elif self._on_data is None and self.policy.type == "data":
             self._subscriber = self.bus.subscribe(key, None, remote_only=True)
             self._ring = (generation, self._subscriber)
         else:
@@ -519,6 +520,8 @@ class InputPort(Port[T]):
         callback = self._on_data
         if callback is not None:
             callback(self)
+        else:
+            self._came = True  # for `poll`: from Zenoh's ring or from this process
 
     def _store(self, value: T) -> None:
         if self.policy.type == "data":
@@ -534,19 +537,30 @@ class InputPort(Port[T]):
             queue.append(value)
         self._ever = True
 
-    def _poll(self) -> None:
+    def _poll(self) -> bool:
         """Take a polled port's newest sample from Zenoh's ring, if one came: as of the
         connection it came on (a rewire in between makes it stale, never mixed in)."""
         entry = self._ring
         if entry is None:
-            return
+            return False
         generation, ring = entry
         try:
             sample = ring.try_recv()
         except Exception:  # undeclared meanwhile (a rewire from another thread)
-            return
-        if sample is not None:
-            self._deliver(generation, sample.payload.to_bytes())
+            return False
+        if sample is None:
+            return False
+        self._deliver(generation, sample.payload.to_bytes())
+        return generation == self.generation
+
+    def poll(self) -> bool:
+        """Take what waits in Zenoh's ring (as `read` does); True if a sample came since
+        the last time. An `arrivals_only` port nobody waits on is watched so: an arrival
+        over the bus is seen by the thread that polls, never on Zenoh's; one written in
+        this process counts too."""
+        taken = self._poll()
+        came, self._came = self._came, False
+        return came or taken
 
     def read(self) -> tuple[ReadStatus, T | None]:
         """(NEW, value) for an unread sample, (OLD, last value), or (NO_DATA, None)."""
