@@ -317,3 +317,17 @@ def test_a_process_heartbeat_beats_from_its_own_thread_until_stopped(hub):
     counts = [sample.value for sample in drained(seen)]
     assert counts[:3] == [1.0, 2.0, 3.0], "counted from one"
     assert beat.port.keys == [], "stopped: nothing published any more"
+
+
+def test_a_polled_monitor_takes_the_arrivals_when_asked_if_ready_between_checks(hub):
+    """A RELEASE asks `ready` in the loop's thread between two checks: a polled monitor
+    takes what arrived meanwhile then, so healthy inputs are seen healthy."""
+    cell = Cell(hub, polled=True)
+    try:
+        assert wait_until(lambda: not any("lost" in p for p in cell.monitor.problems()))
+        for _ in range(3):
+            cell.executor.advance(0.05)  # no check: only `ready` takes the arrivals
+            verdict = cell.monitor.ready()
+        assert verdict == ""
+    finally:
+        cell.close()
