@@ -240,6 +240,7 @@ class SafetyMonitor:
         """Every input that is not healthy now, in words (not latched): lost components
         first, then late inputs. Ages are counted in the time the monitor's own process
         was running (see `_own_stall`)."""
+        self.poll()
         lost, late = self._problems()
         return lost + late
 
@@ -251,7 +252,6 @@ class SafetyMonitor:
                     self.arrived(index)
 
     def _problems(self) -> tuple[list[str], list[str]]:
-        self.poll()
         now = self.clock.now()
         out: list[str] = []
         with self._lock:

@@ -209,9 +209,7 @@ class ArmController(Component):
         arm = self.arm
         answer = self._answer()
         if self._real_time is None:  # asked once, in the loop's own thread
-            self._real_time = not isinstance(self.clock, MonotonicClock) or os.sched_getscheduler(
-                0
-            ) in (os.SCHED_FIFO, os.SCHED_RR)
+            self._real_time = self._keeps_real_time()
         waits = self._on_time or not self._real_time
         if answer is None and self.lockstep_ms > 0 and waits and self.send_seq:
             answer = self._answer(self.lockstep_ms / 1000.0)
@@ -235,6 +233,14 @@ class ArmController(Component):
         self.periods_per_update = self.monitor_cycles if arm.braked else 1
         self._send(quality)
         self._publish(steps)
+
+    def _keeps_real_time(self) -> bool:
+        """Whether this loop keeps the 1 ms deadline itself (module docstring): its
+        thread got SCHED_FIFO, or a stepped clock runs it (nothing waits there). Asked
+        in the loop's own thread: scheduling is per thread."""
+        if not isinstance(self.clock, MonotonicClock):
+            return True
+        return os.sched_getscheduler(0) in (os.SCHED_FIFO, os.SCHED_RR)
 
     def _answer(self, wait: float = 0.0) -> fri.Command | None:
         """The answer to the latest measurement, if it came (waiting at most `wait`);
