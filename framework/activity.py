@@ -152,6 +152,24 @@ def _idle_period(component: Component, activity: Activity) -> float:
     return min(periods)
 
 
+def next_deadline(
+    deadline: float, now: float, period: float, periods: int = 1
+) -> tuple[float, int]:
+    """When a periodic component updates next, after the update due at `deadline` ended
+    at `now`: `periods` periods later, on the same grid. An update that ends past that
+    runs the next one at once (a thread woken late, or one that waited for the
+    interpreter, loses no period: a 30 Hz camera pipeline that skipped to the next tick
+    on a 1 ms overrun went silent for 67-100 ms and tripped its 100 ms watch); periods
+    missed entirely are skipped, not bunched. Returns the deadline and how many periods
+    were late or skipped (0 on time)."""
+    deadline += period * periods
+    behind = now - deadline
+    if behind <= 0.0:
+        return deadline, 0
+    skipped = int(behind // period)
+    return deadline + skipped * period, skipped + 1
+
+
 class RealTimeExecutor:
     """One thread per active component, on monotonic time."""
 
@@ -226,14 +244,13 @@ class RealTimeExecutor:
                 stats.cycle(time.perf_counter() - began)
                 # a device that reports every few cycles (a braked KRC) leaves slack
                 self.realtime.between_cycles(stats, slack=component.periods_per_update > 1)
-            deadline += period * max(1, int(component.periods_per_update))
-            delay = deadline - time.monotonic()
-            if delay < 0:  # overrun: skip missed periods instead of bunching them up
-                missed = int(-delay // period) + 1
-                self.overruns[component.name] = self.overruns.get(component.name, 0) + missed
-                deadline += missed * period
-                delay = deadline - time.monotonic()
-            self._stop.wait(max(delay, 0.0))
+            now = time.monotonic()
+            deadline, late = next_deadline(
+                deadline, now, period, max(1, int(component.periods_per_update))
+            )
+            if late:
+                self.overruns[component.name] = self.overruns.get(component.name, 0) + late
+            self._stop.wait(max(deadline - now, 0.0))
 
     def _event(self, component: Component, activity: Activity) -> None:
         wake = self._wake[component.name]

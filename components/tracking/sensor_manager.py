@@ -778,19 +778,32 @@ class SensorManager(Component):
             for sensor, tool, wanted in _tracker_inputs(config, self.sensors_file)
         ]
         self._last_status = -math.inf  # the first cycle says where tracking stands
+        self._frames: dict[tuple[str, str], int] = {}
+        self._postponed = False
         return True
 
-    def update_hook(self) -> None:
+    def update_hook(self, idle: bool = False) -> None:
+        """Take every new sample, then decide: once per tracker frame, not once per
+        sample. A tracker sends its two tools of a frame back to back; woken by the
+        first, the manager waits for the second (once: the next wake decides whatever
+        came, and a silent tracker is found by the idle wake, `idle`). Runs in the
+        component's event thread."""
         now = self.clock.now()
+        frames = self._frames
         for sensor, tool, port in self.tracker_ports:
             while True:
                 status, pose = port.read()
                 if status is not ReadStatus.NEW:
                     break
                 self.core.offer(sensor, tool, pose, now)
+                frames[sensor, tool] = pose.frame_number
         status, ee = self.ee_pose.read()
         if status is ReadStatus.NEW and ee is not None:
             self.core.set_kinematics(pose_matrix(ee), ee.stamp)
+        if not idle and not self._postponed and self._half_a_frame():
+            self._postponed = True
+            return
+        self._postponed = False
         decision = self.core.evaluate(now)
         if decision.robot_pose is not None:
             position = tuple(float(v) for v in decision.robot_pose[:3, 3])
@@ -817,7 +830,17 @@ class SensorManager(Component):
 
     def idle_hook(self) -> None:
         """No sample for a while (event-driven): a staleness deadline or the status is due."""
-        self.update_hook()
+        self.update_hook(idle=True)
+
+    def _half_a_frame(self) -> bool:
+        """Whether a tracker's newest samples of its two tools are of different frames
+        (the other tool's sample of the newer frame is on its way)."""
+        frames = self._frames
+        for sensor in self.core.by_name:
+            cto, rto = frames.get((sensor, "cto")), frames.get((sensor, "rto"))
+            if cto is not None and rto is not None and cto != rto:
+                return True
+        return False
 
     def describe_decision(self, decision: Decision) -> dict[str, Any]:
         """The decision as plain data."""

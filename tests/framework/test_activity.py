@@ -5,7 +5,13 @@ import threading
 import pytest
 
 from components.demo import Counter, Doubler, Sink
-from framework.activity import Activity, ActivityError, RealTimeExecutor, SteppedExecutor
+from framework.activity import (
+    Activity,
+    ActivityError,
+    RealTimeExecutor,
+    SteppedExecutor,
+    next_deadline,
+)
 from framework.clock import SimulatedClock
 from framework.component import Component
 from framework.container import Container
@@ -177,3 +183,25 @@ def test_an_after_chain_that_comes_back_to_itself_is_refused():
     executor.add(a, Activity.from_spec({"after": "b"}))
     with pytest.raises(ActivityError, match="after itself"):
         executor.add(b, Activity.from_spec({"after": "a"}))
+
+
+def test_a_periodic_update_that_ends_a_little_late_runs_the_next_at_once_on_the_same_grid():
+    period = 1 / 30
+    # on time: one period later, nothing late
+    assert next_deadline(0.0, 0.010, period) == (period, 0)
+    # ended 1 ms past the next deadline: that deadline stands (run now), no period lost
+    deadline, late = next_deadline(0.0, period + 0.001, period)
+    assert deadline == period and late == 1
+    # and the one after is back on the grid
+    assert next_deadline(deadline, deadline + 0.005, period) == (2 * period, 0)
+
+
+def test_periods_missed_entirely_are_skipped_not_bunched():
+    period = 0.010
+    deadline, late = next_deadline(0.0, 0.0355, period)  # 2.55 periods past the next one
+    assert deadline == pytest.approx(0.030) and late == 3  # due at 30 ms: at once, then 40
+    assert next_deadline(deadline, 0.036, period)[0] == pytest.approx(0.040)
+
+
+def test_a_component_that_reports_every_few_periods_is_due_that_many_periods_later():
+    assert next_deadline(0.0, 0.001, 0.001, periods=10) == (pytest.approx(0.010), 0)

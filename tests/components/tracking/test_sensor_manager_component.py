@@ -256,3 +256,24 @@ def test_trusting_again_is_refused_for_an_unknown_sensor_or_one_not_distrusted(s
         stepped.manager.call("trust", sensor="polaris")
     with pytest.raises(FwError, match="certus is not distrusted for a moved reference tool"):
         stepped.manager.call("trust", sensor="certus")
+
+
+def test_the_manager_decides_once_per_tracker_frame_not_once_per_sample(stepped):
+    stepped.tick(10)
+    assert stepped.best() == "certus"
+    certus = next(rig for rig in stepped.rigs if rig.name == "certus")
+    cto, rto = certus.observe(ee_path(0.0), stepped.rng, stepped.ticks * TICK)
+
+    def cycle(*samples):
+        for tool, pose, frame in samples:
+            stepped.trackers[f"certus/{tool}"].write(dataclasses.replace(pose, frame_number=frame))
+        before = len(stepped.poses)
+        stepped.container.executor.advance(TICK)
+        stepped.poses += drained(stepped.robot_pose)
+        return len(stepped.poses) - before  # decisions (each publishes the robot's pose)
+
+    assert cycle(("cto", cto, 99)) == 0, "half of frame 99: its reference is on its way"
+    assert cycle(("rto", rto, 99)) == 1, "the whole frame: one decision"
+    assert cycle(("cto", cto, 100), ("rto", rto, 100)) == 1
+    assert cycle(("cto", cto, 101)) == 0
+    assert cycle() == 1, "a half frame waits once: the next wake decides with what came"
