@@ -64,11 +64,11 @@ class KinectModel:
         camera_from_world = self._inverse[1]
         return world @ camera_from_world[:3, :3].T + camera_from_world[:3, 3]
 
-    def _hidden(self, joints: np.ndarray, others: list[np.ndarray]) -> np.ndarray:
-        """Joints (camera frame) behind a nearer person's body, seen from the camera."""
+    def _hidden(self, joints: np.ndarray, torsos: list[np.ndarray]) -> np.ndarray:
+        """Joints (camera frame) behind a nearer person's body (their `torsos`: the mean
+        of neck and torso, camera frame), seen from the camera."""
         hidden = np.zeros(len(joints), dtype=bool)
-        for other in others:
-            torso = np.nanmean(other[[1, 2]], axis=0)  # neck and torso
+        for torso in torsos:
             if not np.isfinite(torso).all():
                 continue
             depth = np.linalg.norm(torso)
@@ -86,16 +86,17 @@ class KinectModel:
         if self.rng.random() < self.dropout:
             return None
         in_camera = {pid: self.to_camera(s) for pid, s in people.items()}
-        visible = {pid: j for pid, j in in_camera.items() if self.in_view(j).mean() > 0.5}
+        inside = {pid: self.in_view(j) for pid, j in in_camera.items()}
+        visible = {pid: j for pid, j in in_camera.items() if inside[pid].mean() > 0.5}
+        # each person's mean depth and torso once per frame (the simulated room is the
+        # costliest part of the cameras' process): the same numbers as per comparison
+        depth = {pid: np.nanmean(j[:, 2]) for pid, j in visible.items()}
+        torso = {pid: np.nanmean(j[[1, 2]], axis=0) for pid, j in visible.items()}
         out = []
-        for pid, joints in sorted(visible.items(), key=lambda kv: np.nanmean(kv[1][:, 2])):
-            nearer = [
-                j
-                for other, j in visible.items()
-                if other != pid and np.nanmean(j[:, 2]) < np.nanmean(joints[:, 2])
-            ]
+        for pid, joints in sorted(visible.items(), key=lambda kv: depth[kv[0]]):
+            nearer = [torso[o] for o in visible if o != pid and depth[o] < depth[pid]]
             seen = joints.copy()
-            seen[self._hidden(seen, nearer) | ~self.in_view(seen)] = np.nan
+            seen[self._hidden(seen, nearer) | ~inside[pid]] = np.nan
             if np.isnan(seen).all(axis=1).mean() > 0.6:
                 continue  # mostly hidden: the camera loses this user
             seen += self.noise(seen)
