@@ -159,7 +159,7 @@ def next_deadline(
     at `now`: `periods` periods later, on the same grid. An update that ends past that
     runs the next one at once (a thread woken late, or one that waited for the
     interpreter, loses no period: a 30 Hz camera pipeline that skipped to the next tick
-    on a 1 ms overrun went silent for 67-100 ms and tripped its 100 ms watch); periods
+    on a 1 ms overrun went silent for 67-126 ms and tripped its 100 ms watch); periods
     missed entirely are skipped, not bunched. Returns the deadline and how many periods
     were late or skipped (0 on time)."""
     deadline += period * periods
