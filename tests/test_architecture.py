@@ -151,3 +151,49 @@ def test_the_domain_package_imports_no_component():
 def test_no_component_package_imports_another():
     """The bench is a harness, not a component: it may import anything."""
     assert sorted(_cross_component_imports()) == []
+
+
+LOCK_RELEASING = "np.linalg.norm without axis (BLAS dot), ndarray.dot / np.dot"
+"""numpy calls that release the interpreter lock even for a 3-vector: beside another
+busy Python thread of the process, each then waits up to a switch interval (5 ms) to
+take it back (components/domain/geometry.py: `norm`)."""
+
+
+def lock_releasing_calls(tree: ast.AST) -> list[int]:
+    """Lines calling `np.linalg.norm(x)` without `axis`, `np.dot(...)` or `x.dot(...)`."""
+    lines = []
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.Call) or not isinstance(node.func, ast.Attribute):
+            continue
+        name, owner = node.func.attr, ast.unparse(node.func.value)
+        whole_norm = name == "norm" and owner.endswith("linalg") and len(node.args) < 3
+        whole_norm = whole_norm and not any(k.arg == "axis" for k in node.keywords)
+        if whole_norm or name == "dot":
+            lines.append(node.lineno)
+    return lines
+
+
+def test_the_lock_releasing_finder_finds_them():
+    found = lock_releasing_calls(
+        ast.parse("np.linalg.norm(v)\nnp.linalg.norm(m, axis=1)\na.dot(b)\nnp.dot(a, b)\na @ b")
+    )
+    assert found == [1, 3, 4]
+
+
+def test_components_and_the_framework_never_release_the_lock_for_small_numpy_work():
+    """Their processes run several Python threads (components, bus callbacks): a call
+    that releases the lock costs up to 5 ms there (measured: the Navigator's and the
+    Sensor Manager's updates waited milliseconds in `np.linalg.norm`). The bench, a
+    harness in a process of its own, may."""
+    files = [
+        p
+        for pkg in PACKAGES
+        for p in (REPO / pkg).rglob("*.py")
+        if "bench" not in p.relative_to(REPO).parts
+    ]
+    found = {
+        f"{p.relative_to(REPO)}:{line}"
+        for p in files
+        for line in lock_releasing_calls(ast.parse(p.read_text(encoding="utf-8")))
+    }
+    assert sorted(found) == [], LOCK_RELEASING

@@ -26,7 +26,7 @@ from scipy.linalg import sqrtm
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from components.domain.geometry import invert
+from components.domain.geometry import invert, norm
 from framework.errors import FwError
 
 ROTATION_SCALE = 0.1  # metres per radian when rotation and translation residuals are mixed
@@ -99,8 +99,8 @@ def observability(b: list[np.ndarray]) -> str:
         vector = _log(rotation)
         if not np.all(np.isfinite(vector)):
             return "a robot pose is not a finite rigid transform"
-        if np.linalg.norm(vector) >= MIN_ROTATION:
-            axes.append(vector / np.linalg.norm(vector))
+        if norm(vector) >= MIN_ROTATION:
+            axes.append(vector / norm(vector))
             blocks.append(rotation - np.eye(3))
     if len(axes) < 2:
         return (
@@ -131,7 +131,7 @@ def hand_eye_closed_form(a: list[np.ndarray], b: list[np.ndarray]) -> tuple[np.n
         aa = a[j] @ invert(a[k])
         bb = b[j] @ invert(b[k])
         alpha, beta = _log(aa[:3, :3]), _log(bb[:3, :3])
-        if np.linalg.norm(alpha) < 1e-3 or np.linalg.norm(beta) < 1e-3:
+        if norm(alpha) < 1e-3 or norm(beta) < 1e-3:
             continue  # a pure translation pair says nothing about the rotation
         alphas.append(alpha)
         betas.append(beta)

@@ -13,6 +13,7 @@ import numpy as np
 import pinocchio as pin
 from scipy.linalg import lapack
 
+from components.domain.geometry import norm
 from components.domain.lwr4 import HOME, Kinematics
 
 try:  # the compiled kernel (components/domain/_fwkernel.c), built by `pip install`
@@ -99,6 +100,6 @@ class DifferentialIK:
         q = np.asarray(q, dtype=float)
         for _ in range(iterations):
             q = self.step(q, target)
-            if np.linalg.norm(self.error(q, target)) < 1e-7:
+            if norm(self.error(q, target)) < 1e-7:
                 break
         return q

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from components.domain.distance import least_capsule_distance
+from components.domain.geometry import norm
 
 
 @dataclass(frozen=True)
@@ -170,7 +171,7 @@ class SeparationMonitor:
         if history and now > history[0][2]:
             pa, pb, then = history[0]
             speed = link_speed((pa, pb), (a, b), now - then)
-            self.tcp_speed = float(np.linalg.norm(b[-1] - pb[-1])) / (now - then)
+            self.tcp_speed = norm(b[-1] - pb[-1]) / (now - then)
         history.append((a.copy(), b.copy(), now))
         return speed
 

@@ -29,7 +29,7 @@ import numpy as np
 import yaml
 
 from components.domain.calibration import protocol_poses
-from components.domain.geometry import look_at, matrix_to_quat, rigid, rotation_angle
+from components.domain.geometry import look_at, matrix_to_quat, norm, rigid, rotation_angle
 from components.people.calibration import chessboard_corners, kinect_to_kinect, kinect_to_robot
 from components.people.kinect_sim import KinectModel
 from framework.errors import FwError, YamlError
@@ -85,7 +85,7 @@ def _sees_board(camera: KinectModel, world: np.ndarray, normal: np.ndarray) -> b
     if not camera.in_view(points).all():
         return False
     towards = camera.world_from_camera[:3, 3] - world.mean(axis=0)
-    return float(normal @ towards) / np.linalg.norm(towards) >= np.cos(FACING)
+    return float(normal @ towards) / norm(towards) >= np.cos(FACING)
 
 
 def board_poses(
@@ -100,13 +100,13 @@ def board_poses(
     poses: list[np.ndarray] = []
     for _ in range(2000 * count):
         center = middle + rng.uniform(-0.6, 0.6, 3)
-        facing = (eye_a - center) / np.linalg.norm(eye_a - center)
-        facing += (eye_b - center) / np.linalg.norm(eye_b - center)
-        z = facing / np.linalg.norm(facing)
+        facing = (eye_a - center) / norm(eye_a - center)
+        facing += (eye_b - center) / norm(eye_b - center)
+        z = facing / norm(facing)
         x = np.cross([0.0, 0.0, 1.0], z)
-        if np.linalg.norm(x) < 1e-6:
+        if norm(x) < 1e-6:
             continue
-        x /= np.linalg.norm(x)
+        x /= norm(x)
         board = np.eye(4)
         board[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
         board[:3, :3] = board[:3, :3] @ rigid((0, 0, 0), tuple(rng.normal(0, 0.15, 3)))[:3, :3]
@@ -136,7 +136,7 @@ def reachable_poses(count: int, seed: int = 0) -> list[np.ndarray]:
     for pose in protocol_poses(4 * count, seed, half=0.15):
         q = ik.solve(np.array(HOME), pose, 3000)
         error = ik.error(q, pose)
-        if np.linalg.norm(error[:3]) < 1e-3 and np.linalg.norm(error[3:]) < 1e-2:
+        if norm(error[:3]) < 1e-3 and norm(error[3:]) < 1e-2:
             kept.append(pose)
             if len(kept) == count:
                 break
@@ -167,7 +167,7 @@ def _transform(t: np.ndarray) -> dict[str, list[float]]:
 
 def _error(fit: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     return {
-        "mm": round(float(np.linalg.norm(fit[:3, 3] - truth[:3, 3])) * 1e3, 1),
+        "mm": round(norm(fit[:3, 3] - truth[:3, 3]) * 1e3, 1),
         "deg": round(float(np.degrees(rotation_angle(fit[:3, :3].T @ truth[:3, :3]))), 2),
     }
 
@@ -215,9 +215,7 @@ def run(
     report: dict[str, Any] = {
         "robot": {
             "poses": robot_fit.poses,
-            "translation_rms_mm": round(
-                float(np.linalg.norm(robot_fit.translation_residual)) * 1e3, 1
-            ),
+            "translation_rms_mm": round(norm(robot_fit.translation_residual) * 1e3, 1),
             "truth_error": {
                 **_error(base_from_master, main.world_from_camera),
                 "workspace_mm": round(

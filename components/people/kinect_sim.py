@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from components.domain.geometry import look_at
+from components.domain.geometry import look_at, norm
 from components.domain.skeleton import JOINTS, depth_sigma, standing
 from framework.component import Component, In, Out, operation
 from framework.messages import Skeleton, Skeletons
@@ -71,7 +71,7 @@ class KinectModel:
         for torso in torsos:
             if not np.isfinite(torso).all():
                 continue
-            depth = np.linalg.norm(torso)
+            depth = norm(torso)
             direction = torso / depth
             along = joints @ direction
             lateral = np.linalg.norm(joints - np.outer(along, direction), axis=1)

@@ -47,7 +47,7 @@ import numpy as np
 import pinocchio as pin
 from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig
 
-from components.domain.geometry import pose_from_list
+from components.domain.geometry import norm, pose_from_list
 from components.domain.ik import DifferentialIK, _fwkernel
 from components.robot.interface import tcp_message
 from framework.component import Component, In, Out, operation
@@ -58,12 +58,6 @@ from framework.properties import prop
 
 IDENTITY = np.eye(4)
 """Copied, not made, for each pose of the cycle (np.eye costs more than the copy)."""
-
-
-def _length(v: np.ndarray) -> float:
-    """Euclidean length of a small vector: np.linalg.norm's own sum, without its
-    wrapper, which costs more than the work at 1 kHz."""
-    return math.sqrt(float(v @ v))
 
 
 MAX_STEPS_PER_STATE = 40
@@ -302,8 +296,8 @@ class InterpolatorCore:
 
     def _correction_size(self, error: np.ndarray) -> float:
         return max(
-            _length(error[:3]),
-            _length(error[3:]) * self.ROTATION_RADIUS,
+            norm(error[:3]),
+            norm(error[3:]) * self.ROTATION_RADIUS,
         )
 
     def _pending_correction(self) -> bool:
@@ -334,12 +328,12 @@ class InterpolatorCore:
         self._start = np.ascontiguousarray(start, dtype=float)
         self._goal = goal.copy()
         self._delta_p = np.ascontiguousarray(goal[:3, 3] - start[:3, 3])
-        self._delta_length = _length(self._delta_p)
+        self._delta_length = norm(self._delta_p)
         # in the start frame
         self._delta_r = np.ascontiguousarray(pin.log3(start[:3, :3].T @ goal[:3, :3]))
         self.length = max(
-            float(np.linalg.norm(self._delta_p)),
-            float(np.linalg.norm(self._delta_r)) * self.ROTATION_RADIUS,
+            norm(self._delta_p),
+            norm(self._delta_r) * self.ROTATION_RADIUS,
         )
         self._in.current_position = [0.0]
         self._in.current_velocity = [0.0]

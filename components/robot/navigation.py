@@ -67,7 +67,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from components.domain.geometry import invert, pose_from_list, pose_list, pose_matrix
+from components.domain.geometry import invert, norm, pose_from_list, pose_list, pose_matrix
 from components.domain.lwr4 import Kinematics
 from components.domain.procedure import Procedure, load_procedure
 from components.domain.sensors import SensorsConfig, load_sensors
@@ -238,8 +238,8 @@ class NavigatorCore:
         """How far a sample's view of the patient is from the filtered one (m, a turn
         counted at `LEVER`)."""
         b = self.base_from_patient
-        shift = float(np.linalg.norm(measured[:3, 3] - b[:3, 3]))
-        return shift + float(np.linalg.norm(pin.log3(b[:3, :3].T @ measured[:3, :3]))) * LEVER
+        shift = norm(measured[:3, 3] - b[:3, 3])
+        return shift + norm(pin.log3(b[:3, :3].T @ measured[:3, :3])) * LEVER
 
     def noise_weight(self, noise: float) -> float:
         """The largest weight a sample of this noise (m RMS) may have in the filter so
@@ -276,8 +276,8 @@ class NavigatorCore:
         window.append((t, position))
         while window and t - window[0][0] > SPEED_WINDOW:
             window.popleft()
-        self.patient_speed = float(np.linalg.norm(position - window[0][1])) / SPEED_WINDOW
-        moved = float(np.linalg.norm(self.patient_offset))
+        self.patient_speed = norm(position - window[0][1]) / SPEED_WINDOW
+        moved = norm(self.patient_offset)
         if moved > self.max_motion:
             reason = (
                 f"the patient moved {moved * 1e3:.1f} mm from where it was registered "
@@ -297,8 +297,8 @@ class NavigatorCore:
         registration than the patient may move plus what the arm's model may be off by,
         at any point within `LEVER` of the reference tool. A tool loose on the arm or a
         wrong tracker must not steer the robot."""
-        shift = float(np.linalg.norm(measured[:3, 3] - self.registration[:3, 3]))
-        turn = float(np.linalg.norm(pin.log3(self.registration[:3, :3].T @ measured[:3, :3])))
+        shift = norm(measured[:3, 3] - self.registration[:3, 3])
+        turn = norm(pin.log3(self.registration[:3, :3].T @ measured[:3, :3]))
         off = shift + turn * LEVER
         limit = self.max_motion + self.max_model_error
         if off <= limit:

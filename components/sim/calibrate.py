@@ -26,7 +26,7 @@ from components.domain.calibration import (
     protocol_poses,
     tracker_to_tracker,
 )
-from components.domain.geometry import invert, matrix_to_quat, pose_matrix, rotation_angle
+from components.domain.geometry import invert, matrix_to_quat, norm, pose_matrix, rotation_angle
 from components.domain.ik import DifferentialIK
 from components.domain.lwr4 import HOME, LWR4_ERRORS
 from components.domain.rigs import standard_rigs
@@ -108,28 +108,18 @@ def run(poses: int, seed: int) -> dict[str, Any]:
             "rotation_residual_deg": [round(float(v), 4) for v in fit.rotation_residual_deg],
             "pivot": {"poses": PIVOT_POSES, "rms_mm": round(pivots[rig.name].rms * 1e3, 3)},
             "simulation_truth_error": {
-                "X_mm": round(
-                    float(np.linalg.norm(fit.x[:3, 3] - rig.rto_from_base[:3, 3])) * 1e3, 3
-                ),
+                "X_mm": round(norm(fit.x[:3, 3] - rig.rto_from_base[:3, 3]) * 1e3, 3),
                 "X_deg": round(
                     float(np.degrees(rotation_angle(fit.x[:3, :3].T @ rig.rto_from_base[:3, :3]))),
                     4,
                 ),
-                "Y_mm": round(
-                    float(np.linalg.norm(fit.y[:3, 3] - rig.ee_from_cto[:3, 3])) * 1e3, 3
-                ),
+                "Y_mm": round(norm(fit.y[:3, 3] - rig.ee_from_cto[:3, 3]) * 1e3, 3),
                 "tip_mm": round(
-                    float(np.linalg.norm(pivots[rig.name].tip - invert(rig.ee_from_cto)[:3, 3]))
-                    * 1e3,
+                    norm(pivots[rig.name].tip - invert(rig.ee_from_cto)[:3, 3]) * 1e3,
                     3,
                 ),
                 "S_mm": round(
-                    float(
-                        np.linalg.norm(
-                            (references[rig.name] @ fit.x)[:3, 3] - rig.sensor_from_base[:3, 3]
-                        )
-                    )
-                    * 1e3,
+                    norm((references[rig.name] @ fit.x)[:3, 3] - rig.sensor_from_base[:3, 3]) * 1e3,
                     3,
                 ),
             },

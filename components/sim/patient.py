@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from components.domain.geometry import invert, matrix_to_quat, pose_from_list, pose_matrix
+from components.domain.geometry import invert, matrix_to_quat, norm, pose_from_list, pose_matrix
 from components.domain.rigs import standard_rigs
 from framework.component import Component, In, Out, operation
 from framework.errors import FwError
@@ -87,13 +87,13 @@ class HeadMotion:
     def breathe(self, amplitude: float, period: float, axis: tuple[float, float, float]) -> None:
         """A sinusoidal motion (m, s) along `axis`; amplitude 0 stops it."""
         direction = np.asarray(axis, dtype=float)
-        norm = float(np.linalg.norm(direction))
+        length = norm(direction)
         if amplitude == 0.0:
             self.breathing = None
             return
-        if not (norm > 0 and period > 0 and math.isfinite(amplitude)):
+        if not (length > 0 and period > 0 and math.isfinite(amplitude)):
             raise ValueError("breathing needs a non-zero axis and a positive period")
-        self.breathing = (amplitude, period, direction / norm)
+        self.breathing = (amplitude, period, direction / length)
 
 
 def _finite(name: str, values: Any, count: int = 3) -> tuple[float, ...]:
@@ -150,7 +150,7 @@ class PatientHead(Component):
         target = (
             self.base_from_rto() @ self.target if self.target_frame == "patient" else self.target
         )
-        return float(np.linalg.norm(pose_matrix(tcp)[:3, 3] - target[:3, 3]))
+        return norm(pose_matrix(tcp)[:3, 3] - target[:3, 3])
 
     def _follow_target(self) -> None:
         """Take the target the navigator's latest goals say was defined."""

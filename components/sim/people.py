@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from components.domain.distance import capsule_distances
+from components.domain.geometry import norm
 from components.domain.separation import SsmParams, link_speed
 from components.domain.skeleton import JOINTS, Build, envelopes, standing
 from framework.component import Component, In, Out, operation
@@ -53,7 +54,7 @@ class Person:
         budget = self.speed * dt
         while self.waypoints and budget > 0:
             step = self.waypoints[0] - self.position
-            distance = float(np.linalg.norm(step))
+            distance = norm(step)
             if distance > 1e-9:
                 self.facing = math.atan2(step[1], step[0])
             if distance <= budget:

@@ -55,6 +55,7 @@ import numpy as np
 from components.domain.geometry import (
     invert,
     matrix_to_quat,
+    norm,
     pose_list,
     pose_matrix,
     quat_to_matrix,
@@ -154,7 +155,7 @@ class History:
         if float(a[3:] @ b[3:]) < 0.0:  # the same rotation, the nearer way round
             b[3:] = -b[3:]
         pose = a + w * (b - a)
-        pose[3:] /= np.linalg.norm(pose[3:])
+        pose[3:] /= norm(pose[3:])
         return pose, speed * (t1 - t0) / 2.0, speed
 
 
@@ -635,11 +636,7 @@ class SensorManagerCore:
         master = self._base_from_rto[self._index[self.config.master]]
         moved = np.linalg.norm(patient[:, :3, 3] - master[:3, 3], axis=1)
         k_all = range(len(sensors))
-        apart = {
-            (k, j): float(np.linalg.norm(patient[k, :3, 3] - patient[j, :3, 3]))
-            for k in k_all
-            for j in k_all
-        }
+        apart = {(k, j): norm(patient[k, :3, 3] - patient[j, :3, 3]) for k in k_all for j in k_all}
         tolerance = {
             (k, j): max(self._tol_pos[sensors[k]], self._tol_pos[sensors[j]]) + slack[k] + slack[j]
             for k in k_all
@@ -683,7 +680,7 @@ class SensorManagerCore:
 
     def _close(self, i: int, a: np.ndarray, b: np.ndarray) -> bool:
         cfg = self.tracks[i].config
-        offset = float(np.linalg.norm(a[:3, 3] - b[:3, 3]))
+        offset = norm(a[:3, 3] - b[:3, 3])
         angle = float(rotation_angle(a[:3, :3].T @ b[:3, :3]))
         return offset <= cfg.tolerance_position and angle <= cfg.tolerance_angle
 
@@ -696,7 +693,7 @@ def _nlerp(a: np.ndarray, b: np.ndarray, weight: float) -> np.ndarray:
         qb = -qb
     q = qa + weight * (qb - qa)
     out = np.eye(4)
-    out[:3, :3] = quat_to_matrix(q / np.linalg.norm(q))
+    out[:3, :3] = quat_to_matrix(q / norm(q))
     out[:3, 3] = a[:3, 3] + weight * (b[:3, 3] - a[:3, 3])
     return out
 

@@ -5,7 +5,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from components.domain.geometry import matrix_to_quat, quat_to_matrix, rotvec_matrix
+from components.domain.geometry import matrix_to_quat, norm, quat_to_matrix, rotvec_matrix
 
 quaternions = st.tuples(*[st.floats(-1, 1) for _ in range(4)]).filter(
     lambda q: sum(v * v for v in q) > 1e-3
@@ -35,3 +35,47 @@ rotvecs = st.tuples(*[st.floats(-4, 4) for _ in range(3)])
 @given(rotvecs)
 def test_rotvec_matrix_agrees_with_scipy_down_to_the_zero_rotation(v):
     assert np.allclose(rotvec_matrix(v), Rotation.from_rotvec(v).as_matrix(), atol=1e-12)
+
+
+def _lets_other_threads_run(call, times: int = 20) -> int:
+    """How often another thread ran while `call` ran `times` times: with the switch
+    interval made huge, it runs only when `call` releases the interpreter lock."""
+    import sys
+    import threading
+    import time
+
+    ran, running = [0], [True]
+
+    def other() -> None:
+        while running[0]:
+            ran[0] += 1
+            time.sleep(0)  # hands the lock straight back
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(100.0)
+    thread = threading.Thread(target=other, daemon=True)
+    try:
+        thread.start()
+        time.sleep(0.01)  # it starts, and parks in sleep(0)
+        before = ran[0]
+        for _ in range(times):
+            call()
+        return ran[0] - before
+    finally:
+        running[0] = False
+        sys.setswitchinterval(interval)
+        thread.join()
+
+
+def test_norm_keeps_the_interpreter_lock_where_numpy_s_own_releases_it():
+    """A process with several busy threads pays a switch interval (5 ms) each time a
+    small call releases the lock: `norm` must not (tests/test_architecture.py)."""
+    v = np.array([0.3, -0.4, 1.2])
+    assert _lets_other_threads_run(lambda: norm(v)) == 0
+    assert _lets_other_threads_run(lambda: np.linalg.norm(v)) > 0  # why `norm` exists
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(-1e3, 1e3), min_size=1, max_size=16))
+def test_norm_is_the_euclidean_length(values):
+    assert np.isclose(norm(np.array(values)), np.linalg.norm(values), rtol=1e-12, atol=1e-12)
