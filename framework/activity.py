@@ -21,9 +21,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import heapq
+import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -224,7 +227,10 @@ class RealTimeExecutor:
             return
         target = {"periodic": self._periodic, "paced": self._paced}.get(activity.kind, self._event)
         thread = threading.Thread(
-            target=target, args=(component, activity), name=f"fw-{component.name}", daemon=True
+            target=_named(target),
+            args=(component, activity),
+            name=f"fw-{component.name}",
+            daemon=True,
         )
         self._threads.append(thread)
         thread.start()
@@ -314,6 +320,38 @@ class RealTimeExecutor:
         for thread in self._threads:
             thread.join(timeout)
         self._threads.clear()
+
+
+def _named(target: Callable[[Component, Activity], None]) -> Callable[..., None]:
+    """`target`, run in a thread that the host's tools (top -H, ps -L, /proc, py-spy)
+    show by its component's name ("fw-" and the first 12 characters)."""
+
+    def run(component: Component, activity: Activity) -> None:
+        name_os_thread(f"fw-{component.name}")
+        target(component, activity)
+
+    return run
+
+
+def name_os_thread(name: str) -> None:
+    """Give the calling thread `name` (15 bytes at most) where the host's tools see
+    it; nothing where the platform has no such call."""
+    if _LIBC is None:
+        return
+    with contextlib.suppress(Exception):
+        _LIBC.prctl(_PR_SET_NAME, name.encode()[:15], 0, 0, 0)
+
+
+def _libc() -> Any:
+    import ctypes
+    import ctypes.util
+
+    found = ctypes.util.find_library("c") if sys.platform.startswith("linux") else None
+    return ctypes.CDLL(found, use_errno=True) if found else None
+
+
+_PR_SET_NAME = 15
+_LIBC = _libc()
 
 
 def _add_follower(followers: dict[str, list[Component]], master: str, component: Component) -> None:

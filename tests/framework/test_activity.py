@@ -1,6 +1,8 @@
 """Spec: activities run components periodically or on data, in real time or stepped."""
 
+import sys
 import threading
+from pathlib import Path
 
 import pytest
 
@@ -205,3 +207,22 @@ def test_periods_missed_entirely_are_skipped_not_bunched():
 
 def test_a_component_that_reports_every_few_periods_is_due_that_many_periods_later():
     assert next_deadline(0.0, 0.001, 0.001, periods=10) == (pytest.approx(0.010), 0)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="thread names in /proc")
+def test_a_component_s_thread_shows_its_name_to_the_host_s_tools(hub):
+    """top -H, ps -L and py-spy show which component a busy thread runs."""
+    clock = SimulatedClock()
+    seen = []
+    component = Stamper("sensor_manager", clock)
+    component.update_hook = lambda: seen.append(threading.get_native_id())
+    container = Container("c", hub)
+    container.add(component, Activity.periodic(200))
+    running(component)
+    container.start()
+    try:
+        assert wait_until(lambda: seen)
+        name = Path(f"/proc/self/task/{seen[0]}/comm").read_text().strip()
+    finally:
+        container.shutdown()
+    assert name == "fw-sensor_manag"  # the host keeps 15 bytes
