@@ -38,6 +38,7 @@ MODES = {"position": (2500.0, 120.0), "impedance": (300.0, 21.0)}
 FEED_FORWARD = {"position": True, "impedance": False}
 """Whether the mode's servo is given the commanded velocity (position control tracks a
 moving command; joint impedance control only pulls toward the commanded position)."""
+_POSITION_LIMIT = np.array(lwr4.POSITION_LIMIT)
 
 
 @dataclass
@@ -84,6 +85,7 @@ class SimulatedArm:
         self._commanded = False
         self._last_setpoint = np.array(q0, dtype=float)
         self._held = self.data.qpos[:7].copy()  # link angles the brakes hold
+        self._at_rest = False  # braked and stepped once since: nothing left to simulate
 
     @property
     def commanded(self) -> bool:
@@ -149,6 +151,7 @@ class SimulatedArm:
         """Release the brakes; the arm holds its pose until setpoints arrive."""
         if self.braked:
             self.braked, self.reason = False, ""
+            self._at_rest = False
             self.data.ctrl[:7] = self.data.qpos[:7]
             self._last_setpoint = self.q
             self._since_setpoint = 0
@@ -159,15 +162,18 @@ class SimulatedArm:
         if self.braked:
             return False
         setpoint = np.asarray(setpoint, dtype=float)
-        if setpoint.shape != (7,) or not np.all(np.isfinite(setpoint)):
+        if setpoint.shape != (7,) or not np.isfinite(setpoint).all():
             self.brake("setpoint is not 7 finite joint values")
             return False
         elapsed = self.dt * (self._since_setpoint + 1)  # cycles since the previous setpoint
-        allowed = self.velocity_limit * elapsed * 1.5 + 1e-6
         # the first setpoint after release is checked against the measured joints
         reference = self._last_setpoint if self._commanded else self.q
-        step = np.abs(setpoint - reference)
-        if np.any(step > allowed):
+        delta = setpoint - reference
+        step = np.abs(delta)
+        allowed = self.velocity_limit * elapsed
+        allowed *= 1.5
+        allowed += 1e-6
+        if (step > allowed).any():
             joint = int(np.argmax(step / allowed))
             self.brake(
                 f"setpoint jump on {lwr4.JOINTS[joint]}: {np.degrees(step[joint]):.2f} deg "
@@ -181,9 +187,12 @@ class SimulatedArm:
         target = self._servo_target(setpoint)
         if FEED_FORWARD[self.mode] and self._commanded:
             kp, kv = MODES[self.mode]
-            target = target + (kv / kp) * (setpoint - reference) / elapsed
-        limit = np.array(lwr4.POSITION_LIMIT)
-        self.data.ctrl[:7] = np.clip(target, -limit, limit)
+            delta *= kv / kp
+            delta /= elapsed
+            target += delta
+        np.maximum(target, -_POSITION_LIMIT, out=target)
+        np.minimum(target, _POSITION_LIMIT, out=target)
+        self.data.ctrl[:7] = target
         self._last_setpoint = setpoint
         self._since_setpoint = 0
         self._fresh = True
@@ -191,12 +200,18 @@ class SimulatedArm:
         return True
 
     def step(self) -> None:
-        """One physics cycle (1 ms), after the watchdog."""
+        """One physics cycle (1 ms), after the watchdog. Braked and stepped once since,
+        the arm is at a fixed point (held links, no velocity, servos aimed where they
+        stand, a static room): only time passes, and the physics is not run again
+        (the simulated KRC spends its braked minutes waiting, not integrating)."""
         if self._commanded and not self._fresh:
             self._since_setpoint += 1
             if self._since_setpoint > self.watchdog_cycles:
                 self.brake(f"watchdog: no setpoint for {self._since_setpoint} cycles")
         self._fresh = False
+        if self._at_rest:
+            self.data.time += self.dt
+            return
         if self.braked:
             self.data.qpos[:7] = self._held
             self.data.qvel[:7] = 0.0
@@ -204,6 +219,7 @@ class SimulatedArm:
         if self.braked:
             self.data.qpos[:7] = self._held
             self.data.qvel[:7] = 0.0
+            self._at_rest = True
 
     def status(self) -> ArmStatus:
         """Brakes, why, mode and time."""
