@@ -35,7 +35,9 @@ cmdJntPos + cmdJntPosFriOffset, else the KRC reports an interpolation error.
 simulated KRC does): the PC's requests travel in the command's KRL data, the KRC's
 answers in the measurement's:
 
-    command      intData[0] request number (rising; the KRC serves each once)
+    command      intData[0] request number (rising; the KRC serves each once, and
+                            the PC repeats it in every command until the measurement
+                            says it was served: UDP may lose the one that carried it)
                  intData[1] request: BRAKE 1, BRAKE_LATCHED 2, RELEASE 3, RESET 4,
                             MODE_POSITION 5, MODE_IMPEDANCE 6
     measurement  intData[0] the last request number served

@@ -194,6 +194,7 @@ class RobotInterface(Component):
         self._pending: deque[tuple[fri.Request, str]] = deque()  # requests for the KRC
         self._answer = np.zeros(7)  # what the next command carries
         self._requests_sent = 0  # the number of the last request sent to the KRC
+        self._in_flight = fri.Request.NONE  # that request, until the KRC has served it
         self._brake_reason = ""  # why this side last asked for the brakes (not latched)
         self.link = {"measurements": 0, "answered": 0, "skipped": 0, "refused": 0}
         self.latched = ""
@@ -370,11 +371,16 @@ class RobotInterface(Component):
         self._answer_krc(measurement)
 
     def _answer_krc(self, measurement: fri.Measurement) -> None:
-        """Send the command answering `measurement`, with the next queued request."""
-        number, request = self._requests_sent, fri.Request.NONE
-        if self._pending and measurement.served >= self._requests_sent:
-            request, _ = self._pending.popleft()
-            number = self._requests_sent = self._requests_sent + 1
+        """Send the command answering `measurement`, with the request in flight: each
+        answer carries it until the KRC reports it served (a datagram lost on the way
+        must not lose a brake; the KRC takes each request number once), then the next
+        queued one."""
+        if measurement.served >= self._requests_sent:
+            self._in_flight = fri.Request.NONE
+            if self._pending:
+                self._in_flight, _ = self._pending.popleft()
+                self._requests_sent += 1
+        number, request = self._requests_sent, self._in_flight
         datagram = fri.encode_command(
             self.link["answered"] + 1,
             measurement.send_seq,

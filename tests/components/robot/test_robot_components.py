@@ -643,6 +643,26 @@ def test_every_second_answer_lost_keeps_the_link_ok_and_the_arm_moving(cell):
     assert not cell.robot.call("report")["latched"]
 
 
+def test_a_request_whose_answer_is_lost_is_carried_again_until_the_krc_serves_it(cell):
+    """UDP loses datagrams: the answer that carries a brake or a release may never reach
+    the KRC. The request rides every answer until the KRC reports it served (it takes
+    a request number once), so none is lost: with every second answer lost, each of
+    eight brakes and releases is done."""
+    moving_cell(cell)
+    cell.interp.call("stop_motion")
+    cell.run(0.3)
+    cell.arm.call("impair", drop_every=2, seconds=5.0)
+    for attempt in range(4):
+        cell.run(0.001 * attempt)  # each request rides a different answer
+        cell.robot.call("brake", reason="operator")
+        cell.run(0.05)
+        assert cell.arm.call("report")["braked"], f"brake {attempt} was lost"
+        cell.robot.call("release")
+        cell.run(0.1)
+        assert not cell.arm.call("report")["braked"], f"release {attempt} was lost"
+    assert cell.arm.call("report")["fri"]["dropped"] > 0
+
+
 def test_answers_later_than_a_cycle_count_as_missing_and_brake_the_arm(cell):
     moving_cell(cell)
     cell.arm.call("impair", delay_ms=3.0, seconds=0.1)
