@@ -229,6 +229,29 @@ def test_every_measured_state_is_answered_with_the_latest_setpoint(arm):
     )
 
 
+def test_each_answer_counts_on_by_one_and_reflects_the_measurement_it_answers(arm):
+    """FRI's sequence counters: the PC's own rises by one per command from 1, and each
+    command reflects the counter of the measurement it answers (the KRC rates late
+    answers by it)."""
+    for _ in range(5):
+        arm.cycle()
+    assert [a.send_seq for a in arm.answers] == [1, 2, 3, 4, 5]
+    assert [a.refl_seq for a in arm.answers] == [1, 2, 3, 4, 5]
+
+
+def test_a_request_is_carried_by_every_answer_until_the_measurement_says_it_is_served(arm):
+    """UDP may lose the answer that carried it: the KRC takes each number once."""
+    arm.serving = False
+    arm.robot.call("brake", reason="operator")
+    for _ in range(3):
+        arm.cycle()
+    brake = fri.Request.BRAKE
+    assert [(a.request_number, a.request) for a in arm.answers] == [(1, brake)] * 3
+    arm.cycle(served=1)
+    arm.cycle(served=1)
+    assert [(a.request_number, a.request) for a in arm.answers[3:]] == [(1, fri.Request.NONE)] * 2
+
+
 def test_the_first_setpoint_of_a_motion_may_be_ten_cycles_of_rated_velocity_away(arm):
     arm.cycle()
     arm.released()
