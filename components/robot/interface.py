@@ -193,7 +193,10 @@ class RobotInterface(Component):
         self._previous: tuple[int, tuple[float, ...]] | None = None  # (cycle, joints) before
         self._pending: deque[tuple[fri.Request, str]] = deque()  # requests for the KRC
         self._answer = np.zeros(7)  # what the next command carries
-        self._requests_sent = 0  # the number of the last request sent to the KRC
+        # the number of the last request sent to the KRC; None until its first
+        # measurement says which it served last (a KRC outlives this process: numbering
+        # from 0 again, each request would be taken for one already served)
+        self._requests_sent: int | None = None
         self._in_flight = fri.Request.NONE  # that request, until the KRC has served it
         self._brake_reason = ""  # why this side last asked for the brakes (not latched)
         self.link = {"measurements": 0, "answered": 0, "skipped": 0, "refused": 0}
@@ -375,6 +378,8 @@ class RobotInterface(Component):
         answer carries it until the KRC reports it served (a datagram lost on the way
         must not lose a brake; the KRC takes each request number once), then the next
         queued one."""
+        if self._requests_sent is None:
+            self._requests_sent = measurement.served
         if measurement.served >= self._requests_sent:
             self._in_flight = fri.Request.NONE
             if self._pending:

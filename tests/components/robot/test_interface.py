@@ -93,6 +93,7 @@ class Arm:
         self.reason = ""
         self.commanded = HOME.copy()  # the KRC's commanded position (cmdJntPos)
         self.serving = True  # the KRC serves each request at once (a test may hold them)
+        self.taken = 0  # the number of the last request the KRC took
         self.commands: list[np.ndarray] = []
         """New commanded positions the interface sent while the arm was released."""
         self.answers: list[fri.Command] = []
@@ -149,16 +150,17 @@ class Arm:
             if not braked and not np.allclose(q, self.commanded, atol=1e-6):
                 self.commands.append(q)
                 self.commanded = q
-            if answer.request_number > len(self._requests):
+            if answer.request_number > self.taken and answer.request != fri.Request.NONE:
+                self.taken = answer.request_number  # the KRC takes each number once
                 name, payload = REQUESTS[fri.Request(answer.request)]
                 self._requests.append(Request(name, payload))
                 if self.serving:
-                    self.served = len(self._requests)  # the KRC serves it at once
+                    self.served = answer.request_number  # the KRC serves it at once
 
     def released(self):
         """The brakes are off, as the controller reports after a release."""
         self.braked = False
-        self.served = len(self.requests)
+        self.served = self.taken
         self.commanded = self.q.copy()
 
     def follow(self, q):
@@ -250,6 +252,15 @@ def test_a_request_is_carried_by_every_answer_until_the_measurement_says_it_is_s
     arm.cycle(served=1)
     arm.cycle(served=1)
     assert [(a.request_number, a.request) for a in arm.answers[3:]] == [(1, fri.Request.NONE)] * 2
+
+
+def test_an_interface_beside_a_krc_that_served_requests_numbers_on_from_them(arm):
+    """A KRC outlives the PC's process (a restart, `on_loss: restart`): a new interface
+    numbering from 1 again would have each request taken for one already served."""
+    arm.cycle(served=7)
+    arm.robot.call("brake", reason="operator")
+    arm.cycle(served=7)
+    assert (arm.answers[-1].request_number, arm.answers[-1].request) == (8, fri.Request.BRAKE)
 
 
 def test_the_first_setpoint_of_a_motion_may_be_ten_cycles_of_rated_velocity_away(arm):
@@ -608,7 +619,7 @@ def test_an_arm_braked_again_after_a_motion_is_held_not_tripped_by_a_late_input(
         watched.cycle(target)
         arm.follow(target)
     arm.robot.call("brake", reason="at goal")
-    arm.braked, arm.served = True, len(arm.requests)
+    arm.braked, arm.served = True, arm.taken
     watched.cycle()
     for _ in range(100):
         watched.cycle(beat=False)
@@ -726,7 +737,7 @@ def test_a_protective_stop_asks_for_the_brakes_once_latched_whatever_was_pending
 def test_a_stop_just_after_a_new_motions_first_setpoint_ignores_the_last_motions_commands(arm):
     moving(arm)
     arm.robot.call("brake", reason="at goal")
-    arm.braked, arm.served = True, len(arm.requests)
+    arm.braked, arm.served = True, arm.taken
     arm.cycle()
     arm.q = arm.q + step(8.0, joint=2, cycles=10)  # moved while braked (hand guided)
     arm.v = np.zeros(7)
