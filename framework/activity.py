@@ -21,9 +21,7 @@
 
 from __future__ import annotations
 
-import contextlib
 import heapq
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -34,7 +32,7 @@ from framework.clock import MonotonicClock, SimulatedClock
 from framework.component import Component, State
 from framework.engine import ExecutionEngine
 from framework.errors import FwError
-from framework.realtime import LoopStats, RealTimePolicy
+from framework.realtime import LoopStats, RealTimePolicy, name_os_thread
 
 
 class ActivityError(FwError):
@@ -331,27 +329,6 @@ def _named(target: Callable[[Component, Activity], None]) -> Callable[..., None]
         target(component, activity)
 
     return run
-
-
-def name_os_thread(name: str) -> None:
-    """Give the calling thread `name` (15 bytes at most) where the host's tools see
-    it; nothing where the platform has no such call."""
-    if _LIBC is None:
-        return
-    with contextlib.suppress(Exception):
-        _LIBC.prctl(_PR_SET_NAME, name.encode()[:15], 0, 0, 0)
-
-
-def _libc() -> Any:
-    import ctypes
-    import ctypes.util
-
-    found = ctypes.util.find_library("c") if sys.platform.startswith("linux") else None
-    return ctypes.CDLL(found, use_errno=True) if found else None
-
-
-_PR_SET_NAME = 15
-_LIBC = _libc()
 
 
 def _add_follower(followers: dict[str, list[Component]], master: str, component: Component) -> None:

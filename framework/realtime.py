@@ -180,10 +180,28 @@ class RealTimePolicy:
         stats.longest_collection = max(stats.longest_collection, took)
 
 
+def _libc() -> ctypes.CDLL | None:
+    """The C library, once per process (None where there is none to find)."""
+    global _LIBC_LOADED
+    if _LIBC_LOADED is None:
+        name = ctypes.util.find_library("c") if sys.platform.startswith("linux") else None
+        _LIBC_LOADED = (ctypes.CDLL(name, use_errno=True),) if name else (None,)
+    return _LIBC_LOADED[0]
+
+
+_LIBC_LOADED: tuple[ctypes.CDLL | None] | None = None
+_PR_SET_NAME = 15
+
+
+def name_os_thread(name: str) -> None:
+    """Give the calling thread `name` (15 bytes at most) where the host's tools (top -H,
+    ps -L, /proc, py-spy) see it; nothing where the platform has no such call."""
+    libc = _libc()
+    if libc is not None:
+        libc.prctl(_PR_SET_NAME, name.encode()[:15], 0, 0, 0)
+
+
 def _lock_memory() -> bool:
     """mlockall(MCL_CURRENT | MCL_FUTURE); False if the host refuses."""
-    name = ctypes.util.find_library("c")
-    if name is None:
-        return False
-    libc = ctypes.CDLL(name, use_errno=True)
-    return libc.mlockall(_MCL_CURRENT | _MCL_FUTURE) == 0
+    libc = _libc()
+    return libc is not None and libc.mlockall(_MCL_CURRENT | _MCL_FUTURE) == 0
