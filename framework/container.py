@@ -491,14 +491,12 @@ def build(spec: dict[str, Any], bus: Bus) -> Container:
     return container
 
 
-SWITCH_INTERVAL = 0.0005
-"""s: how long a component process's thread may keep the interpreter while another
-waits (Python's default: 5 ms). A thread that leaves Python for a moment (a bus put, a
-numpy sort or argmin, a socket call) must take the lock back from whichever thread
-took it meanwhile; with several components and bus callbacks in one process it then
-waited up to 5 ms each time (measured: a Navigator put 1.8 ms, a Supervisor put 1.3
-ms on average), so a 30 Hz or 100 Hz update took tens of milliseconds on a busy host.
-A device loop's own thread asks for less still (framework/realtime.py)."""
+# Component processes keep Python's switch interval (5 ms): with 0.5 ms (tried,
+# 2026-11-27) a thread forced to hand the interpreter over every half millisecond
+# waited for the CPU each time it took it back on a saturated 2-core host (a Sensor
+# Manager update of 5 ms CPU took 50-120 ms, 55 hand-overs; perf sched), and the SEEG
+# approach stopped on that heartbeat in 3 of 3 runs, against 1 of 4 without. A device
+# loop's process sets its own (framework/realtime.py): there the loop must not wait.
 
 
 def raise_priority(nice: int, process: str) -> bool:
@@ -535,7 +533,6 @@ def serve(spec: dict[str, Any], ready: Callable[[], None] | None = None) -> int:
         signal.signal(sig, on_signal)
     if spec.get("nice"):
         raise_priority(int(spec["nice"]), spec["name"])
-    sys.setswitchinterval(SWITCH_INTERVAL)
     bus = Bus(BusConfig.from_dict(spec["bus"]), hub=spec.get("hub", False), subject=spec["name"])
     try:
         container = build(spec, bus)
