@@ -246,14 +246,16 @@ class Bus:
         callback: Callable[[Any], None] | None,
         history: bool = True,
         remote_only: bool = False,
+        capacity: int = 1,
     ) -> Any:
         """Subscribe to `key`; with `history`, the last cached sample arrives at once;
         `remote_only` ignores this session's own publications. With `callback` None,
-        the samples go to a ring of one (the newest) that the reader polls with
-        `try_recv`: Zenoh's network thread then never waits for the interpreter."""
+        the samples go to a ring of `capacity` (the newest; Zenoh drops the oldest) that
+        the reader polls with `try_recv`: Zenoh's network thread then never waits for
+        the interpreter."""
         where = zenoh.Locality.REMOTE if remote_only else None
         if callback is None:
-            handler: Any = zenoh.handlers.RingChannel(1)
+            handler: Any = zenoh.handlers.RingChannel(capacity)
         else:
             # On Zenoh's network thread: a port's delivery is short (decode, queue,
             # wake), and the default thread per subscriber cost a hand-over per sample.

@@ -33,6 +33,7 @@ sample for late readers (its next one comes within a cycle).
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import random
 import threading
@@ -109,6 +110,10 @@ class PortStats:
     dropped_overflow: int = 0
     dropped_invalid: int = 0
     discarded_on_rewire: int = 0
+    ring_full: int = 0
+    """Polls of a buffer port that found Zenoh's ring full: older samples may have been
+    dropped there, before the port could count them (the ring holds twice the port's
+    size, so a reader that falls that far behind is the one case)."""
     last_error: str = ""
 
     def to_dict(self) -> dict[str, Any]:
@@ -317,7 +322,8 @@ class InputPort(Port[T]):
         self.bus: Any = None
         self.generation = 0
         self._on_data: Callable[[InputPort[T]], None] | None = None
-        self._ring: tuple[int, Any] | None = None  # a polled subscription, its generation
+        # a polled subscription: its generation, the ring, its standby key (or None)
+        self._ring: tuple[int, Any, str | None] | None = None
         self._came = False  # an arrival nobody was called for, since the last `poll`
         self._lock = threading.Lock()
         self._queue: deque[T] = deque()
@@ -332,15 +338,23 @@ class InputPort(Port[T]):
     @property
     def on_data(self) -> Callable[[InputPort[T]], None] | None:
         """Called (on the bus's thread) after each sample is kept: an event activity's
-        wake, a safety watch's arrival. A port with none, keeping only the latest
-        sample, is polled instead (`connect`)."""
+        wake, a safety watch's arrival. A port with none is polled instead
+        (`connect`)."""
         return self._on_data
 
     @on_data.setter
     def on_data(self, callback: Callable[[InputPort[T]], None] | None) -> None:
         self._on_data = callback
-        if callback is not None and self._ring is not None and self.key is not None:
-            self.connect(self.key)  # someone waits on it now: delivered, not polled
+        if callback is not None:
+            polled = self._ring is not None
+            for key in [k for k, entry in self._standby.items() if entry[1]]:
+                latest = self._standby_latest.get(key)
+                self.unprepare(key)  # a polled standby: delivered from now on
+                self.prepare(key)
+                if latest is not None:
+                    self._standby_latest.setdefault(key, latest)
+            if polled and self.key is not None:
+                self.connect(self.key)  # someone waits on it now: delivered, not polled
 
     @property
     def polled(self) -> bool:
@@ -363,6 +377,11 @@ class InputPort(Port[T]):
             raise PortError(f"input port {self.full_name} is not attached to a bus")
         if key in self._standby:
             return
+        if self._pollable() and self.policy.type == "data":
+            # its newest sample waits in a ring of one, taken when connected to it: no
+            # interpreter on Zenoh's thread for the samples of a tracker not in use
+            self._standby[key] = (self.bus.subscribe(key, None, remote_only=True), True)
+            return
 
         def on_sample(sample: Any, key: str = key) -> None:
             data = sample.payload.to_bytes()
@@ -371,12 +390,16 @@ class InputPort(Port[T]):
             if self.key == key:
                 self._deliver(generation, data)
 
-        self._standby[key] = self.bus.subscribe(key, on_sample, remote_only=True)
+        self._standby[key] = (self.bus.subscribe(key, on_sample, remote_only=True), False)
 
     def unprepare(self, key: str) -> None:
         """Drop a standby subscription (unless it is the connected key)."""
-        subscriber = self._standby.pop(key, None)
+        entry = self._standby.pop(key, None)
         self._standby_latest.pop(key, None)
+        subscriber = entry[0] if entry is not None else None
+        ring = self._ring
+        if ring is not None and ring[1] is subscriber:
+            self._ring = None  # connected to it: nothing reaches the port any more
         if subscriber is not None:
             subscriber.undeclare()
 
@@ -387,6 +410,16 @@ class InputPort(Port[T]):
 
     def standby_ready(self, key: str) -> bool:
         """True once the standby subscription to `key` holds a sample."""
+        entry = self._standby.get(key)
+        if entry is not None and entry[1] and key not in self._standby_latest:
+            ring = self._ring
+            if ring is not None and ring[1] is entry[0]:
+                self._poll()  # connected to it: taken into the port, and remembered
+            else:
+                with contextlib.suppress(Exception):
+                    sample = entry[0].try_recv()
+                    if sample is not None:
+                        self._standby_latest[key] = sample.payload.to_bytes()
         return key in self._standby_latest
 
     def connect(self, key: str, policy: ConnPolicy | dict[str, Any] | None = None) -> None:
@@ -398,15 +431,19 @@ class InputPort(Port[T]):
         `prepare`), or from the publisher's cache over the network. A new subscription is
         declared before the old one is undeclared, so the teardown overlaps that fetch.
 
-        A `data` port nobody waits on (no `on_data`) is *polled*: Zenoh keeps the key's
-        newest sample in a ring of one and `read` takes and decodes it, so no sample
-        costs this process's interpreter on Zenoh's network thread, and a reader slower
-        than the writer (a starved process) never lets a backlog build on the link: the
-        samples it would never read are dropped by Zenoh, not queued behind the GIL.
+        A port nobody waits on (no `on_data`) is *polled*: Zenoh keeps the key's newest
+        sample in a ring of one (a `data` port) or the newest twice-its-size samples (a
+        `buffer` that drops its oldest), and `read` takes and decodes them, so no sample
+        costs this process's interpreter on Zenoh's network thread (each one a hand-over
+        of the interpreter lock: 600 a second in SEEG's supervision process), and a
+        reader slower than the writer (a starved process) never lets a backlog build on
+        the link: the samples it would never read are dropped by Zenoh, not queued
+        behind the GIL. A buffer that drops its newest is delivered (the ring cannot).
         """
         if self.bus is None:
             raise PortError(f"input port {self.full_name} is not attached to a bus")
         new_policy = ConnPolicy.from_spec(policy) if policy is not None else self.policy
+        self._discard_ring()
         with self._lock:
             self._reset()
             self.policy = new_policy
@@ -417,13 +454,22 @@ class InputPort(Port[T]):
         if old_key is not None:
             readers.get(old_key, {}).pop(id(self), None)
         readers.setdefault(key, {})[id(self)] = self
-        if key in self._standby:
+        standby = self._standby.get(key)
+        if standby is not None and standby[1] and self._pollable() and self.policy.type == "data":
+            self._ring = (generation, standby[0], key)
+            if not self._poll():  # nothing new since: the latest it ever had
+                cached = self._standby_latest.get(key)
+                if cached is not None:
+                    self._deliver(generation, cached)
+        elif standby is not None:
             cached = self._standby_latest.get(key)
             if cached is not None:
                 self._deliver(generation, cached)
-        elif self._on_data is None and self.policy.type == "data":
-            self._subscriber = self.bus.subscribe(key, None, remote_only=True)
-            self._ring = (generation, self._subscriber)
+        elif self._pollable():
+            self._subscriber = self.bus.subscribe(
+                key, None, remote_only=True, capacity=self._ring_capacity()
+            )
+            self._ring = (generation, self._subscriber, None)
         else:
             self._subscriber = self.bus.subscribe(
                 key,
@@ -444,6 +490,7 @@ class InputPort(Port[T]):
     def disconnect(self) -> None:
         """Stop listening; later samples of the old key are dropped as stale. Standby
         subscriptions stay (see `unprepare`)."""
+        self._discard_ring()
         with self._lock:
             self._reset()
             key, self.key = self.key, None
@@ -537,21 +584,61 @@ class InputPort(Port[T]):
             queue.append(value)
         self._ever = True
 
+    def _pollable(self) -> bool:
+        """Whether samples may wait in Zenoh's ring for the reader (`connect`): nobody
+        waits on the port, and it keeps the latest sample or a queue that drops its
+        oldest (as the ring does)."""
+        return self._on_data is None and (
+            self.policy.type == "data" or self.policy.overflow == "drop_oldest"
+        )
+
+    def _ring_capacity(self) -> int:
+        """One for a data port (the newest); twice the queue for a buffer, so the port's
+        own overflow rule and counters apply unless the reader fell that far behind."""
+        return 1 if self.policy.type == "data" else 2 * self.policy.size
+
+    def _discard_ring(self) -> None:
+        """Count what still waits unread in a polled port's ring as discarded by the
+        rewire about to drop it (not decoded: it is not kept)."""
+        entry = self._ring
+        if entry is None or entry[2] is not None:  # a standby's ring stays for later
+            return
+        discarded = 0
+        while True:
+            try:
+                sample = entry[1].try_recv()
+            except Exception:
+                break
+            if sample is None:
+                break
+            discarded += 1
+        self.stats.discarded_on_rewire += discarded
+
     def _poll(self) -> bool:
-        """Take a polled port's newest sample from Zenoh's ring, if one came: as of the
-        connection it came on (a rewire in between makes it stale, never mixed in)."""
+        """Take what a polled port's ring holds (the newest sample, or every queued one
+        for a buffer), as of the connection it came on (a rewire in between makes it
+        stale, never mixed in); True if a sample of this connection came."""
         entry = self._ring
         if entry is None:
             return False
-        generation, ring = entry
-        try:
-            sample = ring.try_recv()
-        except Exception:  # undeclared meanwhile (a rewire from another thread)
-            return False
-        if sample is None:
-            return False
-        self._deliver(generation, sample.payload.to_bytes())
-        return generation == self.generation
+        generation, ring, standby = entry
+        limit = self._ring_capacity()
+        taken = 0
+        while taken < limit:
+            try:
+                sample = ring.try_recv()
+            except Exception:  # undeclared meanwhile (a rewire from another thread)
+                break
+            if sample is None:
+                break
+            taken += 1
+            data = sample.payload.to_bytes()
+            if standby is not None:
+                self._standby_latest[standby] = data  # for a later switch back to it
+            self._deliver(generation, data)
+        if taken and taken == limit > 1:
+            self.stats.ring_full += 1
+        return bool(taken) and generation == self.generation
 
     def poll(self) -> bool:
         """Take what waits in Zenoh's ring (as `read` does); True if a sample came since

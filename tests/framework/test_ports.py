@@ -122,7 +122,7 @@ def test_a_buffer_port_applies_its_overflow_rule_and_counts_drops(pair, overflow
     routed(out, inp)
     for i in range(1, 6):
         out.write(Scalar(0.0, float(i)))
-    assert wait_until(lambda: inp.stats.received == 6)
+    assert wait_until(lambda: counted(inp).received == 6)
     assert values(inp) == kept and inp.stats.dropped_overflow == 2
 
 
@@ -153,7 +153,7 @@ def test_rewiring_never_mixes_sources_and_drops_nothing_silently(pair):
         a.write(Scalar(0.0, float(i)))  # the old source keeps talking
     assert wait_until(lambda: inp.pending() >= 1)
     b.write(Scalar(0.0, -2.0))
-    assert wait_until(lambda: inp.stats.received >= 3)  # 1.0 before the switch, then -1, -2
+    assert wait_until(lambda: counted(inp).received >= 3)  # 1.0 before the switch, then -1, -2
     got = values(inp)
     assert got == [-1.0, -2.0], "only the new source, its cached latest first"
     assert inp.stats.discarded_on_rewire == 1  # the unread sample of k/a, counted
@@ -167,7 +167,7 @@ def test_samples_seen_twice_are_dropped(hub, peer):
     publisher = raw_publisher(hub, "k/a")
     publisher.put(raw)
     publisher.put(raw)
-    assert wait_until(lambda: inp.stats.dropped_duplicate == 1)
+    assert wait_until(lambda: counted(inp).dropped_duplicate == 1)
     assert values(inp) == [7.0]
 
 
@@ -240,6 +240,39 @@ def test_a_prepared_key_switches_at_once_and_swaps_back_and_forth_cleanly(hub, p
     assert inp.prepared == []
 
 
+def test_a_prepared_key_of_a_port_nobody_waits_on_waits_in_zenohs_ring(hub, peer):
+    """A data port read by its component (a tracker's reference tool for the navigator):
+    its standby keys' samples wait in Zenoh's rings, never on Zenoh's thread in the
+    interpreter; switching still gives the key's newest sample at once, and a key
+    switched back to gives the latest it ever had even if nothing new came."""
+    a, b = make_out(hub, "a"), make_out(hub, "b")
+    a.connect("k/a")
+    b.connect("k/b")
+    a.write(Scalar(0.0, 1.0))
+    b.write(Scalar(0.0, -1.0))
+    inp = make_in(peer)
+    inp.prepare("k/a")
+    inp.prepare("k/b")
+    assert wait_until(lambda: inp.standby_ready("k/a") and inp.standby_ready("k/b"))
+    assert inp.read()[0] is ReadStatus.NO_DATA, "standby data does not reach the port"
+    inp.connect("k/b")
+    assert inp.polled
+    assert inp.read() == (ReadStatus.NEW, Scalar(0.0, -1.0))
+    b.write(Scalar(0.0, -2.0))
+    assert wait_until(lambda: inp.read() == (ReadStatus.NEW, Scalar(0.0, -2.0)))
+    a.write(Scalar(0.0, 2.0))
+    inp.connect("k/a")
+    assert wait_until(lambda: inp.latest() == Scalar(0.0, 2.0)), "a's newest, not b's"
+    inp.connect("k/b")
+    assert inp.read() == (ReadStatus.NEW, Scalar(0.0, -2.0)), "nothing new: b's latest"
+    inp.on_data = lambda port: None  # someone waits on it now: delivered, not polled
+    assert not inp.polled and inp.read()[1] == Scalar(0.0, -2.0)
+    b.write(Scalar(0.0, -3.0))
+    assert wait_until(lambda: inp.read() == (ReadStatus.NEW, Scalar(0.0, -3.0)))
+    inp.close()
+    assert inp.prepared == []
+
+
 class FakeTime:
     """A clock the test moves (thinned keys measure their period by the port's clock)."""
 
@@ -263,7 +296,7 @@ def thinned_pair(pair, rate):
     full.connect("k/full")
     thin.connect("k/thin")
     routed(out, full)
-    assert wait_until(lambda: thin.stats.received >= 1)
+    assert wait_until(lambda: counted(thin).received >= 1)
     values(thin)
     clock.now += 1.0  # the probe's period is over
     return out, clock, full, thin
@@ -274,8 +307,8 @@ def test_a_thinned_key_carries_at_most_its_rate_on_schedule(pair):
     for i in range(1, 1001):  # one second at 1 kHz, with a writer's jitter
         clock.now += 0.001 + (0.0002 if i % 2 else -0.0002)
         out.write(Scalar(0.0, float(i)))
-    assert wait_until(lambda: full.stats.received == 1001)
-    assert wait_until(lambda: thin.stats.received >= 101)
+    assert wait_until(lambda: counted(full).received == 1001)
+    assert wait_until(lambda: counted(thin).received >= 101)
     kept = values(thin)
     assert 99 <= len(kept) <= 101  # 100 Hz over one second: the average rate holds
     gaps = {b - a for a, b in itertools.pairwise(kept)}
@@ -288,13 +321,13 @@ def test_a_thinned_key_passes_a_slower_writer_whole_and_gives_no_burst_after_a_p
     for i in range(1, 21):  # 100 Hz writes with jitter: nothing is thinned away
         clock.now += 0.01 + (0.0005 if i % 2 else -0.0005)
         out.write(Scalar(0.0, float(i)))
-    assert wait_until(lambda: thin.stats.received == 21)
+    assert wait_until(lambda: counted(thin).received == 21)
     assert values(thin) == [float(i) for i in range(1, 21)]
     clock.now += 5.0  # the writer paused: its next writes are not sent in a burst
     for i in range(21, 29):  # 8 ms of 1 kHz writes: one period has not passed
         clock.now += 0.001
         out.write(Scalar(0.0, float(i)))
-    assert wait_until(lambda: thin.stats.received >= 22)
+    assert wait_until(lambda: counted(thin).received >= 22)
     assert values(thin) == [21.0]
 
 
@@ -346,3 +379,37 @@ def test_a_stream_is_encoded_only_while_another_process_listens(hub, peer, monke
     assert encoded, "encoded once a reader in another process listens"
     with pytest.raises(PortError, match="expected Scalar, got Pose"):
         out.write(Pose())
+
+
+def test_a_buffer_port_nobody_waits_on_is_polled_and_counts_what_a_rewire_discards(hub, peer):
+    """Its samples wait in Zenoh's ring (no interpreter on Zenoh's thread); those still
+    unread when the port is rewired are counted as discarded, never lost silently."""
+    out, inp = make_out(hub), make_in(peer, {"type": "buffer", "size": 8})
+    witness = make_in(peer)  # a data port on the same key: delivery has happened
+    out.connect("k/a")
+    inp.connect("k/a")
+    witness.connect("k/a")
+    assert inp.polled
+    routed(out, inp)
+    before = inp.stats.discarded_on_rewire
+    for i in range(1, 4):
+        out.write(Scalar(0.0, float(i)))
+    assert wait_until(lambda: witness.latest() == Scalar(0.0, 3.0))
+    inp.connect("k/b")
+    assert inp.stats.discarded_on_rewire - before == 3
+
+
+def test_a_polled_buffer_whose_reader_fell_far_behind_says_its_ring_was_full(hub, peer):
+    """The ring holds twice the port's size; a reader further behind than that may have
+    lost older samples in Zenoh before it could count them, and says so."""
+    out, inp = make_out(hub), make_in(peer, {"type": "buffer", "size": 2})
+    out.connect("k/a")
+    inp.connect("k/a")
+    routed(out, inp)
+    witness = make_in(peer)
+    witness.connect("k/a")
+    for i in range(1, 11):
+        out.write(Scalar(0.0, float(i)))
+    assert wait_until(lambda: witness.latest() == Scalar(0.0, 10.0))
+    assert values(inp) == [9.0, 10.0]
+    assert inp.stats.ring_full == 1
