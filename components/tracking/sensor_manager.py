@@ -207,6 +207,9 @@ class SensorManagerCore:
         self._samples = [History() for _ in config.sensors]  # the CTOs
         self._references = [History() for _ in config.sensors]  # the RTOs
         self._verdicts: dict[int, Health | None] = {}  # the latest check's, None: passed
+        # what each sensor's verdict is about: its sample's stamp and the robot pose's it
+        # was checked against; the same pair again would give the same verdict
+        self._checked: dict[int, tuple[float, float]] = {}
         n = self._n = len(config.sensors)
         sensors = config.sensors
         self._index = {s.name: i for i, s in enumerate(sensors)}
@@ -275,6 +278,7 @@ class SensorManagerCore:
         if base_from_ee is None or stamp is None:
             self._times.clear()
             self._poses.clear()
+            self._checked.clear()  # without history every check is against the latest
             return
         self._times.append(stamp)
         self._poses.append(base_from_ee)
@@ -327,13 +331,15 @@ class SensorManagerCore:
         times = self._times
         if len(times) < 2:
             return self.kinematics
-        nearest = []
-        for t in stamps:
-            k = min(bisect.bisect_left(times, t), len(times) - 1)
-            if k > 0 and t - times[k - 1] < times[k] - t:
-                k -= 1
-            nearest.append(self._poses[k])
-        return np.stack(nearest)
+        return np.stack([self._poses[self._nearest(t)] for t in stamps])
+
+    def _nearest(self, t: float) -> int:
+        """The index of the robot pose nearest in time to `t` (a tie: the later one)."""
+        times = self._times
+        k = min(bisect.bisect_left(times, t), len(times) - 1)
+        if k > 0 and t - times[k - 1] < times[k] - t:
+            k -= 1
+        return k
 
     def _fault_codes(self, now: float, rows: np.ndarray, before: np.ndarray) -> np.ndarray:
         """Fault-tree levels 1-3 for every sensor: 0 (healthy) or the first cause found."""
@@ -510,6 +516,17 @@ class SensorManagerCore:
         if self.kinematics is not None:
             positions, stamps, samples, behind = self._comparable(candidates)
             verdicts = self._verdicts
+            times = self._times
+            if len(times) >= 2:  # with history, a verdict is about a sample and a pose
+                checked, pairs = self._checked, []
+                for p, t in zip(positions, stamps, strict=True):
+                    pairs.append((int(candidates[p]), (t, times[self._nearest(t)])))
+                new = [k for k, (index, pair) in enumerate(pairs) if checked.get(index) != pair]
+                if len(new) < len(positions):
+                    positions = [positions[k] for k in new]
+                    stamps = [stamps[k] for k in new]
+                    samples = [samples[k] for k in new]
+                checked.update(pairs[k] for k in new)
             if positions:
                 verdicts.update(self._against_kinematics(candidates[positions], stamps, samples))
             verdicts.update(behind)  # until checked again, a sensor keeps its verdict
