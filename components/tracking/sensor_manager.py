@@ -437,7 +437,7 @@ class SensorManagerCore:
                 name = track.config.name
                 if track.streak >= hysteresis or name == self.best:
                     best = name
-                    k = int(np.searchsorted(candidates, index))
+                    k = candidates.tolist().index(index)
                     robot = self._c[index] @ local[k] @ self._y_inv[index]
         self._fresh = [False] * self._n
         changed = best != self.best
@@ -768,7 +768,13 @@ class SensorManager(Component):
         str, "", doc="sensors YAML (priorities, calibration, limits)", required=True, file="sensors"
     )
     ee_pose = In(Pose, doc="end-effector in the robot base frame, from joints (optional)")
-    robot_pose = Out(Pose, doc="end-effector in the master frame (eq. 3.5), best sensor")
+    robot_pose = Out(
+        Pose,
+        doc="end-effector in the master frame (eq. 3.5), best sensor; a stream: put on the "
+        "bus only while a reader in another process listens (no reader in SEEG: each put a "
+        "hand-over of the interpreter lock in the Sensor Manager's process)",
+        stream=True,
+    )
     status = Out(EventMessage, doc="best sensor, its limits, every sensor's health")
 
     @classmethod

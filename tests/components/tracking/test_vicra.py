@@ -35,6 +35,8 @@ def vicra(bus_config, hub, tmp_path):
     proc = spawn_container(spec, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     assert wait_until(lambda: keys.alive("vicra_sim") in hub.alive(keys.ALL_ALIVE, 0.5), 20)
     sim = RemoteComponent(hub, "vicra_sim", 10.0)  # generous: CI machines are shared
+    # its token comes when it is added, its device once configured (a loaded host: later)
+    assert wait_until(lambda: sim.state() == "Stopped", 20)
     sim.call("place", tool="cto", translation=[10.0, 20.0, 900.0])
     sim.call("place", tool="rto", translation=[100.0, -50.0, 1000.0])
     yield sim
