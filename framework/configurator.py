@@ -288,15 +288,21 @@ class Configurator(Component):
                 self._send(batch, [])
 
     def _batches(self, steps: list[Step], force: bool) -> list[list[Step]]:
-        """Consecutive steps on one component travel together (one round trip each)."""
+        """Consecutive steps on one component travel together (one round trip each). A
+        connection the wiring already has is not made again, judged against the wiring
+        as the steps before it leave it: after a disconnect of the same port in this
+        configuration (a tracker swap: disconnect, then connect), it is made."""
         batches: list[list[Step]] = []
+        planned: dict[tuple[str, str], Any] = {}
         for step in steps:
-            if (
-                not force
-                and step.kind == "connect"
-                and self.wiring.get((step.component, step.target)) == (step.key, step.policy)
-            ):
-                continue  # already so: re-applying is harmless
+            port = (step.component, step.target)
+            if step.kind == "disconnect":
+                planned[port] = None
+            elif step.kind == "connect":
+                wired = planned[port] if port in planned else self.wiring.get(port)
+                planned[port] = (step.key, step.policy)
+                if not force and wired == (step.key, step.policy):
+                    continue  # already so: re-applying is harmless
             if (
                 step.kind == "write"
                 or not batches

@@ -120,6 +120,19 @@ def test_reapplying_leaves_a_connection_in_place_alone(rig):
     assert sink.stats.discarded_on_rewire > 0, "a real rewire starts the port empty"
 
 
+def test_a_swap_applied_again_leaves_the_port_connected_not_disconnected(rig):
+    """A tracker swap disconnects, then connects. Applied again where the wiring already
+    has that connection (the chart re-selects the tracker in use after a RELEASE), the
+    disconnect runs, so the connect must too: judged "already so" against the wiring
+    before the disconnect, it was skipped and the navigator was left with no tracker
+    (steering None at Target_Reached, both trackers healthy)."""
+    assert rig.apply("to_b").ok
+    assert rig.apply("to_b").ok
+    port = rig.port("sink", "inp")
+    assert port.key is not None and port.key.endswith("b/out")
+    assert wait_until(lambda: received(rig) and received(rig)[-1] < 0), "b still counts down"
+
+
 def test_the_restore_of_a_restarted_process_says_every_change_since_deploy(rig):
     assert rig.configurator.restore_steps({"sink", "a"}) == []
     assert rig.apply("to_b").ok
