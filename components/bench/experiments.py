@@ -829,6 +829,15 @@ def run_bumps(quick: bool, context: dict[str, Any]) -> list[Row]:
         ),
         Row(
             "navigation",
+            "deployed bumps re-run after a stop on a late input (the host fell behind; "
+            "reasons in summary.json)",
+            float(len(result.get("rerun_after_late_input", []))),
+            target=0.0,
+            unit="",
+            n=len(every),
+        ),
+        Row(
+            "navigation",
             "deployed bumps after which the procedure had stopped (the next tracker's "
             "bumps start from a RELEASE)",
             float(sum(b["state"] != "Target_Reached" for b in every)),
