@@ -33,13 +33,12 @@ sample for late readers (its next one comes within a cycle).
 
 from __future__ import annotations
 
-import contextlib
 import itertools
 import random
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, Generic, TypeVar
@@ -300,6 +299,21 @@ def _recheck(flag: list[Any], publisher: Any) -> None:
         flag[0] = publisher.matching_status.matching
 
 
+def _drain(ring: Any, limit: int | None) -> Iterator[Any]:
+    """The samples waiting in a Zenoh ring, oldest first, at most `limit` (None: all);
+    none once it was undeclared (a rewire from another thread)."""
+    taken = 0
+    while limit is None or taken < limit:
+        try:
+            sample = ring.try_recv()
+        except Exception:  # undeclared meanwhile
+            return
+        if sample is None:
+            return
+        taken += 1
+        yield sample
+
+
 class InputPort(Port[T]):
     """Receives samples from one key and keeps them according to its `ConnPolicy`."""
 
@@ -377,7 +391,7 @@ class InputPort(Port[T]):
             raise PortError(f"input port {self.full_name} is not attached to a bus")
         if key in self._standby:
             return
-        if self._pollable() and self.policy.type == "data":
+        if self._standby_pollable():
             # its newest sample waits in a ring of one, taken when connected to it: no
             # interpreter on Zenoh's thread for the samples of a tracker not in use
             self._standby[key] = (self.bus.subscribe(key, None, remote_only=True), True)
@@ -416,10 +430,8 @@ class InputPort(Port[T]):
             if ring is not None and ring[1] is entry[0]:
                 self._poll()  # connected to it: taken into the port, and remembered
             else:
-                with contextlib.suppress(Exception):
-                    sample = entry[0].try_recv()
-                    if sample is not None:
-                        self._standby_latest[key] = sample.payload.to_bytes()
+                for sample in _drain(entry[0], 1):
+                    self._standby_latest[key] = sample.payload.to_bytes()
         return key in self._standby_latest
 
     def connect(self, key: str, policy: ConnPolicy | dict[str, Any] | None = None) -> None:
@@ -455,7 +467,7 @@ class InputPort(Port[T]):
             readers.get(old_key, {}).pop(id(self), None)
         readers.setdefault(key, {})[id(self)] = self
         standby = self._standby.get(key)
-        if standby is not None and standby[1] and self._pollable() and self.policy.type == "data":
+        if standby is not None and standby[1] and self._standby_pollable():
             self._ring = (generation, standby[0], key)
             if not self._poll():  # nothing new since: the latest it ever had
                 cached = self._standby_latest.get(key)
@@ -592,6 +604,11 @@ class InputPort(Port[T]):
             self.policy.type == "data" or self.policy.overflow == "drop_oldest"
         )
 
+    def _standby_pollable(self) -> bool:
+        """Whether a standby key's samples may wait in a ring of one (`prepare`): a
+        polled port keeping the latest sample (a standby keeps only that)."""
+        return self._pollable() and self.policy.type == "data"
+
     def _ring_capacity(self) -> int:
         """One for a data port (the newest); twice the queue for a buffer, so the port's
         own overflow rule and counters apply unless the reader fell that far behind."""
@@ -603,16 +620,7 @@ class InputPort(Port[T]):
         entry = self._ring
         if entry is None or entry[2] is not None:  # a standby's ring stays for later
             return
-        discarded = 0
-        while True:
-            try:
-                sample = entry[1].try_recv()
-            except Exception:
-                break
-            if sample is None:
-                break
-            discarded += 1
-        self.stats.discarded_on_rewire += discarded
+        self.stats.discarded_on_rewire += sum(1 for _ in _drain(entry[1], None))
 
     def _poll(self) -> bool:
         """Take what a polled port's ring holds (the newest sample, or every queued one
@@ -624,13 +632,7 @@ class InputPort(Port[T]):
         generation, ring, standby = entry
         limit = self._ring_capacity()
         taken = 0
-        while taken < limit:
-            try:
-                sample = ring.try_recv()
-            except Exception:  # undeclared meanwhile (a rewire from another thread)
-                break
-            if sample is None:
-                break
+        for sample in _drain(ring, limit):
             taken += 1
             data = sample.payload.to_bytes()
             if standby is not None:
