@@ -33,7 +33,7 @@ import numpy as np
 
 from components.bench.files import seeg_file
 from components.bench.seeg_run import BenchError, Sample, SeegRun
-from framework.messages import Envelopes, EventMessage, Pose
+from framework.messages import EventMessage, Pose
 
 MOVE_TIMEOUT = 60.0
 
@@ -498,13 +498,15 @@ WALKER = 2
 
 def protective_stops(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
     """A person appears against the moving arm (steps out of a blind spot: placed
-    there in one frame, well inside the protective distance), and the robot interface's speed and separation monitoring stops it.
-    L = the braking cycle's status stamp - the arrival of the envelopes that decided
-    it (the last before); `detail`: the separation check's own time and its verdict ->
-    the stop's first command, inside that cycle. Then the person leaves and RELEASE
-    resumes the motion. (The walk at 1.6 m/s is the `walk_in` scenario: there the stop
-    comes as the envelope ages, by design, not on a frame's arrival.)"""
-    envelopes = run.watch("people_detector/envelopes", Envelopes)
+    there in one frame, well inside the protective distance), and the robot interface's
+    speed and separation monitoring stops it.
+    L = the braking cycle's status stamp - the wall time the robot's loop took the
+    envelopes that decided it, both stamped by the robot interface itself (the bench's
+    own reception of the envelopes, in another process, may come after the stop on a
+    loaded host); `detail`: the separation check's own time and its verdict -> the
+    stop's first command, inside that cycle. Then the person leaves and RELEASE resumes
+    the motion. (The walk at 1.6 m/s is the `walk_in` scenario: there the stop comes as
+    the envelope ages, by design, not on a frame's arrival.)"""
     statuses = run.watch("robot/status", EventMessage)
     goal = ["target"]
 
@@ -519,16 +521,12 @@ def protective_stops(run: SeegRun, trials: int, progress: Any = None) -> list[Tr
         try:
             stop = _first(run, "robot/status", t0, protective, "protective stop")
             timing = run.call("robot.report").get("protective_stop") or {}
-            # the envelopes that decided: the last before the braking cycle (the first
-            # that shows the person may be one camera's, not yet guarded)
-            shown = [
-                s
-                for s in run.since(t0, "people_detector/envelopes")
-                if s.message.radius and s.received <= stop.message.stamp
-            ]
-            if not shown or "check_ms" not in timing:
-                raise BenchError("a protective stop without its envelopes or its timing")
-            cause, braked = shown[-1].received, stop.message.stamp
+            if timing.get("stamp", 0.0) < t0 or not timing.get("envelopes_taken"):
+                raise BenchError(
+                    f"a protective stop ({stop.message.payload.get('reason')}) the robot "
+                    f"interface reports no timing of: {timing}"
+                )
+            cause, braked = timing["envelopes_taken"], stop.message.stamp
             detail = {
                 "check": timing["check_ms"] / 1e3,
                 "command": timing["detected_to_command_ms"] / 1e3,
@@ -547,6 +545,5 @@ def protective_stops(run: SeegRun, trials: int, progress: Any = None) -> list[Tr
             lambda: run.call("people_world.leave", person=WALKER),
         )
     finally:
-        run.unwatch(envelopes)
         run.unwatch(statuses)
         _no_collision(run)

@@ -12,7 +12,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-ON_DEPLOYMENT = ("cost", "swap", "nosensor", "collision", "repeated", "motion", "bumps")
+ON_DEPLOYMENT = ("cost", "swap", "nosensor", "collision", "repeated", "motion", "ssm", "bumps")
 """Experiments measured on the running SEEG deployment (the others compute offline)."""
 LATENCIES = ("swap", "nosensor", "collision", "repeated", "motion")
 """Experiments whose times are latencies across processes: also shown as multiples of

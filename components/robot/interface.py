@@ -226,12 +226,14 @@ class RobotInterface(Component):
         self._people: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._age_at_arrival = 0.0  # the envelopes' age when they arrived (wall clock, s)
         self._arrived = 0.0  # ...and when, on this component's clock
+        self._taken = 0.0  # ...and when, on the wall clock (`fw bench ssm`)
         self.verdict: Verdict = CLEAR
         self.closest = math.inf  # the least separation while released (m)
         self._cap_sent = math.inf
         self._quiet = 0  # cycles the separation need not be checked
         self._check_started = 0.0  # perf_counter of the check that decided a stop
         self._detected = 0.0  # ...and of its verdict
+        self._deciding = 0.0  # wall time the envelopes that decided it were taken
         self.protective_stop: dict[str, float] = {}  # the last one's timing (bench)
         return True
 
@@ -484,7 +486,8 @@ class RobotInterface(Component):
             # their age is the camera frame's on arrival, then this cycle's own clock:
             # a wall clock step after arrival cannot make them younger, and on a
             # simulated clock they age with the simulation
-            self._age_at_arrival = max(0.0, time.time() - message.stamp)
+            self._taken = time.time()
+            self._age_at_arrival = max(0.0, self._taken - message.stamp)
             self._arrived = self.clock.now()
             self._quiet = 0  # news: check now
         if self._people is None or (state.braked and not self._commanding):
@@ -508,6 +511,7 @@ class RobotInterface(Component):
         self._quiet = self._ssm.quiet_cycles(verdict, age, CYCLE)
         if verdict.stop and not self.latched:
             self._check_started, self._detected = started, time.perf_counter()
+            self._deciding = self._taken
             self._trip(
                 f"protective stop: a person {verdict.separation * 100:.1f} cm away, under "
                 f"the protective distance {verdict.protective * 100:.1f} cm at "
@@ -526,6 +530,7 @@ class RobotInterface(Component):
             now = time.perf_counter()
             self.protective_stop = {
                 "stamp": time.time(),
+                "envelopes_taken": self._deciding,  # the cycle that took the envelopes
                 "check_ms": round((self._detected - started) * 1e3, 4),
                 "detected_to_command_ms": round((now - self._detected) * 1e3, 4),
             }

@@ -454,12 +454,16 @@ def test_people_approaching_the_moving_arm_slow_it_then_a_protective_stop_latche
         assert 0.0 < report["speed_cap"] < 0.075
         assert cell.interp.call("report")["speed"] < 0.075 / 2, "it slowed down"
         assert not report["latched"]
+        before_the_person = time.time()
         person_at(0.10)
         report = cell.robot.call("report")
         assert report["latched"] and report["reason"].startswith("protective stop: a person")
         assert report["separation"] < report["protective_distance"]
         timing = report["protective_stop"]
         assert timing["check_ms"] > 0.0 and timing["detected_to_command_ms"] > 0.0, "kept"
+        assert before_the_person <= timing["envelopes_taken"] <= timing["stamp"], (
+            "the envelopes that decided it are this person's, taken before the stop"
+        )
         cell.run(1.0)
         assert cell.arm.call("report")["braked"]
         with pytest.raises(FwError, match="latched"):
