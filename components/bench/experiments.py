@@ -265,7 +265,13 @@ def run_ssm(quick: bool, context: dict[str, Any]) -> list[Row]:
     context.setdefault("series", {})["ssm_ms"] = ms
     return [
         Row("ssm", "envelopes taken by the loop -> braking cycle p50", s["p50"], n=len(ms)),
-        Row("ssm", "envelopes taken by the loop -> braking cycle p99", s["p99"], target=2.0, n=len(ms)),
+        Row(
+            "ssm",
+            "envelopes taken by the loop -> braking cycle p99",
+            s["p99"],
+            target=2.0,
+            n=len(ms),
+        ),
         Row("ssm", "the separation check p50", c["p50"], n=len(check)),
         Row("ssm", "the separation check p99", c["p99"], n=len(check)),
         Row("ssm", "detection -> stop command p50", d["p50"], target=0.1, n=len(command)),
