@@ -359,7 +359,9 @@ class Navigator(Component):
     rewires them: the swap changes what steers). Goals given in the base frame pass
     unchanged; goals on the patient follow the patient (module docstring).
 
-    Publishes `goals` on every tracker sample and at least every `idle` of its activity:
+    Publishes `goals` on tracker samples at most `goals_rate` times a second (at once when
+    what steers, a refusal, a hold or a goal's revision changes), and at least every
+    `idle` of its activity:
     `{goals: {name: [x y z qw qx qy qz]}, revisions: {name: n}, tracker, refused,
     patient_mm, patient_speed_mm_s}`; a goal defined anew has a new revision (a motion
     heading for the old one is not steered to the new one).
@@ -376,6 +378,15 @@ class Navigator(Component):
     )
     stale = prop(
         float, 0.25, unit="s", min=0.01, max=5.0, doc="no sample for this long: no tracker steers"
+    )
+    goals_rate = prop(
+        float,
+        50.0,
+        unit="Hz",
+        min=1.0,
+        max=1000.0,
+        doc="goals at most this often (the interpolator's rate; each is encoded and decoded "
+        "in the Supervisor): a 100 Hz Certus made every sample a message",
     )
     cto = In(Pose, doc="the robot's tool as the tracker in use sees it (rewired per tracker)")
     rto = In(Pose, doc="the reference tool on the head clamp, as the same tracker sees it")
@@ -408,6 +419,8 @@ class Navigator(Component):
         self._rto: Pose | None = None
         self._last_sample = -math.inf
         self.revisions: dict[str, int] = {}  # how often each goal was defined anew
+        self._said: tuple[Any, ...] = ()  # what the last goals said besides the poses
+        self._said_at = -math.inf  # ...and when (monotonic)
         return True
 
     def update_hook(self) -> None:
@@ -442,10 +455,22 @@ class Navigator(Component):
                     )
             elif cto.frame not in self.core.trackers:
                 self.refuse("cto", f"samples of {cto.frame!r}, a tracker the sensors file lacks")
-        self.goals.write(EventMessage(time.time(), "goals", self.name, self.report()))
+        self._say_goals()
 
     def idle_hook(self) -> None:
+        self._said_at = -math.inf  # silent for `idle`: say them whatever the rate
         self.update_hook()
+
+    def _say_goals(self) -> None:
+        """Publish the goals if `goals_rate` allows it, or if anything but the poses
+        changed (what steers, a refusal, a hold, a revision)."""
+        core, at = self.core, self.clock.now()
+        said = (self.steering(), core.refused, core.suspect, tuple(self.revisions.items()))
+        # 3/4 of a period: a sample a little early on a 2x faster tracker still counts
+        if said == self._said and at - self._said_at < 0.75 / self.goals_rate:
+            return
+        self._said, self._said_at = said, at
+        self.goals.write(EventMessage(time.time(), "goals", self.name, self.report()))
 
     def _take_offsets(self, offsets: Any) -> None:
         """Keep the Sensor Manager's offsets of the trackers this navigator knows; a

@@ -416,7 +416,8 @@ class NavigatorRig:
     the tracker connected to it (cto, rto); same session: delivered on `write`."""
 
     def __init__(self, hub, stale=0.25):
-        self.container = Container("c", hub, SteppedExecutor(SimulatedClock()))
+        self.clock = SimulatedClock()
+        self.container = Container("c", hub, SteppedExecutor(self.clock))
         self.nav = self.container.add(Navigator("navigator"), Activity())
         self.nav.set_property("procedure_file", str(REPO / "procedures" / "seeg.yaml"))
         self.nav.set_property("sensors_file", str(REPO / "procedures" / "seeg" / "sensors.yaml"))
@@ -433,8 +434,10 @@ class NavigatorRig:
         assert self.nav.configure() and self.nav.start(), self.nav.last_error
         self.rng = np.random.default_rng(1)
 
-    def sample(self, rig=CERTUS, stamp=None, tcp_error=ARM_ERROR, head=BASE_FROM_RTO):
-        """The arm at HOME (its joints stamped now), seen by `rig`; the navigator runs."""
+    def sample(self, rig=CERTUS, stamp=None, tcp_error=ARM_ERROR, head=BASE_FROM_RTO, after=None):
+        """The arm at HOME (its joints stamped now), seen by `rig` `after` seconds on the
+        component's clock (one goals period unless given); the navigator runs. The last
+        goals it said (None if it said none)."""
         stamp = time.time() if stamp is None else stamp
         self.writers["joints"].write(JointState(stamp, HOME))
         real = tcp_error @ KIN.tcp(np.array(HOME))
@@ -443,8 +446,10 @@ class NavigatorRig:
         )
         self.writers["rto"].write(rto)
         self.writers["cto"].write(cto)
+        self.clock.advance(1 / self.nav.goals_rate if after is None else after)
         self.nav.update_hook()
-        return drained(self.goals)[-1].payload
+        said = drained(self.goals)
+        return said[-1].payload if said else None
 
     def close(self):
         self.container.shutdown()
@@ -487,6 +492,16 @@ def test_the_first_sample_of_each_tracker_is_marked_as_its_source_once(navigator
     assert [s["tracker"] for s in sources] == ["certus", "vicra"]
 
 
+def test_goals_go_out_at_their_rate_and_at_once_when_what_steers_changes(navigator):
+    """A 100 Hz tracker gives goals at `goals_rate` (50 Hz: every second sample); a
+    sample of another tracker, which then steers, is said at once."""
+    assert navigator.sample()["tracker"] == "certus"
+    said = [navigator.sample(after=0.01) for _ in range(10)]
+    assert [s is not None for s in said] == [False, True] * 5
+    assert navigator.sample(rig=VICRA, after=0.001)["tracker"] == "vicra", "said at once"
+    assert navigator.sample(rig=VICRA, after=0.001) is None
+
+
 def test_samples_of_an_unknown_tracker_or_of_two_trackers_mixed_are_not_used(navigator):
     stranger = dataclasses.replace(CERTUS, name="optotrak")
     payload = navigator.sample(rig=stranger)
@@ -495,6 +510,7 @@ def test_samples_of_an_unknown_tracker_or_of_two_trackers_mixed_are_not_used(nav
     navigator.writers["rto"].write(dataclasses.replace(CERTUS).observe(np.eye(4), navigator.rng)[1])
     cto = dataclasses.replace(VICRA).observe(np.eye(4), navigator.rng)[0]
     navigator.writers["cto"].write(cto)  # a Vicra CTO with a Certus RTO: not a pair
+    navigator.clock.advance(1 / navigator.nav.goals_rate)
     navigator.nav.update_hook()
     assert drained(navigator.goals)[-1].payload["tracker"] is None
 
