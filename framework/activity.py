@@ -186,6 +186,16 @@ class RealTimeExecutor:
         """How a paced loop's thread asks the host for real-time priority."""
         self.loops: dict[str, LoopStats] = {}
         """Each paced loop's scheduling and cycle statistics, by component."""
+        self.between_cycles: list[Callable[[], None]] = []
+        """Run by a real-time loop's thread after each cycle (the process heartbeat of a
+        loop's process: `has_loop`); each must take microseconds and never block."""
+
+    def has_loop(self) -> bool:
+        """Whether a component of this executor runs a real-time loop (paced, or a
+        periodic device clock) whose thread can run `between_cycles`."""
+        return any(
+            a.kind == "paced" or (a.kind == "periodic" and c.realtime) for c, a in self._entries
+        )
 
     def add(self, component: Component, activity: Activity) -> None:
         """Register a component (before or after `start`)."""
@@ -246,6 +256,8 @@ class RealTimeExecutor:
             _follow(self._followers, component)
             if stats is not None:
                 stats.cycle(time.perf_counter() - began)
+                for call in self.between_cycles:
+                    call()
                 # a device that reports every few cycles (a braked KRC) leaves slack
                 self.realtime.between_cycles(stats, slack=component.periods_per_update > 1)
             now = time.monotonic()
@@ -306,6 +318,8 @@ class RealTimeExecutor:
                 elif component.state is not State.RUNNING:
                     self._stop.wait(wait)  # nothing to read from: do not spin
                 engine.run_pending()
+                for call in self.between_cycles:
+                    call()
                 self.realtime.between_cycles(stats, slack=not cycled)
         finally:
             engine.stop()

@@ -139,10 +139,15 @@ class Container:
         return component
 
     def start(self) -> None:
-        """Start the executor (components still need configure/start) and the beat."""
+        """Start the executor (components still need configure/start) and the beat: in
+        a process with a real-time loop, beaten by that loop between its cycles (no
+        other thread of ordinary priority to hold the interpreter it waits for)."""
+        driven = self.beat is not None and getattr(self.executor, "has_loop", lambda: False)()
+        if driven:
+            self.executor.between_cycles.append(self.beat.poll)
         self.executor.start()
         if self.beat is not None:
-            self.beat.start()
+            self.beat.start(driven=driven)
 
     def _publish_state(self, change: StateChange) -> None:
         payload = {"old": change.old.value, "new": change.new.value, "reason": change.reason}

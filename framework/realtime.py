@@ -32,7 +32,10 @@ a report whose loop statistics (percentiles over 2000 cycles of 12 stages) were 
 in the caller's thread, polled at 2 Hz, cost enough missed answers for the KRC to brake
 within seconds; computed on request only (`fw bench cost`), the approach reached its
 target with the same polling. So the other threads of a loop's process must do little
-Python: decode, store, return.
+Python: decode, store, return; and that process has no heartbeat thread: its loop beats
+for it between cycles (`ProcessHeartbeat.poll`, framework/safety.py), so the 40 beats a
+second are no longer 40 chances a second for that inversion, and a hung loop leaves its
+process silent.
 """
 
 from __future__ import annotations

@@ -107,8 +107,14 @@ class SafetySpec:
 
 
 class ProcessHeartbeat:
-    """A process's proof that it is scheduled: a sample every `period` from a thread of
-    its own (SIGSTOP, a frozen VM or a starved process all fall silent)."""
+    """A process's proof that it is scheduled: a sample every `period` (SIGSTOP, a frozen
+    VM or a starved process all fall silent).
+
+    Beaten from a thread of its own, or, in a process with a real-time loop, by that
+    loop between its cycles (`driven`: `poll` runs in the loop's thread). There a thread
+    of its own was one more holder of the interpreter lock at ordinary priority: preempted
+    while it held the lock to write a beat, it made the loop wait a scheduler slice and
+    the KRC count its answers late (framework/realtime.py)."""
 
     def __init__(self, bus: Any, process: str, period: float):
         self.period = period
@@ -117,20 +123,39 @@ class ProcessHeartbeat:
         self.port.connect(keys.process_heartbeat(process))
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"fw-beat-{process}", daemon=True)
+        self.driven = False
+        self._count = 0
+        self._due = 0.0
 
-    def start(self) -> ProcessHeartbeat:
-        """Begin beating."""
-        self._thread.start()
+    def start(self, driven: bool = False) -> ProcessHeartbeat:
+        """Begin beating: from a thread of its own, or (`driven`) whenever `poll` is
+        called at least once a period (a real-time loop's thread, between cycles)."""
+        self.driven = driven
+        if not driven:
+            self._thread.start()
         return self
 
+    def poll(self) -> None:
+        """Beat if a period has passed since the last beat (a driven heartbeat; called
+        in the real-time loop's thread, between cycles)."""
+        now = time.monotonic()
+        if now < self._due or self._stop.is_set():
+            return
+        self._due = now + self.period
+        self._beat()
+
     def _run(self) -> None:
-        count = 0
         while not self._stop.wait(self.period):
-            count += 1
-            try:
-                self.port.write(Scalar(time.time(), float(count)))
-            except Exception:  # the session is closing: nothing left to prove
+            if not self._beat():
                 return
+
+    def _beat(self) -> bool:
+        self._count += 1
+        try:
+            self.port.write(Scalar(time.time(), float(self._count)))
+        except Exception:  # the session is closing: nothing left to prove
+            return False
+        return True
 
     def stop(self) -> None:
         """Stop beating (before the bus closes)."""

@@ -2,11 +2,14 @@
 is lost, latches, and only an acknowledge with every input healthy clears it. Producers
 run on a stepped clock in a real container (heartbeats through real ports)."""
 
+import threading
+import time
+
 import pytest
 
 from components.demo import Counter, Doubler
 from framework import keys
-from framework.activity import Activity, SteppedExecutor
+from framework.activity import Activity, RealTimeExecutor, SteppedExecutor
 from framework.bus import Bus
 from framework.clock import SimulatedClock
 from framework.container import Container
@@ -331,3 +334,67 @@ def test_a_polled_monitor_takes_the_arrivals_when_asked_if_ready_between_checks(
         assert verdict == ""
     finally:
         cell.close()
+
+
+def test_a_real_time_loop_beats_for_its_process_and_a_hung_loop_falls_silent(hub):
+    """In a process with a real-time loop the loop itself beats between its cycles: no
+    thread of ordinary priority holds the interpreter it waits for; and a loop that hangs
+    leaves its process silent, as SIGSTOP would."""
+    from framework.component import Component
+    from framework.messages import Scalar
+    from framework.realtime import RealTimePolicy
+    from tests.conftest import reader_port
+
+    class Clock(Component):
+        needs_configuration = False
+        realtime = True  # a device's own clock: the loop of its process
+
+        def __init__(self, name):
+            super().__init__(name)
+            self.hang = threading.Event()
+            self.beaten_from: set[str] = set()
+
+        def update_hook(self):
+            while self.hang.is_set():
+                time.sleep(0.001)
+
+    seen = reader_port(hub, keys.process_heartbeat("loop_process"), Scalar)
+    executor = RealTimeExecutor(RealTimePolicy(enabled=False))
+    container = Container("loop_process", hub, executor, beat=0.005)
+    clock = container.add(Clock("clock"), Activity.periodic(200))
+    writes = container.beat.port.write
+    container.beat.port.write = lambda v: (
+        clock.beaten_from.add(threading.current_thread().name),
+        writes(v),
+    )[1]
+    container.start()
+    try:
+        clock.start()
+        assert wait_until(lambda: seen.stats.received >= 5)
+        assert clock.beaten_from == {"fw-clock"}, "beaten by the loop's own thread"
+        assert not any(t.name.startswith("fw-beat-") for t in threading.enumerate())
+        clock.hang.set()
+        time.sleep(0.05)  # the last beat before the hang arrives
+        silent_from = seen.stats.received
+        time.sleep(0.1)  # 20 periods
+        assert seen.stats.received == silent_from, "a hung loop beats no more"
+        clock.hang.clear()
+        assert wait_until(lambda: seen.stats.received > silent_from), "and again once it runs"
+    finally:
+        clock.hang.clear()
+        container.shutdown()
+
+
+def test_a_process_without_a_real_time_loop_beats_from_a_thread_of_its_own(hub):
+    from framework.messages import Scalar
+    from tests.conftest import reader_port
+
+    seen = reader_port(hub, keys.process_heartbeat("plain_process"), Scalar)
+    container = Container("plain_process", hub, RealTimeExecutor(), beat=0.005)
+    container.add(Counter("count"), Activity.periodic(50))
+    container.start()
+    try:
+        assert wait_until(lambda: seen.stats.received >= 3)
+        assert any(t.name == "fw-beat-plain_process" for t in threading.enumerate())
+    finally:
+        container.shutdown()
