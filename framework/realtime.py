@@ -138,9 +138,11 @@ class RealTimePolicy:
         self.priority = priority
         self.manage_gc = manage_gc
 
-    def enter(self, name: str) -> str:
-        """In the loop's own thread, before its first cycle: ask for SCHED_FIFO, lock
-        memory, take the collector over; what the thread got, in words."""
+    def enter(self, name: str, priority: int | None = None) -> str:
+        """In the loop's own thread, before its first cycle: ask for SCHED_FIFO (at
+        `priority`, the policy's own unless given), lock memory, take the collector
+        over; what the thread got, in words."""
+        priority = self.priority if priority is None else priority
         sys.setswitchinterval(SWITCH_INTERVAL)
         if self.manage_gc:
             gc.collect()
@@ -150,7 +152,7 @@ class RealTimePolicy:
             return f"SCHED_OTHER, nice {os.nice(0)} (real-time not asked for)"
         try:
             os.sched_setscheduler(
-                threading.get_native_id(), os.SCHED_FIFO, os.sched_param(self.priority)
+                threading.get_native_id(), os.SCHED_FIFO, os.sched_param(priority)
             )
         except (PermissionError, OSError) as exc:
             why = exc.strerror or str(exc)
@@ -163,7 +165,7 @@ class RealTimePolicy:
             )
             return got
         locked = _lock_memory()
-        return f"SCHED_FIFO {self.priority}" + ("" if locked else " (memory not locked)")
+        return f"SCHED_FIFO {priority}" + ("" if locked else " (memory not locked)")
 
     def between_cycles(self, stats: LoopStats, slack: bool = False) -> None:
         """After a cycle's write, in the loop's thread: collect the young generations
