@@ -123,14 +123,12 @@ class ProcessHeartbeat:
         self.port.connect(keys.process_heartbeat(process))
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"fw-beat-{process}", daemon=True)
-        self.driven = False
         self._count = 0
         self._due = 0.0
 
     def start(self, driven: bool = False) -> ProcessHeartbeat:
         """Begin beating: from a thread of its own, or (`driven`) whenever `poll` is
         called at least once a period (a real-time loop's thread, between cycles)."""
-        self.driven = driven
         if not driven:
             self._thread.start()
         return self

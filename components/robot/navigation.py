@@ -420,7 +420,7 @@ class Navigator(Component):
         self._last_sample = -math.inf
         self.revisions: dict[str, int] = {}  # how often each goal was defined anew
         self._said: tuple[Any, ...] = ()  # what the last goals said besides the poses
-        self._said_at = -math.inf  # ...and when (monotonic)
+        self._said_at = -math.inf  # ...and when (the component's clock)
         return True
 
     def update_hook(self) -> None:
