@@ -61,7 +61,10 @@ class SeegPanel(Panel):
         listen("interpolator", "status", EventMessage, self._on_motion, 16)
         listen("sensor_manager", "status", EventMessage, self._on_tracking, 16)
         listen("navigator", "sources", EventMessage, self._on_source, 16)
-        for name in ("supervisor", "interpolator", "robot"):
+        # the robot side says its brakes and latch itself (on change, and at 2 Hz): no
+        # question to ask its real-time process, whose loop would answer it between cycles
+        listen("robot", "status", EventMessage, lambda m: model.set("robot", m.payload), 4)
+        for name in ("supervisor", "interpolator"):
             model.poll(name, name, "report")
         model.poll("scene", "people_detector", "scene")
 
@@ -78,6 +81,10 @@ class SeegPanel(Panel):
         distance = (view.get("min_distance") or {}).get("data")
         near = supervisor.get("users_near")
         robot = _robot((view.get("robot") or {}).get("data") or {})
+        robot_age = (view.get("robot") or {}).get("age")
+        robot_stale = robot_age is not None and robot_age > STALE_AFTER
+        if robot_stale:  # an old "released" must never read as the robot's state now
+            robot = f"no report for {robot_age:.0f} s (last: {robot})"
         tone = {"stopped": "bad"}.get(
             operation, "ok" if operation.startswith("approaching") else ""
         )
@@ -108,7 +115,12 @@ class SeegPanel(Panel):
                 "robot",
                 "robot side (brakes, safety stop)",
                 robot,
-                "bad" if robot.startswith("SAFETY STOP") else "ok" if robot == "released" else "",
+                "bad"
+                if robot.startswith(("SAFETY STOP", "no report"))
+                else "ok"
+                if robot == "released"
+                else "",
+                stale=robot_stale,
                 wide=True,
             ),
         ]

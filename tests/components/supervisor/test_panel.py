@@ -28,3 +28,17 @@ def test_plain_brakes_and_motion():
     assert _robot({"braked": True, "latched": False, "reason": "stop"}) == "braked (stop)"
     assert _robot({"braked": False, "latched": False, "reason": ""}) == "released"
     assert _robot({}) == "-"
+
+
+def test_an_old_report_never_reads_as_the_robot_side_now():
+    """The robot side reports its brakes at 2 Hz and on every change; a report older
+    than that (its process starved, cut off) is shown as old, never as 'released'."""
+    from components.supervisor.panel import STALE_AFTER, SeegPanel
+
+    panel = SeegPanel()
+    released = {"braked": False, "latched": False, "reason": ""}
+    fresh = {t.id: t for t in panel.tiles({"robot": {"data": released, "age": 0.4}})}
+    assert fresh["robot"].text == "released" and not fresh["robot"].stale
+    old = {t.id: t for t in panel.tiles({"robot": {"data": released, "age": STALE_AFTER + 1}})}
+    assert old["robot"].text.startswith("no report for 3 s (last: released)")
+    assert old["robot"].stale and old["robot"].tone == "bad"
