@@ -73,6 +73,11 @@ STATUS_PERIOD = 0.5  # s between tracking statuses when nothing changes (a chang
 STALE_MARGIN = 0.001
 """Event-driven, the Sensor Manager looks again this long after a staleness deadline (s):
 a sample exactly at the limit is not stale yet."""
+POSE_GAP_LIMIT = 0.02
+"""s: the widest pause in the robot's poses a sample's check may fall in. The poses come
+at 200 Hz (5 ms); in a wider one (the robot's side was starved) where the tool was is not
+known, and at the approach's 7.5 cm/s 50 ms of it are 3.8 mm: a tracker's sample there is
+not checked (its sensor keeps its last verdict; `unchecked` counts them)."""
 CHECK_LAG_LIMIT = 0.5
 """The most a sensor's newest sample may be ahead of the robot's newest pose (s) for its
 calibration to count as checked: further ahead, the robot's side is too far behind."""
@@ -210,6 +215,9 @@ class SensorManagerCore:
         # what each sensor's verdict is about: its sample's stamp and the robot pose's it
         # was checked against; the same pair again would give the same verdict
         self._checked: dict[int, tuple[float, float]] = {}
+        self.unchecked = 0
+        """Samples left unchecked against kinematics: no robot pose of their time."""
+        self._pose_checked: dict[int, float] = {}  # sensor -> when one was last checked
         n = self._n = len(config.sensors)
         sensors = config.sensors
         self._index = {s.name: i for i, s in enumerate(sensors)}
@@ -273,7 +281,12 @@ class SensorManagerCore:
 
     def set_kinematics(self, base_from_ee: np.ndarray | None, stamp: float | None = None) -> None:
         """The robot's end-effector in its base frame from joints (None: unknown), taken
-        at `stamp` (the clock of the samples' stamps; None: no history, use it for all)."""
+        at `stamp` (the clock of the samples' stamps; None: no history, use it for all).
+        A pose not newer than the last one (or without a finite stamp) is ignored: the
+        history stays in time order."""
+        times = self._times
+        if stamp is not None and (not math.isfinite(stamp) or (times and stamp <= times[-1])):
+            return
         self.kinematics = base_from_ee
         if base_from_ee is None or stamp is None:
             self._times.clear()
@@ -291,9 +304,9 @@ class SensorManagerCore:
     ) -> tuple[list[int], list[float], list[tuple[float, ...]], dict[int, Health]]:
         """Which candidates' calibration can be checked now, and with which CTO sample:
         (positions in `candidates`, the samples' stamps, the samples), and the verdicts
-        of the sensors too far ahead of the robot's poses. A sample is covered when no
-        later robot pose could be nearer its stamp: before the midpoint to the next pose
-        (due one spacing after the newest). A candidate with nothing covered yet (within
+        of the sensors too far ahead of the robot's poses. A sample is covered when a
+        robot pose at or after its stamp has come, so the pose of its time lies between
+        two known ones (`_kinematics_at`). A candidate with nothing covered yet (within
         the limit) is left out: it keeps its latest verdict."""
         times = self._times
         if len(times) < 2:  # no history: the latest pose stands for every sample
@@ -305,7 +318,7 @@ class SensorManagerCore:
                 [tuple(rows[i, :7]) for i in candidates],
                 {},
             )
-        horizon = times[-1] + (times[-1] - times[-2]) / 2.0
+        horizon = times[-1]  # a later sample waits for a pose after it (no extrapolation)
         positions, stamps, samples, behind = [], [], [], {}
         for k, i in enumerate(candidates.tolist()):
             ahead = self._stamps[i] - times[-1]
@@ -325,13 +338,40 @@ class SensorManagerCore:
                 samples.append(covered[1])
         return positions, stamps, samples, behind
 
-    def _kinematics_at(self, stamps: list[float]) -> np.ndarray:
-        """The end-effector pose nearest in time to each stamp."""
+    def _kinematics_at(self, t: float) -> np.ndarray | None:
+        """The end-effector pose at time `t`: between the two robot poses around it
+        (position linear, rotation of the nearer: they are milliseconds apart), the
+        newest one just after it (a sample is checked only once no later pose could be
+        nearer, `_comparable`); None when the poses around `t` are more than
+        `POSE_GAP_LIMIT` apart (the robot's stream paused there: where the tool was at
+        `t` is not known, and a moving tool would look like a tracker's fault)."""
         assert self.kinematics is not None
-        times = self._times
+        times, poses = self._times, self._poses
         if len(times) < 2:
             return self.kinematics
-        return np.stack([self._poses[self._nearest(t)] for t in stamps])
+        k = bisect.bisect_left(times, t)
+        if k == 0 and times[0] - t > POSE_GAP_LIMIT:
+            return None  # older than the poses kept
+        if k == 0 or k == len(times) or times[k] == t:
+            return poses[self._nearest(t)]
+        t0, t1 = times[k - 1], times[k]
+        if t1 - t0 > POSE_GAP_LIMIT:
+            return None  # the robot's side paused there
+        w = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
+        pose = poses[k].copy() if w >= 0.5 else poses[k - 1].copy()
+        pose[:3, 3] = poses[k - 1][:3, 3] + w * (poses[k][:3, 3] - poses[k - 1][:3, 3])
+        return pose
+
+    def _pose_times(self, t: float) -> dict[str, float]:
+        """The robot poses' times around `t` (for a fault's numbers)."""
+        times = self._times
+        if not times:
+            return {}
+        k = bisect.bisect_left(times, t)
+        out = {"pose_nearest": times[self._nearest(t)], "pose_newest": times[-1]}
+        if 0 < k < len(times):
+            out["pose_gap_ms"] = round((times[k] - times[k - 1]) * 1e3, 3)
+        return out
 
     def _nearest(self, t: float) -> int:
         """The index of the robot pose nearest in time to `t` (a tie: the later one)."""
@@ -527,8 +567,37 @@ class SensorManagerCore:
                     stamps = [stamps[k] for k in new]
                     samples = [samples[k] for k in new]
                 checked.update(pairs[k] for k in new)
-            if positions:
-                verdicts.update(self._against_kinematics(candidates[positions], stamps, samples))
+            poses = [self._kinematics_at(t) for t in stamps]
+            known = [k for k, pose in enumerate(poses) if pose is not None]
+            now, last = self._now, self._pose_checked
+            for k, pose in enumerate(poses):
+                index = int(candidates[positions[k]])
+                if pose is not None:
+                    last[index] = now
+                    continue
+                self.unchecked += 1  # no robot pose of its time: its verdict holds, a while
+                since = now - last.setdefault(index, now)
+                if since > CHECK_LAG_LIMIT:
+                    verdicts[index] = Health(
+                        False,
+                        "calibration",
+                        f"cannot be checked: no robot pose of its samples' times for "
+                        f"{since * 1e3:.0f} ms (limit {CHECK_LAG_LIMIT:g} s)",
+                        numbers={
+                            "check": "kinematics",
+                            "time": stamps[k],
+                            **self._pose_times(stamps[k]),
+                        },
+                    )
+            if known:
+                verdicts.update(
+                    self._against_kinematics(
+                        candidates[[positions[k] for k in known]],
+                        [stamps[k] for k in known],
+                        [samples[k] for k in known],
+                        np.stack([poses[k] for k in known]),
+                    )
+                )
             verdicts.update(behind)  # until checked again, a sensor keeps its verdict
             camera = self._camera[candidates]
             for index in candidates.tolist():
@@ -557,10 +626,15 @@ class SensorManagerCore:
         return failed
 
     def _against_kinematics(
-        self, checked: np.ndarray, stamps: list[float], samples: list[tuple[float, ...]]
+        self,
+        checked: np.ndarray,
+        stamps: list[float],
+        samples: list[tuple[float, ...]],
+        kinematics: np.ndarray,
     ) -> dict[int, Health | None]:
-        """Each checked sensor's CTO sample against the robot's kinematics at its stamp:
-        its verdict (None: within tolerance), by sensor index."""
+        """Each checked sensor's CTO sample against the robot's kinematics at its stamp
+        (`kinematics`, one pose per sample): its verdict (None: within tolerance), by
+        sensor index."""
         camera = self._camera[checked]
         x = self._x[checked]
         x[camera] = self._s[checked[camera]]
@@ -570,7 +644,7 @@ class SensorManagerCore:
         if not camera.all():
             rto = self._rto_matrices(checked[~camera])
             measured[~camera] = invert(rto) @ measured[~camera]
-        predicted = x @ self._kinematics_at(stamps) @ self._y[checked]
+        predicted = x @ kinematics @ self._y[checked]
         diff = measured[:, :3, 3] - predicted[:, :3, 3]
         offsets2 = (diff * diff).sum(axis=1)
         # trace(A^T B) = 1 + 2 cos(angle): compare cosines, no arccos for healthy rows
@@ -590,6 +664,7 @@ class SensorManagerCore:
                 numbers={
                     "check": "kinematics",
                     "time": stamps[k],
+                    **self._pose_times(stamps[k]),
                     "measured_mm": _mm(measured[k, :3, 3]),
                     "predicted_mm": _mm(predicted[k, :3, 3]),
                     "apart_mm": round(math.sqrt(offsets2[k]) * 1e3, 3),
@@ -767,7 +842,12 @@ class SensorManager(Component):
     sensors_file = prop(
         str, "", doc="sensors YAML (priorities, calibration, limits)", required=True, file="sensors"
     )
-    ee_pose = In(Pose, doc="end-effector in the robot base frame, from joints (optional)")
+    ee_pose = In(
+        Pose,
+        doc="end-effector in the robot base frame, from joints (optional); every pose is "
+        "kept (320 ms of them): each tracker sample is checked against the pose of its time",
+        policy={"type": "buffer", "size": 64},
+    )
     robot_pose = Out(
         Pose,
         doc="end-effector in the master frame (eq. 3.5), best sensor; a stream: put on the "
@@ -817,8 +897,10 @@ class SensorManager(Component):
                     break
                 self.core.offer(sensor, tool, pose, now)
                 frames[sensor, tool] = pose.frame_number
-        status, ee = self.ee_pose.read()
-        if status is ReadStatus.NEW and ee is not None:
+        while True:  # every pose since the last update (200 Hz; the trackers' are 20-100)
+            status, ee = self.ee_pose.read()
+            if status is not ReadStatus.NEW or ee is None:
+                break
             self.core.set_kinematics(pose_matrix(ee), ee.stamp)
         if not idle and not self._postponed and self._half_a_frame():
             self._postponed = True
@@ -875,6 +957,7 @@ class SensorManager(Component):
             },
             # same-instant differences of the trackers' views (what a swap carries)
             "offsets": {n: pose_list(p) for n, p in self.core.offsets().items()},
+            "unchecked": self.core.unchecked,  # samples in a pause of the robot's poses
         }
 
     @operation

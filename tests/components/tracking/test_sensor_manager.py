@@ -416,48 +416,88 @@ def test_frames_closer_than_the_rate_are_judged_over_one_period():
     assert core.evaluate(0.002).health["certus"].ok, "8 mm in one 10 ms period: 0.8 m/s"
 
 
-def test_each_sample_is_checked_against_the_robot_pose_nearest_its_stamp():
-    """Robot poses every 31.25 ms (binary-exact stamps), each 2 cm from the last; a
-    sample taken at stamp t shows the pose the robot had then."""
+def test_each_sample_is_checked_against_the_robot_pose_of_its_time():
+    """Robot poses every 1/256 s (binary-exact stamps, as the 200 Hz stream), each 2 cm
+    from the last; a sample taken at stamp t shows where the robot was then, between the
+    two poses around t, not the nearer of them (2 cm apart: far beyond the tolerance)."""
     rig, core = single_certus()
-    poses = [(10.0 + 0.03125 * i, shifted(ee_path(0.0), 0.02 * i)) for i in range(6)]
+    step = 1 / 256
+    poses = [(10.0 + step * i, shifted(ee_path(0.0), 0.02 * i)) for i in range(6)]
     for stamp, pose in poses:
         core.set_kinematics(pose, stamp=stamp)
     cases = [
-        (9.0, 0),  # older than every pose: the oldest
-        (10.0078125, 0),  # nearer the first than the second
-        (10.015625, 1),  # exactly between two: the later one
-        (10.0703125, 2),  # nearer the third than the fourth
-        (10.1171875, 4),  # nearer the fifth
-        (10.171875, 5),  # newer than every pose, as near the newest as the next one due
+        (10.0, 0.0),  # at a pose
+        (10.0 + step / 4, 0.005),  # a quarter of the way to the second
+        (10.0 + 1.5 * step, 0.03),  # halfway between the second and the third
+        (10.0 + 4.75 * step, 0.095),  # three quarters toward the newest
+        (10.0 + 5.25 * step, 0.1),  # newer than every pose, nearer the newest than the next
     ]
-    for arrival, (stamp, index) in enumerate(cases, start=1):
-        offer(core, rig, poses[index][1], stamp, arrival=float(arrival))
+    for arrival, (stamp, x) in enumerate(cases, start=1):
+        offer(core, rig, shifted(ee_path(0.0), x), stamp, arrival=float(arrival))
         health = core.evaluate(arrival + 0.001).health["certus"]
-        assert health.ok, (stamp, index, health)
-    offer(core, rig, poses[1][1], 10.0078125, arrival=9.0)  # the robot was not there yet
-    assert core.evaluate(9.001).health["certus"].cause == "calibration"
+        assert health.ok, (stamp, x, health)
+    # halfway between two poses, the tool seen where the later one is: 10 mm off
+    offer(core, rig, poses[2][1], 10.0 + 1.5 * step, arrival=9.0)
+    health = core.evaluate(9.001).health["certus"]
+    assert health.cause == "calibration", health
+    assert health.numbers["pose_gap_ms"] == pytest.approx(step * 1e3, abs=1e-3)
 
 
-@pytest.mark.parametrize(
-    ("stamp", "checked"),
-    [
-        (10.171875, True),  # the midpoint to the next pose due: the newest is the nearest
-        (10.1796875, False),  # past it: the next pose will be nearer
-    ],
-)
-def test_a_sample_newer_than_the_robots_poses_waits_for_the_pose_of_its_time(stamp, checked):
-    """Robot poses every 31.25 ms, each 2 cm from the last; the newest at 10.15625. A
-    sample shows the robot where it is at 10.1875, 2 cm from the newest pose: checked
-    now only if no later pose can be nearer its stamp; else once the pose of its time
-    has come (meanwhile the sensor keeps its verdict)."""
+def test_a_sample_in_a_pause_of_the_robots_poses_is_not_judged_by_a_pose_of_another_time():
+    """The robot's side was starved for 100 ms while the tool moved 15 mm: a tracker's
+    sample inside that pause cannot be checked (where the tool was then is not known),
+    and must never be found a calibration fault; it is counted as unchecked and the
+    sensor keeps its verdict (for `CHECK_LAG_LIMIT` at most: then it cannot be checked,
+    a fault). Samples from before the poses kept are not checked either; once the poses
+    are dense again, a wrong sample is found at once."""
     rig, core = single_certus()
+    before = [(10.0 + i / 256, shifted(ee_path(0.0), 0.0003 * i)) for i in range(4)]
+    after = [(10.1 + i / 256, shifted(ee_path(0.0), 0.015 + 0.0003 * i)) for i in range(4)]
+    for stamp, pose in before:
+        core.set_kinematics(pose, stamp=stamp)
+    offer(core, rig, before[-1][1], before[-1][0], arrival=1.0)
+    assert core.evaluate(1.001).health["certus"].ok
+    for stamp, pose in after:
+        core.set_kinematics(pose, stamp=stamp)
+    # in the pause: the tool where it truly was (7.5 mm from either pose around it)
+    offer(core, rig, shifted(ee_path(0.0), 0.0075), 10.05, arrival=1.1)
+    assert core.evaluate(1.101).health["certus"].ok
+    assert core.unchecked == 1
+    offer(core, rig, ee_path(0.0), 9.0, arrival=1.2)  # a second older than every pose
+    assert core.evaluate(1.201).health["certus"].ok
+    assert core.unchecked == 2
+    offer(core, rig, shifted(after[2][1], 0.008), after[2][0], arrival=1.3)  # 8 mm off
+    assert core.evaluate(1.301).health["certus"].cause == "calibration"
+
+
+def test_robot_poses_out_of_time_order_are_ignored():
+    """A pose older than the last (or with no finite stamp) would break the time order
+    the samples are matched in: it is left out, and the latest pose stays."""
+    _, core = single_certus()
+    core.set_kinematics(ee_path(0.0), stamp=10.0)
+    core.set_kinematics(shifted(ee_path(0.0), 0.01), stamp=10.01)
+    core.set_kinematics(shifted(ee_path(0.0), 0.5), stamp=10.005)
+    core.set_kinematics(shifted(ee_path(0.0), 0.5), stamp=math.nan)
+    assert core._times == [10.0, 10.01]
+    assert core.kinematics[0, 3] == pytest.approx(ee_path(0.0)[0, 3] + 0.01)
+
+
+def test_a_sample_newer_than_the_robots_poses_waits_for_the_pose_of_its_time():
+    """Robot poses every 1/256 s, each 2 cm from the last; the newest at x = 10 cm. A
+    sample taken halfway to the next pose shows the tool at 11 cm: against the newest
+    pose it would be 1 cm off, so it waits (the sensor keeps its verdict) until a pose
+    after its stamp has come, and is then checked against the pose of its time."""
+    rig, core = single_certus()
+    step = 1 / 256
     for i in range(6):
-        core.set_kinematics(shifted(ee_path(0.0), 0.02 * i), stamp=10.0 + 0.03125 * i)
-    offer(core, rig, shifted(ee_path(0.0), 0.12), stamp, arrival=1.0)
-    assert core.evaluate(1.001).health["certus"].ok is not checked
-    core.set_kinematics(shifted(ee_path(0.0), 0.12), stamp=10.1875)
+        core.set_kinematics(shifted(ee_path(0.0), 0.02 * i), stamp=10.0 + step * i)
+    offer(core, rig, shifted(ee_path(0.0), 0.11), 10.0 + 5.5 * step, arrival=1.0)
+    assert core.evaluate(1.001).health["certus"].ok, "not judged against an older pose"
+    core.set_kinematics(shifted(ee_path(0.0), 0.12), stamp=10.0 + 6 * step)
     assert core.evaluate(1.002).health["certus"].ok, "against the pose of its time"
+    core.set_kinematics(shifted(ee_path(0.0), 0.14), stamp=10.0 + 7 * step)
+    offer(core, rig, shifted(ee_path(0.0), 0.14), 10.0 + 6.5 * step, arrival=2.0)
+    assert core.evaluate(2.001).health["certus"].cause == "calibration", "1 cm off: checked"
 
 
 @pytest.mark.parametrize("camera", [False, True])
@@ -508,11 +548,12 @@ def test_samples_a_second_older_than_the_newest_are_still_checked():
     (half a second behind) cover; it shows the robot 2 cm off."""
     rig, core = single_certus()
     still = ee_path(0.0)
-    for stamp in (10.25, 10.5):
+    for stamp in (9.995, 10.005, 10.5):  # the pose of 10.0 known, the newest at 10.5
         core.set_kinematics(still, stamp=stamp)
     offer(core, rig, shifted(still, 0.02), 10.0, arrival=1.0)
     offer(core, rig, still, 11.0, arrival=1.5)
-    assert core.evaluate(1.5001).health["certus"].cause == "calibration"
+    health = core.evaluate(1.5001).health["certus"]
+    assert health.cause == "calibration" and "away from the robot's kinematics" in health.detail
 
 
 def test_a_long_procedure_does_not_grow_the_sensor_managers_memory():
@@ -568,8 +609,9 @@ def test_a_sensor_too_far_ahead_of_the_robots_poses_cannot_be_checked():
 def test_about_a_second_of_robot_poses_is_remembered():
     """The robot moves 2 cm/s; its poses come at 10 Hz, for a second, then (after a 3 s
     gap) for 2.5 s more. A sample 0.95 s old is checked against the pose of its own time;
-    one from before the gap, long forgotten, against the oldest pose still remembered
-    (several cm away: a calibration fault)."""
+    one from before the gap, whose time no pose remembered covers, cannot be checked: a
+    second after the last check, that is a calibration fault (a tracker whose stamps lag
+    seconds behind is never trusted unchecked)."""
     rig, core = single_certus()
 
     def pose(t):
@@ -582,7 +624,10 @@ def test_about_a_second_of_robot_poses_is_remembered():
     offer(core, rig, pose(recent), recent, arrival=0.0)
     assert core.evaluate(0.001).health["certus"].ok, "matched against its own time"
     offer(core, rig, pose(100.5031), 100.5031, arrival=1.0)
-    assert core.evaluate(1.001).health["certus"].cause == "calibration"
+    health = core.evaluate(1.001).health["certus"]
+    assert health.cause == "calibration" and health.detail.startswith(
+        "cannot be checked: no robot pose of its samples' times for 1000 ms"
+    )
 
 
 @pytest.mark.parametrize(("value", "error"), [("0", True), ("1", False), ("2.5", True)])
@@ -718,7 +763,9 @@ def test_a_tracker_that_sees_the_tools_at_negative_coordinates_is_healthy():
 
 def test_a_robot_pose_more_than_two_seconds_older_than_the_newest_is_never_used():
     """Poses at 10 Hz for 6 s while the robot moves 5 cm/s: a sample 2.5 s older than
-    the newest pose finds only poses at least half a second younger (2.5 cm away)."""
+    the newest pose has no pose of its time left (only ones half a second younger, 2.5 cm
+    away): it is not judged against them; such samples for over `CHECK_LAG_LIMIT` (a
+    tracker's clock seconds behind) cannot be checked, a fault."""
     rig, core = single_certus()
 
     def pose(t):
@@ -729,7 +776,10 @@ def test_a_robot_pose_more_than_two_seconds_older_than_the_newest_is_never_used(
         core.set_kinematics(pose(t), stamp=t)
     old = stamps[-1] - 2.5
     offer(core, rig, pose(old), old, arrival=0.0)
-    assert core.evaluate(0.001).health["certus"].cause == "calibration"
+    assert core.evaluate(0.001).health["certus"].ok and core.unchecked == 1
+    offer(core, rig, pose(old + 0.6), old + 0.6, arrival=0.6)
+    health = core.evaluate(0.601).health["certus"]
+    assert health.cause == "calibration" and health.detail.startswith("cannot be checked")
 
 
 def test_a_frame_after_a_missing_one_is_not_judged_against_the_missing_ones_position(write):

@@ -113,8 +113,13 @@ def wait_for(page, script, arg, shown, expected):
             if page.query_selector("[data-testid=robot]")
             else ""
         )
+        log = page.evaluate(
+            "() => [...document.querySelectorAll('#log-lines li')].slice(0, 16)"
+            ".map(li => li.textContent)"
+        )
         pytest.fail(
-            f"{shown} shows {page.inner_text(shown)!r}, expected {expected} (robot: {robot!r})"
+            f"{shown} shows {page.inner_text(shown)!r}, expected {expected} (robot: {robot!r});"
+            " the console's log ended with:\n  " + "\n  ".join(log)
         )
 
 
@@ -159,6 +164,12 @@ def test_the_operator_drives_the_procedure_from_the_browser(page, seeg_console):
     )
     page.wait_for_function(ORANGE_PIXELS, timeout=WAIT_MS)
     shot(page, "wait")
+    # and leaves before the arm moves: this spec is the console's; a person beside the
+    # moving arm is the scenarios' (collision, crowd, walk_in) and test_seeg_faults'. With
+    # one beside it, the simulated OR needs all of 2 cores while moving (issue 43's
+    # figures), and the browser's share starved the camera pipeline past its deadline
+    # (a correct safety stop, not a console behaviour) in 3 of 4 runs here
+    RemoteComponent(deployment.hub, "people_world").call("leave", person=1)
 
     # the target form: refused in the page, refused again by the server, then taken
     form = "#form-e_DEFINE_TARGET"
@@ -242,14 +253,22 @@ def test_a_second_console_sees_every_command_with_its_origin(page, seeg_console)
     page.click("#start")
     text_is(page, "answer", "e_START: accepted")
     log_has(other, "command e_START from console@127.0.0.1")
-    # approaching, unless a starved host tripped the robot side (its job: the deadline
-    # monitor stops the arm when an input is late, the KRC when its FRI answers stop)
+    # approaching, or already at the goal when this page got its share of a busy host
+    # late (CI: the approach's ~9 s went by unseen), unless a starved host tripped the
+    # robot side (its job: the deadline monitor stops the arm when an input is late, the
+    # KRC when its FRI answers stop); before START it was "wait"
     script = (
-        "() => document.querySelector('[data-testid=operation]').textContent"
-        ".startsWith('approaching') || /SAFETY STOP: .*(no data for|the arm braked by itself)/"
-        ".test(document.querySelector('[data-testid=robot]').textContent)"
+        "() => /^(approaching|at the goal)/.test(document.querySelector("
+        "'[data-testid=operation]').textContent) || /SAFETY STOP: .*(no data for|the arm "
+        "braked by itself)/.test(document.querySelector('[data-testid=robot]').textContent)"
     )
-    wait_for(other, script, None, "[data-testid=operation]", "'approaching' (or a safety stop)")
+    wait_for(
+        other,
+        script,
+        None,
+        "[data-testid=operation]",
+        "'approaching' or 'at the goal' (or a safety stop)",
+    )
 
 
 def test_a_failed_setup_opens_a_dialog_and_the_robot_never_moves(bus_config, tmp_path, page):
