@@ -26,11 +26,14 @@ For every sensor, each cycle, the fault tree of 3.3.3 in its order:
      tool does not slip back;
    * without `S` (the thesis: a reference tool fixed to the table), the robot in
      the reference tool's frame: a moved reference tool is a fault.
-   A sample is compared once the robot's poses cover its stamp (the pose nearest it
-   can no longer change): while the robot's side runs behind the trackers (a busy
-   host, a slow link), the newest sample it covers is checked, and a sensor whose
-   newest sample is more than `CHECK_LAG_LIMIT` ahead of the robot's newest pose is a
-   `calibration` fault (it cannot be checked) until the robot's side catches up.
+   A sample is compared with the robot's pose of its time (between the two around
+   its stamp), once a pose at or after its stamp has come: while the robot's side runs
+   behind the trackers (a busy host, a slow link), the newest sample it covers is
+   checked, and a sensor whose newest sample is more than `CHECK_LAG_LIMIT` ahead of
+   the robot's newest pose is a `calibration` fault (it cannot be checked) until the
+   robot's side catches up. A sample in a pause of the robot's poses (wider than
+   `POSE_GAP_LIMIT`) is not judged by a pose of another time; for `CHECK_LAG_LIMIT`
+   at most (then it cannot be checked: a fault).
 
 The first healthy sensor in priority order wins; a sensor that was unhealthy
 (or at start) is used again only after `hysteresis` consecutive healthy
