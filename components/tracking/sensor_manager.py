@@ -342,27 +342,27 @@ class SensorManagerCore:
         return positions, stamps, samples, behind
 
     def _kinematics_at(self, t: float) -> np.ndarray | None:
-        """The end-effector pose at time `t`: between the two robot poses around it
-        (position linear, rotation of the nearer: they are milliseconds apart), the
-        newest one just after it (a sample is checked only once no later pose could be
-        nearer, `_comparable`); None when the poses around `t` are more than
-        `POSE_GAP_LIMIT` apart (the robot's stream paused there: where the tool was at
-        `t` is not known, and a moving tool would look like a tracker's fault)."""
+        """The end-effector pose at time `t`: a pose of that very instant, or between the
+        two robot poses around it (position linear, rotation of the earlier one: 5 ms
+        apart, a tenth of a degree at the arm's turning speed). None when no pose is
+        known around `t`: older than every pose kept, newer than the newest (never asked:
+        `_comparable` waits for a pose after a sample), or between two poses more than
+        `POSE_GAP_LIMIT` apart (the robot's stream paused there: a moving tool would look
+        like a tracker's fault)."""
         assert self.kinematics is not None
         times, poses = self._times, self._poses
         if len(times) < 2:
             return self.kinematics
         k = bisect.bisect_left(times, t)
-        if k == 0 and times[0] - t > POSE_GAP_LIMIT:
-            return None  # older than the poses kept
-        if k == 0 or k == len(times) or times[k] == t:
-            return poses[self._nearest(t)]
-        t0, t1 = times[k - 1], times[k]
+        if k < len(times) and times[k] == t:
+            return poses[k]
+        if k == 0 or k == len(times):
+            return None
+        t0, t1 = times[k - 1], times[k]  # t0 < t < t1: the stamps only increase
         if t1 - t0 > POSE_GAP_LIMIT:
-            return None  # the robot's side paused there
-        w = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
-        pose = poses[k].copy() if w >= 0.5 else poses[k - 1].copy()
-        pose[:3, 3] = poses[k - 1][:3, 3] + w * (poses[k][:3, 3] - poses[k - 1][:3, 3])
+            return None
+        pose = poses[k - 1].copy()
+        pose[:3, 3] += (t - t0) / (t1 - t0) * (poses[k][:3, 3] - poses[k - 1][:3, 3])
         return pose
 
     def _pose_times(self, t: float) -> dict[str, float]:

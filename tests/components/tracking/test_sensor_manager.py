@@ -13,7 +13,11 @@ from hypothesis import strategies as st
 from components.domain.geometry import rigid
 from components.domain.rigs import ee_path, sensors_config, standard_rigs
 from components.domain.sensors import SensorConfigError, load_sensors
-from components.tracking.sensor_manager import CHECK_LAG_LIMIT, SensorManagerCore
+from components.tracking.sensor_manager import (
+    CHECK_LAG_LIMIT,
+    POSE_GAP_LIMIT,
+    SensorManagerCore,
+)
 
 TICK = 0.001  # the Sensor Manager's 1 kHz cycle
 
@@ -417,30 +421,43 @@ def test_frames_closer_than_the_rate_are_judged_over_one_period():
 
 
 def test_each_sample_is_checked_against_the_robot_pose_of_its_time():
-    """Robot poses every 1/256 s (binary-exact stamps, as the 200 Hz stream), each 2 cm
-    from the last; a sample taken at stamp t shows where the robot was then, between the
-    two poses around t, not the nearer of them (2 cm apart: far beyond the tolerance)."""
+    """Robot poses every 1/256 s (binary-exact stamps, as the 200 Hz stream), each 5 cm
+    from the last (toward -x); a sample taken at stamp t shows where the robot was then,
+    between the two poses around t, not the nearer of them (far beyond the tolerance)."""
     rig, core = single_certus()
     step = 1 / 256
-    poses = [(10.0 + step * i, shifted(ee_path(0.0), 0.02 * i)) for i in range(6)]
+    poses = [(10.0 + step * i, shifted(ee_path(0.0), -0.05 * i)) for i in range(6)]
     for stamp, pose in poses:
         core.set_kinematics(pose, stamp=stamp)
     cases = [
         (10.0, 0.0),  # at a pose
-        (10.0 + step / 4, 0.005),  # a quarter of the way to the second
-        (10.0 + 1.5 * step, 0.03),  # halfway between the second and the third
-        (10.0 + 4.75 * step, 0.095),  # three quarters toward the newest
-        (10.0 + 5.25 * step, 0.1),  # newer than every pose, nearer the newest than the next
+        (10.0 + step / 4, -0.0125),  # a quarter of the way to the second
+        (10.0 + 1.5 * step, -0.075),  # halfway between the second and the third
+        (10.0 + 4.75 * step, -0.2375),  # three quarters toward the newest
+        (10.0 + 5 * step, -0.25),  # at the newest
     ]
     for arrival, (stamp, x) in enumerate(cases, start=1):
         offer(core, rig, shifted(ee_path(0.0), x), stamp, arrival=float(arrival))
         health = core.evaluate(arrival + 0.001).health["certus"]
         assert health.ok, (stamp, x, health)
-    # halfway between two poses, the tool seen where the later one is: 10 mm off
+    assert core.unchecked == 0
+    # halfway between two poses, the tool seen where the later one is: 25 mm off
     offer(core, rig, poses[2][1], 10.0 + 1.5 * step, arrival=9.0)
     health = core.evaluate(9.001).health["certus"]
     assert health.cause == "calibration", health
     assert health.numbers["pose_gap_ms"] == pytest.approx(step * 1e3, abs=1e-3)
+    assert health.numbers["pose_nearest"] == poses[2][0]  # a tie: the later one
+    assert health.numbers["pose_newest"] == poses[-1][0]
+
+
+def test_poses_as_far_apart_as_the_limit_still_place_the_tool():
+    """Two poses exactly `POSE_GAP_LIMIT` apart (20 ms, the 200 Hz stream missing three)
+    still say where the tool was between them."""
+    rig, core = single_certus()
+    core.set_kinematics(ee_path(0.0), stamp=0.0)
+    core.set_kinematics(shifted(ee_path(0.0), -0.02), stamp=POSE_GAP_LIMIT)
+    offer(core, rig, shifted(ee_path(0.0), -0.01), POSE_GAP_LIMIT / 2, arrival=1.0)
+    assert core.evaluate(1.001).health["certus"].ok and core.unchecked == 0
 
 
 def test_a_sample_in_a_pause_of_the_robots_poses_is_not_judged_by_a_pose_of_another_time():
@@ -463,7 +480,7 @@ def test_a_sample_in_a_pause_of_the_robots_poses_is_not_judged_by_a_pose_of_anot
     offer(core, rig, shifted(ee_path(0.0), 0.0075), 10.05, arrival=1.1)
     assert core.evaluate(1.101).health["certus"].ok
     assert core.unchecked == 1
-    offer(core, rig, ee_path(0.0), 9.0, arrival=1.2)  # a second older than every pose
+    offer(core, rig, ee_path(0.0), 9.999, arrival=1.2)  # 1 ms older than every pose
     assert core.evaluate(1.201).health["certus"].ok
     assert core.unchecked == 2
     offer(core, rig, shifted(after[2][1], 0.008), after[2][0], arrival=1.3)  # 8 mm off
@@ -477,6 +494,7 @@ def test_robot_poses_out_of_time_order_are_ignored():
     core.set_kinematics(ee_path(0.0), stamp=10.0)
     core.set_kinematics(shifted(ee_path(0.0), 0.01), stamp=10.01)
     core.set_kinematics(shifted(ee_path(0.0), 0.5), stamp=10.005)
+    core.set_kinematics(shifted(ee_path(0.0), 0.5), stamp=10.01)  # the same instant again
     core.set_kinematics(shifted(ee_path(0.0), 0.5), stamp=math.nan)
     assert core._times == [10.0, 10.01]
     assert core.kinematics[0, 3] == pytest.approx(ee_path(0.0)[0, 3] + 0.01)
@@ -625,8 +643,12 @@ def test_about_a_second_of_robot_poses_is_remembered():
     assert core.evaluate(0.001).health["certus"].ok, "matched against its own time"
     offer(core, rig, pose(100.5031), 100.5031, arrival=1.0)
     health = core.evaluate(1.001).health["certus"]
-    assert health.cause == "calibration" and health.detail.startswith(
-        "cannot be checked: no robot pose of its samples' times for 1000 ms"
+    assert (
+        not health.ok
+        and health.cause == "calibration"
+        and health.detail.startswith(
+            "cannot be checked: no robot pose of its samples' times for 1000 ms"
+        )
     )
 
 
@@ -779,7 +801,8 @@ def test_a_robot_pose_more_than_two_seconds_older_than_the_newest_is_never_used(
     assert core.evaluate(0.001).health["certus"].ok and core.unchecked == 1
     offer(core, rig, pose(old + 0.6), old + 0.6, arrival=0.6)
     health = core.evaluate(0.601).health["certus"]
-    assert health.cause == "calibration" and health.detail.startswith("cannot be checked")
+    assert not health.ok and health.cause == "calibration"
+    assert health.detail.startswith("cannot be checked")
 
 
 def test_a_frame_after_a_missing_one_is_not_judged_against_the_missing_ones_position(write):
