@@ -326,9 +326,8 @@ def collision_reaction(run: SeegRun, trials: int, progress: Any = None) -> list[
     """A surgeon standing at the table leans over the moving robot; L = t_stop -
     t_collision (eq. 3.18), and the braking cycle's latency in `detail["brake"]`.
     Then they stand upright, the distance clears and RELEASE resumes the motion.
-    Speed and separation monitoring may stop the arm before the collision distance, or
-    before the Supervisor's halt went out (more often on a busy host, where the lean is
-    seen later; the braking cycle then comes before the halt): such a lean is returned
+    Speed and separation monitoring may stop the arm before the collision distance
+    (more often on a busy host, where the lean is seen later): such a lean is returned
     with `detail["preempted"]` and leaned again, until `trials` leans timed the
     Supervisor's path or 3x as many were preempted."""
     limit = _collision_distance()
@@ -363,13 +362,6 @@ def collision_reaction(run: SeegRun, trials: int, progress: Any = None) -> list[
             else:
                 result = _stop_after(run, t0, first.message.stamp, "possible collision")
                 result.detail["distance"] = first.message.value
-                if result.detail["brake"] < result.latency:
-                    # the arm was already braking when the Supervisor's halt went out:
-                    # the robot side's separation monitoring stopped it first
-                    preempted.append(
-                        Trial(0.0, first.received, first.received, {"preempted": True})
-                    )
-                    result = None
             run.wait_state("Stopped", 10.0, since=mark)
         finally:
             run.call("people_world.lean", person=COLLIDER, reach=0.0)
