@@ -78,9 +78,10 @@ STALE_MARGIN = 0.001
 a sample exactly at the limit is not stale yet."""
 POSE_GAP_LIMIT = 0.02
 """s: the widest pause in the robot's poses a sample's check may fall in. The poses come
-at 200 Hz (5 ms); in a wider one (the robot's side was starved) where the tool was is not
-known, and at the approach's 7.5 cm/s 50 ms of it are 3.8 mm: a tracker's sample there is
-not checked (its sensor keeps its last verdict; `unchecked` counts them)."""
+at 200 Hz (5 ms; 20 ms: three missing); in a wider one (the robot's side was starved)
+where the tool was is not known (the 100 ms pauses seen are 7.5 mm at the approach's
+7.5 cm/s, more while it accelerates): a tracker's sample there is not checked (its
+sensor keeps its last verdict; `unchecked` counts them)."""
 CHECK_LAG_LIMIT = 0.5
 """The most a sensor's newest sample may be ahead of the robot's newest pose (s) for its
 calibration to count as checked: further ahead, the robot's side is too far behind."""
