@@ -572,11 +572,12 @@ class SensorManagerCore:
                     samples = [samples[k] for k in new]
                 checked.update(pairs[k] for k in new)
             poses = [self._kinematics_at(t) for t in stamps]
-            known = [k for k, pose in enumerate(poses) if pose is not None]
+            known: list[int] = []
             now, last = self._now, self._pose_checked
             for k, pose in enumerate(poses):
                 index = int(candidates[positions[k]])
                 if pose is not None:
+                    known.append(k)
                     last[index] = now
                     continue
                 self.unchecked += 1  # no robot pose of its time: its verdict holds, a while
