@@ -49,6 +49,7 @@ answers in the measurement's:
 from __future__ import annotations
 
 import struct
+from collections import deque
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -225,6 +226,25 @@ class DatagramError(ValueError):
     """A datagram that is not what it claims: size, id or declared length wrong."""
 
 
+_U16x2 = struct.Struct("<HH")
+_F7 = struct.Struct("<7f")
+_MSR_KRL = struct.Struct("<iii")  # intData[0..2]: served, reason, cycle
+_MSR_FLAGS = struct.Struct("<H")  # boolData
+_MSR_INTF = struct.Struct("<fHHfff ffffI HH")  # 140..184: interface state, stats, power, control
+_MSR_HEAD = struct.Struct("<4H")
+_MSR_TEMPLATE = _MSR.pack(0, 0, MSR_SIZE, MSR_ID, *([0.0] * 16), *([0] * 16), 0, 0,
+                          0.0, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0, 0, 0, 0,
+                          *([30.0] * 7), *([0.0] * 175))  # fmt: skip
+"""A measurement of the constant fields (size, id, temperatures): each one sent is this
+with its own fields packed in place (a cycle packs 50 numbers, not 254)."""
+_CMD_TEMPLATE = _CMD.pack(
+    0, 0, CMD_SIZE, CMD_ID, *([0.0] * 16), *([0] * 16), 0, 0, 0, *([0.0] * 58)
+)
+_CMD_KRL = struct.Struct("<ii")  # intData[0..1]: request number, request
+_CMD_FLAGS = struct.Struct("<I")
+_ZERO7 = (0.0,) * 7
+
+
 def encode_measurement(
     send_seq: int,
     refl_seq: int,
@@ -234,10 +254,10 @@ def encode_measurement(
     quality: int,
     stats: tuple[float, float, float, float, int] = (1.0, 0.0, 0.0, 0.0, 0),
     control: int = Control.POSITION,
-    msr_jnt_pos: tuple[float, ...] = (0.0,) * 7,
-    cmd_jnt_pos: tuple[float, ...] = (0.0,) * 7,
-    cmd_jnt_pos_fri_offset: tuple[float, ...] = (0.0,) * 7,
-    msr_jnt_trq: tuple[float, ...] = (0.0,) * 7,
+    msr_jnt_pos: tuple[float, ...] = _ZERO7,
+    cmd_jnt_pos: tuple[float, ...] = _ZERO7,
+    cmd_jnt_pos_fri_offset: tuple[float, ...] = _ZERO7,
+    msr_jnt_trq: tuple[float, ...] = _ZERO7,
     served: int = 0,
     reason: int = 0,
     cycle: int = 0,
@@ -247,75 +267,64 @@ def encode_measurement(
 ) -> bytes:
     """A measurement datagram (the KRC's side). `stats`: answerRate, latency, jitter,
     missRate, missCounter over the last 100 packets."""
-    ints = [0] * 16
-    ints[0], ints[1], ints[2] = served, reason, cycle & 0x7FFFFFFF
-    data = [0.0] * 175
-    data[0:7] = msr_jnt_pos
-    data[19:26] = cmd_jnt_pos
-    data[26:33] = cmd_jnt_pos_fri_offset
-    data[57:64] = msr_jnt_trq
-    flags = (1 if braked else 0) | (2 if latched else 0)
-    return _MSR.pack(
-        send_seq & 0xFFFF,
-        refl_seq & 0xFFFF,
-        MSR_SIZE,
-        MSR_ID,
-        *([0.0] * 16),
-        *ints,
-        flags,
-        0,
-        timestamp,
-        state,
-        quality,
-        sample_time,
-        sample_time,
-        0.0,
-        *stats,
+    out = bytearray(_MSR_TEMPLATE)
+    _U16x2.pack_into(out, 0, send_seq & 0xFFFF, refl_seq & 0xFFFF)
+    _MSR_KRL.pack_into(out, 72, served, reason, cycle & 0x7FFFFFFF)
+    _MSR_FLAGS.pack_into(out, 136, (1 if braked else 0) | (2 if latched else 0))
+    rate, latency, jitter, miss_rate, misses = stats
+    _MSR_INTF.pack_into(
+        out, 140, timestamp, state, quality, sample_time, sample_time, 0.0,
+        rate, latency, jitter, miss_rate, misses,
         1 if not braked else 0,  # power: the drives are on while released
         control,
-        0,
-        0,
-        *([30.0] * 7),
-        *data,
-    )
+    )  # fmt: skip
+    _F7.pack_into(out, 216, *msr_jnt_pos)
+    _F7.pack_into(out, 292, *cmd_jnt_pos)
+    if cmd_jnt_pos_fri_offset is not _ZERO7:
+        _F7.pack_into(out, 320, *cmd_jnt_pos_fri_offset)
+    if msr_jnt_trq is not _ZERO7:
+        _F7.pack_into(out, 444, *msr_jnt_trq)
+    return bytes(out)
 
 
-def _unpack(datagram: bytes, layout: struct.Struct, datagram_id: int, what: str) -> tuple:
-    """The fields of a datagram of `layout`; `DatagramError` unless its length, its
-    declared size and its id are those of a `what`."""
-    if len(datagram) != layout.size:
-        raise DatagramError(f"a {what} is {layout.size} bytes, not {len(datagram)}")
-    v = layout.unpack(datagram)
-    if v[3] != datagram_id or v[2] != layout.size:
-        raise DatagramError(f"datagram id 0x{v[3]:04x} size {v[2]} is no {what}")
-    return v
+def _check(datagram: bytes, size: int, datagram_id: int, what: str) -> None:
+    """`DatagramError` unless the datagram's length, its declared size and its id are
+    those of a `what`."""
+    if len(datagram) != size:
+        raise DatagramError(f"a {what} is {size} bytes, not {len(datagram)}")
+    declared, found = _U16x2.unpack_from(datagram, 4)
+    if found != datagram_id or declared != size:
+        raise DatagramError(f"datagram id 0x{found:04x} size {declared} is no {what}")
 
 
 def decode_measurement(datagram: bytes) -> Measurement:
     """A measurement datagram, decoded; `DatagramError` if it is not one."""
-    v = _unpack(datagram, _MSR, MSR_ID, "measurement")
-    ints = v[20:36]
-    flags = v[36]
-    data = v[60:]
+    _check(datagram, MSR_SIZE, MSR_ID, "measurement")
+    send_seq, refl_seq = _U16x2.unpack_from(datagram, 0)
+    served, reason, cycle = _MSR_KRL.unpack_from(datagram, 72)
+    flags = datagram[136]
+    timestamp, state, quality, _, _, _, rate, latency, jitter, miss_rate, misses, _, control = (
+        _MSR_INTF.unpack_from(datagram, 140)
+    )
     return Measurement(
-        v[0],
-        v[1],
-        v[38],
-        v[39],
-        v[40],
-        v[44],
-        v[45],
-        v[46],
-        v[47],
-        v[48],
-        v[50],
-        data[0:7],
-        data[19:26],
-        data[26:33],
-        data[57:64],
-        ints[0],
-        ints[1],
-        ints[2],
+        send_seq,
+        refl_seq,
+        timestamp,
+        state,
+        quality,
+        rate,
+        latency,
+        jitter,
+        miss_rate,
+        misses,
+        control,
+        _F7.unpack_from(datagram, 216),
+        _F7.unpack_from(datagram, 292),
+        _F7.unpack_from(datagram, 320),
+        _F7.unpack_from(datagram, 444),
+        served,
+        reason,
+        cycle,
         bool(flags & 1),
         bool(flags & 2),
     )
@@ -331,28 +340,21 @@ def encode_command(
     request: int = Request.NONE,
 ) -> bytes:
     """A command datagram (the PC's side) answering measurement `refl_seq`."""
-    ints = [0] * 16
-    ints[0], ints[1] = request_number, request
-    floats = [0.0] * 58
-    floats[0:7] = jnt_pos
-    return _CMD.pack(
-        send_seq & 0xFFFF,
-        refl_seq & 0xFFFF,
-        CMD_SIZE,
-        CMD_ID,
-        *([0.0] * 16),
-        *ints,
-        0,
-        0,
-        flags,
-        *floats,
-    )
+    out = bytearray(_CMD_TEMPLATE)
+    _U16x2.pack_into(out, 0, send_seq & 0xFFFF, refl_seq & 0xFFFF)
+    _CMD_KRL.pack_into(out, 72, request_number, request)
+    _CMD_FLAGS.pack_into(out, 140, flags)
+    _F7.pack_into(out, 144, *jnt_pos)
+    return bytes(out)
 
 
 def decode_command(datagram: bytes) -> Command:
     """A command datagram, decoded; `DatagramError` if it is not one."""
-    v = _unpack(datagram, _CMD, CMD_ID, "command")
-    return Command(v[0], v[1], v[38], v[39:46], v[20], v[21])
+    _check(datagram, CMD_SIZE, CMD_ID, "command")
+    send_seq, refl_seq = _U16x2.unpack_from(datagram, 0)
+    number, request = _CMD_KRL.unpack_from(datagram, 72)
+    (flags,) = _CMD_FLAGS.unpack_from(datagram, 140)
+    return Command(send_seq, refl_seq, flags, _F7.unpack_from(datagram, 144), number, request)
 
 
 def seq_after(a: int, b: int) -> bool:
@@ -378,23 +380,52 @@ class QualityMeter:
         self.top, self.bad, self.ok = top, bad, ok
         self.counter = 0
         self.window = window
-        self._answered: list[bool] = []
-        self._latencies: list[float] = []
+        # the last `window` verdicts and answered cycles' latencies, with their running
+        # sums and, for the jitter, the latencies' sliding maximum and minimum (monotonic
+        # queues of (index, latency)): a cycle costs the same whatever the window
+        self._answered: deque[bool] = deque()
+        self._answered_sum = 0
+        self._latencies: deque[float] = deque()
+        self._latency_sum = 0.0
+        self._latency_index = 0
+        self._highs: deque[tuple[int, float]] = deque()
+        self._lows: deque[tuple[int, float]] = deque()
         self.misses = 0
 
     def cycle(self, answered: bool, latency: float = 0.0) -> Quality:
         """Rate one cycle (answered in time, or not) and return the quality now."""
         self.counter = min(self.top, self.counter + 1) if answered else max(0, self.counter - 1)
-        self._answered.append(answered)
+        window = self.window
+        verdicts = self._answered
+        verdicts.append(answered)
+        self._answered_sum += answered
+        if len(verdicts) > window:
+            self._answered_sum -= verdicts.popleft()
         if answered:
-            self._latencies.append(latency)
+            self._add_latency(latency)
         else:
             self.misses += 1
-        if len(self._answered) > self.window:
-            del self._answered[0]
-        if len(self._latencies) > self.window:
-            del self._latencies[0]
         return self.quality
+
+    def _add_latency(self, latency: float) -> None:
+        latencies, index = self._latencies, self._latency_index
+        self._latency_index = index + 1
+        latencies.append(latency)
+        self._latency_sum += latency
+        highs, lows = self._highs, self._lows
+        while highs and highs[-1][1] <= latency:
+            highs.pop()
+        highs.append((index, latency))
+        while lows and lows[-1][1] >= latency:
+            lows.pop()
+        lows.append((index, latency))
+        if len(latencies) > self.window:
+            self._latency_sum -= latencies.popleft()
+            oldest = index - self.window  # the index that just left the window
+            if highs[0][0] <= oldest:
+                highs.popleft()
+            if lows[0][0] <= oldest:
+                lows.popleft()
 
     @property
     def quality(self) -> Quality:
@@ -408,14 +439,18 @@ class QualityMeter:
     def stats(self) -> tuple[float, float, float, float, int]:
         """answerRate, latency (s, mean), jitter (s, max - min), missRate, missCounter."""
         n = len(self._answered)
-        rate = sum(self._answered) / n if n else 0.0
-        lat = self._latencies
-        mean = sum(lat) / len(lat) if lat else 0.0
-        jitter = max(lat) - min(lat) if lat else 0.0
+        rate = self._answered_sum / n if n else 0.0
+        m = len(self._latencies)
+        mean = self._latency_sum / m if m else 0.0
+        jitter = self._highs[0][1] - self._lows[0][1] if m else 0.0
         return rate, mean, jitter, 1.0 - rate if n else 0.0, self.misses
 
     def reset(self) -> None:
         """Forget every answer (a new connection)."""
         self.counter = 0
         self._answered.clear()
+        self._answered_sum = 0
         self._latencies.clear()
+        self._latency_sum = 0.0
+        self._highs.clear()
+        self._lows.clear()

@@ -226,3 +226,28 @@ def test_reasons_travel_as_codes_and_unknown_words_as_the_interfaces():
         assert fri.reason_code(text) == code
     assert fri.reason_code(fri.REASONS[3] + " (10)") == 3, "details after the words"
     assert fri.reason_code("at goal") == 2, "a procedure's own words: the PC asked"
+
+
+@given(
+    cycles=st.lists(
+        st.tuples(st.booleans(), st.floats(0.0, 0.01, allow_nan=False)), min_size=1, max_size=400
+    ),
+    window=st.integers(1, 120),
+)
+def test_the_statistics_are_those_of_the_window_whatever_came_before(cycles, window):
+    """The meter keeps running sums and sliding extremes (a cycle costs the same for any
+    window): they agree with the statistics computed afresh over the last cycles."""
+    meter = fri.QualityMeter(window=window)
+    for answered, latency in cycles:
+        meter.cycle(answered, latency)
+    verdicts = [a for a, _ in cycles][-window:]
+    latencies = [lat for a, lat in cycles if a][-window:]
+    rate, mean, jitter, miss_rate, misses = meter.stats()
+    assert rate == pytest.approx(sum(verdicts) / len(verdicts))
+    assert miss_rate == pytest.approx(1.0 - sum(verdicts) / len(verdicts))
+    assert misses == sum(1 for a, _ in cycles if not a)
+    if latencies:
+        assert mean == pytest.approx(sum(latencies) / len(latencies), abs=1e-12)
+        assert jitter == max(latencies) - min(latencies)
+    else:
+        assert (mean, jitter) == (0.0, 0.0)
