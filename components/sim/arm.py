@@ -25,6 +25,7 @@ Every brake engagement carries a reason, kept for the interface to publish.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import mujoco
@@ -38,7 +39,7 @@ MODES = {"position": (2500.0, 120.0), "impedance": (300.0, 21.0)}
 FEED_FORWARD = {"position": True, "impedance": False}
 """Whether the mode's servo is given the commanded velocity (position control tracks a
 moving command; joint impedance control only pulls toward the commanded position)."""
-_POSITION_LIMIT = np.array(lwr4.POSITION_LIMIT)
+_LIMITS = tuple(float(v) for v in lwr4.POSITION_LIMIT)
 
 
 @dataclass
@@ -76,6 +77,7 @@ class SimulatedArm:
         self.tcp_site = self.model.site("tcp").id
         self.watchdog_cycles = watchdog_cycles
         self.velocity_limit = np.array(lwr4.VELOCITY_LIMIT)
+        self._velocity_limit = tuple(float(v) for v in lwr4.VELOCITY_LIMIT)
         self.braked = True  # an arm powers up with its brakes on
         self.reason = "power on"
         self.mode = ""
@@ -83,7 +85,7 @@ class SimulatedArm:
         self._since_setpoint = 0
         self._fresh = False
         self._commanded = False
-        self._last_setpoint = np.array(q0, dtype=float)
+        self._last_setpoint = tuple(float(v) for v in q0)
         self._held = self.data.qpos[:7].copy()  # link angles the brakes hold
         self._at_rest = False  # braked and stepped once since: nothing left to simulate
 
@@ -107,9 +109,10 @@ class SimulatedArm:
         it carries (the servo's and the gravity compensation's)."""
         return (self.data.actuator_force[:7] + self.data.qfrc_gravcomp[:7]) * self._compliance
 
-    def _servo_target(self, setpoint: np.ndarray) -> np.ndarray:
-        """The link angle the servo must aim at for the encoders to read `setpoint`."""
-        return setpoint + self._offset - self._twist()
+    @property
+    def last_setpoint(self) -> tuple[float, ...]:
+        """The setpoint the servos were last given (cmdJntPos while commanded)."""
+        return self._last_setpoint
 
     @property
     def qd(self) -> np.ndarray:
@@ -153,47 +156,58 @@ class SimulatedArm:
             self.braked, self.reason = False, ""
             self._at_rest = False
             self.data.ctrl[:7] = self.data.qpos[:7]
-            self._last_setpoint = self.q
+            self._last_setpoint = tuple(self.q.tolist())
             self._since_setpoint = 0
             self._commanded = False
 
-    def command(self, setpoint: np.ndarray) -> bool:
+    def command(self, setpoint: np.ndarray | tuple[float, ...]) -> bool:
         """A joint position setpoint for the next cycles; False if refused (and braked)."""
         if self.braked:
             return False
-        setpoint = np.asarray(setpoint, dtype=float)
-        if setpoint.shape != (7,) or not np.isfinite(setpoint).all():
+        values = setpoint.tolist() if isinstance(setpoint, np.ndarray) else list(setpoint)
+        if (
+            len(values) != 7
+            or not all(isinstance(v, float | int) for v in values)
+            or not all(map(math.isfinite, values))
+        ):
             self.brake("setpoint is not 7 finite joint values")
             return False
         elapsed = self.dt * (self._since_setpoint + 1)  # cycles since the previous setpoint
         # the first setpoint after release is checked against the measured joints
-        reference = self._last_setpoint if self._commanded else self.q
-        delta = setpoint - reference
-        step = np.abs(delta)
-        allowed = self.velocity_limit * elapsed
-        allowed *= 1.5
-        allowed += 1e-6
-        if (step > allowed).any():
-            joint = int(np.argmax(step / allowed))
-            self.brake(
-                f"setpoint jump on {lwr4.JOINTS[joint]}: {np.degrees(step[joint]):.2f} deg "
-                f"in {elapsed * 1e3:.0f} ms"
-            )
-            return False
+        reference = self._last_setpoint if self._commanded else self.q.tolist()
         # in position mode, PD toward the setpoint with its velocity as reference:
         # ctrl = q* + (kv/kp) qd* turns MuJoCo's kp (ctrl - q) - kv qd into
         # kp (q* - q) + kv (qd* - qd), no lag; in impedance mode the damping acts on
         # the measured velocity alone, and the arm trails the command
-        target = self._servo_target(setpoint)
         if FEED_FORWARD[self.mode] and self._commanded:
             kp, kv = MODES[self.mode]
-            delta *= kv / kp
-            delta /= elapsed
-            target += delta
-        np.maximum(target, -_POSITION_LIMIT, out=target)
-        np.minimum(target, _POSITION_LIMIT, out=target)
+            feed_forward = kv / kp / elapsed
+        else:
+            feed_forward = 0.0
+        # seven joints in one pass of plain floats: numpy's per-call cost on 7-element
+        # arrays was most of the simulated KRC's cycle
+        reach = 1.5 * elapsed
+        aim = (self._offset - self._twist()).tolist()  # link angle = setpoint + this
+        target = [0.0] * 7
+        worst, joint = 1.0, -1
+        for j, (v, r, limit, a, bound) in enumerate(
+            zip(values, reference, self._velocity_limit, aim, _LIMITS, strict=True)
+        ):
+            delta = v - r
+            ratio = abs(delta) / (limit * reach + 1e-6)
+            if ratio > worst:
+                worst, joint = ratio, j
+            t = v + a + delta * feed_forward
+            target[j] = -bound if t < -bound else bound if t > bound else t
+        if joint >= 0:
+            step = abs(values[joint] - reference[joint])
+            self.brake(
+                f"setpoint jump on {lwr4.JOINTS[joint]}: {math.degrees(step):.2f} deg "
+                f"in {elapsed * 1e3:.0f} ms"
+            )
+            return False
         self.data.ctrl[:7] = target
-        self._last_setpoint = setpoint
+        self._last_setpoint = tuple(values)
         self._since_setpoint = 0
         self._fresh = True
         self._commanded = True

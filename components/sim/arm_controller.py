@@ -64,8 +64,6 @@ import time
 from collections import deque
 from typing import Any
 
-import numpy as np
-
 from components.domain import fri
 from components.domain.geometry import matrix_to_quat
 from components.domain.lwr4 import HOME, LWR4_ERRORS, NOMINAL, Kinematics
@@ -219,7 +217,7 @@ class ArmController(Component):
             self.counts["answered"] += 1
             self._serve(answer, quality)
             commanded = not arm.braked and answer.flags & fri.CMD_JNTPOS
-            if commanded and not arm.command(np.asarray(answer.jnt_pos)):
+            if commanded and not arm.command(answer.jnt_pos):
                 self.latched = self.latched or f"setpoint: {arm.reason}"  # the guard braked
         else:
             self.counts["missed"] += 1
@@ -335,7 +333,7 @@ class ArmController(Component):
     def _send(self, quality: fri.Quality) -> None:
         arm = self.arm
         q = tuple(arm.q.tolist())
-        self._cmd_jnt_pos = q if arm.braked else tuple(arm._last_setpoint.tolist())
+        self._cmd_jnt_pos = q if arm.braked else arm.last_setpoint
         self.send_seq += 1
         reason = self.latched or arm.reason
         datagram = fri.encode_measurement(
