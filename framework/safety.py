@@ -188,6 +188,14 @@ class SafetyMonitor:
         for watch in spec.watches:
             if watch.producer:  # a process heartbeat has no component behind it
                 self._alive.setdefault(watch.producer, False)
+        self._lost = len(self._alive)  # components whose token is gone (or not yet seen)
+        self._alive_changes = 0  # how many times a token came or went
+        self._healthy_until = -float("inf")
+        """Until when every watch is on time whatever arrives meanwhile (each one's last
+        arrival plus its deadline, the earliest of them): a check before it, with nobody
+        lost, has nothing to look at. Arrivals only push it later; a token that comes or
+        goes makes it unknown (-inf) until the next full look."""
+        self._last_stall: float | None = None  # the own stall at the last check that looked
         self._ports: list[InputPort[Any]] = []
         self._polled = False
         self._token_watch: Any = None
@@ -236,16 +244,31 @@ class SafetyMonitor:
 
     # -- inputs (any thread) ----------------------------------------------------------
     def arrived(self, index: int) -> None:
-        """A sample of watch `index` arrived now."""
+        """A sample of watch `index` arrived now. The silence it ends is the watch's
+        age at the last check before it (what that check saw, or would have seen had
+        it looked): the longest such silence is the watch's margin (`report`)."""
         with self._lock:
+            previous, count = self._arrived[index], self._samples[index]
+            stall, checked = self._last_stall, self._last_check
+            if self.armed and count >= 2 and stall is not None and checked is not None:
+                watch = self.spec.watches[index]
+                if index != self._own and self._alive.get(watch.producer, True):
+                    age = checked - previous - stall
+                    if age > self._worst[index]:
+                        self._worst[index] = age
             self._arrived[index] = self.clock.now()
-            self._samples[index] += 1
+            self._samples[index] = count + 1
 
     def set_alive(self, component: str, alive: bool) -> None:
         """A component's liveliness token appeared or vanished."""
         with self._lock:
-            if component in self._alive:
-                self._alive[component] = alive
+            was = self._alive.get(component)
+            if was is None or was == alive:
+                return
+            self._healthy_until = -float("inf")
+            self._alive_changes += 1
+            self._alive[component] = alive
+            self._lost += -1 if alive else 1
 
     # -- the control cycle --------------------------------------------------------------
     def _own_stall(self, now: float, arrived: list[float], samples: list[int]) -> float:
@@ -258,6 +281,13 @@ class SafetyMonitor:
             return 0.0
         period = heartbeat_period(self.spec.watches[index].deadline)
         return max(0.0, now - arrived[index] - 2.0 * period)
+
+    def _stall_now(self, now: float) -> float:
+        """`_own_stall` at `now`, of the monitor's current arrivals."""
+        index = self._own
+        if index is None:
+            return 0.0
+        return self._own_stall(now, self._arrived, self._samples)
 
     def problems(self) -> list[str]:
         """Every input that is not healthy now, in words (not latched): lost components
@@ -280,9 +310,11 @@ class SafetyMonitor:
         with self._lock:
             lost = [c for c, alive in self._alive.items() if not alive]
             arrived, samples = list(self._arrived), list(self._samples)
+            changes = self._alive_changes
         gone = [f"{c} lost (its process died or cannot be reached)" for c in lost]
         stall = self._own_stall(now, arrived, samples)
         worst = self._worst
+        healthy_until = float("inf")
         for index, (watch, at, count) in enumerate(
             zip(self.spec.watches, arrived, samples, strict=True)
         ):
@@ -290,7 +322,9 @@ class SafetyMonitor:
                 continue  # the monitor's own process hanging is the arm's watchdog's job
             if count < 2:  # the first sample may be a cached one from before a loss
                 out.append(f"{watch.name}: no data yet")
+                healthy_until = -float("inf")
                 continue
+            healthy_until = min(healthy_until, at + watch.deadline)
             age = now - at - stall
             if age > worst[index] and self.armed:  # start-up gaps are not the margin
                 worst[index] = age
@@ -299,6 +333,9 @@ class SafetyMonitor:
                     f"{watch.name}: no data for {age * 1e3:.0f} ms "
                     f"(deadline {watch.deadline * 1e3:.0f} ms)"
                 )
+        with self._lock:
+            if changes == self._alive_changes:  # no token came or went meanwhile
+                self._healthy_until = healthy_until
         return gone, out
 
     def check(self, released: bool = True) -> str:
@@ -320,7 +357,11 @@ class SafetyMonitor:
         late = self._last_check is not None and now - self._last_check > STARVED
         self._last_check = now
         if late:
+            self._last_stall = None  # what this check saw is not a margin
             return ""
+        self._last_stall = self._stall_now(now)
+        if self.armed and not self._lost and now < self._healthy_until:
+            return ""  # every input is on time until then (`_healthy_until`)
         lost, late_inputs = self._problems()
         if not lost and not late_inputs:
             self.armed = True

@@ -85,6 +85,9 @@ REQUESTS = {
     ("mode", "position"): fri.Request.MODE_POSITION,
     ("mode", "impedance"): fri.Request.MODE_IMPEDANCE,
 }
+_ASKED = fri.reason_code(fri.REASONS[2])
+_SAFETY_STOP = fri.reason_code(fri.REASONS[6])
+_STILL = (0.0,) * 7
 _TIMESTAMP = struct.Struct("ll")  # SO_TIMESTAMPNS: seconds, nanoseconds
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 """Linux's option (asm-generic/socket.h: 35) for the kernel's receive time of a datagram
@@ -411,17 +414,17 @@ class RobotInterface(Component):
         q = m.msr_jnt_pos
         previous = self._previous
         if previous is not None and m.cycle > previous[0]:
-            dt = (m.cycle - previous[0]) * CYCLE
-            velocity = tuple((a - b) / dt for a, b in zip(q, previous[1], strict=True))
+            rate = 1.0 / ((m.cycle - previous[0]) * CYCLE)
+            velocity = tuple([(a - b) * rate for a, b in zip(q, previous[1], strict=True)])
         else:
-            velocity = (0.0,) * 7
+            velocity = _STILL
         self._previous = (m.cycle, q)
         if self._kinematics is None:
             self._kinematics = Kinematics()
         reason = fri.REASONS[m.reason] if 0 <= m.reason < len(fri.REASONS) else "unknown"
-        if m.reason == fri.reason_code(fri.REASONS[2]):  # asked for: by this side, and why
+        if m.reason == _ASKED:  # asked for: by this side, and why
             reason = self._brake_reason or reason
-        elif m.reason == fri.reason_code(fri.REASONS[6]):
+        elif m.reason == _SAFETY_STOP:
             reason = self.latched or reason
         return ArmState(
             self._received,
@@ -579,10 +582,11 @@ class RobotInterface(Component):
             reference, cycles = self._sent[-1].tolist(), self._since_setpoint + 1
         else:
             reference, cycles = list(state.position), FIRST_STEP_CYCLES
-        worst, j = max(
-            (abs(v - r) / (step * cycles), k)
-            for k, (v, r, step) in enumerate(zip(values, reference, MAX_STEP, strict=True))
-        )
+        worst, j = -1.0, 0
+        for k, (v, r, step) in enumerate(zip(values, reference, MAX_STEP, strict=True)):
+            ratio = abs(v - r) / (step * cycles)
+            if ratio >= worst:  # of equal ratios, the last joint
+                worst, j = ratio, k
         self.peak_step = max(self.peak_step, worst)
         if worst > STEP_MARGIN:
             return (
