@@ -47,6 +47,7 @@ class Person:
     waypoints: list[np.ndarray] = field(default_factory=list)
     speed: float = WALK_SPEED
     lean: float = 0.0  # how far the hands reach forward (m)
+    turn_to: float | None = None  # the facing (rad) on arrival at the last waypoint
     build: Build = field(default_factory=Build)
 
     def advance(self, dt: float) -> None:
@@ -63,6 +64,8 @@ class Person:
             else:
                 self.position = self.position + step * (budget / distance)
                 budget = 0.0
+        if not self.waypoints and self.turn_to is not None:  # arrived: turn as asked
+            self.facing, self.turn_to = self.turn_to, None
 
     def skeleton(self, floor: float) -> np.ndarray:
         """True joints (15 x 3)."""
@@ -157,13 +160,25 @@ class PeopleWorld(Component):
         self.crowd[person] = Person(np.array([x, y], dtype=float), math.radians(facing_deg))
 
     @operation
-    def walk(self, person: int, x: float, y: float, speed: float = WALK_SPEED) -> None:
-        """Walk (after any waypoints already queued) to (x, y) at `speed` (m/s)."""
+    def walk(
+        self,
+        person: int,
+        x: float,
+        y: float,
+        speed: float = WALK_SPEED,
+        facing_deg: float | None = None,
+    ) -> None:
+        """Walk (after any waypoints already queued) to (x, y) at `speed` (m/s), facing
+        where they walk; on arrival turn to `facing_deg` if given (a surgeon who walks
+        up to the table turns to it: leaning, they reach where they face)."""
         if not (math.isfinite(x) and math.isfinite(y)) or not 0 < speed <= 3:
             raise FwError("walk needs a finite (x, y) and 0 < speed <= 3 m/s")
+        if facing_deg is not None and not math.isfinite(facing_deg):
+            raise FwError("facing_deg must be finite")
         p = self._person(person)
         p.waypoints.append(np.array([x, y], dtype=float))
         p.speed = speed
+        p.turn_to = None if facing_deg is None else math.radians(facing_deg)
 
     @operation
     def lean(self, person: int, reach: float = 0.5) -> None:

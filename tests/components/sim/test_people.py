@@ -20,6 +20,20 @@ def test_a_person_walks_the_waypoints_at_walking_speed_and_faces_the_way():
     assert np.allclose(p.position, [1.0, 1.0]) and not p.waypoints
 
 
+def test_a_person_asked_to_face_somewhere_turns_there_on_arrival_not_before():
+    p = Person(np.array([2.0, 0.5]), turn_to=math.pi)
+    p.waypoints = [np.array([1.0, 0.5])]
+    p.advance(0.5)
+    assert math.isclose(p.facing, math.pi), "walking toward -x"
+    p.turn_to = math.pi / 2
+    p.advance(0.25)
+    assert math.isclose(p.facing, math.pi), "still on the way: facing the way"
+    p.advance(1.0)
+    assert np.allclose(p.position, [1.0, 0.5]) and math.isclose(p.facing, math.pi / 2)
+    p.advance(1.0)
+    assert math.isclose(p.facing, math.pi / 2), "standing, they keep facing there"
+
+
 def test_leaning_brings_the_hands_forward_to_table_height():
     upright = Person(np.array([1.3, 0.0]), facing=math.pi).skeleton(floor=-0.8)
     leaning = Person(np.array([1.3, 0.0]), facing=math.pi, lean=0.7).skeleton(floor=-0.8)
