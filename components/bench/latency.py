@@ -326,10 +326,12 @@ def collision_reaction(run: SeegRun, trials: int, progress: Any = None) -> list[
     """A surgeon standing at the table leans over the moving robot; L = t_stop -
     t_collision (eq. 3.18), and the braking cycle's latency in `detail["brake"]`.
     Then they stand upright, the distance clears and RELEASE resumes the motion.
-    Speed and separation monitoring may stop the arm before the collision distance
-    (more often on a busy host, where the lean is seen later): such a lean is returned
-    with `detail["preempted"]` and leaned again, until `trials` leans timed the
-    Supervisor's path or 3x as many were preempted."""
+    Speed and separation monitoring may stop the arm first: before the collision
+    distance (more often on a busy host, where the lean is seen later), or on the same
+    camera frame as the Supervisor, whose halt then comes after the arm already brakes.
+    Such a lean (a protective stop said, or the braking cycle, before the halt) is
+    returned with `detail["preempted"]` and leaned again, until `trials` leans timed
+    the Supervisor's path or 3x as many were preempted."""
     limit = _collision_distance()
     goal = ["target"]
     preempted: list[Trial] = []
@@ -355,13 +357,19 @@ def collision_reaction(run: SeegRun, trials: int, progress: Any = None) -> list[
                 },
                 "a robot-person distance under the collision distance, or a protective stop",
             )
-            result: Trial | None
-            if first.key == "robot/status":
+            result: Trial | None = None
+            if first.key != "robot/status":
+                timed = _stop_after(run, t0, first.message.stamp, "possible collision")
+                timed.detail["distance"] = first.message.value
+                # the same camera frame reaches the robot's separation check and the
+                # Supervisor: the braking may be the protective stop's (the arm stops,
+                # the interpolator sees it lag), not the halt's
+                if not _protective_stop_before(run, t0, timed.end) and timed.detail["brake"] >= (
+                    timed.latency
+                ):
+                    result = timed
+            if result is None:  # the Supervisor's path was not what stopped it: lean again
                 preempted.append(Trial(0.0, first.received, first.received, {"preempted": True}))
-                result = None  # the Supervisor's path was not exercised: lean again
-            else:
-                result = _stop_after(run, t0, first.message.stamp, "possible collision")
-                result.detail["distance"] = first.message.value
             run.wait_state("Stopped", 10.0, since=mark)
         finally:
             run.call("people_world.lean", person=COLLIDER, reach=0.0)
@@ -381,6 +389,16 @@ def collision_reaction(run: SeegRun, trials: int, progress: Any = None) -> list[
     finally:
         run.call("people_world.leave", person=COLLIDER)
         _no_collision(run)
+
+
+def _protective_stop_before(run: SeegRun, after: float, stamp: float) -> bool:
+    """Whether the robot said a protective stop (speed and separation monitoring) stamped
+    before `stamp`, among its statuses received since `after`."""
+    return any(
+        sample.message.stamp < stamp
+        and str(sample.message.payload.get("reason", "")).startswith("protective stop")
+        for sample in run.since(after, "robot/status")
+    )
 
 
 def _no_collision(run: SeegRun, timeout: float = 10.0) -> None:

@@ -13,7 +13,6 @@ def test_quick_bench_runs_every_experiment_and_writes_report_summary_and_figures
     rows = {(r["experiment"], r["quantity"]): r for r in summary["rows"]}
     assert rows[("swap", "L p50")]["thesis"] == 12.5 and rows[("swap", "L p50")]["n"] == 5
     assert rows[("nosensor", "L p50")]["n"] == 3
-    assert rows[("collision", "L p50")]["thesis"] == 1.1
     assert rows[("ssm", "detection -> stop command p50")]["n"] == 3, "protective stops"
     assert rows[("zenoh", "hop p50")]["fw"] > 0
     # head bumps on the deployed system: never a calibration fault or a swap
@@ -37,11 +36,18 @@ def test_quick_bench_runs_every_experiment_and_writes_report_summary_and_figures
     assert summary["series"]["cost"]["idle"]["cycle_ms"]["n"] > 100
     series = summary["series"]
     # every reaction ends after its cause, and braking begins after the STOP is sent
-    for key in ("swap_ms", "nosensor_ms", "collision_ms", "ssm_ms"):
+    for key in ("swap_ms", "nosensor_ms", "ssm_ms"):
         assert series[key] and all(v > 0 for v in series[key]), key
-    assert all(
-        b >= s for b, s in zip(series["collision_brake_ms"], series["collision_ms"], strict=True)
-    )
+    # a lean is timed through the Supervisor's halt (the thesis's path) only where that
+    # halt is what braked the arm; the robot's separation monitoring, faster, usually
+    # stops it first (at 11-15 cm, short of the 10 cm collision distance): counted apart
+    preempted = rows[("collision", "leans stopped by speed and separation monitoring first")]
+    if ("collision", "L p50") in rows:
+        assert rows[("collision", "L p50")]["thesis"] == 1.1
+        timed = list(zip(series["collision_brake_ms"], series["collision_ms"], strict=True))
+        assert timed and all(0 < s <= b for b, s in timed)
+    else:
+        assert preempted["fw"] >= 9, "gave up only after 3x the leans asked for"
     assert [len(block) for block in series["repeated_ms"]] == [3, 3]
     assert series["motion"]["swaps"], "the trackers were swapped during the approach"
     # braking on the MuJoCo arm: slower is shorter, and the arm returns to the STOP point
