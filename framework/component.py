@@ -204,9 +204,16 @@ class Component:
     update (s; None: the activity's `idle`): a component that knows when its inputs fall
     due (a tracker's staleness deadline) wakes then, not on a fixed beat."""
     realtime = False
-    """A periodic component that is a device's own clock (the simulated KRC) asks the
-    host for real-time priority for its thread, as a paced loop does
-    (framework/realtime.py)."""
+    """A periodic component that is a device's own clock (the simulated KRC) runs a
+    device loop: its cycles timed, the collector kept out of them, and real-time
+    priority for its thread as a paced loop has (framework/realtime.py), unless it is a
+    `simulated_device`."""
+    simulated_device = False
+    """A `realtime` component that simulates a machine of its own (the KRC of the
+    simulated OR): its loop keeps SCHED_OTHER at its process's nice level, so that on a
+    host too slow for the whole simulation the simulation slows down instead of taking
+    the CPU from the system under test (real-time priority is the robot interface's,
+    the PC side, as in an OR where the KRC is another computer)."""
     periods_per_update = 1
     """A periodic component's next update comes this many periods later (it then does
     that many periods' work): a controller in monitor mode wakes less often than in

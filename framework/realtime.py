@@ -92,6 +92,9 @@ class LoopStats:
     longest: float = 0.0
     collections: int = 0
     longest_collection: float = 0.0
+    host_realtime: bool | None = None
+    """Whether the host gives real-time priority (a simulated device's loop asks without
+    taking it); None where nobody said."""
 
     def cycle(self, seconds: float) -> None:
         """One cycle's work (read done to write sent) took `seconds`."""
@@ -137,11 +140,15 @@ class RealTimePolicy:
         self.enabled = enabled
         self.priority = priority
         self.manage_gc = manage_gc
+        self.granted: bool | None = None
+        """Whether the host gives real-time priority (None: no loop asked yet)."""
 
-    def enter(self, name: str, priority: int | None = None) -> str:
+    def enter(self, name: str, priority: int | None = None, fifo: bool = True) -> str:
         """In the loop's own thread, before its first cycle: ask for SCHED_FIFO (at
-        `priority`, the policy's own unless given), lock memory, take the collector
-        over; what the thread got, in words."""
+        `priority`, the policy's own unless given; with `fifo` False only find out
+        whether the host would give it: a simulated device's loop), lock memory, take
+        the collector over; what the thread got, in words. `granted` says afterwards
+        whether the host gives real-time priority."""
         priority = self.priority if priority is None else priority
         sys.setswitchinterval(SWITCH_INTERVAL)
         if self.manage_gc:
@@ -149,12 +156,20 @@ class RealTimePolicy:
             gc.freeze()  # what exists now is never scanned again
             gc.disable()  # the loop collects between its cycles
         if not self.enabled:
+            self.granted = False
             return f"SCHED_OTHER, nice {os.nice(0)} (real-time not asked for)"
-        try:
-            os.sched_setscheduler(
-                threading.get_native_id(), os.SCHED_FIFO, os.sched_param(priority)
+        thread = threading.get_native_id()
+        if not fifo:
+            self.granted = _fifo_allowed(thread, priority)
+            allowed = "the host allows it" if self.granted else "the host does not allow it"
+            return (
+                f"SCHED_OTHER, nice {os.nice(0)} (a simulated device: real-time priority is "
+                f"left to the system under test; {allowed})"
             )
+        try:
+            os.sched_setscheduler(thread, os.SCHED_FIFO, os.sched_param(priority))
         except (PermissionError, OSError) as exc:
+            self.granted = False
             why = exc.strerror or str(exc)
             got = f"SCHED_OTHER, nice {os.nice(0)} (SCHED_FIFO refused: {why})"
             log.warning("%s: no real-time priority for its loop: %s", name, got)
@@ -164,6 +179,7 @@ class RealTimePolicy:
                 file=sys.stderr,
             )
             return got
+        self.granted = True
         locked = _lock_memory()
         return f"SCHED_FIFO {priority}" + ("" if locked else " (memory not locked)")
 
@@ -204,6 +220,18 @@ def name_os_thread(name: str) -> None:
     libc = _libc()
     if libc is not None:
         libc.prctl(_PR_SET_NAME, name.encode()[:15], 0, 0, 0)
+
+
+def _fifo_allowed(thread: int, priority: int) -> bool:
+    """Whether the host would run `thread` at SCHED_FIFO `priority`: asked, then given
+    back (the thread keeps its own policy and nice level)."""
+    policy, param = os.sched_getscheduler(thread), os.sched_getparam(thread)
+    try:
+        os.sched_setscheduler(thread, os.SCHED_FIFO, os.sched_param(priority))
+    except (PermissionError, OSError):
+        return False
+    os.sched_setscheduler(thread, policy, param)
+    return True
 
 
 def _lock_memory() -> bool:

@@ -1,0 +1,77 @@
+"""Spec: what a device loop's thread asks of the host (framework/realtime.py). The robot
+interface's loop takes SCHED_FIFO where the host gives it; a simulated device's (the
+simulated OR's KRC) keeps SCHED_OTHER, so a host too slow for the whole simulation slows
+the simulation instead of starving the system under test, and it still learns whether
+the host gives real-time priority (the interface's loop then has it)."""
+
+import os
+import subprocess
+import sys
+import threading
+
+import pytest
+
+from framework.realtime import PRIORITY, RealTimePolicy
+from tests.conftest import REPO
+
+
+def fifo_allowed() -> bool:
+    """Whether this host lets this process raise a thread to SCHED_FIFO."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    except (PermissionError, OSError):
+        return False
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    return True
+
+
+def enter_in_a_thread(policy: RealTimePolicy, fifo: bool) -> tuple[str, int]:
+    """What `enter` says, and the policy the loop's thread has after it."""
+    out: dict[str, object] = {}
+
+    def loop() -> None:
+        out["said"] = policy.enter("device", PRIORITY - 1, fifo=fifo)
+        out["policy"] = os.sched_getscheduler(0)
+
+    interval = sys.getswitchinterval()
+    thread = threading.Thread(target=loop)
+    thread.start()
+    thread.join()
+    sys.setswitchinterval(interval)  # enter set it for the whole process
+    return str(out["said"]), int(out["policy"])  # type: ignore[call-overload]
+
+
+def test_a_simulated_devices_loop_keeps_sched_other_and_learns_what_the_host_gives():
+    policy = RealTimePolicy(manage_gc=False)
+    said, policy_after = enter_in_a_thread(policy, fifo=False)
+    assert policy_after == os.SCHED_OTHER
+    assert said.startswith("SCHED_OTHER") and "a simulated device" in said
+    assert policy.granted is fifo_allowed()
+    assert ("the host allows it" in said) is fifo_allowed()
+
+
+@pytest.mark.skipif(not fifo_allowed(), reason="this host gives no real-time priority")
+def test_a_device_loop_takes_sched_fifo_where_the_host_gives_it():
+    # in a process of its own: the loop also locks its process's memory (mlockall)
+    script = (
+        "import os, threading\n"
+        "from framework.realtime import PRIORITY, RealTimePolicy\n"
+        "policy, out = RealTimePolicy(manage_gc=False), {}\n"
+        "def loop():\n"
+        "    out['said'] = policy.enter('device', PRIORITY - 1)\n"
+        "    out['fifo'] = os.sched_getscheduler(0) == os.SCHED_FIFO\n"
+        "t = threading.Thread(target=loop); t.start(); t.join()\n"
+        "print(out['fifo'], policy.granted, out['said'])\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=60, cwd=REPO
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith(f"True True SCHED_FIFO {PRIORITY - 1}")
+
+
+def test_a_loop_not_asking_for_real_time_is_said_so_and_given_none():
+    policy = RealTimePolicy(enabled=False, manage_gc=False)
+    said, policy_after = enter_in_a_thread(policy, fifo=True)
+    assert policy_after == os.SCHED_OTHER and "real-time not asked for" in said
+    assert policy.granted is False
