@@ -27,11 +27,13 @@ import os
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from components.bench.latency import keep_moving
 from components.bench.seeg_run import BenchError, SeegRun
 from framework.messages import ArmState
 
@@ -98,13 +100,15 @@ def measure(
     seconds: float,
     jitter_seconds: float,
     while_in: tuple[str, ...] = (),
+    resume: Callable[[], None] | None = None,
 ) -> Window:
     """CPU per process and the arm's real-time factor over `seconds`, or less if the
     chart leaves the states `while_in` (the moving window covers only motion); then
     the arm's cycle intervals over `jitter_seconds` (a subscriber of its 1 kHz output
     costs something, so it comes after the CPU is counted), only those taken while
-    still in `while_in`. Also what the robot's loop and the FRI link report at the CPU
-    window's end: the loop's per-stage cycle times (its last 2000 cycles), scheduling
+    still in `while_in` (`resume` sets the robot moving again first if the motion the
+    CPU window counted is over: the approach lasts ~9 s). Also what the robot's loop and
+    the FRI link report at the CPU window's end: the loop's per-stage cycle times (its last 2000 cycles), scheduling
     class, the link's quality and counters."""
     pids = processes(run)
     pids["zenoh_idle"] = _zenoh_idle(run)
@@ -128,6 +132,8 @@ def measure(
     reference = cores.pop("zenoh_idle")
     realtime = (last["cycle"] - first["cycle"]) / (elapsed * 1000.0)
     states = []
+    if while_in and resume is not None and run.task_state() not in while_in:
+        resume()
     if not while_in or run.task_state() in while_in:
         subscription = run.watch("arm/measured", ArmState)
         start = time.time()
@@ -209,7 +215,14 @@ def idle_and_moving(
         mark = run.mark()
         run.send("e_START")
         run.wait_state("Moving_Fast", 30.0, since=mark)
-        moving = measure(run, seconds, jitter_seconds, while_in=MOTION_STATES)
+        goal = ["target"]
+        moving = measure(
+            run,
+            seconds,
+            jitter_seconds,
+            while_in=MOTION_STATES,
+            resume=lambda: keep_moving(run, goal),
+        )
     finally:
         stop(loops)
         for process in _ZENOH:

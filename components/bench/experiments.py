@@ -186,7 +186,9 @@ def run_cost(quick: bool, context: dict[str, Any]) -> list[Row]:
                     n=1,
                 )
             )
-        cycles = window.cycle_ms or [0.0]
+        cycles = window.cycle_ms
+        if not cycles:  # no interval was measured: no figure, and no target said met
+            continue
         s = stats(cycles)
         rows.append(Row("cost", f"{what}{under}: arm cycle interval p50", s["p50"], n=len(cycles)))
         rows.append(

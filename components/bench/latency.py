@@ -514,6 +514,33 @@ WALKER = 2
 """The person of `people_world` who walks at the arm in the protective stop trials."""
 
 
+def _stop_timing(run: SeegRun, since: float, timeout: float = 2.0) -> dict[str, Any] | None:
+    """The robot interface's timing of a protective stop stamped at or after `since`
+    (its report may lag the status that said the stop), None if none comes."""
+    deadline = time.monotonic() + timeout
+    while True:
+        timing = run.call("robot.report").get("protective_stop") or {}
+        if timing.get("stamp", 0.0) >= since and timing.get("envelopes_taken"):
+            return timing
+        if time.monotonic() > deadline:
+            return None
+        time.sleep(0.02)
+
+
+def _nobody_near(run: SeegRun, distance: float = 0.5, timeout: float = 10.0) -> None:
+    """Wait until the people detector sees nobody within `distance` of the robot for
+    0.3 s (a person who left may live on as a track for a few frames)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        t = time.time()
+        time.sleep(0.3)
+        recent = run.since(t, "people_detector/min_distance")
+        if all(s.message.value > distance for s in recent):
+            return
+        if time.monotonic() > deadline:
+            raise BenchError(f"someone stays within {distance} m of the robot")
+
+
 def protective_stops(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
     """A person appears against the moving arm (steps out of a blind spot: placed
     there in one frame, well inside the protective distance), and the robot interface's
@@ -534,15 +561,24 @@ def protective_stops(run: SeegRun, trials: int, progress: Any = None) -> list[Tr
     def trial() -> Trial:
         keep_moving(run, goal)
         time.sleep(0.3)
+        before = run.call("robot.report")
+        if before.get("latched"):  # stopped before anyone appeared: not this trial's stop
+            raise BenchError(f"the robot stopped before the person appeared: {before['reason']}")
         t0 = time.time()
         run.call("people_world.place", person=WALKER, x=0.7, y=0.0, facing_deg=180.0)
         try:
-            stop = _first(run, "robot/status", t0, protective, "protective stop")
-            timing = run.call("robot.report").get("protective_stop") or {}
-            if timing.get("stamp", 0.0) < t0 or not timing.get("envelopes_taken"):
+            stop = _first(
+                run,
+                "robot/status",
+                t0,
+                lambda m: m.stamp >= t0 and protective(m),  # not a repeat of an older one
+                "protective stop",
+            )
+            timing = _stop_timing(run, t0)
+            if timing is None:
                 raise BenchError(
                     f"a protective stop ({stop.message.payload.get('reason')}) the robot "
-                    f"interface reports no timing of: {timing}"
+                    "interface reports no timing of since the person appeared"
                 )
             cause, braked = timing["envelopes_taken"], stop.message.stamp
             detail = {
@@ -553,15 +589,13 @@ def protective_stops(run: SeegRun, trials: int, progress: Any = None) -> list[Tr
         finally:
             run.call("people_world.leave", person=WALKER)
 
+    def cleanup() -> None:
+        run.call("people_world.leave", person=WALKER)
+        _nobody_near(run)
+
     run.call("people_world.leave", person=WALKER)
     try:
-        return _repeat(
-            "protective stop",
-            trials,
-            trial,
-            progress,
-            lambda: run.call("people_world.leave", person=WALKER),
-        )
+        return _repeat("protective stop", trials, trial, progress, cleanup)
     finally:
         run.unwatch(statuses)
         _no_collision(run)
