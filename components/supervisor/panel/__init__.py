@@ -23,6 +23,17 @@ from framework.messages import EventMessage, Pose, Scalar
 
 TRACE_SECONDS = 20.0
 TRACE_RATE = 20.0
+"""Hz: how often the TCP trace takes a point."""
+
+
+def thinnest(key: str, thinned: dict[str, float] | None, rate: float) -> str:
+    """The key to listen on for `rate` Hz of `key`'s samples: the slowest of the thinned
+    streams the topology already has of it (`thinned`: thinned key -> Hz) that is at
+    least that fast, else `key` itself (every sample)."""
+    fast_enough = [(hz, k) for k, hz in (thinned or {}).items() if hz >= rate]
+    return min(fast_enough)[1] if fast_enough else key
+
+
 STALE_AFTER = 2.0
 
 
@@ -48,11 +59,18 @@ class SeegPanel(Panel):
         self.model = model
         components = model.topology.components
 
-        def listen(component: str, port: str, kind: type, handler: Any, size: int) -> None:
+        def listen(
+            component: str, port: str, kind: type, handler: Any, size: int, rate: float = 0.0
+        ) -> None:
             if component in components:
-                model.listen(components[component].output_key(port), kind, handler, size)
+                key = components[component].output_key(port)
+                if rate:
+                    key = thinnest(key, model.topology.thinned.get(component, {}).get(port), rate)
+                model.listen(key, kind, handler, size)
 
-        listen("robot", "tcp", Pose, self._on_tcp, 1)
+        # the trace needs 20 Hz: on the robot's 1 kHz key each sample cost the robot's loop
+        # its pose and a put, and this process a callback, with the console open
+        listen("robot", "tcp", Pose, self._on_tcp, 1, rate=TRACE_RATE)
         listen(
             "people_detector", "people", EventMessage, lambda m: model.set("people", m.payload), 1
         )

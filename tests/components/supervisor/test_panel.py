@@ -42,3 +42,15 @@ def test_an_old_report_never_reads_as_the_robot_side_now():
     old = {t.id: t for t in panel.tiles({"robot": {"data": released, "age": STALE_AFTER + 1}})}
     assert old["robot"].text.startswith("no report for 3 s (last: released)")
     assert old["robot"].stale and old["robot"].tone == "bad"
+
+
+def test_the_trace_listens_to_the_slowest_thinned_stream_fast_enough_for_it():
+    """The TCP trace takes 20 points a second: it listens where the topology already
+    thins the robot's 1 kHz key, not to every sample."""
+    from components.supervisor.panel import thinnest
+
+    thinned = {"robot/tcp/at_200hz": 200.0, "robot/tcp/at_50hz": 50.0, "robot/tcp/at_5hz": 5.0}
+    assert thinnest("robot/tcp", thinned, 20.0) == "robot/tcp/at_50hz"
+    assert thinnest("robot/tcp", thinned, 100.0) == "robot/tcp/at_200hz"
+    assert thinnest("robot/tcp", thinned, 500.0) == "robot/tcp", "none fast enough: every sample"
+    assert thinnest("robot/tcp", None, 20.0) == "robot/tcp"
