@@ -60,6 +60,7 @@ class Window:
     krc_loop: dict[str, Any] = field(default_factory=dict)  # the simulated KRC's
     fri: dict[str, Any] = field(default_factory=dict)  # link quality and counters
     zenoh_idle: float = 0.0  # cores a process holding only a Zenoh session took
+    interrupted: list[str] = field(default_factory=list)  # motions a stop cut short first
 
     @property
     def total(self) -> float:
@@ -90,6 +91,13 @@ ZENOH_IDLE = (
 """A process that only holds a Zenoh session: the floor any fw process stands on."""
 
 
+class ShortWindow(BenchError):
+    """A window the chart left too soon (a stop) to count cores over."""
+
+
+MOVING_TRIES = 3
+"""Motions the moving window may be tried on: one a stop interrupted (a busy host's
+late input, as fw must stop on) is said and the next one measured."""
 MIN_WINDOW = 1.0
 """s: the shortest window whose CPU figures mean anything (a motion that ended sooner
 is an error of the bench, never a number of cores)."""
@@ -124,9 +132,11 @@ def measure(
     robot = run.call("robot.report", loop=True)
     last = run.call("arm.report", loop=True)
     if elapsed < MIN_WINDOW:
-        raise BenchError(
+        state = run.task_state()
+        why = run.last_payload("e_STOP") if state == "Stopped" else None
+        raise ShortWindow(
             f"the window lasted {elapsed:.2f} s (the chart left {', '.join(while_in)} for "
-            f"{run.task_state()}): too short to count cores"
+            f"{state}{f': {why}' if why else ''}): too short to count cores"
         )
     cores = {name: (after[name] - before[name]) / elapsed for name in pids}
     reference = cores.pop("zenoh_idle")
@@ -216,13 +226,26 @@ def idle_and_moving(
         run.send("e_START")
         run.wait_state("Moving_Fast", 30.0, since=mark)
         goal = ["target"]
-        moving = measure(
-            run,
-            seconds,
-            jitter_seconds,
-            while_in=MOTION_STATES,
-            resume=lambda: keep_moving(run, goal),
-        )
+        interrupted: list[str] = []
+        while True:
+            try:
+                moving = measure(
+                    run,
+                    seconds,
+                    jitter_seconds,
+                    while_in=MOTION_STATES,
+                    resume=lambda: keep_moving(run, goal),
+                )
+                break
+            except ShortWindow as exc:
+                interrupted.append(str(exc))
+                if len(interrupted) >= MOVING_TRIES:
+                    raise BenchError(
+                        f"{len(interrupted)} motions stopped before a window: "
+                        + "; ".join(interrupted)
+                    ) from None
+                keep_moving(run, goal)  # RELEASE, as the operator would, and measure that
+        moving.interrupted = interrupted
     finally:
         stop(loops)
         for process in _ZENOH:
@@ -244,6 +267,7 @@ def summary(window: Window) -> dict[str, Any]:
         "loop": window.loop,
         "krc_loop": window.krc_loop,
         "fri": window.fri,
+        "interrupted": window.interrupted,
         "cycle_ms": {
             "p50": round(float(np.percentile(cycles, 50)), 4),
             "p99": round(float(np.percentile(cycles, 99)), 4),

@@ -119,6 +119,17 @@ def run_cost(quick: bool, context: dict[str, Any]) -> list[Row]:
         what = "braked, waiting" if name == "idle" else "moving"
         for process, cores in sorted(window.cores.items()):
             rows.append(Row("cost", f"{what}{under}: {process}", cores, unit="cores", n=1))
+        if window.interrupted:
+            rows.append(
+                Row(
+                    "cost",
+                    f"{what}{under}: motions a stop cut short before this one (reasons in "
+                    "summary.json)",
+                    float(len(window.interrupted)),
+                    unit="",
+                    n=1,
+                )
+            )
         rows.append(
             Row(
                 "cost",
