@@ -279,6 +279,50 @@ def test_a_lost_producer_is_reported_as_lost_not_also_as_late():
     assert len(monitor.problems()) == 2
 
 
+def test_a_component_lost_while_a_report_looked_still_trips_at_the_next_check():
+    """A report (or a RELEASE's readiness) between two checks sees the loss first: the
+    next check must still trip on it, whatever the report concluded about the others."""
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    monitor.set_alive("y", False)
+    assert monitor.problems()[0].startswith("y lost")  # a report between cycles
+    clock.set(clock.now() + TICK)
+    assert monitor.check() == "y lost (its process died or cannot be reached)"
+
+
+def test_a_component_gone_and_back_between_checks_is_judged_by_its_inputs_at_once():
+    """Its token went (a report saw it gone) and came back before the next check; its
+    output fell silent meanwhile: the next check past its deadline trips, it is not
+    left out as it was while gone."""
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    monitor.set_alive("y", False)
+    monitor.problems()  # a report while y was gone: y's output was not looked at
+    monitor.set_alive("y", True)
+    verdicts = feed(monitor, clock, 17, watches=(0, 1))  # y.out silent
+    assert verdicts[:16] == [""] * 16
+    assert verdicts[16] == "y.out: no data for 66 ms (deadline 62 ms)"
+
+
+def test_a_token_that_comes_back_during_a_look_leaves_the_next_check_to_look_again():
+    """The bus's thread may say a component is back while the loop's thread is judging
+    the others without it: that judgement must not let the next check skip its inputs."""
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    monitor.set_alive("y", False)
+    judge = monitor._own_stall
+
+    def back_meanwhile(*args):  # y's token returns in the middle of the look
+        monitor.set_alive("y", True)
+        return judge(*args)
+
+    monitor._own_stall = back_meanwhile
+    monitor.problems()
+    monitor._own_stall = judge
+    verdicts = feed(monitor, clock, 17, watches=(0, 1))  # y.out silent
+    assert verdicts[16] == "y.out: no data for 66 ms (deadline 62 ms)"
+
+
 def test_the_report_says_each_inputs_age_worst_silence_and_deadline():
     monitor, clock = lone_monitor()
     assert monitor.report()["watches"]["x"] == {
