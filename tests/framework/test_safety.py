@@ -442,3 +442,192 @@ def test_a_process_without_a_real_time_loop_beats_from_a_thread_of_its_own(hub):
         assert any(t.name == "fw-beat-plain_process" for t in threading.enumerate())
     finally:
         container.shutdown()
+
+
+# --- what the quiet check skips, and the margins it keeps ------------------------------
+
+
+def counting_looks(monitor):
+    """Count the monitor's full looks at every watch (`_problems`)."""
+    looks = [0]
+    look = monitor._problems
+
+    def counted():
+        looks[0] += 1
+        return look()
+
+    monitor._problems = counted
+    return looks
+
+
+def test_a_quiet_cycle_looks_at_no_watch_until_one_could_be_late():
+    """The 1 kHz loop's budget: with every input on time, a check only takes the
+    arrivals; it looks at the watches again once the earliest (arrival + deadline) has
+    come (here y.out's 62.5 ms, 16 ticks after its last sample)."""
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    looks = counting_looks(monitor)
+    feed(monitor, clock, 64)  # every input arriving every tick
+    assert looks[0] <= 4, "quiet: a look every 16 ticks at most"
+    looks[0] = 0
+    verdicts = feed(monitor, clock, 17, watches=(0, 1))  # y.out silent
+    assert looks[0] >= 1 and verdicts[-1].startswith("y.out: no data for 66 ms")
+
+
+def test_a_watchs_margin_is_its_longest_silence_while_armed_not_its_start_up():
+    monitor, clock = lone_monitor()
+    clock.set(TICK)
+    monitor.arrived(2)
+    clock.set(20 * TICK)  # y.out's first two samples 19 ticks apart: start-up, not armed
+    monitor.arrived(2)
+    feed(monitor, clock, 64)
+    assert monitor.report()["watches"]["y.out"]["worst_ms"] <= round(TICK * 1e3, 1)
+    feed(monitor, clock, 8, watches=(0, 1))  # y.out silent 8 ticks, then back
+    feed(monitor, clock, 2)
+    assert monitor.report()["watches"]["y.out"]["worst_ms"] == round(8 * TICK * 1e3, 1)
+    feed(monitor, clock, 4, watches=(0, 1))  # a shorter silence leaves the margin
+    feed(monitor, clock, 2)
+    assert monitor.report()["watches"]["y.out"]["worst_ms"] == round(8 * TICK * 1e3, 1)
+
+
+def test_a_frozen_monitor_process_does_not_count_its_freeze_in_anyones_margin():
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    clock.set(clock.now() + 0.04)  # the whole process stood still 40 ms
+    monitor.check()  # late: only records the time
+    feed(monitor, clock, 2)
+    assert monitor.report()["watches"]["x"]["worst_ms"] <= round(2 * TICK * 1e3, 1)
+    clock.set(clock.now() + 0.04)  # again, and this time its own heartbeat says so
+    monitor.arrived(1)
+    monitor.arrived(2)
+    feed(monitor, clock, 2)
+    assert monitor.report()["watches"]["y.out"]["worst_ms"] <= round(2 * TICK * 1e3, 1)
+
+
+def test_a_lost_producers_silence_is_not_its_inputs_margin():
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    monitor.set_alive("y", False)
+    feed(monitor, clock, 8, watches=(0, 1))  # y gone: its output silent too
+    monitor.set_alive("y", True)
+    monitor.arrived(2)
+    assert monitor.report()["watches"]["y.out"]["worst_ms"] <= round(TICK * 1e3, 1)
+
+
+def test_two_components_lost_and_one_back_still_trips_on_the_other():
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    monitor.set_alive("x", False)
+    monitor.set_alive("y", False)
+    monitor.set_alive("x", False)  # said twice: still one loss of x
+    monitor.set_alive("x", True)
+    clock.set(clock.now() + TICK)
+    assert monitor.check() == "y lost (its process died or cannot be reached)"
+
+
+def test_a_component_said_alive_twice_then_lost_once_trips():
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    monitor.set_alive("y", True)  # already alive: nothing changes
+    monitor.set_alive("y", False)
+    clock.set(clock.now() + TICK)
+    assert monitor.check().startswith("y lost")
+
+
+def test_a_producer_named_only_by_a_watch_is_lost_until_its_token_comes():
+    spec = SafetySpec("robot", (Watch("z.out", "z/out", 0.1, "z"),), ())
+    monitor = SafetyMonitor(spec, SimulatedClock())
+    assert monitor.problems()[0] == "z lost (its process died or cannot be reached)"
+    monitor.set_alive("z", True)
+    assert monitor.problems() == ["z.out: no data yet"]
+
+
+def test_a_monitor_in_a_process_without_its_own_heartbeat_judges_by_ages_alone():
+    spec = SafetySpec("robot", (Watch("y.out", "y/out", 0.0625, "y"),), ("y",))
+    clock = SimulatedClock()
+    monitor = SafetyMonitor(spec, clock)  # no hosting process named
+    monitor.set_alive("y", True)
+    verdicts = []
+    for tick in range(40):
+        clock.set(clock.now() + TICK)
+        if tick < 20:
+            monitor.arrived(0)
+        verdicts.append(monitor.check())
+    assert verdicts[:36] == [""] * 36, "62.5 ms after the last sample is not late yet"
+    assert verdicts[36] == "y.out: no data for 66 ms (deadline 62 ms)"
+
+
+def test_a_check_after_the_first_needs_no_earlier_one_to_decide():
+    monitor, clock = lone_monitor()
+    clock.set(TICK)
+    for index in range(3):
+        monitor.arrived(index)
+        monitor.arrived(index)
+    assert monitor.check() == "" and monitor.armed, "the very first check arms it"
+
+
+def test_a_closed_monitor_hears_nothing_more(hub, bus_config):
+    """Closed (its process stopping), it undeclares its subscriptions: later samples
+    and tokens change nothing."""
+    from framework.messages import Scalar
+    from tests.conftest import writer_port
+
+    peer = Bus(bus_config)
+    spec = SafetySpec("robot", (Watch("w", "test/w", 0.1, "w"),), ("w",))
+    clock = SimulatedClock()
+    monitor = SafetyMonitor(spec, clock).attach(hub, polled=True)
+    token = peer.token("fw/alive/w")
+    beat = writer_port(peer, "test/w", Scalar, owner="w")
+    try:
+        assert wait_until(lambda: monitor.report()["lost"] == [])
+        beat.write(Scalar(0.0, 1.0))
+        assert wait_until(lambda: (monitor.poll(), monitor._samples[0])[1] == 1)
+        monitor.close()
+        beat.write(Scalar(0.0, 2.0))
+        token.undeclare()
+        time.sleep(0.2)
+        monitor.poll()
+        assert monitor._samples[0] == 1, "no arrival after close"
+        assert monitor.report()["lost"] == [], "no token news after close"
+        monitor.close()  # twice: nothing left to undeclare
+    finally:
+        peer.close()
+
+
+def test_a_driven_process_heartbeat_beats_once_a_period_however_often_polled(hub):
+    from framework.messages import Scalar
+    from framework.safety import ProcessHeartbeat
+    from tests.conftest import drained, reader_port
+
+    seen = reader_port(hub, keys.process_heartbeat("looped"), Scalar)
+    beat = ProcessHeartbeat(hub, "looped", 0.2).start(driven=True)
+    started = time.monotonic()
+    while time.monotonic() - started < 0.1:  # a 1 kHz loop polls it between cycles
+        beat.poll()
+        time.sleep(0.001)
+    assert wait_until(lambda: seen.stats.received >= 1)
+    time.sleep(0.05)
+    assert [s.value for s in drained(seen)] == [1.0], "one beat in the first period"
+    time.sleep(0.15)
+    beat.poll()
+    assert wait_until(lambda: seen.stats.received >= 2), "and one in the next"
+    beat.stop()
+    beat.poll()
+    time.sleep(0.05)
+    assert seen.stats.received == 2, "stopped: polls beat no more"
+    assert not beat._thread.is_alive()
+
+
+def test_a_process_heartbeat_whose_session_closes_ends_its_thread(hub):
+    from framework.safety import ProcessHeartbeat
+
+    beat = ProcessHeartbeat(hub, "closing", 0.002)
+
+    def closed(value):
+        raise RuntimeError("session closed")
+
+    beat.port.write = closed
+    beat.start()
+    assert wait_until(lambda: not beat._thread.is_alive()), "nothing left to prove"
+    assert beat._count == 1
+    beat.stop()
