@@ -282,13 +282,6 @@ class SafetyMonitor:
         period = heartbeat_period(self.spec.watches[index].deadline)
         return max(0.0, now - arrived[index] - 2.0 * period)
 
-    def _stall_now(self, now: float) -> float:
-        """`_own_stall` at `now`, of the monitor's current arrivals."""
-        index = self._own
-        if index is None:
-            return 0.0
-        return self._own_stall(now, self._arrived, self._samples)
-
     def problems(self) -> list[str]:
         """Every input that is not healthy now, in words (not latched): lost components
         first, then late inputs. Ages are counted in the time the monitor's own process
@@ -359,7 +352,7 @@ class SafetyMonitor:
         if late:
             self._last_stall = None  # what this check saw is not a margin
             return ""
-        self._last_stall = self._stall_now(now)
+        self._last_stall = self._own_stall(now, self._arrived, self._samples)
         if self.armed and not self._lost and now < self._healthy_until:
             return ""  # every input is on time until then (`_healthy_until`)
         lost, late_inputs = self._problems()

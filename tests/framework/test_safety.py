@@ -631,3 +631,172 @@ def test_a_process_heartbeat_whose_session_closes_ends_its_thread(hub):
     assert wait_until(lambda: not beat._thread.is_alive()), "nothing left to prove"
     assert beat._count == 1
     beat.stop()
+
+
+def test_a_component_gone_and_back_leaves_the_quiet_check_as_quiet_as_before():
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    monitor.set_alive("y", False)
+    monitor.set_alive("y", True)  # back before any check saw it gone
+    feed(monitor, clock, 2)
+    looks = counting_looks(monitor)
+    feed(monitor, clock, 64)
+    assert looks[0] <= 4
+
+
+def test_the_silence_a_margin_counts_leaves_out_the_monitors_own_stall():
+    """Its own process heartbeat 12 ticks late (its beat thread starved while the loop
+    ran): a silence of x over the same ticks is x's only beyond that stall."""
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    feed(monitor, clock, 12, watches=(2,))  # own beat and x silent 12 ticks (46.9 ms)
+    feed(monitor, clock, 1)
+    # stall at the last check before x came back: 12 ticks - 2 beat periods (8 ticks)
+    assert monitor.report()["watches"]["x"]["worst_ms"] == round(8 * TICK * 1e3, 1)
+
+
+def test_two_beats_of_its_own_are_enough_to_tell_the_monitors_own_freeze():
+    """Two samples of its own process heartbeat (the first may be a cached one) and
+    everyone falls silent together: the monitor's own process stood still, nobody is
+    blamed; with one own sample it cannot tell, and the silent output trips."""
+    for own_beats, trips in ((2, False), (1, True)):
+        monitor, clock = lone_monitor()
+        for _ in range(own_beats):
+            clock.set(clock.now() + TICK)
+            monitor.arrived(0)
+        for _ in range(4):
+            clock.set(clock.now() + TICK)
+            monitor.arrived(1)
+            monitor.arrived(2)
+            monitor.check()
+        verdicts = feed(monitor, clock, 40, watches=())
+        assert any(verdicts) is trips, own_beats
+
+
+def test_the_monitors_own_stall_allows_it_two_beat_periods():
+    """Its own beat last at tick 26, y's at 20, x on time: at tick 37 y is 17 ticks
+    (66 ms) silent, 3 of them inside the own stall (11 ticks late less two 4-tick
+    periods): 14 ticks, not late; and the two grow together from there."""
+    monitor, clock = lone_monitor()
+    for tick in range(1, 61):
+        clock.set(tick * TICK)
+        if tick <= 26:
+            monitor.arrived(0)
+        if tick <= 20:
+            monitor.arrived(2)
+        monitor.arrived(1)
+        assert monitor.check() == "", tick
+
+
+def test_a_heartbeat_of_another_process_has_a_margin_too():
+    spec = SafetySpec(
+        "robot",
+        (Watch("process trackers", keys.process_heartbeat("trackers"), 0.0625, ""),),
+        (),
+    )
+    clock = SimulatedClock()
+    monitor = SafetyMonitor(spec, clock, "robot")
+    feed(monitor, clock, 8, watches=(0,))
+    feed(monitor, clock, 6, watches=())
+    feed(monitor, clock, 1, watches=(0,))
+    assert monitor.report()["watches"]["process trackers"]["worst_ms"] == round(6 * TICK * 1e3, 1)
+
+
+def test_the_monitors_own_heartbeat_has_no_margin_of_its_own():
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    feed(monitor, clock, 10, watches=(1, 2))
+    feed(monitor, clock, 2)
+    assert monitor.report()["watches"]["process robot"]["worst_ms"] == 0.0
+
+
+def test_a_margin_counts_from_the_third_sample_of_an_input_armed_on_two():
+    monitor, clock = lone_monitor()
+    for _ in range(2):  # every input's second sample arms the monitor
+        clock.set(clock.now() + TICK)
+        for index in range(3):
+            monitor.arrived(index)
+        monitor.check()
+    assert monitor.armed
+    feed(monitor, clock, 6, watches=(0, 1))  # y.out silent 6 ticks before its third
+    feed(monitor, clock, 1)
+    assert monitor.report()["watches"]["y.out"]["worst_ms"] == round(6 * TICK * 1e3, 1)
+
+
+def test_a_silence_that_trips_is_the_watchs_margin():
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    feed(monitor, clock, 17, watches=(0, 1))  # y.out trips at 66 ms
+    assert monitor.report()["watches"]["y.out"]["worst_ms"] >= 62.5
+
+
+def test_of_several_inputs_lost_or_late_at_once_the_first_named_is_the_reason():
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    monitor.set_alive("x", False)
+    monitor.set_alive("y", False)
+    clock.set(clock.now() + TICK)
+    assert monitor.check() == "x lost (its process died or cannot be reached)"
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    verdicts = feed(monitor, clock, 33, watches=(0,))  # x and y.out silent together
+    assert verdicts[16] == "y.out: no data for 66 ms (deadline 62 ms)", "y.out first"
+    monitor, clock = lone_monitor()
+    feed(monitor, clock, 64)
+    feed(monitor, clock, 16, watches=(0, 2))  # x silent from here...
+    verdicts = feed(monitor, clock, 17, watches=(0,))  # ...y.out 16 ticks later
+    assert verdicts[:16] == [""] * 16
+    assert verdicts[16] == "x: no data for 129 ms (deadline 125 ms)", "both late: x named"
+
+
+@pytest.mark.parametrize(
+    ("deadline", "silence", "said"),
+    [
+        (0.1006 - 1e-9, 0.1006, "no data for 101 ms (deadline 101 ms)"),
+        (0.1, 0.1004, "no data for 100 ms (deadline 100 ms)"),
+    ],
+)
+def test_a_trip_says_the_silence_and_the_deadline_to_the_millisecond(deadline, silence, said):
+    spec = SafetySpec("robot", (Watch("w", "w/out", deadline, "w"),), ("w",))
+    clock = SimulatedClock()
+    monitor = SafetyMonitor(spec, clock)
+    monitor.set_alive("w", True)
+    monitor.arrived(0)
+    monitor.arrived(0)
+    monitor.check()
+    clock.set(silence - 0.001)
+    monitor.check()  # starved: records only
+    clock.set(silence)
+    assert monitor.check() == f"w: {said}"
+
+
+def test_the_report_says_ages_to_a_tenth_of_a_millisecond():
+    spec = SafetySpec("robot", (Watch("w", "w/out", 0.01234, "w"),), ("w",))
+    clock = SimulatedClock()
+    monitor = SafetyMonitor(spec, clock)
+    monitor.arrived(0)
+    clock.set(0.12346)
+    watch = monitor.report()["watches"]["w"]
+    assert watch["age_ms"] == 123.5 and watch["deadline_ms"] == 12.3
+
+
+def test_a_monitor_attached_without_saying_how_records_arrivals_as_they_come(hub, bus_config):
+    from framework.messages import Scalar
+    from tests.conftest import writer_port
+
+    peer = Bus(bus_config)
+    spec = SafetySpec("robot", (Watch("w", "test/w2", 0.1, "w"),), ("w",))
+    monitor = SafetyMonitor(spec, SimulatedClock())
+    monitor.close()  # closing before attaching undeclares nothing
+    monitor.attach(hub)
+    beat = writer_port(peer, "test/w2", Scalar, owner="w")
+    try:
+        time.sleep(0.2)
+        beat.write(Scalar(0.0, 1.0))
+        assert wait_until(lambda: monitor._samples[0] == 1), "no check, no poll: called back"
+        monitor.close()
+        beat.write(Scalar(0.0, 2.0))
+        time.sleep(0.2)
+        assert monitor._samples[0] == 1, "closed: no callback any more"
+    finally:
+        peer.close()
