@@ -361,6 +361,7 @@ def test_a_process_heartbeat_beats_from_its_own_thread_until_stopped(hub):
     beat = ProcessHeartbeat(hub, "worker", 0.002).start()
     assert wait_until(lambda: seen.stats.received >= 3)
     beat.stop()
+    assert not beat._thread.is_alive(), "stop returns once its thread has ended"
     counts = [sample.value for sample in drained(seen)]
     assert counts[:3] == [1.0, 2.0, 3.0], "counted from one"
     assert beat.port.keys == [], "stopped: nothing published any more"
@@ -627,9 +628,14 @@ def test_a_process_heartbeat_whose_session_closes_ends_its_thread(hub):
         raise RuntimeError("session closed")
 
     beat.port.write = closed
-    beat.start()
-    assert wait_until(lambda: not beat._thread.is_alive()), "nothing left to prove"
-    assert beat._count == 1
+    escaped = []
+    previous, threading.excepthook = threading.excepthook, escaped.append
+    try:
+        beat.start()
+        assert wait_until(lambda: not beat._thread.is_alive()), "nothing left to prove"
+    finally:
+        threading.excepthook = previous
+    assert beat._count == 1 and escaped == [], "it ends quietly, no exception escapes"
     beat.stop()
 
 
