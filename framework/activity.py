@@ -424,8 +424,10 @@ class SteppedExecutor:
             _add_follower(self._followers, activity.master, component)
         elif activity.kind == "paced":
             # a stepped test's device answers at once: each cycle it has ready is run
-            # in `run_pending`, operations directly (no loop thread to queue them to)
+            # in `run_pending`, operations directly (no loop thread to queue them to);
+            # its cycles and stages are kept as a real loop keeps them (`fw bench cost`)
             self._paced.append(component)
+            component.loop_stats = LoopStats("stepped (simulated clock)")
             self._order += 1
             heapq.heappush(
                 self._periodic,
@@ -450,8 +452,10 @@ class SteppedExecutor:
             cycled = 0
             for component in self._paced:
                 while component.read_cycle(0.0) and cycled < limit:
+                    began = time.perf_counter()
                     updates += self._update(component)
                     component.write_cycle()
+                    component.loop_stats.cycle(time.perf_counter() - began)
                     cycled += 1
             if not ready and not cycled:
                 break

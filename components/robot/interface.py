@@ -753,6 +753,8 @@ class RobotInterface(Component):
         if engine is not None and "fri" in out:
             stats = engine.report() if loop else {"scheduling": engine.scheduling()}
             out["loop"] = stats
+        elif loop and self.loop_stats is not None and "fri" in out:  # a stepped loop's
+            out["loop"] = self.loop_stats.report()
         return out
 
     def _state_report(self) -> dict[str, Any]:

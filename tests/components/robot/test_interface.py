@@ -957,3 +957,159 @@ def test_a_replayed_or_older_measurement_is_refused(arm):
     assert arm.report()["fri"]["refused"] == 1
     assert "out of sequence" in said(arm)
     assert [a.refl_seq for a in arm.answers] == [1, 2]
+
+
+@pytest.mark.parametrize(
+    "address",
+    [":49938", "127.0.0.1", "127.0.0.1:", "127.0.0.1:0", "127.0.0.1:65536", "127.0.0.1:fri"],
+)
+@pytest.mark.parametrize("prop", ["fri_listen", "krc"])
+def test_an_fri_address_that_is_not_host_and_port_is_refused_by_configure(hub, prop, address):
+    """Where this PC listens and where the KRC is are HOST:PORT, both parts written: an
+    empty host would listen on every interface of the robot's PC, port 0 on a port
+    nobody knows."""
+    container = Container("c", hub, SteppedExecutor(SimulatedClock()))
+    try:
+        properties = {"fri_listen": f"127.0.0.1:{free_udp_port()}", prop: address}
+        robot = container.add(RobotInterface("robot"), Activity.paced(0.02), properties=properties)
+        container.start()
+        assert not robot.configure()
+        assert robot.last_error == (
+            f"an FRI address is HOST:PORT (e.g. 127.0.0.1:49938), not {address!r}"
+        )
+    finally:
+        container.shutdown()
+
+
+def _bindable(port: int) -> bool:
+    """Whether this machine's UDP `port` on loopback is free to listen on."""
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        probe.bind(("127.0.0.1", port))
+        return True
+    except OSError:
+        return False
+    finally:
+        probe.close()
+
+
+def test_an_interface_configured_again_listens_on_its_new_address_and_frees_the_old(arm):
+    old = arm.port
+    assert not _bindable(old), "configured: it listens there"
+    arm.port = free_udp_port()
+    assert arm.robot.stop()
+    arm.robot.set_property("fri_listen", f"127.0.0.1:{arm.port}")
+    assert arm.robot.configure() and arm.robot.start(), arm.robot.last_error
+    assert _bindable(old)
+    arm.cycle()
+    assert arm.answers and arm.answers[-1].refl_seq == arm.cycle_no
+    assert arm.robot.stop() and arm.robot.cleanup()
+    assert _bindable(arm.port), "cleaned up, it listens nowhere"
+
+
+def test_an_interface_stopped_and_started_again_first_asks_for_the_brakes_latched(arm):
+    """Stopping the interface stops its answers, and the KRC brakes by itself; started
+    again, its first answer asks for the brakes latched (the words: 'robot interface
+    stopped'), so a motion never resumes without the operator's RELEASE."""
+    moving(arm)
+    assert arm.robot.stop() and arm.robot.start()
+    arm.cycle()
+    assert arm.requests[-1] == Request("brake", {"latch": True})
+
+
+def test_the_loop_report_times_each_stage_of_every_cycle(arm):
+    """`fw bench cost` splits a cycle into its stages: taking the datagram, waking for
+    it, the safety monitor, the separation check and the publishing: each a duration
+    (some work, within the cycles measured; not a clock's reading, not the difference
+    of one instant with itself)."""
+    began = time.perf_counter()
+    moving(arm, cycles=5)
+    elapsed_us = (time.perf_counter() - began) * 1e6
+    stages = arm.robot.report(loop=True)["loop"]["stages_us"]
+    assert {"receive", "wake", "safety", "separation", "publish"} <= set(stages)
+    for name, times in stages.items():
+        assert 0.0 < times["p50"] <= times["p99"] <= elapsed_us, name
+
+
+def test_every_replayed_older_measurement_is_refused_not_only_the_first(arm):
+    """A refused datagram moves nothing: after a replay of measurement 1, a replay of
+    measurement 2 is as old as ever."""
+    for _ in range(4):
+        arm.cycle()
+    for replayed in (1, 2):
+        arm.cycle_no = replayed - 1
+        arm.cycle()
+    assert arm.report()["fri"]["refused"] == 2
+    assert [a.refl_seq for a in arm.answers] == [1, 2, 3, 4]
+
+
+def test_a_replay_right_after_the_sequence_wrapped_to_zero_is_refused(arm):
+    """FRI's sequence counter is 16 bits: measurement 0 comes after 65535, and 65535
+    again after it is a replay like any other."""
+    arm.cycle_no = 65533
+    arm.cycle()
+    arm.cycle()
+    arm.cycle_no = -1
+    arm.cycle()  # 0
+    arm.cycle_no = 65534
+    arm.cycle()  # 65535 again
+    assert arm.report()["fri"]["refused"] == 1 and "out of sequence" in said(arm)
+    assert [a.refl_seq for a in arm.answers] == [65534, 65535, 0]
+
+
+def test_an_arm_that_brakes_in_the_cycle_an_input_falls_late_is_held_not_tripped(watched):
+    """The cycle's decision is taken on the cycle's measurement: an arm that comes back
+    braked (at its goal) is held by an input late since the last cycle, as any braked
+    arm is; RELEASE is refused until the input is back."""
+    arm = watched.arm
+    watched.cycle()
+    arm.released()
+    for _ in range(5):
+        target = arm.q + step(0.5)
+        watched.cycle(target)
+        arm.follow(target)
+    arm.robot.call("brake", reason="at goal")
+    watched.cycle(arm.q)  # the request goes out with this cycle's answer
+    arm.braked, arm.served = True, arm.taken
+    arm.clock.set(arm.clock.now() + 0.05)  # no heartbeat for 50 ms (deadline 20 ms)
+    arm.cycle()  # braked, as the KRC serves the brake
+    report = arm.report()
+    assert not report["latched"] and report["problems"][0].startswith("tester: no data for")
+
+
+def test_brake_when_still_waits_while_the_measured_joints_still_move(arm):
+    """'Still' is the arm's measured motion from cycle to cycle (under 2 mrad/s on
+    every joint for 50 ms), not what was commanded: an arm that drifts on is not
+    braked until it stands."""
+    requests = still_brake_pending(arm)
+    for _ in range(STILL_CYCLES + 20):  # 0.05 rad/s: moving
+        arm.cycle(arm.q)
+    assert arm.names()[requests:] == []
+    arm.v = np.zeros(7)
+    for _ in range(STILL_CYCLES + 1):
+        arm.cycle(arm.q)
+    assert arm.names()[requests:] == ["brake"]
+
+
+def test_a_silent_krc_trips_with_its_silence_and_timeout(arm):
+    """No measurement for longer than `krc_timeout` (50 ms) is a trip of its own, said
+    with the silence and the timeout; shorter, nothing happens."""
+    moving(arm)
+    arm.clock.set(arm.clock.now() + 0.04)
+    arm.robot.idle_hook()
+    assert not arm.report()["latched"]
+    arm.clock.set(arm.clock.now() + 0.02)
+    arm.robot.idle_hook()
+    assert arm.report()["reason"] == "the KRC is silent: no measurement for 60 ms (timeout 50 ms)"
+
+
+def test_the_cycle_that_refuses_a_setpoint_already_carries_the_stops_first_command(arm):
+    """A refused setpoint is not answered by holding the last command (a halt from full
+    speed): that very cycle's answer is the protective stop's first step, on at the
+    commanded velocity."""
+    last = moving(arm)
+    sent = len(arm.commands)
+    arm.cycle(last + step(50.0))
+    assert arm.report()["stopping"]
+    assert len(arm.commands) == sent + 1
+    assert arm.commands[-1][2] - last[2] == pytest.approx(0.5 * MAX_STEP_RAD[2], rel=0.05)

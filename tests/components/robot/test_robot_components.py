@@ -5,6 +5,7 @@ between the KRC and the interface (a datagram sent on loopback is there to read 
 once), deterministic runs."""
 
 import dataclasses
+import re
 import time
 
 import numpy as np
@@ -17,12 +18,12 @@ from components.robot.interpolator import CartesianInterpolator
 from components.robot.navigation import Navigator
 from components.sim.arm_controller import ArmController
 from framework.activity import Activity, SteppedExecutor
-from framework.bus import free_udp_port
+from framework.bus import Bus, free_udp_port
 from framework.clock import SimulatedClock
 from framework.container import Container
 from framework.errors import FwError
 from framework.messages import Envelopes
-from tests.conftest import REPO, writer_port
+from tests.conftest import REPO, wait_until, writer_port
 
 PROCEDURE = REPO / "procedures" / "seeg.yaml"
 SENSORS = REPO / "procedures" / "seeg" / "sensors.yaml"
@@ -36,7 +37,7 @@ class Cell:
     """The arm (its controller), the robot interface, the interpolator and the navigator
     in one container, stepped 1 ms at a time, wired as topologies/seeg.yaml wires them."""
 
-    def __init__(self, bus, safety=None):
+    def __init__(self, bus, safety=None, robot: dict | None = None):
         self.clock = SimulatedClock()
         self.executor = SteppedExecutor(self.clock)
         self.container = Container("cell", bus, self.executor)
@@ -49,7 +50,7 @@ class Cell:
         self.robot = self.container.add(
             RobotInterface("robot"),
             Activity.paced(0.02),
-            properties={"fri_listen": f"127.0.0.1:{port}"},
+            properties={"fri_listen": f"127.0.0.1:{port}", **(robot or {})},
             safety=safety,
         )
         self.interp = self.container.add(
@@ -488,8 +489,8 @@ class Room:
         self.people.write(Envelopes(time.time() - age, (*a,), (*b,), (0.15,)))
 
 
-def moving(hub) -> tuple[Cell, Room]:
-    cell = Cell(hub)
+def moving(hub, robot: dict | None = None) -> tuple[Cell, Room]:
+    cell = Cell(hub, robot=robot)
     room = Room(hub, cell)
     cell.release()
     cell.interp.call("go_to", goal="target")
@@ -518,6 +519,24 @@ def test_an_envelope_ages_while_the_detector_is_silent(hub):
         cell.close()
 
 
+def test_a_far_person_whose_envelope_grows_old_is_checked_again_in_time(hub):
+    """Everyone far, the separation is checked again only when the envelope's age could
+    have brought someone under the protective distance: a person a metre away, then a
+    detector silent for a second (standing, the protective distance grows 1.6 m a
+    second), stops the arm without a new envelope."""
+    cell, room = moving(hub)
+    try:
+        room.person(1.0)
+        cell.run(0.005)
+        report = cell.robot.call("report")
+        assert report["separation"] > 0.9 and not report["latched"]
+        cell.run(1.0)
+        report = cell.robot.call("report")
+        assert report["latched"] and report["reason"].startswith("protective stop: a person")
+    finally:
+        cell.close()
+
+
 def test_a_person_close_right_after_everyone_was_far_is_checked_in_the_next_cycle(hub):
     """With everyone far, the separation need not be measured every cycle (nothing can
     close the gap that fast); a new envelope is news, checked in the cycle it arrives:
@@ -534,6 +553,54 @@ def test_a_person_close_right_after_everyone_was_far_is_checked_in_the_next_cycl
         assert report["latched"] and report["reason"].startswith("protective stop: a person")
     finally:
         cell.close()
+
+
+@pytest.mark.parametrize(
+    ("term", "value", "age"),
+    [
+        ("detection_uncertainty", 0.32, 0.0),
+        ("robot_uncertainty", 0.305, 0.0),
+        ("person_speed", 5.0, 0.05),
+    ],
+)
+def test_each_term_of_the_protective_distance_is_the_topologys(bus_config, term, value, age):
+    """Z_d, Z_r and v_h (ISO/TS 15066) are the robot interface's properties: a person
+    35 cm from the moving arm is far enough with the defaults (protective distance
+    about 11 cm fresh, 20 cm for an envelope 50 ms old) and too close once a topology
+    adds 30 cm of uncertainty, or says people move at 5 m/s: a protective stop."""
+    seen = []
+    for robot in ({}, {term: value}):
+        cell, room = moving(Bus(bus_config, hub=True), robot)  # the bus closes with it
+        try:
+            room.person(0.41, age=age)
+            cell.run(0.005)
+            seen.append(cell.robot.call("report"))
+        finally:
+            cell.close()
+    default, changed = seen
+    assert 0.3 <= default["separation"] <= 0.4
+    assert not default["latched"], default["protective_distance"]
+    assert changed["latched"] and changed["reason"].startswith("protective stop: a person")
+    old = int(re.search(r"envelope (\d+) ms old", changed["reason"]).group(1))
+    assert age * 1e3 <= old < age * 1e3 + 500, "the reason gives the envelope's age"
+
+
+def test_the_slowing_band_is_the_topologys(bus_config):
+    """A person 2 m away is beyond the default slowing band (40 cm beyond the
+    protective distance): no cap; with a 3 m band the arm is slowed, not stopped."""
+    caps = []
+    for robot in ({}, {"slow_band": 3.0}):
+        cell, room = moving(Bus(bus_config, hub=True), robot)
+        try:
+            room.person(2.0)
+            cell.run(0.005)
+            report = cell.robot.call("report")
+            assert not report["latched"]
+            caps.append(report["speed_cap"])
+        finally:
+            cell.close()
+    assert caps[0] is None
+    assert caps[1] is not None and 0.0 < caps[1] < 0.075
 
 
 def test_a_person_who_comes_near_slows_the_arm_and_one_who_leaves_lets_it_go_on(hub):
@@ -570,6 +637,7 @@ def test_envelopes_that_are_not_capsules_stop_the_moving_arm_latched(hub, garbag
     separation would compare as far, so it is a protective stop, latched, and said."""
     cell = Cell(hub)
     try:
+        said, _sub = _refusals(hub, "robot")
         people = writer_port(hub, "test/envelopes", Envelopes)
         cell.container.connect("robot", "envelopes", "test/envelopes")
         cell.release()
@@ -579,6 +647,9 @@ def test_envelopes_that_are_not_capsules_stop_the_moving_arm_latched(hub, garbag
         cell.run(0.5)
         report = cell.robot.call("report")
         assert report["latched"] and report["reason"].startswith("envelopes refused")
+        wrong = report["reason"].removeprefix("envelopes refused: ")
+        assert wait_until(lambda: any(r["port"] == "envelopes" for r in said))
+        assert [r["reason"] for r in said if r["port"] == "envelopes"] == [wrong]
         assert cell.arm.call("report")["braked"]
     finally:
         cell.close()
