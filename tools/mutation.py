@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import functools
 import json
 import os
 import queue
@@ -216,14 +217,42 @@ def load_equivalents() -> list[dict[str, str]]:
     return list(yaml.safe_load(EQUIVALENTS.read_text(encoding="utf-8")) or [])
 
 
+@functools.lru_cache(maxsize=64)
+def _functions(module: str) -> tuple[tuple[int, int, str], ...]:
+    """(first line, last line, name) of every function of `module` as it is now."""
+    try:
+        tree = ast.parse((REPO / module).read_text(encoding="utf-8"))
+    except (OSError, SyntaxError):
+        return ()
+    return tuple(
+        (node.lineno, node.end_lineno or node.lineno, node.name)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)
+    )
+
+
+def enclosing_function(module: str, line: int) -> str:
+    """The name of the innermost function of `module` around `line` ("" at module or
+    class level): the same text means different things in configure_hook and in a
+    cycle, and an equivalents entry may say which it means."""
+    around = [(first, name) for first, last, name in _functions(module) if first <= line <= last]
+    return max(around)[1] if around else ""
+
+
 def equivalent_reason(mutant: Mutant, known: list[dict[str, str]]) -> str:
     """Why `mutant` is equivalent, or "" if it is not listed. An entry names one mutant
     (operator, before, after), or a kind of them: `operators` with `changed`, a pattern
     the mutated line matches and the original does not (`== Kind.X` where `is Kind.X`
     was: an Enum member compared by value instead of identity), and/or `where`, a
-    pattern of the original line (every such mutant of a placeholder's value)."""
+    pattern of the original line (every such mutant of a placeholder's value). Either
+    may add `function`: only mutants inside the function of that name."""
     for item in known:
         if item.get("module") != mutant.module:
+            continue
+        if (
+            "function" in item
+            and enclosing_function(mutant.module, mutant.line) != item["function"]
+        ):
             continue
         if "changed" in item or "where" in item:
             changed = re.compile(str(item.get("changed", "")))

@@ -167,7 +167,6 @@ class RobotInterface(Component):
         self._arm: ArmState | None = None
         """The arm's last measured state."""
         self._socket: socket.socket | None = None
-        self._kinematics: Kinematics | None = None
 
     def configure_hook(self) -> bool:
         try:
@@ -194,7 +193,7 @@ class RobotInterface(Component):
         self._last_seq: int | None = None
         self._last_measured = -math.inf  # this component's clock
         self._previous: tuple[int, tuple[float, ...]] | None = None  # (cycle, joints) before
-        self._pending: deque[tuple[fri.Request, str]] = deque()  # requests for the KRC
+        self._pending: deque[fri.Request] = deque()  # requests for the KRC, in order
         self._answer = np.zeros(7)  # what the next command carries
         # the number of the last request sent to the KRC; None until its first
         # measurement says which it served last (a KRC outlives this process: numbering
@@ -225,7 +224,7 @@ class RobotInterface(Component):
         )
         self._ssm = SeparationMonitor(params, self.max_speed)
         # built here (~50 ms with Pinocchio's model), never in a cycle
-        self._kinematics: Kinematics | None = Kinematics()
+        self._kinematics = Kinematics()
         self._people: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._age_at_arrival = 0.0  # the envelopes' age when they arrived (wall clock, s)
         self._arrived = 0.0  # ...and when, on this component's clock
@@ -388,7 +387,7 @@ class RobotInterface(Component):
         if measurement.served >= self._requests_sent:
             self._in_flight = fri.Request.NONE
             if self._pending:
-                self._in_flight, _ = self._pending.popleft()
+                self._in_flight = self._pending.popleft()
                 self._requests_sent += 1
         number, request = self._requests_sent, self._in_flight
         datagram = fri.encode_command(
@@ -419,8 +418,6 @@ class RobotInterface(Component):
         else:
             velocity = _STILL
         self._previous = (m.cycle, q)
-        if self._kinematics is None:
-            self._kinematics = Kinematics()
         reason = fri.REASONS[m.reason] if 0 <= m.reason < len(fri.REASONS) else "unknown"
         if m.reason == _ASKED:  # asked for: by this side, and why
             reason = self._brake_reason or reason
@@ -503,8 +500,6 @@ class RobotInterface(Component):
             self._quiet -= 1
             return
         started = time.perf_counter()
-        if self._kinematics is None:
-            self._kinematics = Kinematics()
         capsules = self._kinematics.capsules(np.asarray(state.position, dtype=float))
         now = state.cycle * CYCLE
         age = self._age_at_arrival + max(0.0, self.clock.now() - self._arrived)
@@ -606,10 +601,9 @@ class RobotInterface(Component):
         brake {reason, latch}, release, reset, mode {mode}."""
         key = payload.get("mode") if name == "mode" else bool(payload.get("latch", False))
         self._requests += 1
-        reason = str(payload.get("reason", ""))
-        if name == "brake" and not key:
-            self._brake_reason = reason  # FRI carries a code: this side keeps the words
-        self._pending.append((REQUESTS[(name, key)], reason))
+        if name == "brake" and not key:  # FRI carries a code: this side keeps the words
+            self._brake_reason = str(payload.get("reason", ""))
+        self._pending.append(REQUESTS[(name, key)])
 
     def _brake_once_still(self, state: ArmState) -> None:
         assert self._brake_when_still is not None

@@ -56,6 +56,35 @@ def test_a_kind_of_mutant_is_matched_by_what_the_mutation_introduced():
     assert not mutation.equivalent_reason(elsewhere, KNOWN)
 
 
+def test_an_entry_may_name_the_function_its_mutants_are_in(tmp_path, monkeypatch):
+    """The same line means different things in a setup and in a cycle: an entry that
+    names its function lists only the mutants inside it."""
+    (tmp_path / "framework").mkdir()
+    (tmp_path / "framework" / "z.py").write_text(
+        "def setup():\n    n = 0\n\n\nclass C:\n    def count(self):\n        n = 0\n"
+    )
+    monkeypatch.setattr(mutation, "REPO", tmp_path)
+    mutation._functions.cache_clear()
+    known = [
+        {
+            "module": "framework/z.py",
+            "operators": ["DeleteStatement"],
+            "where": "^n = 0$",
+            "function": "setup",
+            "reason": "set again before it is read",
+        }
+    ]
+
+    def deleted(line):
+        return mutation.Mutant("framework/z.py", "fw/DeleteStatement", 0, line, "n = 0", "pass", "")
+
+    assert mutation.equivalent_reason(deleted(2), known)
+    assert not mutation.equivalent_reason(deleted(7), known)
+    assert mutation.enclosing_function("framework/z.py", 7) == "count"
+    assert mutation.enclosing_function("framework/z.py", 5) == ""
+    mutation._functions.cache_clear()
+
+
 SECTION = """<!-- mutation{fw}:framework/x.py -->
 ### `framework/x.py`
 

@@ -283,6 +283,7 @@ def test_a_first_setpoint_further_away_trips(arm):
         "1.5x its rated velocity"
     )
     assert arm.requests[-1].name == "brake" and arm.requests[-1].payload["latch"] is True
+    assert report["peak_step"] == pytest.approx(STEP_MARGIN * 1.02, abs=1e-3), "seen, refused"
 
 
 @pytest.mark.parametrize(("fraction", "trips"), [(1.45, False), (1.55, True)])
@@ -876,6 +877,9 @@ def test_after_three_missed_cycles_the_next_step_may_span_four(arm):
         arm.cycle()
     arm.cycle(last + step(1.4, joint=1, cycles=4))
     assert not arm.report()["latched"], "5.6 rated steps over 4 cycles"
+    assert arm.report()["peak_step"] == 1.4, "the step's velocity, not the cycles missed"
+    arm.cycle(last + step(1.4, joint=1, cycles=4))  # the same setpoint: standing
+    assert arm.report()["peak_step"] == 1.4, "the largest so far"
 
 
 def test_every_answer_reflects_the_measurement_it_answers(arm):
@@ -994,15 +998,24 @@ def _bindable(port: int) -> bool:
 
 
 def test_an_interface_configured_again_listens_on_its_new_address_and_frees_the_old(arm):
+    """Configured again it starts afresh: the old port is free, no arm state is known
+    until the KRC's next measurement, and the words of the last run's brake request
+    are not given to a brake the KRC reports now."""
     old = arm.port
     assert not _bindable(old), "configured: it listens there"
+    arm.robot.call("brake", reason="at goal")
+    arm.cycle()
     arm.port = free_udp_port()
     assert arm.robot.stop()
     arm.robot.set_property("fri_listen", f"127.0.0.1:{arm.port}")
-    assert arm.robot.configure() and arm.robot.start(), arm.robot.last_error
+    assert arm.robot.configure(), arm.robot.last_error
     assert _bindable(old)
+    assert arm.report()["reason"] == "no arm state"
+    assert arm.robot.start()
+    arm.reason = fri.REASONS[2]  # braked as asked (by the last run)
     arm.cycle()
     assert arm.answers and arm.answers[-1].refl_seq == arm.cycle_no
+    assert arm.report()["reason"] == fri.REASONS[2]
     assert arm.robot.stop() and arm.robot.cleanup()
     assert _bindable(arm.port), "cleaned up, it listens nowhere"
 
@@ -1070,9 +1083,13 @@ def test_an_arm_that_brakes_in_the_cycle_an_input_falls_late_is_held_not_tripped
         arm.follow(target)
     arm.robot.call("brake", reason="at goal")
     watched.cycle(arm.q)  # the request goes out with this cycle's answer
+    # the heartbeat stops; the arm goes on released until the input is one cycle from
+    # late (deadline 20 ms), then comes back braked as the KRC serves the brake
+    while arm.report()["safety"]["watches"]["tester"]["age_ms"] + 1.0 < 20.0:
+        watched.cycle(arm.q, beat=False)  # holding its goal
+    assert not arm.report()["latched"]
     arm.braked, arm.served = True, arm.taken
-    arm.clock.set(arm.clock.now() + 0.05)  # no heartbeat for 50 ms (deadline 20 ms)
-    arm.cycle()  # braked, as the KRC serves the brake
+    watched.cycle(beat=False)
     report = arm.report()
     assert not report["latched"] and report["problems"][0].startswith("tester: no data for")
 
@@ -1113,3 +1130,129 @@ def test_the_cycle_that_refuses_a_setpoint_already_carries_the_stops_first_comma
     assert arm.report()["stopping"]
     assert len(arm.commands) == sent + 1
     assert arm.commands[-1][2] - last[2] == pytest.approx(0.5 * MAX_STEP_RAD[2], rel=0.05)
+
+
+def test_measurements_queued_while_the_interface_was_busy_are_counted_and_only_the_newest_answered(
+    arm,
+):
+    """A busy host finds several measurements waiting: answering the old ones would put
+    each answer a cycle later; only the newest is answered, the others are counted as
+    skipped (the link's report) and nothing is refused."""
+    arm.cycle()
+    for _ in range(3):
+        arm.measure()
+    arm.container.executor.run_pending()
+    arm._collect(arm.braked)
+    link = arm.report()["fri"]
+    assert (link["measurements"], link["skipped"], link["refused"]) == (2, 2, 0)
+    assert link["krc"] == f"127.0.0.1:{arm.krc.getsockname()[1]}"
+    assert [a.refl_seq for a in arm.answers] == [1, 4]
+
+
+def test_an_fri_port_already_taken_is_a_configure_error_naming_it(hub):
+    taken = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    taken.bind(("127.0.0.1", 0))
+    container = Container("c", hub, SteppedExecutor(SimulatedClock()))
+    try:
+        address = f"127.0.0.1:{taken.getsockname()[1]}"
+        robot = container.add(
+            RobotInterface("robot"), Activity.paced(0.02), properties={"fri_listen": address}
+        )
+        container.start()
+        assert not robot.configure()
+        assert robot.last_error == f"cannot listen for FRI on {address}: Address already in use"
+    finally:
+        container.shutdown()
+        taken.close()
+
+
+def test_a_threaded_loop_answers_each_measurement_as_it_comes_and_reports_its_loop(hub):
+    """In its own thread (as deployed) the loop waits in the kernel for each datagram
+    and answers it; its report says how the host scheduled it and what each stage took;
+    stopped while it waits, the loop ends without an error."""
+    from framework.activity import RealTimeExecutor
+    from framework.realtime import RealTimePolicy
+
+    krc = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    krc.bind(("127.0.0.1", 0))
+    krc.settimeout(5.0)
+    port = free_udp_port()
+    container = Container("c", hub, RealTimeExecutor(RealTimePolicy(enabled=False)))
+    try:
+        robot = container.add(
+            RobotInterface("robot"),
+            Activity.paced(0.02),
+            properties={
+                "fri_listen": f"127.0.0.1:{port}",
+                "krc": f"127.0.0.1:{krc.getsockname()[1]}",
+            },
+        )
+        container.start()
+        assert robot.configure() and robot.start(), robot.last_error
+        answered = []
+        for n in range(1, 21):
+            datagram = fri.encode_measurement(
+                n,
+                0,
+                timestamp=n * 0.001,
+                state=fri.State.MON,
+                quality=fri.Quality.PERFECT,
+                msr_jnt_pos=tuple(HOME),
+                cmd_jnt_pos=tuple(HOME),
+                served=0,
+                reason=fri.reason_code(fri.REASONS[1]),
+                cycle=n,
+                braked=True,
+                latched=False,
+            )
+            krc.sendto(datagram, ("127.0.0.1", port))
+            answered.append(fri.decode_command(krc.recv(2048)).refl_seq)
+        assert answered == list(range(1, 21))
+        assert robot.report()["loop"]["scheduling"]
+        stages = robot.report(loop=True)["loop"]["stages_us"]
+        assert {"receive", "wake", "safety", "separation", "publish"} <= set(stages)
+        assert robot.stop() and robot.state.value == "Stopped"
+    finally:
+        container.shutdown()
+        krc.close()
+
+
+def test_an_acknowledge_refused_for_an_unhealthy_input_leaves_the_stop_latched(watched):
+    arm = watched.arm
+    watched.cycle()
+    arm.released()
+    watched.cycle(HOME + step(50.0))  # a setpoint no arm can follow: latched
+    for _ in range(60):
+        watched.cycle(beat=False)  # and the watched input falls silent
+    with pytest.raises(FwError, match="tester: no data for"):
+        arm.robot.call("acknowledge")
+    assert arm.report()["latched"] and arm.report()["reason"].startswith("setpoint refused")
+
+
+def test_an_interface_not_configured_yet_reports_no_arm_state(hub):
+    container = Container("c", hub, SteppedExecutor(SimulatedClock()))
+    try:
+        robot = container.add(RobotInterface("robot"), Activity.paced(0.02))
+        container.start()
+        report = robot.call("report")
+        assert report["braked"] is True and report["reason"] == "no arm state"
+    finally:
+        container.shutdown()
+
+
+def test_an_acknowledge_while_the_stop_is_under_way_is_refused_and_acknowledges_nothing(watched):
+    """RELEASE during a protective stop's deceleration is refused, and the safety
+    monitor stays latched with the interface: nothing of the stop is cleared."""
+    arm = watched.arm
+    watched.cycle()
+    arm.released()
+    for _ in range(5):
+        target = arm.q + step(0.5)
+        watched.cycle(target)
+        arm.follow(target)
+    watched.cycle(arm.q + step(50.0))  # refused mid-motion: the stop decelerates
+    assert arm.report()["stopping"]
+    with pytest.raises(FwError, match="still under way"):
+        arm.robot.call("acknowledge")
+    report = arm.report()
+    assert report["latched"] and report["safety"]["latched"] == report["reason"]

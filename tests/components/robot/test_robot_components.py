@@ -5,6 +5,7 @@ between the KRC and the interface (a datagram sent on loopback is there to read 
 once), deterministic runs."""
 
 import dataclasses
+import itertools
 import re
 import time
 
@@ -22,8 +23,8 @@ from framework.bus import Bus, free_udp_port
 from framework.clock import SimulatedClock
 from framework.container import Container
 from framework.errors import FwError
-from framework.messages import Envelopes
-from tests.conftest import REPO, wait_until, writer_port
+from framework.messages import Envelopes, Scalar
+from tests.conftest import REPO, drained, reader_port, wait_until, writer_port
 
 PROCEDURE = REPO / "procedures" / "seeg.yaml"
 SENSORS = REPO / "procedures" / "seeg" / "sensors.yaml"
@@ -601,6 +602,41 @@ def test_the_slowing_band_is_the_topologys(bus_config):
             cell.close()
     assert caps[0] is None
     assert caps[1] is not None and 0.0 < caps[1] < 0.075
+
+
+def test_the_speed_cap_is_said_when_it_moves_by_more_than_its_change_step(hub):
+    """The interpolator hears a cap only when it moved by more than CAP_CHANGE (2%) of
+    the last one said, not every cycle it is computed: a person standing near the
+    moving arm for 0.3 s."""
+    cell, room = moving(hub)
+    try:
+        caps = reader_port(hub, "robot/speed_cap", Scalar)
+        for _ in range(9):
+            room.person(0.25)
+            cell.run(1 / 30)
+        said = [c.value for c in drained(caps)]
+        assert len(said) > 2
+        for before, after in itertools.pairwise(said):
+            assert abs(after - before) > 0.02 * before, (before, after)
+    finally:
+        cell.close()
+
+
+def test_a_room_everyone_left_lifts_the_cap_at_once(hub):
+    """Envelopes with nobody in them: no separation to keep, the cap is lifted in the
+    cycle they arrive (not after a countdown) and nothing is latched."""
+    cell, room = moving(hub)
+    try:
+        room.person(0.25)
+        cell.run(0.005)
+        assert cell.robot.call("report")["speed_cap"] is not None
+        room.people.write(Envelopes(time.time(), (), (), ()))
+        cell.run(0.002)
+        report = cell.robot.call("report")
+        assert report["speed_cap"] is None and report["separation"] is None
+        assert not report["latched"]
+    finally:
+        cell.close()
 
 
 def test_a_person_who_comes_near_slows_the_arm_and_one_who_leaves_lets_it_go_on(hub):
