@@ -12,7 +12,7 @@ import pytest
 
 from framework import keys
 from framework.activity import Activity
-from framework.configurator import Configurator
+from framework.configurator import Configurator, StepFailed
 from framework.container import Container, build
 from framework.deployer import container_spec
 from framework.messages import ConfigAck, ConfigRequest
@@ -237,6 +237,7 @@ def test_an_unknown_configuration_is_answered_with_the_known_ones(rig):
     outcome = rig.apply("nope")
     assert (outcome.ok, outcome.step) == (False, "lookup")
     assert outcome.reason.startswith("unknown configuration 'nope' (known: batched, ")
+    assert rig.configurator.history[-1] is outcome, "kept with every other outcome"
 
 
 def test_requests_on_the_port_are_answered_one_each_in_order(rig):
@@ -391,3 +392,37 @@ def test_a_switch_nobody_reports_fails_and_is_undone(rig, hub):
     assert not ack.ok and ack.step == "disconnect sink.inp"
     assert "workers did not report its local switch within 2 s" in ack.reason
     assert rig.port("sink", "inp").key.endswith("a/out"), "the wiring is restored"
+
+
+def test_a_failed_step_reads_as_the_step_and_its_reason():
+    """What a log or a traceback prints of a failed step: which step, then why."""
+    failed = StepFailed("call sink.fail", "sink: asked to fail")
+    assert str(failed) == "call sink.fail: sink: asked to fail"
+    assert (failed.step, failed.reason) == ("call sink.fail", "sink: asked to fail")
+
+
+def test_each_request_is_applied_and_answered_once(rig):
+    """One answer per request, in request order: a request read again (its sample is
+    still the port's last) is never applied a second time."""
+    assert rig.request("to_b").ok
+    assert rig.request("setup").ok
+    assert rig.request("to_b").ok
+    assert [a.request_id for a in rig.answers()] == [1, 2, 3]
+
+
+def test_a_configurator_stopped_and_started_again_serves_as_before(rig):
+    assert rig.configurator.stop() and rig.configurator.state.value == "Stopped"
+    assert rig.configurator.start()
+    assert rig.request("to_b").ok
+    assert rig.port("sink", "inp").key.endswith("b/out")
+
+
+def test_a_prepared_switch_with_a_deadline_is_made_and_answered_in_time(rig, hub):
+    """The Coordinator's requests carry their deadline: the Configurator waits for the
+    process's report no longer than the deadline allows, and a switch made in time is
+    recorded as any other."""
+    switch_routed(rig, hub)
+    ack = rig.request("switch_to_b", alone=True, deadline=time.time() + 5.0)
+    assert ack.ok, ack.reason
+    assert rig.workers.local_switches.done[-1].request_id == ack.request_id
+    assert rig.port("sink", "inp").key.endswith("b/out")

@@ -490,7 +490,13 @@ def test_operators_tools_may_only_ask_what_the_chart_would_take_and_where_it_is(
 
 @pytest.mark.parametrize(
     ("deadline", "now", "wait"),
-    [(None, 5.0, IDLE_WAIT), (5.25, 5.0, 0.25), (4.0, 5.0, 0.0), (9.0, 5.0, IDLE_WAIT)],
+    [
+        (None, 5.0, IDLE_WAIT),
+        (5.25, 5.0, 0.25),
+        (4.0, 5.0, 0.0),
+        (9.0, 5.0, IDLE_WAIT),
+        (0.0, 0.0, 0.0),  # due at a simulated clock's start: now, not "nothing due"
+    ],
 )
 def test_the_charts_loop_wakes_for_its_next_time_event_at_the_latest(deadline, now, wait):
     assert loop_wait(deadline, now) == wait
@@ -571,3 +577,80 @@ def test_the_liveliness_of_a_component_not_watched_is_no_event(hub, peer, write)
         assert not [e for e in rig.kinds("event") if e["event"].startswith("component.")]
     finally:
         rig.close()
+
+
+@pytest.mark.parametrize("external", [None, frozenset({"e_GO"})])
+@pytest.mark.parametrize("event", ["config.done", "component.lost"])
+def test_the_coordinators_own_events_are_refused_from_anyone_by_their_name(external, event):
+    """Whether or not the topology lists operator events, a builtin event is refused as
+    the Coordinator's own, on the events port and as a command, naming the event."""
+    admission = Admission(external=external, emitters={"supervisor": frozenset({event})})
+    said = f"{event} is the Coordinator's own event; nobody may send it"
+    assert admission.refuse_command(event) == said
+    assert admission.refuse_sample("supervisor", event) == said
+
+
+def test_a_request_after_an_earlier_one_ran_past_its_deadline_unanswered_is_alone(rig):
+    """A request the chart gave up on (its configuration timed out, 1.5 s) holds back
+    nothing: the Configurator starts no step of it after its deadline, so the next
+    request may be applied at once."""
+    rig.put("e_GO")
+    assert wait_until(lambda: len(rig.requests) == 1, 10)
+    assert wait_until(lambda: rig.active() == ["Failed"], 10), "unanswered: timed out"
+    rig.put("e_GO")
+    assert wait_until(lambda: len(rig.requests) == 2, 10)
+    assert rig.requests[1].alone
+
+
+@pytest.mark.parametrize("payload", [[], 0, "", [1]])
+def test_a_payload_that_is_not_a_mapping_is_refused_even_when_empty(rig, payload):
+    rig.events.write(EventMessage(time.time(), "e_ODD", "supervisor", payload))
+    assert wait_until(lambda: len(rig.refusals()) > 0, 10)
+    assert rig.refusals()[-1]["reason"] == "e_ODD: a payload must be a mapping of fields"
+    assert rig.active() == ["Idle"]
+
+
+@pytest.fixture
+def sleepy_rig(hub, peer, write, monkeypatch):
+    """The rig with the chart's idle wait at an hour: whatever is handled was woken."""
+    import framework.coordinator
+
+    monkeypatch.setattr(framework.coordinator, "IDLE_WAIT", 3600.0)
+    rig = Rig(hub, peer, write)
+    yield rig
+    rig.close()
+
+
+def test_every_event_ack_and_injection_wakes_the_charts_loop(sleepy_rig):
+    """The chart's loop sleeps until its next time event or something arrives: each
+    event put, each configuration's answer and each event injected in the process is
+    handled at once, never left for the idle wait (an hour here)."""
+    rig = sleepy_rig
+    rig.put("e_SEND")
+    assert wait_until(lambda: rig.sent, 10)
+    for _ in range(3):
+        rig.put("e_GO")
+        assert wait_until(lambda: rig.active() == ["Working"], 10)
+        rig.ack(rig.requests[-1])
+        assert wait_until(lambda: rig.active() == ["Done"], 10)
+    rig.coordinator.inject("e_GO")
+    assert wait_until(lambda: rig.active() == ["Working"], 10)
+
+
+def test_a_chart_whose_inputs_never_received_anything_keeps_running(hub, write, monkeypatch):
+    """Nothing on the events or acks ports yet (a deployment still starting): the loop's
+    idle wakes find nothing to read and go on; an event injected later is handled."""
+    import framework.coordinator
+
+    monkeypatch.setattr(framework.coordinator, "IDLE_WAIT", 0.005)
+    chart = load_statechart(write(CHART, "chart.yaml"))
+    control = Container("control", hub)
+    try:
+        coordinator = control.add(Coordinator("coordinator", chart), None)
+        control.start()
+        assert coordinator.start()
+        time.sleep(0.1)  # twenty idle wakes with nothing on either port
+        assert coordinator.inject("e_END")
+        assert wait_until(lambda: coordinator.call("active")["finished"], 10)
+    finally:
+        control.shutdown()
