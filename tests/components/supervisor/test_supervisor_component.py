@@ -214,7 +214,8 @@ def test_motion_changes_reach_the_supervisor_arrival_and_collision(rig):
     assert len(emitted(rig, "e_STOP")) == 1
     rig.feed("motion", EventMessage(0.0, "moving", "interpolator", {"goal": "home"}))
     assert wait_until(lambda: len([e for e in rig.events if e.name == "e_STOP"]) == 2)
-    assert rig.supervisor.call("report")["phase"] == "moving"
+    report = rig.supervisor.call("report")
+    assert (report["phase"], report["goal"]) == ("moving", "home")
 
 
 def test_a_latched_robot_stop_reaches_the_chart_and_halts(rig):
@@ -314,3 +315,27 @@ def test_a_supervisor_without_a_readable_procedure_does_not_configure(hub, tmp_p
         assert "seeg.yaml" in broken.last_error
     finally:
         container.shutdown()
+
+
+def test_the_sensor_managers_limits_for_the_tracker_in_use_cap_the_speeds_sent(rig):
+    """The Sensor Manager says how fast its tracker may be followed: the limits the
+    interpolator is sent never exceed them, whatever the procedure allows."""
+    rig.steer("certus")
+    decision = {"best": "certus", "health": {}, "limits": {"max_velocity": 0.01}}
+    rig.feed("tracking", EventMessage(0.0, "decision", "sensor_manager", decision))
+    assert rig.supervisor.call("change_movement_parameters", speed="fast")["velocity"] == 0.01
+
+
+def test_a_tracker_fault_reaches_the_chart_with_the_sensor_managers_cause(rig):
+    rig.steer("certus")
+    decision = {"best": "vicra", "health": {"certus": {"cause": "stale"}}}
+    rig.feed("tracking", EventMessage(0.0, "decision", "sensor_manager", decision))
+    assert wait_until(lambda: any(e.name == "e_TFAULT" for e in rig.events))
+    (fault,) = [e for e in rig.events if e.name == "e_TFAULT"]
+    assert fault.payload == {
+        "tracker": "vicra",
+        "failed": "certus",
+        "fault": "stale",
+        "detail": "",
+        "numbers": {},
+    }
