@@ -6,7 +6,7 @@ import math
 import pytest
 
 from components.domain.procedure import load_procedure
-from components.supervisor.supervisor import SupervisorCore, _decision_problem
+from components.supervisor.supervisor import SupervisorCore, _decision_problem, untracked
 from framework.errors import FwError
 from tests.conftest import REPO
 
@@ -471,3 +471,19 @@ def test_no_tracker_says_what_each_tracker_lacks():
         "e_NOTRACKER",
         {"why": "certus: healthy, not trusted again yet; vicra: no_data"},
     )
+
+
+def test_no_tracker_is_explained_from_every_trackers_health_in_name_order():
+    """What the operator reads with "no tracker": each tracker's cause and detail, a
+    healthy one not trusted again yet, one the Sensor Manager said nothing of."""
+    health = {
+        "vicra": None,
+        "certus": {"cause": "stale", "detail": "120 ms"},
+        "aurora": {"ok": True, "cause": "stale"},
+        "optotrak": {"cause": "calibration"},
+    }
+    assert untracked(health) == (
+        "aurora: healthy, not trusted again yet; certus: stale, 120 ms; "
+        "optotrak: calibration; vicra: unknown"
+    )
+    assert untracked({}) == "the Sensor Manager has not said"

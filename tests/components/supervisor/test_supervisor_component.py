@@ -339,3 +339,12 @@ def test_a_tracker_fault_reaches_the_chart_with_the_sensor_managers_cause(rig):
         "detail": "",
         "numbers": {},
     }
+
+
+def test_a_decision_without_limits_for_its_tracker_lifts_the_earlier_ones(rig):
+    rig.steer("certus")
+    capped = {"best": "certus", "health": {}, "limits": {"max_velocity": 0.01}}
+    rig.feed("tracking", EventMessage(0.0, "decision", "sensor_manager", capped))
+    lifted = {"best": "certus", "health": {}, "limits": {}}
+    rig.feed("tracking", EventMessage(0.0, "decision", "sensor_manager", lifted))
+    assert rig.supervisor.call("change_movement_parameters", speed="fast")["velocity"] == 0.075
