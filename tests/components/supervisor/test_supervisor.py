@@ -84,6 +84,8 @@ def test_losing_the_tracker_in_use_is_a_fault_and_losing_all_is_no_tracker():
     steer(c, "vicra")
     assert c.tracking(None, {}) == [("e_NOTRACKER", {"why": "the Sensor Manager has not said"})]
     assert c.report_best_tracker() == ("e_NOTRACKER", {"why": "the Sensor Manager has not said"})
+    assert c.in_use is None, "no tracker is in use once none is left"
+    assert c.limits("fast")["velocity"] == PROCEDURE.slowest
 
 
 def test_a_tracker_failing_right_after_the_swap_to_it_is_reported_at_once():
@@ -487,3 +489,23 @@ def test_no_tracker_is_explained_from_every_trackers_health_in_name_order():
         "optotrak: calibration; vicra: unknown"
     )
     assert untracked({}) == "the Sensor Manager has not said"
+
+
+def test_a_robot_fault_that_clears_and_comes_back_stops_the_task_again():
+    """Once per fault: the same fault reported again is not news, but once the robot
+    said it cleared (after the operator's RELEASE), the same fault again is."""
+    c = core()
+    assert names(c.robot(True, True, "monitor tripped")) == ["e_STOP"]
+    assert c.robot(True, True, "monitor tripped") == []
+    assert c.robot(True, False, "monitor tripped") == [], "cleared, the words still there"
+    assert names(c.robot(True, True, "monitor tripped")) == ["e_STOP"]
+
+
+def test_a_refused_speed_leaves_the_last_one_for_the_next_swap():
+    c = core()
+    steer(c, "vicra")
+    c.limits("fast")
+    with pytest.raises(FwError, match="speed is 'fast' or 'slow'"):
+        c.limits("warp")
+    _, resend = steer(c, "certus")
+    assert resend and c.limits(c.speed) == c.limits("fast")
