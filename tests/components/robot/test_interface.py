@@ -590,6 +590,18 @@ def watched(hub):
     rig.close()
 
 
+def watched_moving(watched):
+    """Released with the heartbeat on time, five small steps the arm follows: the arm."""
+    arm = watched.arm
+    watched.cycle()
+    arm.released()
+    for _ in range(5):
+        target = arm.q + step(0.5)
+        watched.cycle(target)
+        arm.follow(target)
+    return arm
+
+
 def test_a_late_input_only_holds_a_braked_arm(watched):
     for _ in range(5):
         watched.cycle()
@@ -612,13 +624,7 @@ def test_a_late_input_trips_a_released_arm_even_before_its_first_setpoint(watche
 
 
 def test_an_arm_braked_again_after_a_motion_is_held_not_tripped_by_a_late_input(watched):
-    arm = watched.arm
-    watched.cycle()
-    arm.released()
-    for _ in range(5):
-        target = arm.q + step(0.5)
-        watched.cycle(target)
-        arm.follow(target)
+    arm = watched_moving(watched)
     arm.robot.call("brake", reason="at goal")
     arm.braked, arm.served = True, arm.taken
     watched.cycle()
@@ -1074,13 +1080,7 @@ def test_an_arm_that_brakes_in_the_cycle_an_input_falls_late_is_held_not_tripped
     """The cycle's decision is taken on the cycle's measurement: an arm that comes back
     braked (at its goal) is held by an input late since the last cycle, as any braked
     arm is; RELEASE is refused until the input is back."""
-    arm = watched.arm
-    watched.cycle()
-    arm.released()
-    for _ in range(5):
-        target = arm.q + step(0.5)
-        watched.cycle(target)
-        arm.follow(target)
+    arm = watched_moving(watched)
     arm.robot.call("brake", reason="at goal")
     watched.cycle(arm.q)  # the request goes out with this cycle's answer
     # the heartbeat stops; the arm goes on released until the input is one cycle from
@@ -1243,13 +1243,7 @@ def test_an_interface_not_configured_yet_reports_no_arm_state(hub):
 def test_an_acknowledge_while_the_stop_is_under_way_is_refused_and_acknowledges_nothing(watched):
     """RELEASE during a protective stop's deceleration is refused, and the safety
     monitor stays latched with the interface: nothing of the stop is cleared."""
-    arm = watched.arm
-    watched.cycle()
-    arm.released()
-    for _ in range(5):
-        target = arm.q + step(0.5)
-        watched.cycle(target)
-        arm.follow(target)
+    arm = watched_moving(watched)
     watched.cycle(arm.q + step(50.0))  # refused mid-motion: the stop decelerates
     assert arm.report()["stopping"]
     with pytest.raises(FwError, match="still under way"):
