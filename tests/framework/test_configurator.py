@@ -404,10 +404,13 @@ def test_a_failed_step_reads_as_the_step_and_its_reason():
 def test_each_request_is_applied_and_answered_once(rig):
     """One answer per request, in request order: a request read again (its sample is
     still the port's last) is never applied a second time."""
+    before = len(rig.configurator.history)
     assert rig.request("to_b").ok
     assert rig.request("setup").ok
     assert rig.request("to_b").ok
     assert [a.request_id for a in rig.answers()] == [1, 2, 3]
+    applied = [o.tag for o in rig.configurator.history[before:] if o.tag != "probe"]
+    assert applied == ["to_b", "setup", "to_b"], "the routing probes aside"
 
 
 def test_a_configurator_stopped_and_started_again_serves_as_before(rig):
