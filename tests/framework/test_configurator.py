@@ -6,6 +6,7 @@ The components live in a container on one session of the test's bus, the Configu
 on another, as in a deployment (requests and answers cross the bus); they share the
 test's process so a configuration costs milliseconds, not a process start."""
 
+import threading
 import time
 
 import pytest
@@ -429,3 +430,109 @@ def test_a_prepared_switch_with_a_deadline_is_made_and_answered_in_time(rig, hub
     assert ack.ok, ack.reason
     assert rig.workers.local_switches.done[-1].request_id == ack.request_id
     assert rig.port("sink", "inp").key.endswith("b/out")
+
+
+def test_a_configuration_that_connects_a_port_twice_ends_on_the_second(rig):
+    """A connection already so is skipped as judged by the steps before it: connecting
+    b and then a again leaves the port on a (the wiring's own value), not on b."""
+    assert rig.apply("there_and_back").ok
+    assert rig.port("sink", "inp").key.endswith("a/out")
+    assert rig.configurator.restore_steps({"sink"}) == [], "the Configurator's map agrees"
+
+
+def test_a_configurator_stopped_no_longer_listens_for_switch_reports(rig, peer):
+    """Stopping releases its subscription to the processes' switch reports (started and
+    stopped again, nothing is left listening: no subscription leaks per restart)."""
+    probe = peer.publisher(keys.config_switched("spec"), cache=False)
+    try:
+        assert wait_until(lambda: probe.matching_status.matching, 10), "listening"
+        assert rig.configurator.stop()
+        assert wait_until(lambda: not probe.matching_status.matching, 10), "released"
+        assert rig.configurator.start()
+        assert wait_until(lambda: probe.matching_status.matching, 10), "listening again"
+    finally:
+        probe.undeclare()
+
+
+class Link:
+    """The network between the workers' process and the Configurator as the switch
+    reports cross it: `lose` drops them, `delay` holds each that long (s)."""
+
+    def __init__(self, publisher, lose=False, delay=0.0):
+        self.publisher, self.lose, self.delay = publisher, lose, delay
+
+    def put(self, data):
+        time.sleep(self.delay)
+        if not self.lose:
+            self.publisher.put(data)
+
+    def undeclare(self):
+        self.publisher.undeclare()
+
+
+def cut_reports(rig, **link):
+    switches = rig.workers.local_switches
+    switches._publisher = Link(switches._publisher, **link)
+
+
+def test_a_switch_made_but_whose_report_is_lost_is_undone(rig, hub):
+    """The process switched, its report never came: the Configurator cannot know what
+    the port is on, so it restores what its wiring says and the request fails. With a
+    deadline the wait is bounded by it (plus one step's time), not by all the steps'."""
+    switch_routed(rig, hub)
+    cut_reports(rig, lose=True)
+    ack = rig.request("switch_to_b", alone=True, deadline=time.time() + 0.5)
+    assert rig.workers.local_switches.done[-1].ok, "the process switched"
+    assert not ack.ok and ack.step == "disconnect sink.inp"
+    assert "workers did not report its local switch within" in ack.reason
+    waited = float(ack.reason.split(" within ")[1].split(" s")[0])
+    assert 2.0 < waited <= 2.5, "the deadline's 0.5 s and a step's 2 s, not both steps' 4 s"
+    assert rig.port("sink", "inp").key.endswith("a/out"), "switched back"
+    assert rig.workers.components["dbl"].get_property("gain") == 2.0, "nothing after it ran"
+    assert rig.configurator.restore_steps({"sink"}) == [], "the Configurator's map agrees"
+
+
+def test_a_switch_reported_after_the_requests_deadline_is_undone(rig, hub):
+    """A switch-only configuration whose report comes late is no success: the chart gave
+    up on it, so the switch is undone and the failure says why."""
+    switch_routed(rig, hub)
+    cut_reports(rig, delay=0.8)
+    ack = rig.request("unplug", alone=True, deadline=time.time() + 0.3)
+    assert rig.workers.local_switches.done[-1].ok, "the process switched"
+    assert not ack.ok and ack.step == "deadline" and "deadline passed" in ack.reason
+    assert wait_until(lambda: rig.port("sink", "inp").key is not None)
+    assert rig.port("sink", "inp").key.endswith("a/out"), "connected again"
+
+
+def test_a_switch_reported_at_once_meets_a_short_deadline(rig, hub):
+    """The report wakes the Configurator when it arrives (it does not sleep out its
+    bound): a switch and a step after it fit in a 1.5 s deadline, under one step's 2 s."""
+    switch_routed(rig, hub)
+    ack = rig.request("switch_to_b", alone=True, deadline=time.time() + 1.5)
+    assert ack.ok, ack.reason
+    assert rig.workers.components["dbl"].get_property("gain") == 6.0
+
+
+def test_a_restore_forced_after_a_switch_was_asked_is_switched_over_again(rig, hub):
+    """A process switched on a request, then a forced restore (a restarted process's)
+    put the port back before the Configurator got to the request: the Configurator
+    makes the switch again, so the port is where the chart asked last and where the
+    Configurator's map says it is."""
+    switch_routed(rig, hub)
+    restore = [
+        Step("call", "sink", "slow", args={"seconds": 1.0}),
+        Step("connect", "sink", "inp", key=rig.port("sink", "inp").key, policy=None),
+    ]
+    done = {}
+    worker = threading.Thread(
+        target=lambda: done.update(o=rig.configurator.run_steps("restore", restore))
+    )
+    worker.start()
+    assert wait_until(lambda: rig.configurator._apply_lock.locked())
+    ack = rig.request("switch_to_b", alone=True)
+    worker.join(30)
+    assert done["o"].ok and ack.ok, ack.reason
+    assert rig.workers.local_switches.done[-1].request_id == ack.request_id
+    assert rig.port("sink", "inp").key.endswith("b/out"), "switched over again"
+    (step,) = rig.configurator.restore_steps({"sink"})
+    assert step.key.endswith("b/out"), "the Configurator's map has the switch"
