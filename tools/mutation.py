@@ -82,6 +82,7 @@ SAFETY_CORE: dict[str, list[str]] = {
     "framework/safety.py": ["tests/framework/test_safety.py"],
     "components/tracking/sensor_manager.py": [
         "tests/components/tracking/test_sensor_manager.py",
+        "tests/components/tracking/test_sensor_history.py",
         "tests/components/tracking/test_sensor_manager_component.py",
         REFERENCE,
     ],
