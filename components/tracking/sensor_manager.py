@@ -269,8 +269,8 @@ class SensorManagerCore:
             last = self._last_cto[index]
             if last[7]:
                 self._before[index] = (last[0], last[1], last[2], last[8], pose.rms)
-            else:
-                self._before[index] = (math.nan, math.nan, math.nan, -math.inf, pose.rms)
+            else:  # judged against where it was last seen, over the time since
+                self._before[index, 4] = pose.rms
         else:
             row += self._n
         sample = (*pose.position, *pose.orientation, float(pose.valid), arrival)

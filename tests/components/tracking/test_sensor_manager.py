@@ -487,6 +487,25 @@ def test_a_sample_in_a_pause_of_the_robots_poses_is_not_judged_by_a_pose_of_anot
     assert core.evaluate(1.301).health["certus"].cause == "calibration"
 
 
+def test_robot_poses_unknown_for_a_while_leave_nothing_of_before_behind():
+    """The joints were unknown (the robot's side restarted, its clock with it): the
+    poses from before are forgotten, so a sample is placed by the poses known since, and
+    a verdict from before is not carried over to the same sample checked again."""
+    rig, core = single_certus()
+    for stamp in (10.0, 10.004, 10.008):
+        core.set_kinematics(shifted(ee_path(0.0), 0.3), stamp=stamp)
+    core.set_kinematics(None)
+    for stamp in (10.0, 10.004):
+        core.set_kinematics(ee_path(0.0), stamp=stamp)
+    offer(core, rig, ee_path(0.0), 10.002, arrival=1.0)
+    assert core.evaluate(1.001).health["certus"].ok, "placed by the poses since"
+    core.set_kinematics(None)
+    for stamp in (10.0, 10.004):
+        core.set_kinematics(shifted(ee_path(0.0), 0.3), stamp=stamp)
+    health = core.evaluate(1.002).health["certus"]
+    assert health.cause == "calibration", "the same sample, checked again against these"
+
+
 def test_robot_poses_out_of_time_order_are_ignored():
     """A pose older than the last (or with no finite stamp) would break the time order
     the samples are matched in: it is left out, and the latest pose stays."""
@@ -496,6 +515,7 @@ def test_robot_poses_out_of_time_order_are_ignored():
     core.set_kinematics(shifted(ee_path(0.0), 0.5), stamp=10.005)
     core.set_kinematics(shifted(ee_path(0.0), 0.5), stamp=10.01)  # the same instant again
     core.set_kinematics(shifted(ee_path(0.0), 0.5), stamp=math.nan)
+    core.set_kinematics(shifted(ee_path(0.0), 0.5), stamp=0.0)  # a clock's zero is a time
     assert core._times == [10.0, 10.01]
     assert core.kinematics[0, 3] == pytest.approx(ee_path(0.0)[0, 3] + 0.01)
 
@@ -835,6 +855,25 @@ def test_a_frame_after_a_missing_one_is_not_judged_against_the_missing_ones_posi
     core.offer("certus", cto_name, cto, 0.02)
     core.offer("certus", rto_name, rto, 0.02)
     assert core.evaluate(0.021).health["certus"].ok, "seen again, where it was"
+
+
+def test_a_tool_seen_again_after_hidden_frames_is_judged_against_where_it_was_last_seen():
+    """Hidden frames between two sightings do not excuse an impossible step: a tool
+    seen 30 cm away 20 ms after it was last seen jumped (the time since counts, so a
+    long occlusion allows a long way, as between any two frames)."""
+    rig, core = single_certus()
+    start = ee_path(0.0)
+    offer(core, rig, start, 0.0, arrival=0.0)
+    assert core.evaluate(0.001).health["certus"].ok
+    cto, rto = rig.observe(start, np.random.default_rng(1), 0.01)
+    core.offer("certus", "cto", dataclasses.replace(cto, valid=False), 0.01)
+    core.offer("certus", "rto", rto, 0.01)
+    assert core.evaluate(0.011).health["certus"].cause == "cto_missing"
+    offer(core, rig, shifted(start, 0.3), 0.02, arrival=0.02)
+    health = core.evaluate(0.021).health["certus"]
+    assert (health.cause, health.detail) == ("corrupt", "the robot's tool jumped 300.0 mm in 20 ms")
+    offer(core, rig, start, 0.5, arrival=0.5)  # back after 480 ms: 0.6 m/s, motion
+    assert core.evaluate(0.501).health["certus"].cause != "corrupt"
 
 
 @pytest.mark.parametrize(("step", "ok"), [(0.0102, True), (0.0108, False)])
