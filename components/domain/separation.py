@@ -181,9 +181,14 @@ class SeparationMonitor:
         people: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
         age: float,
         now: float,
+        cap_age: float = 0.0,
     ) -> Verdict:
         """The verdict for the robot's capsules (a, b, radius) at time `now` and the
-        people's envelope capsules, `age` seconds old (None or empty: nobody)."""
+        people's envelope capsules, `age` seconds old (None or empty: nobody). The stop
+        is judged at `age`; the cap is for the envelopes at `cap_age` if that is older
+        (the age they will have when the next are due): a cap that holds for their
+        whole life, never above the one of their true age, since a person may close
+        in all that while, instead of one that falls every cycle as they age."""
         a, b, radius = robot
         speed = self.robot_speed(a, b, now)
         if people is None or len(people[0]) == 0:
@@ -191,9 +196,10 @@ class SeparationMonitor:
         separation = least_capsule_distance(a, b, radius, *people)
         p = self.params
         protective = p.protective_distance(speed, age)
-        standing = p.protective_distance(0.0, age)
+        cap_age = max(age, cap_age)
+        standing = p.protective_distance(0.0, cap_age)
         share = (separation - standing) / p.slow_band if p.slow_band > 0 else 1.0
-        cap = min(self.max_speed * min(max(share, 0.0), 1.0), p.allowed_speed(separation, age))
+        cap = min(self.max_speed * min(max(share, 0.0), 1.0), p.allowed_speed(separation, cap_age))
         if share >= 1.0 and cap >= self.max_speed:
             cap = math.inf
         return Verdict(separation, speed, protective, cap, separation < protective, self.tcp_speed)

@@ -34,7 +34,9 @@ Safety, fastest first (docs/safety.md):
   cycle the arm is released (`separation.py`, ISO/TS 15066's protective separation
   distance): a separation under it is a protective stop, latched like a trip, taken
   in the cycle that measured it; before that, `speed_cap` slows the motion as people
-  approach (the interpolator takes it).
+  approach (the interpolator takes it). The cap is for the envelopes' age when the
+  next are due, so it holds for their whole life (about one cap per envelope, not one
+  every few cycles as they age) and is never above the cap of their true age.
 
 `brake` and `release` are the procedure's brakes (waiting for START, holding at a
 goal): they do not latch.
@@ -77,6 +79,9 @@ STILL_CYCLES = 50  # ...for this many cycles: the arm stands still (brake when s
 STILL_TIMEOUT_CYCLES = 2000  # brake when still brakes anyway after 2 s
 STATUS_PERIOD = 0.5  # s between statuses when nothing changes (a change: at once)
 CAP_CHANGE = 0.02  # a speed cap that moved by less than this share is not sent again
+CAP_LOOKAHEAD = 0.1
+"""s: the cap is for the envelopes' age when the next are due, expected after the last
+interval between two, at most this (one late sample does not slow every later one)."""
 REQUESTS = {
     ("brake", False): fri.Request.BRAKE,
     ("brake", True): fri.Request.BRAKE_LATCHED,
@@ -229,6 +234,7 @@ class RobotInterface(Component):
         self._age_at_arrival = 0.0  # the envelopes' age when they arrived (wall clock, s)
         self._arrived = 0.0  # ...and when, on this component's clock
         self._taken = 0.0  # ...and when, on the wall clock (`fw bench ssm`)
+        self._interval = 0.0  # between the last two arrivals (this clock, s; 0: one yet)
         self.verdict: Verdict = CLEAR
         self.closest = math.inf  # the least separation while released (m)
         self._cap_sent = math.inf
@@ -482,13 +488,16 @@ class RobotInterface(Component):
                 if not self.latched:
                     self._trip(f"envelopes refused: {wrong}", state)
                 return
+            now = self.clock.now()
+            if self._people is not None:
+                self._interval = min(max(0.0, now - self._arrived), CAP_LOOKAHEAD)
             self._people = people
             # their age is the camera frame's on arrival, then this cycle's own clock:
             # a wall clock step after arrival cannot make them younger, and on a
             # simulated clock they age with the simulation
             self._taken = time.time()
             self._age_at_arrival = max(0.0, self._taken - message.stamp)
-            self._arrived = self.clock.now()
+            self._arrived = now
             self._quiet = 0  # news: check now
         if self._people is None or (state.braked and not self._commanding):
             return
@@ -503,7 +512,10 @@ class RobotInterface(Component):
         capsules = self._kinematics.capsules(np.asarray(state.position, dtype=float))
         now = state.cycle * CYCLE
         age = self._age_at_arrival + max(0.0, self.clock.now() - self._arrived)
-        verdict = self._ssm.check((capsules.a, capsules.b, capsules.radius), self._people, age, now)
+        due = self._age_at_arrival + self._interval  # their age when the next are due
+        verdict = self._ssm.check(
+            (capsules.a, capsules.b, capsules.radius), self._people, age, now, due
+        )
         self.verdict = verdict
         self.closest = min(self.closest, verdict.separation)
         self._quiet = self._ssm.quiet_cycles(verdict, age, CYCLE)

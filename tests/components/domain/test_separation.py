@@ -90,6 +90,29 @@ def test_the_cap_falls_as_people_approach_and_is_zero_where_only_standing_is_saf
         assert cap_near == math.inf, "far from everyone: no cap"
 
 
+@given(gap=st.floats(0.0, 1.0), age=ages, ahead=st.floats(0.0, 0.1), v=st.floats(0.0, 0.1))
+def test_a_cap_for_the_age_the_envelope_will_have_holds_until_then_and_never_above(
+    gap, age, ahead, v
+):
+    """The cap for an envelope `cap_age` old is the one of that age, for any age it has
+    until then never above the cap of its true age; the stop is still judged at its
+    true age (a cap looking ahead never delays a stop)."""
+
+    def verdict(at_age, cap_age=0.0):
+        monitor = SeparationMonitor(P, max_speed=0.075)
+        monitor.check(arm(0.0), person(5.0), at_age, now=0.0)
+        return monitor.check(arm(v * 0.001), person(0.2 + gap), at_age, 0.001, cap_age)
+
+    ahead_of_time = verdict(age, age + ahead)
+    assert ahead_of_time.cap == verdict(age + ahead).cap
+    assert ahead_of_time.cap <= verdict(age).cap
+    assert (ahead_of_time.stop, ahead_of_time.protective) == (
+        verdict(age).stop,
+        verdict(age).protective,
+    )
+    assert verdict(age, age - 0.01).cap == verdict(age).cap, "never for a younger one"
+
+
 def test_nobody_in_the_room_is_no_constraint():
     verdict = SeparationMonitor(P, 0.075).check(arm(), None, 0.0, 0.0)
     assert verdict.separation == math.inf and verdict.cap == math.inf and not verdict.stop
