@@ -448,6 +448,28 @@ def test_each_sample_is_checked_against_the_robot_pose_of_its_time():
     assert health.numbers["pose_gap_ms"] == pytest.approx(step * 1e3, abs=1e-3)
     assert health.numbers["pose_nearest"] == poses[2][0]  # a tie: the later one
     assert health.numbers["pose_newest"] == poses[-1][0]
+    # a quarter of the way from the second pose, the tool seen where the third is
+    offer(core, rig, poses[2][1], 10.0 + 1.25 * step, arrival=10.0)
+    health = core.evaluate(10.001).health["certus"]
+    assert health.cause == "calibration", health
+    assert health.numbers["pose_nearest"] == poses[1][0], "the nearer: the earlier one"
+
+
+def test_a_sample_older_than_every_robot_pose_names_the_oldest_as_the_nearest():
+    """Samples older than every robot pose kept cannot be checked; after
+    `CHECK_LAG_LIMIT` of them the verdict's numbers name the poses it had: the nearest
+    in time is the oldest, not the newest."""
+    rig, core = single_certus()
+    poses = [(10.0 + i / 256, shifted(ee_path(0.0), 0.0003 * i)) for i in range(4)]
+    for stamp, pose in poses:
+        core.set_kinematics(pose, stamp=stamp)
+    offer(core, rig, ee_path(0.0), 9.9, arrival=1.0)
+    core.evaluate(1.001)
+    offer(core, rig, ee_path(0.0), 9.91, arrival=1.0 + CHECK_LAG_LIMIT + 0.1)
+    health = core.evaluate(1.002 + CHECK_LAG_LIMIT + 0.1).health["certus"]
+    assert health.cause == "calibration" and "cannot be checked" in health.detail
+    assert health.numbers["pose_nearest"] == poses[0][0]
+    assert health.numbers["pose_newest"] == poses[-1][0]
 
 
 def test_poses_as_far_apart_as_the_limit_still_place_the_tool():
