@@ -5,6 +5,7 @@
     python tools/mutation.py --core                               every safety module
     python tools/mutation.py framework/configurator.py --lines 150-200 --jobs 2
     python tools/mutation.py framework/safety.py --operators fw   only fw's own operators
+    python tools/mutation.py --core --unused                      equivalents that match nothing now
 
 Two families of mutants, scored apart:
 
@@ -242,6 +243,44 @@ def enclosing_function(module: str, line: int) -> str:
     return max(around)[1] if around else ""
 
 
+def listed(mutant: Mutant, item: dict[str, str]) -> bool:
+    """Whether the equivalents entry `item` names `mutant` (see `equivalent_reason`)."""
+    if item.get("module") != mutant.module:
+        return False
+    if "function" in item and enclosing_function(mutant.module, mutant.line) != item["function"]:
+        return False
+    if "changed" in item or "where" in item:
+        changed = re.compile(str(item.get("changed", "")))
+        where = re.compile(str(item.get("where", "")))
+        return bool(
+            mutant.short in item.get("operators", ())
+            and where.search(mutant.before)
+            and changed.search(mutant.after)
+            and ("changed" not in item or not changed.search(mutant.before))
+        )
+    return (
+        item.get("operator") == mutant.short
+        and item.get("before", "").strip() == mutant.before
+        and item.get("after", "").strip() == mutant.after
+    )
+
+
+def unused_equivalents(modules: list[str]) -> list[dict[str, str]]:
+    """The equivalents entries of `modules` that no mutant of their code as it is now
+    matches (either family): the line they name was changed or removed, so the entry
+    hides nothing and should go (or be written again for the new line)."""
+    known = [item for item in load_equivalents() if item.get("module") in modules]
+    unused = []
+    for module in modules:
+        entries = [item for item in known if item.get("module") == module]
+        if not entries or not (REPO / module).is_file():
+            unused += entries
+            continue
+        mutants = make_mutants(module) + fw_mutants(module)
+        unused += [item for item in entries if not any(listed(m, item) for m in mutants)]
+    return unused
+
+
 def equivalent_reason(mutant: Mutant, known: list[dict[str, str]]) -> str:
     """Why `mutant` is equivalent, or "" if it is not listed. An entry names one mutant
     (operator, before, after), or a kind of them: `operators` with `changed`, a pattern
@@ -250,28 +289,7 @@ def equivalent_reason(mutant: Mutant, known: list[dict[str, str]]) -> str:
     pattern of the original line (every such mutant of a placeholder's value). Either
     may add `function`: only mutants inside the function of that name."""
     for item in known:
-        if item.get("module") != mutant.module:
-            continue
-        if (
-            "function" in item
-            and enclosing_function(mutant.module, mutant.line) != item["function"]
-        ):
-            continue
-        if "changed" in item or "where" in item:
-            changed = re.compile(str(item.get("changed", "")))
-            where = re.compile(str(item.get("where", "")))
-            if (
-                mutant.short in item.get("operators", ())
-                and where.search(mutant.before)
-                and changed.search(mutant.after)
-                and ("changed" not in item or not changed.search(mutant.before))
-            ):
-                return str(item.get("reason", "listed as equivalent"))
-        elif (
-            item.get("operator") == mutant.short
-            and item.get("before", "").strip() == mutant.before
-            and item.get("after", "").strip() == mutant.after
-        ):
+        if listed(mutant, item):
             return str(item.get("reason", "listed as equivalent"))
     return ""
 
@@ -741,6 +759,11 @@ def main(argv: list[str] | None = None) -> int:
         help="which family of mutants (default: both, each scored apart)",
     )
     parser.add_argument(
+        "--unused",
+        action="store_true",
+        help="no run: list the equivalents entries no mutant of the code as it is matches",
+    )
+    parser.add_argument(
         "--rescore",
         action="store_true",
         help="no run: apply the current equivalents list to the module's reported run",
@@ -753,6 +776,14 @@ def main(argv: list[str] | None = None) -> int:
         import cosmic_ray  # noqa: F401
     except ImportError:
         parser.error("cosmic-ray is missing: pip install -e '.[mutation]'")
+    if args.unused:
+        stale = unused_equivalents(modules)
+        for item in stale:
+            what = item.get("operator") or "/".join(item.get("operators", ()))
+            text = item.get("before") or item.get("where") or item.get("changed")
+            print(f"{item['module']}: {what}: {text}: matches no mutant of the code as it is")
+        print(f"{len(stale)} unused equivalents entries")
+        return 1 if stale else 0
     lines = None
     if args.lines:
         first, _, last = args.lines.partition("-")

@@ -205,6 +205,18 @@ def test_it_says_when_a_silent_tracker_will_be_stale_so_it_need_not_poll():
     assert world.core.due_in(now + 1.0) is None, "every tracker stale: nothing more falls due"
 
 
+def test_a_tracker_falls_due_when_the_older_of_its_two_tools_goes_stale():
+    """Staleness counts from the older of a tracker's two tools: the reference tool
+    last seen at 0 and the robot's tool at 15 ms, both then silent: the Certus (2 x 10
+    ms) is stale at 20 ms, so the Sensor Manager must look again by then, not at 35 ms."""
+    rig, core = single_certus()
+    cto, rto = rig.observe(ee_path(0.0), np.random.default_rng(0), 0.0)
+    core.offer("certus", "rto", rto, 0.0)
+    core.offer("certus", "cto", cto, 0.015)
+    assert core.due_in(0.016) == pytest.approx(0.004)
+    assert core.evaluate(0.0201).health["certus"].cause == "stale"
+
+
 @settings(max_examples=60, deadline=None)
 @given(
     script=st.lists(
