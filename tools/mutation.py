@@ -107,6 +107,7 @@ SAFETY_CORE: dict[str, list[str]] = {
         REFERENCE,
     ],
     "components/tracking/frame_clock.py": ["tests/components/tracking/test_frame_clock.py"],
+    "components/domain/fri.py": ["tests/components/domain/test_fri.py"],
 }
 """The modules that keep the robot safe, each with its own fast tests."""
 
