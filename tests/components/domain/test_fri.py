@@ -1,6 +1,8 @@
 """Spec: FRI 1.x datagrams byte for byte (KUKA's friComm.h, Rev 1.17), the KRC's rating
 of the PC's answers, and fw's KRL convention for requests and reasons."""
 
+import dataclasses
+import re
 import struct
 
 import pytest
@@ -69,6 +71,30 @@ def test_the_offsets_and_sizes_are_friComms():
         assert offset == expected, name
     # the ones FACTS.md measured in open copies of friComm.h
     assert msr_offsets["data.cmdJntPosFriOffset"] == 320 and cmd_offsets["cmd.jntPos"] == 144
+
+
+def test_the_enumerations_flags_and_port_carry_friComms_numbers():
+    """friComm.h's numbers (FACTS.md): a KRC reads them, so a renumbering is a protocol
+    break even where fw's two ends would still agree with each other."""
+    assert {s.name: s.value for s in fri.State} == {"OFF": 0, "MON": 1, "CMD": 2}
+    assert {q.name: q.value for q in fri.Quality} == {
+        "UNACCEPTABLE": 0,
+        "BAD": 1,
+        "OK": 2,
+        "PERFECT": 3,
+    }
+    assert {c.name: c.value for c in fri.Control} == {"POSITION": 1, "CART_IMP": 2, "JNT_IMP": 3}
+    assert (fri.CMD_JNTPOS, fri.CMD_JNTSTIFF, fri.CMD_JNTDAMP) == (0x1, 0x10, 0x20)
+    assert (fri.MSR_ID, fri.CMD_ID, fri.PORT) == (0x2006, 0x1005, 49938)
+
+
+def test_requests_carry_the_numbers_the_krl_convention_documents():
+    """The KRL program on a real KRC is written from the convention in fri.py's
+    docstring: the numbers there are the ones sent."""
+    documented = fri.__doc__.split("intData[1] request:")[1].split("measurement")[0]
+    numbers = dict(re.findall(r"([A-Z_]+) (\d+)", documented))
+    assert numbers == {r.name: str(r.value) for r in fri.Request if r is not fri.Request.NONE}
+    assert fri.Request.NONE == 0, "no request: the KRL program serves nothing"
 
 
 floats7 = st.tuples(*[st.floats(-3.0, 3.0, width=32)] * 7)
@@ -172,6 +198,19 @@ def test_a_measurement_is_no_command():
     forged[6:8] = struct.pack("<H", 0x2006)
     with pytest.raises(fri.DatagramError, match="id 0x2006 size 376 is no command"):
         fri.decode_command(bytes(forged))
+
+
+def test_a_decoded_datagram_cannot_be_changed_by_whoever_reads_it():
+    """The loop hands the decoded measurement and command to in-process readers as they
+    are (no copy): none of them can change what the others read."""
+    measurement = fri.decode_measurement(
+        fri.encode_measurement(1, 0, timestamp=0.0, state=1, quality=3, braked=True)
+    )
+    command = fri.decode_command(fri.encode_command(1, 1, (0.0,) * 7))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        measurement.braked = False
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        command.request = fri.Request.RELEASE
 
 
 @pytest.mark.parametrize(
