@@ -200,6 +200,35 @@ def test_a_measurement_is_no_command():
         fri.decode_command(bytes(forged))
 
 
+def test_a_command_says_nothing_but_what_fw_means():
+    """Beyond the header, the request in intData[0..1], the flags and jntPos, every byte
+    of a command is zero: a KRC that reads stiffness, damping, added torques or the
+    Cartesian pose under other flags, or KRL data fw does not use, finds 0, not junk."""
+    datagram = fri.encode_command(7, 6, (0.5,) * 7, request_number=3, request=fri.Request.RELEASE)
+    meant = {"sendSeqCount", "reflSeqCount", "packetSize", "datagramId", "cmd.cmdFlags",
+             "cmd.jntPos"}  # fmt: skip
+    for name, _, count in COMMAND:
+        value = field(datagram, COMMAND, name)
+        if name == "krl.intData":
+            assert value[:2] == (3, fri.Request.RELEASE) and not any(value[2:]), name
+        elif name not in meant:
+            assert not any(value if count > 1 else (value,)), name
+
+
+def test_a_measurement_told_nothing_is_of_a_braked_arm_at_rest():
+    """The KRC's encoder with only its required fields: braked, not latched, nothing
+    served and no reason, every joint vector zero, answers perfect, a 1 ms cycle."""
+    datagram = fri.encode_measurement(1, 0, timestamp=0.0, state=fri.State.MON, quality=3)
+    m = fri.decode_measurement(datagram)
+    assert (m.braked, m.latched, m.served, m.reason, m.cycle) == (True, False, 0, 0, 0)
+    zeros = (0.0,) * 7
+    assert m.msr_jnt_pos == m.cmd_jnt_pos == m.cmd_jnt_pos_fri_offset == zeros
+    assert m.msr_jnt_trq == zeros and m.monitor_answer == zeros
+    assert (m.answer_rate, m.latency, m.jitter, m.miss_rate, m.miss_counter) == (1, 0, 0, 0, 0)
+    assert field(datagram, MEASUREMENT, "intf.desiredMsrSampleTime") == pytest.approx(0.001)
+    assert field(datagram, MEASUREMENT, "intf.desiredCmdSampleTime") == pytest.approx(0.001)
+
+
 def test_a_decoded_datagram_cannot_be_changed_by_whoever_reads_it():
     """The loop hands the decoded measurement and command to in-process readers as they
     are (no copy): none of them can change what the others read."""
