@@ -207,3 +207,27 @@ def test_two_assignments_that_cannot_affect_each_other_are_not_swapped(tmp_path,
     assert (4, "self.c = self.b") in moves, "c reads b"
     assert (5, "self.d = n + 1") not in moves
     assert (6, "self.e = compute()") in moves, "a call may do anything"
+
+
+def test_an_equivalents_entry_whose_line_was_edited_is_reported_unused(tmp_path, monkeypatch):
+    """An entry names a mutant by its line's text: once the line is edited it hides
+    nothing, and `--unused` says so, while an entry that still matches is kept."""
+    import yaml
+
+    (tmp_path / "m.py").write_text("def f(x):\n    y = x + 1\n    return y\n")
+    still = {
+        "module": "m.py",
+        "operator": "DeleteStatement",
+        "before": "return y",
+        "after": "pass",
+        "reason": "a reason of more than ten characters",
+    }
+    edited = {**still, "before": "return y + 0"}
+    listing = tmp_path / "equivalents.yaml"
+    listing.write_text(yaml.safe_dump([still, edited]))
+    monkeypatch.setattr(mutation, "REPO", tmp_path)
+    monkeypatch.setattr(mutation, "EQUIVALENTS", listing)
+    assert mutation.unused_equivalents(["m.py"]) == [edited]
+    assert mutation.main(["m.py", "--unused"]) == 1
+    listing.write_text(yaml.safe_dump([still]))
+    assert mutation.main(["m.py", "--unused"]) == 0
