@@ -229,6 +229,36 @@ def test_a_measurement_told_nothing_is_of_a_braked_arm_at_rest():
     assert field(datagram, MEASUREMENT, "intf.desiredCmdSampleTime") == pytest.approx(0.001)
 
 
+def test_a_measurement_says_nothing_but_what_the_simulated_krc_knows():
+    """The simulated KRC fills the fields fw reads; every other one is zero (KRL data
+    beyond intData[0..2], the fill, the robot's error and warning, the Cartesian pose,
+    torques, Jacobian...), but the drives' temperatures, a plausible 30 degrees C."""
+    datagram = fri.encode_measurement(
+        9, 8, timestamp=1.5, state=fri.State.CMD, quality=3, msr_jnt_pos=(0.1,) * 7,
+        cmd_jnt_pos=(0.2,) * 7, served=4, reason=1, cycle=77, braked=False,
+    )  # fmt: skip
+    filled = {"sendSeqCount", "reflSeqCount", "packetSize", "datagramId", "krl.boolData",
+              "intf.timestamp", "intf.state", "intf.quality", "intf.desiredMsrSampleTime",
+              "intf.desiredCmdSampleTime", "intf.stat.answerRate", "robot.power",
+              "robot.control", "data.msrJntPos", "data.cmdJntPos"}  # fmt: skip
+    for name, _, count in MEASUREMENT:
+        value = field(datagram, MEASUREMENT, name)
+        if name == "krl.intData":
+            assert value[:3] == (4, 1, 77) and not any(value[3:]), name
+        elif name == "robot.temperature":
+            assert value == (30.0,) * 7
+        elif name not in filled:
+            assert not any(value if count > 1 else (value,)), name
+
+
+@pytest.mark.parametrize("seq", [0xFFFF, 0x10000, 0x1FFFE])
+def test_counters_past_sixteen_bits_travel_wrapped(seq):
+    measurement = fri.encode_measurement(seq, seq, timestamp=0.0, state=1, quality=3)
+    command = fri.encode_command(seq, seq, (0.0,) * 7)
+    for datagram in (measurement, command):
+        assert struct.unpack_from("<HH", datagram, 0) == (seq & 0xFFFF, seq & 0xFFFF)
+
+
 def test_a_decoded_datagram_cannot_be_changed_by_whoever_reads_it():
     """The loop hands the decoded measurement and command to in-process readers as they
     are (no copy): none of them can change what the others read."""
