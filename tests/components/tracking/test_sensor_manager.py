@@ -1302,3 +1302,96 @@ def test_the_trackers_offset_is_their_calibrations_difference_not_the_heads_moti
         shift = np.linalg.norm(world.core.offsets()["vicra"][:3, 3] - before)
         assert shift < 3e-4, "the bump leaks into the offset"
     assert world.core.offsets()["certus"] == pytest.approx(np.eye(4))
+
+
+def offsets_over(seconds, core, rigs, vicra_off, start=0.0, rng=None):
+    """The Certus at 100 Hz from t = 0, the Vicra at 20 Hz 3 ms later (their frames
+    never share a stamp, as two trackers' clocks do not), the Vicra seeing the tool
+    `vicra_off(t)` m off along x (a calibration difference); `core` evaluated at 1 kHz."""
+    rng = rng or np.random.default_rng(3)
+    certus, vicra = rigs
+    for tick in range(round(start * 1000), round((start + seconds) * 1000)):
+        t = tick / 1000
+        truth = ee_path(t)
+        if tick % 10 == 0:
+            for tool, pose in zip(("cto", "rto"), certus.observe(truth, rng, t), strict=True):
+                core.offer("certus", tool, pose, t)
+        if tick % 50 == 3:
+            seen = vicra.observe(shifted(truth, vicra_off(t)), rng, t)
+            for tool, pose in zip(("cto", "rto"), seen, strict=True):
+                core.offer("vicra", tool, pose, t)
+        core.evaluate(t + 0.0005)
+
+
+def test_the_offset_is_measured_between_trackers_whose_frames_never_coincide():
+    """The trackers' views are compared at an instant both reached (each interpolated
+    there), so two trackers on their own clocks are compared at all; and the offset
+    follows a calibration difference that changes (averaged over about a second)."""
+    rigs = standard_rigs()
+    core = SensorManagerCore(sensors_config(rigs, 1))
+    offsets_over(2.0, core, rigs, lambda t: 0.002)
+    # the tool seen off along the base's x: in the master's frame, as far but turned
+    assert np.linalg.norm(core.offsets()["vicra"][:3, 3]) == pytest.approx(0.002, abs=3e-4)
+    offsets_over(4.0, core, rigs, lambda t: 0.005, start=2.0)
+    assert np.linalg.norm(core.offsets()["vicra"][:3, 3]) == pytest.approx(0.005, abs=3e-4)
+
+
+def test_the_offset_is_not_measured_against_a_master_found_faulty():
+    """A swap carries the trackers' difference as measured while both were trusted:
+    once the Certus (the master) is found faulty, the Vicra's offset keeps its last
+    value instead of soaking up the Certus's error."""
+    world = World(kinematics=True)
+    world.run(2.0)
+    before = world.core.offsets()["vicra"][:3, 3].copy()
+    world.moved = rigid((0.02, 0.0, 0.0), (0.0, 0.0, 0.0))
+    world.faults["certus"] = "rto_moved"
+    decision = world.run(1.0)
+    assert decision.health["certus"].cause == "calibration" and decision.health["vicra"].ok
+    assert world.core.offsets()["vicra"][:3, 3] == pytest.approx(before, abs=1e-6)
+
+
+def test_the_check_lag_counts_from_the_last_sample_that_could_be_checked():
+    """A sample without a robot pose of its time keeps the sensor's verdict for
+    `CHECK_LAG_LIMIT` counted from the last sample that was checked: unchecked at 1.0
+    s, checked at 1.3 s, unchecked at 1.6 s is 0.3 s without a check, no fault."""
+    rig, core = single_certus()
+    step = 1 / 256
+
+    def poses_from(start, count):
+        for i in range(count):
+            core.set_kinematics(ee_path(0.0), stamp=start + i * step)
+
+    poses_from(10.0, 4)
+    poses_from(10.2, 4)  # a pause of the robot's poses between 10.012 and 10.2
+    offer(core, rig, ee_path(0.0), 10.1, arrival=1.0)
+    assert core.evaluate(1.0).health["certus"].ok and core.unchecked == 1
+    offer(core, rig, ee_path(0.0), 10.2, arrival=1.3)
+    assert core.evaluate(1.3).health["certus"].ok and core.unchecked == 1
+    poses_from(10.5, 4)
+    offer(core, rig, ee_path(0.0), 10.4, arrival=1.6)
+    health = core.evaluate(1.6).health["certus"]
+    assert health.ok and core.unchecked == 2, health
+    for now in (1.601, 1.605, 1.61):
+        assert core.evaluate(now).health["certus"].ok
+    assert core.unchecked == 2, "a sample is counted once, not every cycle it waits"
+
+
+def test_a_new_sample_of_one_tracker_is_judged_as_its_own_while_the_other_has_none():
+    """With the robot's poses kept, a sample already judged against the same pose is not
+    judged again; the ones that are new are judged each as their own tracker's: the
+    Vicra's new sample 10 mm off is the Vicra's fault, the Certus keeps its verdict,
+    and evaluating again without news changes nothing."""
+    rigs = standard_rigs()
+    core = SensorManagerCore(sensors_config(rigs, 1))
+    for i in range(8):
+        core.set_kinematics(ee_path(0.0), stamp=10.0 + i / 256)
+    for rig in rigs:
+        offer(core, rig, ee_path(0.0), 10.01, arrival=1.0)
+    assert all(h.ok for h in core.evaluate(1.001).health.values())
+    offer(core, rigs[1], shifted(ee_path(0.0), 0.01), 10.02, arrival=1.002)
+    for now in (1.003, 1.004):
+        health = core.evaluate(now).health
+        assert health["vicra"].cause == "calibration" and health["certus"].ok, health
+    offer(core, rigs[1], ee_path(0.0), 10.025, arrival=1.005)  # right again
+    health = core.evaluate(1.006).health
+    assert health["vicra"].ok and health["certus"].ok, health
