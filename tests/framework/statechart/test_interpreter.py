@@ -1101,6 +1101,38 @@ def test_a_snapshot_keeps_an_effects_configuration_still_awaited(chart):
     assert [r[1] for r in trace.records if r[0] == "unhandled"] == ["config.done"], "once only"
 
 
+def test_a_transition_across_regions_leaves_and_enters_the_whole_parallel_state(run):
+    """From a state of one region to a state of another: no region can be left alone, so
+    the parallel state is left (its regions in reverse document order, as SCXML, its own
+    exit last) and entered again,
+    the source's region at its initial state and the target's at the target."""
+    r = run(
+        """
+        statechart: across
+        events: {e: null}
+        initial: P
+        states:
+          - name: P
+            type: parallel
+            entry: [{log: enter P}]
+            exit: [{log: exit P}]
+            states:
+              - name: R1
+                initial: A
+                states:
+                  - {name: A, transitions: [{event: e, target: C}], exit: [{log: exit A}]}
+                  - {name: A2}
+              - name: R2
+                initial: B
+                states: [{name: B, exit: [{log: exit B}]}, {name: C, entry: [{log: enter C}]}]
+        """,
+        validate=False,
+    )
+    r.send("e")
+    assert r.leaves == ["P.R1.A", "P.R2.C"]
+    assert logs(r)[-5:] == ["exit B", "exit A", "exit P", "enter P", "enter C"], logs(r)
+
+
 def test_a_regions_transition_whose_source_was_left_in_the_same_step_does_not_fire(run):
     """R1's transition on e re-enters the parallel state P: R2's source was left in this
     step (and entered anew), so R2's own transition on e does not fire (issue 20)."""
