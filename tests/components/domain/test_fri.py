@@ -106,6 +106,7 @@ floats7 = st.tuples(*[st.floats(-3.0, 3.0, width=32)] * 7)
     q=floats7,
     cmd=floats7,
     offset=floats7,
+    torque=floats7,
     served=st.integers(0, 2**31 - 1),
     reason=st.integers(0, len(fri.REASONS) - 1),
     cycle=st.integers(0, 2**31 - 1),
@@ -114,7 +115,7 @@ floats7 = st.tuples(*[st.floats(-3.0, 3.0, width=32)] * 7)
     quality=st.sampled_from(list(fri.Quality)),
 )
 def test_a_measurement_says_each_field_where_friComm_puts_it(
-    seq, refl, q, cmd, offset, served, reason, cycle, braked, latched, quality
+    seq, refl, q, cmd, offset, torque, served, reason, cycle, braked, latched, quality
 ):
     datagram = fri.encode_measurement(
         seq,
@@ -126,6 +127,7 @@ def test_a_measurement_says_each_field_where_friComm_puts_it(
         msr_jnt_pos=q,
         cmd_jnt_pos=cmd,
         cmd_jnt_pos_fri_offset=offset,
+        msr_jnt_trq=torque,
         served=served,
         reason=reason,
         cycle=cycle,
@@ -137,7 +139,8 @@ def test_a_measurement_says_each_field_where_friComm_puts_it(
     assert (at("sendSeqCount"), at("reflSeqCount")) == (seq, refl)
     assert (at("packetSize"), at("datagramId")) == (916, 0x2006)
     assert at("data.msrJntPos") == q and at("data.cmdJntPos") == cmd
-    assert at("data.cmdJntPosFriOffset") == offset
+    assert at("data.cmdJntPosFriOffset") == offset and at("data.msrJntTrq") == torque
+    assert at("robot.power") == (0 if braked else 1), "the drives are on while released"
     assert at("intf.quality") == quality and at("intf.stat.missCounter") == 7
     assert at("intf.state") == (1 if braked else 2)
     assert at("krl.intData")[:3] == (served, reason, cycle)
@@ -145,6 +148,7 @@ def test_a_measurement_says_each_field_where_friComm_puts_it(
     decoded = fri.decode_measurement(datagram)
     assert (decoded.send_seq, decoded.refl_seq, decoded.quality) == (seq, refl, quality)
     assert decoded.msr_jnt_pos == q and decoded.cmd_jnt_pos == cmd
+    assert decoded.msr_jnt_trq == torque
     assert (decoded.served, decoded.reason, decoded.cycle) == (served, reason, cycle)
     assert (decoded.braked, decoded.latched, decoded.miss_counter) == (braked, latched, 7)
     assert decoded.monitor_answer == tuple(a + b for a, b in zip(cmd, offset, strict=True))
@@ -257,6 +261,12 @@ def test_counters_past_sixteen_bits_travel_wrapped(seq):
     command = fri.encode_command(seq, seq, (0.0,) * 7)
     for datagram in (measurement, command):
         assert struct.unpack_from("<HH", datagram, 0) == (seq & 0xFFFF, seq & 0xFFFF)
+
+
+@pytest.mark.parametrize(("cycle", "sent"), [(2**31 - 1, 2**31 - 1), (2**31, 0), (2**31 + 5, 5)])
+def test_the_krcs_cycle_counter_wraps_within_a_signed_32_bit_int(cycle, sent):
+    datagram = fri.encode_measurement(1, 0, timestamp=0.0, state=1, quality=3, cycle=cycle)
+    assert fri.decode_measurement(datagram).cycle == sent
 
 
 def test_a_decoded_datagram_cannot_be_changed_by_whoever_reads_it():
