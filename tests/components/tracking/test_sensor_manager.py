@@ -1264,6 +1264,7 @@ def test_a_reference_moved_on_one_tracker_only_is_found_within_two_periods_of_th
     assert health.cause == "calibration" and "about where the patient is" in health.detail
     numbers = health.numbers
     assert numbers["check"] == "patient" and 0.5 <= numbers["time"] <= 0.6
+    assert f"at {numbers['time']:.3f} s): its reference tool moved" in health.detail
     assert set(numbers["patient_mm"]) == {"certus", "vicra"}
     assert numbers["apart_mm"] == pytest.approx(8.0, abs=0.5)
     assert 5.0 <= numbers["tolerance_mm"] < 6.0, "the head is still: the tolerance is the file's"
@@ -1314,6 +1315,23 @@ def test_a_sensor_trusted_again_with_its_reference_back_in_place_is_healthy_at_o
     assert world.run(0.001).health["vicra"].ok
 
 
+@pytest.mark.parametrize(("vicra_deg", "ok"), [(3.0, False), (10.0, True)])
+def test_a_reference_that_turned_on_its_mount_is_found_by_the_larger_angle_tolerance(vicra_deg, ok):
+    """A reference tool turned 6 degrees on its mount, not moved: the trackers disagree
+    about the patient's orientation beyond 3 degrees, not beyond the Vicra's 10 (two
+    agree within the larger of their tolerances). Positions are set out of the way."""
+    world = World(kinematics=True, camera=True, tolerance_position=1.0)
+    world.core.config.sensors[1].tolerance_angle = math.radians(vicra_deg)
+    world.core = SensorManagerCore(world.core.config)
+    world.run(0.5)
+    world.moved = rigid((0.0, 0.0, 0.0), (0.0, 0.0, math.radians(6.0)))
+    world.faults["vicra"] = "rto_moved"
+    health = world.run(0.3).health["vicra"]
+    assert health.ok is ok, health
+    if not ok:
+        assert "about where the patient is" in health.detail
+
+
 def test_a_verdict_against_the_kinematics_carries_its_numbers():
     world = World(kinematics=True, camera=True)
     world.run(0.5)
@@ -1348,7 +1366,7 @@ def test_the_trackers_offset_is_their_calibrations_difference_not_the_heads_moti
     assert world.core.offsets()["certus"] == pytest.approx(np.eye(4))
 
 
-def offsets_over(seconds, core, rigs, vicra_off, start=0.0, rng=None):
+def offsets_over(seconds, core, rigs, vicra_off, start=0.0, rng=None, vicra_turn=None):
     """The Certus at 100 Hz from t = 0, the Vicra at 20 Hz 3 ms later (their frames
     never share a stamp, as two trackers' clocks do not), the Vicra seeing the tool
     `vicra_off(t)` m off along x (a calibration difference); `core` evaluated at 1 kHz."""
@@ -1361,7 +1379,8 @@ def offsets_over(seconds, core, rigs, vicra_off, start=0.0, rng=None):
             for tool, pose in zip(("cto", "rto"), certus.observe(truth, rng, t), strict=True):
                 core.offer("certus", tool, pose, t)
         if tick % 50 == 3:
-            seen = vicra.observe(shifted(truth, vicra_off(t)), rng, t)
+            turned = rigid((0.0, 0.0, 0.0), (0.0, 0.0, vicra_turn(t) if vicra_turn else 0.0))
+            seen = vicra.observe(shifted(truth, vicra_off(t)) @ turned, rng, t)
             for tool, pose in zip(("cto", "rto"), seen, strict=True):
                 core.offer("vicra", tool, pose, t)
         core.evaluate(t + 0.0005)
@@ -1378,6 +1397,19 @@ def test_the_offset_is_measured_between_trackers_whose_frames_never_coincide():
     assert np.linalg.norm(core.offsets()["vicra"][:3, 3]) == pytest.approx(0.002, abs=3e-4)
     offsets_over(4.0, core, rigs, lambda t: 0.005, start=2.0)
     assert np.linalg.norm(core.offsets()["vicra"][:3, 3]) == pytest.approx(0.005, abs=3e-4)
+
+
+def test_the_offset_follows_a_turn_between_the_trackers_views():
+    """The offset's rotation is averaged too: a Vicra view turned 1 degree, then 2."""
+    from components.domain.geometry import rotation_angle
+
+    rigs = standard_rigs()
+    core = SensorManagerCore(sensors_config(rigs, 1))
+    one, two = math.radians(1.0), math.radians(2.0)
+    offsets_over(2.0, core, rigs, lambda t: 0.0, vicra_turn=lambda t: one)
+    assert rotation_angle(core.offsets()["vicra"][:3, :3]) == pytest.approx(one, abs=1e-3)
+    offsets_over(4.0, core, rigs, lambda t: 0.0, start=2.0, vicra_turn=lambda t: two)
+    assert rotation_angle(core.offsets()["vicra"][:3, :3]) == pytest.approx(two, abs=1e-3)
 
 
 def test_the_offset_is_not_measured_against_a_master_found_faulty():
