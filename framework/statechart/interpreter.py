@@ -61,7 +61,6 @@ class _Node:
         "by_event",
         "children",
         "completion",
-        "depth",
         "epoch",
         "has_history",
         "initial",
@@ -76,7 +75,6 @@ class _Node:
     def __init__(self, state: State):
         self.state = state
         self.kind = state.kind
-        self.depth = state.depth
         self.active = False
         self.active_child: _Node | None = None
         self.epoch = 0

@@ -1101,6 +1101,27 @@ def test_a_snapshot_keeps_an_effects_configuration_still_awaited(chart):
     assert [r[1] for r in trace.records if r[0] == "unhandled"] == ["config.done"], "once only"
 
 
+def test_a_time_event_of_zero_seconds_comes_after_the_events_raised_on_entry(run):
+    """`after: 0s` is a time event due at once, not a completion: the events the state
+    raised on entry are processed first (internal before time events), and the one that
+    leaves the state cancels it."""
+    r = run(
+        """
+        statechart: zero
+        events: {}
+        initial: A
+        states:
+          - name: A
+            entry: [{raise: x}]
+            transitions: [{after: 0s, target: B}, {event: x, target: C}]
+          - {name: B}
+          - {name: C}
+        """,
+        validate=False,
+    )
+    assert r.leaves == ["C"]
+
+
 def test_a_transition_across_regions_leaves_and_enters_the_whole_parallel_state(run):
     """From a state of one region to a state of another: no region can be left alone, so
     the parallel state is left (its regions in reverse document order, as SCXML, its own
