@@ -1230,3 +1230,138 @@ def test_a_snapshot_keeps_the_time_left_for_an_awaited_configuration(chart):
     assert b.leaves == ["Top.A"], "not timed out yet"
     b.advance(0.02)
     assert b.leaves == ["Failed"], "timed out 2 s after the restore"
+
+
+# --- what a first run of fw's own mutants found unspecified (2026-11-28) ----------------
+def test_a_time_event_whose_guard_is_false_is_reported_unhandled(run):
+    r = run(
+        """
+        statechart: g
+        events: {}
+        initial: A
+        states:
+          - {name: A, transitions: [{after: 1s, guard: "False", target: B}]}
+          - {name: B}
+        """,
+        validate=False,
+    )
+    r.interpreter.advance(1.0)
+    assert r.leaves == ["A"]
+    assert ("unhandled", "after", "guard of the time event is false") in r.trace.records
+
+
+def test_a_junction_chain_that_loops_is_an_error_and_nothing_fires(run):
+    r = run(
+        """
+        statechart: loop
+        events: {go: null}
+        initial: A
+        states:
+          - {name: A, transitions: [{event: go, target: J1}]}
+          - {name: J1, type: junction, transitions: [{target: J2}]}
+          - {name: J2, type: junction, transitions: [{target: J1}]}
+        """,
+        validate=False,
+    )
+    r.send("go")
+    assert r.leaves == ["A"]
+    errors = [e[1] for e in r.kinds("error")]
+    assert len(errors) == 1 and "junction chain from" in errors[0] and "too long" in errors[0]
+
+
+def test_a_junction_chain_that_ends_reports_no_error(run):
+    r = run(JUNCTION, validate=False)
+    r.send(("go", {"n": 5}))
+    assert r.leaves == ["Small"] and r.kinds("error") == []
+
+
+def test_a_finished_chart_still_lets_listeners_hear_an_event_then_reports_it_unhandled(run):
+    r = run(
+        """
+        statechart: done
+        events: {e: null}
+        initial: F
+        states: [{name: F, type: final}]
+        """,
+        validate=False,
+    )
+    assert r.interpreter.finished
+    r.send("e")
+    assert ("event", "e", None, "external") in r.trace.records
+    assert ("unhandled", "e", "the chart has finished") in r.trace.records
+
+
+def test_an_outer_internal_transition_takes_the_event_from_the_inner_state(run):
+    """Outer first: the outer state's transition on e, internal (no target, nothing
+    exited), is the one taken; the inner state's own transition on e does not fire."""
+    r = run(
+        """
+        statechart: outer
+        events: {e: null}
+        initial: M
+        states:
+          - name: M
+            initial: A
+            transitions: [{event: e, effect: [{log: outer}]}]
+            states:
+              - {name: A, transitions: [{event: e, target: B, effect: [{log: inner}]}]}
+              - {name: B}
+        """,
+        validate=False,
+    )
+    r.send("e")
+    assert r.leaves == ["M.A"] and logs(r) == ["outer"]
+
+
+def test_a_history_with_a_default_enters_the_default_when_it_has_no_memory(run):
+    chart = HISTORY.replace(
+        "{name: D, type: deep_history}", "{name: D, type: deep_history, default: B.B2}"
+    ).replace("initial: M", "initial: Away")
+    r = run(chart, validate=False)
+    r.send("deep")
+    assert r.leaves == ["M.B.B2"]
+
+
+def test_a_transition_to_its_own_ancestors_history_leaves_and_resumes_that_ancestor(run):
+    """From M.B.B2 to M's shallow history: M is left (its exit runs) and entered again
+    at the child it was in, B, with B's default entry."""
+    chart = HISTORY.replace(
+        "          - {name: B2}",
+        "          - {name: B2, transitions: [{event: back, target: M.H}]}",
+    )
+    r = run(chart, validate=False)
+    r.send("next", "next")
+    assert r.leaves == ["M.B.B2"]
+    r.send("back")
+    assert r.leaves == ["M.B.B1"]
+    assert ("exit", "M") in r.trace.records and r.trace.records.count(("entry", "M")) == 2
+
+
+def test_a_restored_time_event_of_a_parent_state_outlives_its_childs_transitions(chart):
+    from framework.clock import SimulatedClock
+
+    c = chart(
+        """
+        statechart: parent_timer
+        events: {next: null}
+        initial: M
+        states:
+          - name: M
+            initial: A
+            transitions: [{after: 2s, target: Out}]
+            states:
+              - {name: A, transitions: [{event: next, target: B}]}
+              - {name: B}
+          - {name: Out}
+        """,
+        validate=False,
+    )
+    a = Interpreter(c, SimulatedClock())
+    a.start()
+    a.advance(1.0)
+    b = Interpreter(c, SimulatedClock(100.0))
+    b.restore(a.snapshot())
+    b.dispatch("next")
+    assert b.leaves == ["M.B"]
+    b.advance(1.0)
+    assert b.leaves == ["Out"], "M's time event, 1 s left at the snapshot"
