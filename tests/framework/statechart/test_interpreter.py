@@ -875,7 +875,7 @@ def test_a_livelock_of_completion_transitions_is_stopped_and_reported(run):
 
 # --- robustness: initial junctions, failing actions and hosts, snapshots with time -------
 
-INITIAL_JUNCTION = """
+INITIAL_BRANCH = """
 statechart: ij
 events: {go: null}
 variables: {mode: 2}
@@ -895,12 +895,12 @@ states:
 
 
 def test_an_initial_junction_chooses_the_first_entered_child(run):
-    r = run(INITIAL_JUNCTION, validate=False)
+    r = run(INITIAL_BRANCH, validate=False)
     assert r.leaves == ["P.Two"] and logs(r) == ["chose two"]
 
 
 def test_an_initial_junction_takes_its_first_enabled_branch_quietly(run):
-    r = run(INITIAL_JUNCTION.replace("mode: 2", "mode: 1"), validate=False)
+    r = run(INITIAL_BRANCH.replace("mode: 2", "mode: 1"), validate=False)
     assert r.leaves == ["P.One"] and logs(r) == ["chose one"]
     assert not [rec for rec in r.trace.records if rec[0] == "error"]
 
@@ -925,7 +925,7 @@ def test_the_configuration_names_a_parallel_states_regions_and_their_states(run)
 
 
 def test_an_initial_junction_with_no_branch_enabled_takes_its_last_and_says_so(run):
-    r = run(INITIAL_JUNCTION.replace("mode: 2", "mode: 3"), validate=False)
+    r = run(INITIAL_BRANCH.replace("mode: 2", "mode: 3"), validate=False)
     assert r.leaves == ["P.Two"]
     errors = [rec for rec in r.trace.records if rec[0] == "error"]
     assert errors and "no branch of initial junction P.J is enabled" in errors[0][1]
@@ -1365,3 +1365,50 @@ def test_a_restored_time_event_of_a_parent_state_outlives_its_childs_transitions
     assert b.leaves == ["M.B"]
     b.advance(1.0)
     assert b.leaves == ["Out"], "M's time event, 1 s left at the snapshot"
+
+
+def test_an_initial_state_nested_deeper_is_entered_through_every_state_above_it(run):
+    r = run(
+        """
+        statechart: deep_initial
+        events: {}
+        initial: M
+        states:
+          - name: M
+            initial: B.B2
+            states:
+              - {name: A}
+              - name: B
+                initial: B1
+                entry: [{log: enter B}]
+                states: [{name: B1}, {name: B2, entry: [{log: enter B2}]}]
+        """,
+        validate=False,
+    )
+    assert r.leaves == ["M.B.B2"]
+    assert logs(r) == ["enter B", "enter B2"]
+
+
+def test_a_state_whose_initial_is_its_own_history_resumes_it(run):
+    """M's initial is its shallow history: the first time, its default; after M was
+    left from B, B again."""
+    r = run(
+        """
+        statechart: ih
+        events: {next: null, out: null, back: null}
+        initial: M
+        states:
+          - name: M
+            initial: H
+            transitions: [{event: out, target: Away}]
+            states:
+              - {name: H, type: shallow_history, default: A}
+              - {name: A, transitions: [{event: next, target: B}]}
+              - {name: B}
+          - {name: Away, transitions: [{event: back, target: M}]}
+        """,
+        validate=False,
+    )
+    assert r.leaves == ["M.A"]
+    r.send("next", "out", "back")
+    assert r.leaves == ["M.B"]
