@@ -1412,3 +1412,91 @@ def test_a_state_whose_initial_is_its_own_history_resumes_it(run):
     assert r.leaves == ["M.A"]
     r.send("next", "out", "back")
     assert r.leaves == ["M.B"]
+
+
+def test_a_states_do_actions_run_on_entry_when_it_asks_no_configuration(run):
+    r = run(
+        """
+        statechart: do
+        events: {}
+        variables: {done: 0}
+        initial: A
+        states: [{name: A, do: [{set: {done: "= done + 1"}}, {log: did it}]}]
+        """,
+        validate=False,
+    )
+    assert r.interpreter.variables["done"] == 1 and logs(r) == ["did it"]
+
+
+def test_an_eventless_transition_inside_a_region_of_a_parallel_state_fires(run):
+    r = run(
+        """
+        statechart: pc
+        events: {}
+        initial: P
+        states:
+          - name: P
+            type: parallel
+            states:
+              - {name: R1, initial: A, states: [{name: A, transitions: [{target: A2}]}, {name: A2}]}
+              - {name: R2, initial: B, states: [{name: B}]}
+        """,
+        validate=False,
+    )
+    assert r.leaves == ["P.R1.A2", "P.R2.B"]
+
+
+@pytest.mark.parametrize("internal", [False, True], ids=["external", "internal"])
+def test_a_transition_is_heard_before_its_effect_runs(run, internal):
+    """What a trace or recording shows: the transition, then what its effect did."""
+    target = "" if internal else ", target: B"
+    r = run(
+        f"""
+        statechart: heard
+        events: {{e: null}}
+        initial: A
+        states:
+          - {{name: A, transitions: [{{event: e{target}, effect: [{{log: effect}}]}}]}}
+          - {{name: B}}
+        """,
+        validate=False,
+    )
+    r.send("e")
+    kinds = [rec[0] for rec in r.trace.records if rec[0] in ("transition", "output")]
+    assert kinds == ["transition", "output"]
+
+
+def test_a_parallel_state_enters_each_region_before_the_regions_states(run):
+    """Entry order is parent before child in every region, whichever way the parallel
+    state is entered (its initial entry, or through one region's state)."""
+    chart = """
+        statechart: order
+        events: {e: null}
+        initial: START
+        states:
+          - {name: START, transitions: [{event: e, target: TARGET}]}
+          - name: P
+            type: parallel
+            states:
+              - name: R1
+                initial: A
+                entry: [{log: R1}]
+                states: [{name: A, entry: [{log: A}]}, {name: A2, entry: [{log: A2}]}]
+              - name: R2
+                initial: B
+                entry: [{log: R2}]
+                states: [{name: B, entry: [{log: B}]}]
+        """
+    plain = run(chart.replace("TARGET", "P"), validate=False).send("e")
+    assert logs(plain) == ["R1", "A", "R2", "B"]
+    through = run(chart.replace("TARGET", "P.R1.A2"), validate=False).send("e")
+    assert logs(through) == ["R1", "A2", "R2", "B"]
+
+
+def test_a_shallow_history_enters_the_remembered_state_before_its_children(run):
+    chart = HISTORY.replace(
+        "        initial: B1\n", "        initial: B1\n        entry: [{log: B}]\n"
+    ).replace("{name: B1, ", "{name: B1, entry: [{log: B1}], ")
+    r = run(chart, validate=False)
+    r.send("next", "out", "back")
+    assert r.leaves == ["M.B.B1"] and logs(r)[-2:] == ["B", "B1"]
