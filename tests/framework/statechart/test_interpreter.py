@@ -1500,3 +1500,29 @@ def test_a_shallow_history_enters_the_remembered_state_before_its_children(run):
     r = run(chart, validate=False)
     r.send("next", "out", "back")
     assert r.leaves == ["M.B.B1"] and logs(r)[-2:] == ["B", "B1"]
+
+
+def test_two_time_events_due_at_the_same_instant_survive_a_restore(chart):
+    from framework.clock import SimulatedClock
+
+    c = chart(
+        """
+        statechart: twins
+        events: {}
+        initial: M
+        states:
+          - name: M
+            initial: A
+            transitions: [{after: 2s, target: Out, effect: [{log: M's}]}]
+            states: [{name: A, transitions: [{after: 2s, target: A2}]}, {name: A2}]
+          - {name: Out}
+        """,
+        validate=False,
+    )
+    a = Interpreter(c, SimulatedClock())
+    a.start()
+    a.advance(0.5)
+    b = Interpreter(c, SimulatedClock(10.0))
+    b.restore(a.snapshot())
+    b.advance(1.5)
+    assert b.leaves == ["Out"], "outer first, at the same instant"
