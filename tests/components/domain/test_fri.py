@@ -6,7 +6,7 @@ import re
 import struct
 
 import pytest
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from components.domain import fri
@@ -340,8 +340,12 @@ def test_reasons_travel_as_codes_and_unknown_words_as_the_interfaces():
     cycles=st.lists(
         st.tuples(st.booleans(), st.floats(0.0, 0.01, allow_nan=False)), min_size=1, max_size=400
     ),
-    window=st.integers(1, 120),
+    window=st.one_of(st.integers(1, 8), st.integers(1, 120)),  # small: samples leave it
 )
+@example([(True, 0.005), (True, 0.001), (True, 0.003)], 2)  # the highest leaves first
+@example([(True, 0.001), (True, 0.005), (True, 0.003)], 2)  # the lowest leaves first
+@example([(True, 0.003), (True, 0.003), (True, 0.001), (True, 0.002)], 2)  # a tie
+@example([(True, (2 - k % 3) * 0.001) for k in range(300)], 2)  # past Python's small ints
 def test_the_statistics_are_those_of_the_window_whatever_came_before(cycles, window):
     """The meter keeps running sums and sliding extremes (a cycle costs the same for any
     window): they agree with the statistics computed afresh over the last cycles."""
