@@ -194,6 +194,27 @@ def test_anything_but_a_measurement_is_refused_with_what_it_is(datagram, why):
         fri.decode_measurement(datagram)
 
 
+@pytest.mark.parametrize(("at", "value"), [(6, 0x1005), (6, 0x2005), (4, 915), (4, 917)])
+def test_a_datagram_of_the_right_length_that_says_another_id_or_size_is_refused(at, value):
+    forged = bytearray(fri.encode_measurement(1, 0, timestamp=0.0, state=1, quality=3))
+    forged[at : at + 2] = struct.pack("<H", value)
+    with pytest.raises(fri.DatagramError, match="is no measurement"):
+        fri.decode_measurement(bytes(forged))
+
+
+def test_latched_is_bit_one_of_the_krl_flags_alone():
+    datagram = bytearray(fri.encode_measurement(1, 0, timestamp=0.0, state=1, quality=3))
+    datagram[136] = 0b100  # a bit the KRL program may use for something else
+    decoded = fri.decode_measurement(bytes(datagram))
+    assert (decoded.braked, decoded.latched) == (False, False)
+
+
+def test_a_command_told_no_request_carries_none():
+    command = fri.decode_command(fri.encode_command(1, 1, (0.0,) * 7))
+    assert (command.request_number, command.request) == (0, fri.Request.NONE)
+    assert command.flags == fri.CMD_JNTPOS
+
+
 def test_a_measurement_is_no_command():
     datagram = fri.encode_measurement(1, 0, timestamp=0.0, state=1, quality=3)
     with pytest.raises(fri.DatagramError, match="a command is 376 bytes, not 916"):
@@ -325,8 +346,29 @@ def test_the_statistics_cover_the_last_hundred_cycles():
 def test_thresholds_are_parameters_but_must_be_ordered():
     meter = fri.QualityMeter(top=8, bad=2, ok=5)
     assert [meter.cycle(True) for _ in range(6)][-1] is fri.Quality.PERFECT
-    with pytest.raises(ValueError, match="0 < bad < ok < top"):
-        fri.QualityMeter(top=10, bad=12, ok=15)
+    assert fri.QualityMeter(top=3, bad=1, ok=2).bad == 1, "the tightest order allowed"
+    for top, bad, ok in [(10, 12, 15), (10, 0, 5), (10, -1, 5), (10, 5, 5), (10, 3, 10)]:
+        with pytest.raises(ValueError, match="0 < bad < ok < top"):
+            fri.QualityMeter(top=top, bad=bad, ok=ok)
+
+
+def test_a_cycle_answered_without_a_latency_counts_as_answered_at_once():
+    meter = fri.QualityMeter()
+    meter.cycle(True)
+    meter.cycle(True, 0.004)
+    assert meter.stats()[1] == pytest.approx(0.002) and meter.stats()[2] == pytest.approx(0.004)
+
+
+def test_a_new_connection_forgets_every_answer_but_keeps_counting_misses():
+    meter = fri.QualityMeter(window=10)
+    for answered in (True, False, True, True):
+        meter.cycle(answered, 0.003)
+    meter.reset()
+    assert meter.quality is fri.Quality.UNACCEPTABLE
+    assert meter.stats() == (0.0, 0.0, 0.0, 0.0, 1)
+    meter.cycle(True, 0.001)
+    meter.cycle(False)
+    assert meter.stats() == (pytest.approx(0.5), pytest.approx(0.001), 0.0, pytest.approx(0.5), 2)
 
 
 def test_reasons_travel_as_codes_and_unknown_words_as_the_interfaces():
