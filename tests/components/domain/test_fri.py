@@ -145,8 +145,10 @@ def test_a_measurement_says_each_field_where_friComm_puts_it(
     assert at("intf.state") == (1 if braked else 2)
     assert at("krl.intData")[:3] == (served, reason, cycle)
     assert at("krl.boolData") == braked | latched << 1
+    assert at("intf.timestamp") == 12.5
     decoded = fri.decode_measurement(datagram)
     assert (decoded.send_seq, decoded.refl_seq, decoded.quality) == (seq, refl, quality)
+    assert decoded.timestamp == 12.5
     assert decoded.msr_jnt_pos == q and decoded.cmd_jnt_pos == cmd
     assert decoded.msr_jnt_trq == torque
     assert (decoded.served, decoded.reason, decoded.cycle) == (served, reason, cycle)
@@ -200,6 +202,13 @@ def test_a_datagram_of_the_right_length_that_says_another_id_or_size_is_refused(
     forged[at : at + 2] = struct.pack("<H", value)
     with pytest.raises(fri.DatagramError, match="is no measurement"):
         fri.decode_measurement(bytes(forged))
+
+
+@pytest.mark.parametrize("decode", [fri.decode_measurement, fri.decode_command])
+@pytest.mark.parametrize("datagram", [b"", b"\x00", bytes(7)])
+def test_a_datagram_too_short_for_a_header_is_refused_as_one(decode, datagram):
+    with pytest.raises(fri.DatagramError, match=f"bytes, not {len(datagram)}"):
+        decode(datagram)
 
 
 def test_latched_is_bit_one_of_the_krl_flags_alone():
@@ -325,6 +334,10 @@ def test_quality_rises_one_step_per_answered_cycle_and_falls_one_per_miss():
     fallen = [meter.cycle(False) for _ in range(10)]
     assert fallen[:4] == [fri.Quality.PERFECT] * 4 and fallen[4] is fri.Quality.OK
     assert fallen[-1] is fri.Quality.BAD, "from PERFECT, 10 silent cycles: BAD"
+    back = [meter.cycle(True) for _ in range(6)]
+    assert back[:5] == [fri.Quality.OK] * 5 and back[5] is fri.Quality.PERFECT, "one step each"
+    for _ in range(6):
+        meter.cycle(False)
     for _ in range(20):
         meter.cycle(False)
     assert meter.counter == 0 and meter.quality is fri.Quality.UNACCEPTABLE
