@@ -129,12 +129,12 @@ class Stepped:
     trackers (their tools' ports) and the robot (its end-effector pose from joints) on
     the same session, so every sample has arrived when `tick` returns."""
 
-    def __init__(self, hub, tmp_path):
+    def __init__(self, hub, tmp_path, activity=None):
         self.clock = SimulatedClock()
         self.container = Container("c", hub, SteppedExecutor(self.clock))
         self.manager = self.container.add(
             SensorManager("sensor_manager"),
-            Activity.periodic(1 / TICK),
+            activity or Activity.periodic(1 / TICK),
             {"sensors_file": str(write_sensors(tmp_path))},
         )
         self.rigs = standard_rigs()
@@ -277,3 +277,19 @@ def test_the_manager_decides_once_per_tracker_frame_not_once_per_sample(stepped)
     assert cycle(("cto", cto, 100), ("rto", rto, 100)) == 1
     assert cycle(("cto", cto, 101)) == 0
     assert cycle() == 1, "a half frame waits once: the next wake decides with what came"
+
+
+def test_trackers_that_all_fall_silent_are_said_stale_by_the_idle_wake(hub, tmp_path):
+    """Woken by samples, the Sensor Manager must still wake by itself when none come: with
+    both trackers silent, nothing else would ever say they are stale."""
+    rig = Stepped(hub, tmp_path, Activity.event(*TRACKER_PORTS, idle=0.1))
+    try:
+        rig.tick(round(0.3 / TICK))
+        assert rig.best() == "certus"
+        rig.container.executor.advance(0.3)  # nobody sends
+        rig.statuses += [(rig.ticks, m.payload) for m in drained(rig.status)]
+        last = rig.statuses[-1][1]
+        assert last["best"] is None, last
+        assert {h["cause"] for h in last["health"].values()} == {"stale"}, last
+    finally:
+        rig.container.shutdown()
