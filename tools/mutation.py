@@ -6,6 +6,7 @@
     python tools/mutation.py framework/configurator.py --lines 150-200 --jobs 2
     python tools/mutation.py framework/safety.py --operators fw   only fw's own operators
     python tools/mutation.py --core --unused                      equivalents that match nothing now
+    python tools/mutation.py framework/coordinator.py --survivors    the last run's survivors again
 
 Two families of mutants, scored apart:
 
@@ -490,11 +491,13 @@ def run_module(
     lines: tuple[int, int] | None,
     coverage: bool,
     family: str = "cosmic-ray",
+    mutants: list[Mutant] | None = None,
 ) -> list[Mutant]:
-    """Make and test every mutant of `module` of one family (`FAMILIES`); returns them
-    with their status."""
+    """Make and test every mutant of `module` of one family (`FAMILIES`), or only
+    `mutants`; returns them with their status."""
     known = load_equivalents()
-    mutants = fw_mutants(module, lines) if family == "fw" else make_mutants(module, lines)
+    if mutants is None:
+        mutants = fw_mutants(module, lines) if family == "fw" else make_mutants(module, lines)
     print(f"{module}: {len(mutants)} {family} mutants; tests: {' '.join(tests)}", flush=True)
     base = Path(tempfile.mkdtemp(prefix="fw-mutation-"))
     spaces: list[Workspace] = []
@@ -574,10 +577,13 @@ def section(
     mutants: list[Mutant],
     rescored: bool = False,
     family: str = "cosmic-ray",
+    again: bool = False,
 ) -> str:
     """The report's markdown section of one module and family."""
     s = score(mutants)
     how = " (rescored: the run's survivors against today's equivalents list)" if rescored else ""
+    if again:
+        how = " (the last full run's survivors tested again against today's tests and equivalents)"
     title = "cosmic-ray's operators" if family == "cosmic-ray" else "fw's own operators"
     counts = Counter(m.short for m in mutants)
     per_operator = ", ".join(f"{name} {n}" for name, n in sorted(counts.items()))
@@ -738,6 +744,35 @@ def rescored(module: str, family: str = "cosmic-ray") -> tuple[list[Mutant], lis
     return mutants, tests
 
 
+def survivors_again(
+    module: str, family: str, jobs: int, coverage: bool
+) -> tuple[list[Mutant], list[str], int]:
+    """The module's last reported run of a family, its survivors tested again against
+    today's tests (specs written since kill some): the same mutants, made afresh from
+    the code as it is and matched by operator and line text; a survivor whose line was
+    edited since has no such mutant any more and stays a survivor. Also the tests and
+    how many survivors were found again."""
+    reported, tests = rescored(module, family)
+    fresh = fw_mutants(module) if family == "fw" else make_mutants(module)
+    pool: dict[tuple[str, str, str], list[Mutant]] = {}
+    for mutant in fresh:
+        pool.setdefault((mutant.short, mutant.before, mutant.after), []).append(mutant)
+    again: list[tuple[Mutant, Mutant]] = []
+    for old in reported:
+        if old.status not in ("survived", "not run"):
+            continue
+        candidates = pool.get((old.short, old.before, old.after), [])
+        if candidates:
+            nearest = min(candidates, key=lambda m: abs(m.line - old.line))
+            candidates.remove(nearest)
+            again.append((old, nearest))
+    if again:
+        run_module(module, tests, jobs, None, coverage, family, [new for _, new in again])
+    for old, new in again:
+        old.status, old.line = new.status, new.line
+    return reported, tests, len(again)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0],
@@ -763,6 +798,11 @@ def main(argv: list[str] | None = None) -> int:
         "--unused",
         action="store_true",
         help="no run: list the equivalents entries no mutant of the code as it is matches",
+    )
+    parser.add_argument(
+        "--survivors",
+        action="store_true",
+        help="test only the reported run's survivors again, against today's tests",
     )
     parser.add_argument(
         "--rescore",
@@ -801,11 +841,18 @@ def main(argv: list[str] | None = None) -> int:
         if missing:
             parser.error(f"no such tests: {', '.join(missing)}")
         for family in families:
-            if args.rescore:
+            if args.survivors:
+                mutants, tests, found = survivors_again(
+                    module, family, args.jobs, not args.no_coverage
+                )
+                print(f"{module}: {found} survivors of the reported run tested again")
+            elif args.rescore:
                 mutants, tests = rescored(module, family)
             else:
                 mutants = run_module(module, tests, args.jobs, lines, not args.no_coverage, family)
-            text = section(module, tests, mutants, args.rescore, family)
+            text = section(
+                module, tests, mutants, args.rescore or args.survivors, family, args.survivors
+            )
             print(text)
             if not args.no_report and lines is None:
                 write_report(module, text, family)
