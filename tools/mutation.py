@@ -745,14 +745,14 @@ def rescored(module: str, family: str = "cosmic-ray") -> tuple[list[Mutant], lis
 
 
 def survivors_again(
-    module: str, family: str, jobs: int, coverage: bool
+    module: str, family: str, jobs: int, coverage: bool, tests: list[str]
 ) -> tuple[list[Mutant], list[str], int]:
     """The module's last reported run of a family, its survivors tested again against
     today's tests (specs written since kill some): the same mutants, made afresh from
     the code as it is and matched by operator and line text; a survivor whose line was
     edited since has no such mutant any more and stays a survivor. Also the tests and
-    how many survivors were found again."""
-    reported, tests = rescored(module, family)
+    how many survivors were found again. `tests` are today's (the map may have grown)."""
+    reported, _ = rescored(module, family)
     fresh = fw_mutants(module) if family == "fw" else make_mutants(module)
     pool: dict[tuple[str, str, str], list[Mutant]] = {}
     for mutant in fresh:
@@ -843,7 +843,7 @@ def main(argv: list[str] | None = None) -> int:
         for family in families:
             if args.survivors:
                 mutants, tests, found = survivors_again(
-                    module, family, args.jobs, not args.no_coverage
+                    module, family, args.jobs, not args.no_coverage, tests
                 )
                 print(f"{module}: {found} survivors of the reported run tested again")
             elif args.rescore:
