@@ -360,7 +360,14 @@ def test_thresholds_are_parameters_but_must_be_ordered():
     meter = fri.QualityMeter(top=8, bad=2, ok=5)
     assert [meter.cycle(True) for _ in range(6)][-1] is fri.Quality.PERFECT
     assert fri.QualityMeter(top=3, bad=1, ok=2).bad == 1, "the tightest order allowed"
-    for top, bad, ok in [(10, 12, 15), (10, 0, 5), (10, -1, 5), (10, 5, 5), (10, 3, 10)]:
+    for top, bad, ok in [
+        (10, 12, 15),
+        (10, 0, 5),
+        (10, -1, 5),
+        (10, 5, 5),
+        (10, 3, 10),
+        (10, 6, 5),
+    ]:
         with pytest.raises(ValueError, match="0 < bad < ok < top"):
             fri.QualityMeter(top=top, bad=bad, ok=ok)
 
