@@ -389,6 +389,9 @@ def test_a_new_connection_forgets_every_answer_but_keeps_counting_misses():
     meter.cycle(True, 0.001)
     meter.cycle(False)
     assert meter.stats() == (pytest.approx(0.5), pytest.approx(0.001), 0.0, pytest.approx(0.5), 2)
+    meter.reset()
+    meter.cycle(True, 0.005)  # above every latency before: the old lowest must be gone too
+    assert meter.stats()[1:3] == (pytest.approx(0.005), 0.0)
 
 
 def test_reasons_travel_as_codes_and_unknown_words_as_the_interfaces():
