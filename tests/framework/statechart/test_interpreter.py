@@ -1233,6 +1233,19 @@ def test_a_snapshot_keeps_the_time_left_for_an_awaited_configuration(chart):
 
 
 # --- what a first run of fw's own mutants found unspecified (2026-11-28) ----------------
+def restored_after(chart, seconds):
+    """An interpreter started on a simulated clock and run `seconds`, restored from its
+    snapshot into a new one whose clock reads otherwise (times travel as time left)."""
+    from framework.clock import SimulatedClock
+
+    a = Interpreter(chart, SimulatedClock())
+    a.start()
+    a.advance(seconds)
+    b = Interpreter(chart, SimulatedClock(100.0))
+    b.restore(a.snapshot())
+    return b
+
+
 def test_a_time_event_whose_guard_is_false_is_reported_unhandled(run):
     r = run(
         """
@@ -1338,7 +1351,6 @@ def test_a_transition_to_its_own_ancestors_history_leaves_and_resumes_that_ances
 
 
 def test_a_restored_time_event_of_a_parent_state_outlives_its_childs_transitions(chart):
-    from framework.clock import SimulatedClock
 
     c = chart(
         """
@@ -1356,11 +1368,7 @@ def test_a_restored_time_event_of_a_parent_state_outlives_its_childs_transitions
         """,
         validate=False,
     )
-    a = Interpreter(c, SimulatedClock())
-    a.start()
-    a.advance(1.0)
-    b = Interpreter(c, SimulatedClock(100.0))
-    b.restore(a.snapshot())
+    b = restored_after(c, 1.0)
     b.dispatch("next")
     assert b.leaves == ["M.B"]
     b.advance(1.0)
@@ -1503,7 +1511,6 @@ def test_a_shallow_history_enters_the_remembered_state_before_its_children(run):
 
 
 def test_two_time_events_due_at_the_same_instant_survive_a_restore(chart):
-    from framework.clock import SimulatedClock
 
     c = chart(
         """
@@ -1519,10 +1526,6 @@ def test_two_time_events_due_at_the_same_instant_survive_a_restore(chart):
         """,
         validate=False,
     )
-    a = Interpreter(c, SimulatedClock())
-    a.start()
-    a.advance(0.5)
-    b = Interpreter(c, SimulatedClock(10.0))
-    b.restore(a.snapshot())
+    b = restored_after(c, 0.5)
     b.advance(1.5)
     assert b.leaves == ["Out"], "outer first, at the same instant"
