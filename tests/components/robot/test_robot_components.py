@@ -542,14 +542,14 @@ def test_a_person_close_right_after_everyone_was_far_is_checked_in_the_next_cycl
     """With everyone far, the separation need not be measured every cycle (nothing can
     close the gap that fast); a new envelope is news, checked in the cycle it arrives:
     a person under the protective distance right after a far verdict stops the arm
-    within two cycles, not after the far verdict's quiet spell (up to 100 cycles)."""
+    in the next cycle, not after the far verdict's quiet spell (up to 100 cycles)."""
     cell, room = moving(hub)
     try:
         room.person(2.0)
         cell.run(0.005)
         assert cell.robot.call("report")["separation"] > 1.8
         room.person(0.0)
-        cell.run(0.002)
+        cell.run(0.001)
         report = cell.robot.call("report")
         assert report["latched"] and report["reason"].startswith("protective stop: a person")
     finally:
@@ -903,3 +903,33 @@ def test_a_simulated_krc_without_real_time_waits_for_each_answer_instead_of_brak
         assert report["real_time"] is False
         assert lost == 0
         assert report["fri"]["quality"] == "PERFECT"
+
+
+def test_a_person_beside_the_braked_waiting_arm_latches_nothing(hub):
+    """Braked and not commanding, the arm cannot move: someone standing against it (a
+    nurse preparing the field) is no reason for a protective stop."""
+    cell = Cell(hub)
+    room = Room(hub, cell)
+    try:
+        cell.run(0.005)
+        room.person(0.0)
+        cell.run(0.01)
+        assert not cell.robot.call("report")["latched"]
+    finally:
+        cell.close()
+
+
+def test_a_person_against_the_released_arm_holding_still_is_a_protective_stop(hub):
+    """Released, the arm is servoed and may move at any command: the separation is
+    checked though no motion is under way, and a person inside the protective distance
+    even at standstill stops it, latched."""
+    cell = Cell(hub)
+    room = Room(hub, cell)
+    try:
+        cell.release()
+        room.person(0.0)
+        cell.run(0.01)
+        report = cell.robot.call("report")
+        assert report["latched"] and report["reason"].startswith("protective stop: a person")
+    finally:
+        cell.close()
