@@ -203,10 +203,13 @@ class InterpolatorCore:
         return max(0.0, beyond)
 
     def set_limits(self, velocity: float, acceleration: float | None = None) -> None:
-        """New maximum path velocity (m/s) and acceleration (m/s^2), effective at once."""
-        self.velocity = _check_limit("velocity", velocity, self.MAX_VELOCITY)
+        """New maximum path velocity (m/s) and acceleration (m/s^2), effective at once;
+        both are checked before either is taken (a refused pair changes neither)."""
+        velocity = _check_limit("velocity", velocity, self.MAX_VELOCITY)
         if acceleration is not None:
-            self.acceleration = _check_limit("acceleration", acceleration, self.MAX_ACCELERATION)
+            acceleration = _check_limit("acceleration", acceleration, self.MAX_ACCELERATION)
+        self.velocity = velocity
+        self.acceleration = self.acceleration if acceleration is None else acceleration
         if self.phase is Phase.MOVING:
             self._pace()
 

@@ -179,6 +179,7 @@ def test_limits_up_to_the_sanity_ceilings_are_taken_and_beyond_are_refused():
     c.set_limits(0.25, 5.0)
     with pytest.raises(LimitError, match="acceleration must be in"):
         c.set_limits(0.1, 5.001)
+    assert (c.velocity, c.acceleration) == (0.25, 5.0), "a refused pair changes neither"
 
 
 def test_a_rotation_counts_as_path_at_a_tenth_of_a_metre_per_radian():
