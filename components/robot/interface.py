@@ -488,16 +488,16 @@ class RobotInterface(Component):
                 if not self.latched:
                     self._trip(f"envelopes refused: {wrong}", state)
                 return
-            now = self.clock.now()
+            arrived = self.clock.now()
             if self._people is not None:
-                self._interval = min(max(0.0, now - self._arrived), CAP_LOOKAHEAD)
+                self._interval = min(max(0.0, arrived - self._arrived), CAP_LOOKAHEAD)
             self._people = people
             # their age is the camera frame's on arrival, then this cycle's own clock:
             # a wall clock step after arrival cannot make them younger, and on a
             # simulated clock they age with the simulation
             self._taken = time.time()
             self._age_at_arrival = max(0.0, self._taken - message.stamp)
-            self._arrived = now
+            self._arrived = arrived
             self._quiet = 0  # news: check now
         if self._people is None or (state.braked and not self._commanding):
             return

@@ -458,8 +458,7 @@ def test_people_approaching_the_moving_arm_slow_it_then_a_protective_stop_latche
         assert not report["latched"]
         before_the_person = time.time()
         person_at(0.10)
-        report = cell.robot.call("report")
-        assert report["latched"] and report["reason"].startswith("protective stop: a person")
+        report = protective_stop_latched(cell)
         assert report["separation"] < report["protective_distance"]
         timing = report["protective_stop"]
         assert timing["check_ms"] > 0.0 and timing["detected_to_command_ms"] > 0.0, "kept"
@@ -490,6 +489,13 @@ class Room:
         self.people.write(Envelopes(time.time() - age, (*a,), (*b,), (0.15,)))
 
 
+def protective_stop_latched(cell) -> dict:
+    """The interface's report, asserting it latched a protective stop for a person."""
+    report = cell.robot.call("report")
+    assert report["latched"] and report["reason"].startswith("protective stop: a person"), report
+    return report
+
+
 def moving(hub, robot: dict | None = None) -> tuple[Cell, Room]:
     cell = Cell(hub, robot=robot)
     room = Room(hub, cell)
@@ -513,8 +519,7 @@ def test_an_envelope_ages_while_the_detector_is_silent(hub):
         assert 0.3 <= report["separation"] <= 0.4, report["separation"]
         assert not report["latched"], "fresh, 35 cm is outside the protective distance"
         cell.run(1.0)  # nothing new from the detector
-        report = cell.robot.call("report")
-        assert report["latched"] and report["reason"].startswith("protective stop: a person")
+        report = protective_stop_latched(cell)
         assert "ms old" in report["reason"]
     finally:
         cell.close()
@@ -532,8 +537,7 @@ def test_a_far_person_whose_envelope_grows_old_is_checked_again_in_time(hub):
         report = cell.robot.call("report")
         assert report["separation"] > 0.9 and not report["latched"]
         cell.run(1.0)
-        report = cell.robot.call("report")
-        assert report["latched"] and report["reason"].startswith("protective stop: a person")
+        report = protective_stop_latched(cell)
     finally:
         cell.close()
 
@@ -550,8 +554,7 @@ def test_a_person_close_right_after_everyone_was_far_is_checked_in_the_next_cycl
         assert cell.robot.call("report")["separation"] > 1.8
         room.person(0.0)
         cell.run(0.001)
-        report = cell.robot.call("report")
-        assert report["latched"] and report["reason"].startswith("protective stop: a person")
+        protective_stop_latched(cell)
     finally:
         cell.close()
 
@@ -929,7 +932,6 @@ def test_a_person_against_the_released_arm_holding_still_is_a_protective_stop(hu
         cell.release()
         room.person(0.0)
         cell.run(0.01)
-        report = cell.robot.call("report")
-        assert report["latched"] and report["reason"].startswith("protective stop: a person")
+        protective_stop_latched(cell)
     finally:
         cell.close()
