@@ -68,6 +68,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools"))
+from mutation_operators import OPERATORS as FW_OPERATORS  # noqa: E402
 from mutation_operators import apply, fw_changes  # noqa: E402
 
 REPORT = REPO / "docs" / "results" / "mutation.md"
@@ -267,18 +268,42 @@ def listed(mutant: Mutant, item: dict[str, str]) -> bool:
     )
 
 
-def unused_equivalents(modules: list[str]) -> list[dict[str, str]]:
-    """The equivalents entries of `modules` that no mutant of their code as it is now
-    matches (either family): the line they name was changed or removed, so the entry
-    hides nothing and should go (or be written again for the new line)."""
-    known = [item for item in load_equivalents() if item.get("module") in modules]
+def cosmic_ray_installed() -> bool:
+    """Whether cosmic-ray (the `mutation` extra) can be imported: only its family of
+    mutants needs it; fw's own operators need nothing beyond the standard library."""
+    import importlib.util
+
+    return importlib.util.find_spec("cosmic_ray") is not None
+
+
+def family_of(item: dict[str, str]) -> str:
+    """The family whose operators an equivalents entry names ("fw" or "cosmic-ray")."""
+    names = [item.get("operator", ""), *item.get("operators", ())]
+    fw = {name.split("/")[-1] for name in FW_OPERATORS}
+    return "fw" if all(name in fw for name in names if name) else "cosmic-ray"
+
+
+def unused_equivalents(
+    modules: list[str], families: list[str] | None = None
+) -> list[dict[str, str]]:
+    """The equivalents entries of `modules` (of the named families, default both) that
+    no mutant of their code as it is now matches: the line they name was changed or
+    removed, so the entry hides nothing and should go (or be written for the new line)."""
+    families = families or list(FAMILIES)
+    known = [
+        item
+        for item in load_equivalents()
+        if item.get("module") in modules and family_of(item) in families
+    ]
     unused = []
     for module in modules:
         entries = [item for item in known if item.get("module") == module]
         if not entries or not (REPO / module).is_file():
             unused += entries
             continue
-        mutants = make_mutants(module) + fw_mutants(module)
+        mutants = fw_mutants(module) if "fw" in families else []
+        if "cosmic-ray" in families:
+            mutants += make_mutants(module)
         unused += [item for item in entries if not any(listed(m, item) for m in mutants)]
     return unused
 
@@ -813,12 +838,14 @@ def main(argv: list[str] | None = None) -> int:
     modules = list(SAFETY_CORE) if args.core else args.modules
     if not modules:
         parser.error("name a MODULE (or --core)")
-    try:
-        import cosmic_ray  # noqa: F401
-    except ImportError:
-        parser.error("cosmic-ray is missing: pip install -e '.[mutation]'")
+    families = list(FAMILIES) if args.operators == "both" else [args.operators]
+    if "cosmic-ray" in families and not cosmic_ray_installed():
+        parser.error(
+            "cosmic-ray is missing: pip install -e '.[mutation]' (or --operators fw, "
+            "fw's own operators, which need nothing more)"
+        )
     if args.unused:
-        stale = unused_equivalents(modules)
+        stale = unused_equivalents(modules, families)
         for item in stale:
             what = item.get("operator") or "/".join(item.get("operators", ()))
             text = item.get("before") or item.get("where") or item.get("changed")
@@ -829,7 +856,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.lines:
         first, _, last = args.lines.partition("-")
         lines = (int(first), int(last or first))
-    families = list(FAMILIES) if args.operators == "both" else [args.operators]
     failed = False
     for module in modules:
         if not (REPO / module).is_file():

@@ -227,7 +227,16 @@ def test_an_equivalents_entry_whose_line_was_edited_is_reported_unused(tmp_path,
     listing.write_text(yaml.safe_dump([still, edited]))
     monkeypatch.setattr(mutation, "REPO", tmp_path)
     monkeypatch.setattr(mutation, "EQUIVALENTS", listing)
-    assert mutation.unused_equivalents(["m.py"]) == [edited]
-    assert mutation.main(["m.py", "--unused"]) == 1
+    assert mutation.unused_equivalents(["m.py"], ["fw"]) == [edited]
+    assert mutation.main(["m.py", "--unused", "--operators", "fw"]) == 1
     listing.write_text(yaml.safe_dump([still]))
-    assert mutation.main(["m.py", "--unused"]) == 0
+    assert mutation.main(["m.py", "--unused", "--operators", "fw"]) == 0
+
+
+def test_an_entry_belongs_to_the_family_whose_operator_it_names():
+    """`--unused --operators fw` judges fw's entries only: a cosmic-ray entry is not
+    reported unused because fw's operators never make its mutant."""
+    assert mutation.family_of({"operator": "DeleteStatement"}) == "fw"
+    assert mutation.family_of({"operators": ["SwapMinMax", "MoveLine"]}) == "fw"
+    assert mutation.family_of({"operator": "ReplaceComparisonOperator_Lt_LtE"}) == "cosmic-ray"
+    assert mutation.family_of({"operators": ["DropNoneCheck", "NumberReplacer"]}) == "cosmic-ray"
