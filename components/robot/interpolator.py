@@ -329,7 +329,6 @@ class InterpolatorCore:
 
     def _start_path(self, start: np.ndarray, goal: np.ndarray) -> None:
         self._start = np.ascontiguousarray(start, dtype=float)
-        self._goal = goal.copy()
         self._delta_p = np.ascontiguousarray(goal[:3, 3] - start[:3, 3])
         self._delta_length = norm(self._delta_p)
         # in the start frame

@@ -505,3 +505,185 @@ def test_the_supervisors_limit_under_a_cap_still_rules():
     c.set_limits(0.01)
     trace = run(c, Phase.REACHED)
     assert max(v for _, v in trace) == pytest.approx(0.01, abs=1e-9)
+
+
+# --- specs from fw's mutants (issue 41) ----------------------------------------------
+
+
+def test_a_core_at_rest_has_no_goal_and_no_stop_point():
+    c = core()
+    assert c.phase is Phase.IDLE
+    assert c.goal is None and c.stop_pose is None and c.stop_s == 0.0
+
+
+def test_limits_given_as_text_or_whole_numbers_are_taken_as_numbers():
+    """A command line gives numbers as text; the limits the core keeps are floats."""
+    c = core()
+    c.set_limits("0.05", 1)
+    assert c.velocity == 0.05 and type(c.velocity) is float
+    assert c.acceleration == 1.0 and type(c.acceleration) is float
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf"), 10.0])
+def test_a_bad_acceleration_is_refused_and_neither_limit_changes(bad):
+    c = core()
+    with pytest.raises(LimitError, match="acceleration must be in"):
+        c.set_limits(0.05, bad)
+    assert (c.velocity, c.acceleration) == (SEEG["velocity"], SEEG["acceleration"])
+
+
+def test_a_new_acceleration_while_moving_rules_the_very_next_cycle():
+    """Lowered from 0.25 to 0.05 m/s^2 at cruise, with a lower speed: the path slows at
+    the new acceleration from the next cycle on, not at the old one."""
+    c = core()
+    c.go_to(goal_at((0.06, 0.0, -0.20)))
+    for _ in range(600):
+        c.step()
+    assert c.speed == pytest.approx(0.075, abs=1e-9)
+    c.set_limits(0.05, 0.05)
+    speeds = [c.speed]
+    for _ in range(100):
+        c.step()
+        speeds.append(c.speed)
+    assert np.allclose(np.diff(speeds) / DT, -0.05, atol=1e-6)
+
+
+def test_goals_given_as_nested_lists_are_taken_as_poses():
+    c = core(velocity=0.05)
+    goal = goal_at((0.0, 0.0, -0.02))
+    c.go_to(goal.tolist())
+    assert np.array_equal(c.goal, goal)
+    c.steer(moved(goal, (0.002, 0.0, 0.0)).tolist())
+    run(c, Phase.REACHED)
+    commanded_speeds(c, 200)
+    assert np.allclose(c.pose[:3, 3], moved(goal, (0.002, 0.0, 0.0))[:3, 3], atol=1e-9)
+
+
+def test_a_bad_goal_while_moving_is_refused_and_the_motion_goes_on():
+    c = core()
+    goal = goal_at((0.0, 0.0, -0.05))
+    c.go_to(goal)
+    commanded_speeds(c, 300)
+    bad = goal_at((0.05, 0.0, 0.0))
+    bad[0, 3] = np.inf
+    with pytest.raises(ValueError, match="finite 4x4 pose"):
+        c.go_to(bad)
+    assert c.phase is Phase.MOVING, "not braking to turn toward a refused goal"
+    run(c, Phase.REACHED)
+    assert np.allclose(c.pose, goal, atol=1e-9)
+
+
+def test_turning_to_a_new_goal_never_makes_the_command_jump():
+    """Braked on the first path, the second starts where the command stands: the
+    commanded TCP never moves faster than the limit across the turn."""
+    c = core()
+    c.go_to(goal_at((0.0, 0.0, -0.2)))
+    commanded_speeds(c, 500)
+    second = goal_at((0.1, 0.1, -0.05))
+    c.go_to(second)
+    speeds = commanded_speeds(c, 6000)
+    assert c.phase is Phase.REACHED and np.allclose(c.pose, second, atol=1e-9)
+    assert speeds.max() <= 0.075 * (1 + 1e-9)
+
+
+def test_a_steered_motion_stands_on_a_cap_of_zero_too():
+    c = core(velocity=0.05)
+    goal = goal_at((0.0, 0.0, -0.15))
+    c.go_to(goal)
+    commanded_speeds(c, 600)
+    c.steer(moved(goal, (0.0005, 0.0, 0.0)))
+    commanded_speeds(c, 100)
+    c.set_cap(0.0)
+    commanded_speeds(c, 300)
+    s = c.s
+    speeds = commanded_speeds(c, 200)
+    assert c.phase is Phase.MOVING and c.s == s and speeds.max() == 0.0
+
+
+def test_a_motion_resumed_after_a_cap_of_zero_keeps_the_pending_correction_its_share():
+    """Stood on a cap of 0 with a correction pending (a cap of 0 leaves it no speed
+    either), the motion heads on at half the limit until the correction is made."""
+    c = core(velocity=0.05)
+    goal = goal_at((0.0, 0.0, -0.15))
+    c.go_to(goal)
+    commanded_speeds(c, 600)
+    c.set_cap(0.0)
+    commanded_speeds(c, 300)
+    c.steer(moved(goal, (0.01, 0.0, 0.0)))
+    x = c.pose[0, 3]
+    commanded_speeds(c, 50)
+    assert c.pose[0, 3] == x, "no speed for the correction while the cap is 0"
+    c.set_cap(float("inf"))
+    commanded_speeds(c, 300)
+    assert c.speed == pytest.approx(0.025), "the path leaves the correction half the limit"
+    commanded_speeds(c, 600)
+    assert c.speed == pytest.approx(0.05), "the correction made, the path cruises again"
+
+
+def test_a_new_goal_while_standing_on_a_cap_of_zero_waits_for_the_cap_to_rise():
+    c = core()
+    c.go_to(goal_at((0.0, 0.0, -0.15)))
+    commanded_speeds(c, 300)
+    c.set_cap(0.0)
+    commanded_speeds(c, 300)
+    assert c.speed == 0.0
+    second = goal_at((0.02, 0.0, -0.05))
+    c.go_to(second)  # standing: no braking needed, the new path begins at once
+    commanded_speeds(c, 500)
+    assert c.phase is Phase.MOVING and c.s == 0.0, "not a nanometre while the cap is 0"
+    c.set_cap(0.01)
+    run(c, Phase.REACHED)
+    assert np.allclose(c.pose, second, atol=1e-9)
+
+
+def test_a_failing_trajectory_generator_raises_and_never_moves_on_silently():
+    """Every input ruckig gets is checked first, so a failure is a defect: it must stop
+    the cycle (the component's loop brakes on the exception), not pass on garbage."""
+    from ruckig import Result
+
+    c = core()
+    c.go_to(goal_at((0.0, 0.0, -0.05)))
+
+    class Failing:
+        def update(self, *_):
+            return Result.ErrorInvalidInput
+
+    c._otg = Failing()
+    with pytest.raises(RuntimeError, match="ruckig failed"):
+        c.step()
+
+
+def test_the_ik_time_counts_the_ik_and_nothing_else(monkeypatch):
+    """`ik_seconds` (fw bench cost's IK stage) sums the time inside IK steps only: on a
+    clock that moves only while the IK runs, it is that time exactly."""
+    from components.robot import interpolator
+
+    now = [0.0]
+    monkeypatch.setattr(interpolator.time, "perf_counter", lambda: now[0])
+    c = core()
+    solve = c.ik.step
+
+    def timed(q, pose):
+        now[0] += 1e-4
+        return solve(q, pose)
+
+    c.ik.step = timed
+    c.go_to(goal_at((0.0, 0.0, -0.05)))
+    for _ in range(10):
+        c.step()
+    assert c.ik_seconds == pytest.approx(10e-4, abs=1e-12)
+
+
+def test_at_rest_the_setpoint_converges_before_it_is_held():
+    """Held (the same setpoint, no IK solved) only once one more IK step would not move
+    the joints: stopped at speed, the IK still lags the command and keeps converging."""
+    c = core(velocity=0.075, brake_acceleration=5.0)
+    c.go_to(goal_at((0.06, 0.0, -0.20)))
+    commanded_speeds(c, 1500)
+    c.stop()
+    run(c, Phase.STOPPED)
+    for _ in range(200):
+        q = c.step()
+        if np.array_equal(c.step(), q):
+            break
+    assert np.max(np.abs(c.ik.step(q, c.pose) - q)) < 1e-10
