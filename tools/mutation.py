@@ -368,15 +368,23 @@ the server did not run is not counted."""
 
 
 class Workspace:
-    """A private copy of the repository's tracked files, where one mutant at a time is
-    written and tested."""
+    """A private copy of the repository's tracked files and of the compiled extensions
+    the package's build put beside them (untracked: without them the copy would run
+    numpy's fallbacks, and mutants of the lines that call the compiled kernel would
+    never run), where one mutant at a time is written and tested."""
 
     def __init__(self, root: Path):
         self.root = root
         self._server: subprocess.Popen[str] | None = None
-        files = subprocess.run(
-            ["git", "ls-files", "-z"], cwd=REPO, capture_output=True, check=True
-        ).stdout.split(b"\0")
+        listed = ["git", "ls-files", "-z"]
+        built = [*listed, "--others", "--ignored", "--exclude-standard", "--", "*.so"]
+        files = [
+            name
+            for command in (listed, built)
+            for name in subprocess.run(
+                command, cwd=REPO, capture_output=True, check=True
+            ).stdout.split(b"\0")
+        ]
         for name in filter(None, files):
             source = REPO / name.decode()
             if source.is_file():

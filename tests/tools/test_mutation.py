@@ -3,6 +3,8 @@ and the summary table of docs/results/mutation.md."""
 
 import sys
 
+import pytest
+
 from tests.conftest import REPO
 
 sys.path.insert(0, str(REPO / "tools"))
@@ -240,3 +242,14 @@ def test_an_entry_belongs_to_the_family_whose_operator_it_names():
     assert mutation.family_of({"operators": ["SwapMinMax", "MoveLine"]}) == "fw"
     assert mutation.family_of({"operator": "ReplaceComparisonOperator_Lt_LtE"}) == "cosmic-ray"
     assert mutation.family_of({"operators": ["DropNoneCheck", "NumberReplacer"]}) == "cosmic-ray"
+
+
+def test_a_workspace_holds_the_compiled_extensions_the_build_put_beside_the_code(tmp_path):
+    """Without them a mutant's tests run numpy's fallbacks: the lines that call the
+    compiled kernel never run and their mutants survive untested."""
+    built = sorted(p.relative_to(mutation.REPO) for p in mutation.REPO.glob("components/**/*.so"))
+    if not built:
+        pytest.skip("no compiled extension in this checkout (pip install -e . builds it)")
+    space = mutation.Workspace(tmp_path / "w")
+    assert all((space.root / name).is_file() for name in built)
+    assert (space.root / "components/robot/interpolator.py").is_file()
