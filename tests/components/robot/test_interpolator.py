@@ -82,7 +82,9 @@ def test_stop_brakes_at_maximum_deceleration_then_returns_to_the_stop_point():
         c.step()
     c.stop()
     stop_s, stop_pose = c.s, c.pose.copy()
-    trace = run(c, Phase.STOPPED)
+    braking = run(c, Phase.RETURNING)
+    assert c.phase is Phase.RETURNING, "the way back is a phase of its own (status says it)"
+    trace = braking + run(c, Phase.STOPPED)
     overshoot = max(s for s, _ in trace) - stop_s
     assert np.isclose(overshoot, 0.075**2 / (2 * 2.0), rtol=0.05)  # v^2 / 2a
     assert np.allclose(c.pose, stop_pose, atol=1e-9)
@@ -687,3 +689,20 @@ def test_at_rest_the_setpoint_converges_before_it_is_held():
         if np.array_equal(c.step(), q):
             break
     assert np.max(np.abs(c.ik.step(q, c.pose) - q)) < 1e-10
+
+
+def test_the_new_path_begins_exactly_where_braking_on_the_old_one_ended():
+    """Turning to a new goal, the command first runs out the whole braking distance on
+    the old path (v^2 / 2a beyond where the goal came), then leaves from that point."""
+    c = core(velocity=0.075, brake_acceleration=2.0)
+    start = c.pose[:3, 3].copy()
+    down = np.array([0.0, 0.0, -1.0])
+    c.go_to(goal_at((0.0, 0.0, -0.2)))
+    commanded_speeds(c, 1500)
+    at, speed = float((c.pose[:3, 3] - start) @ down), c.speed
+    c.go_to(goal_at((0.1, 0.1, -0.05)))
+    furthest = at
+    for _ in range(200):
+        c.step()
+        furthest = max(furthest, float((c.pose[:3, 3] - start) @ down))
+    assert furthest - at == pytest.approx(speed**2 / (2 * 2.0), abs=1e-9)

@@ -18,7 +18,7 @@ from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
 from framework.container import Container
 from framework.errors import FwError
-from framework.messages import EventMessage, JointState, Pose
+from framework.messages import EventMessage, JointState, Pose, Scalar
 from tests.conftest import REPO, drained, reader_port, writer_port
 
 PROCEDURE = REPO / "procedures" / "seeg.yaml"
@@ -31,7 +31,7 @@ class Robot:
     the same session (delivery is done when `cycle` returns); the arm follows every
     setpoint exactly unless told to lag."""
 
-    def __init__(self, hub, procedure=PROCEDURE):
+    def __init__(self, hub, procedure=PROCEDURE, navigator=True):
         self.container = Container("c", hub, SteppedExecutor(SimulatedClock()))
         self.interp = self.container.add(
             CartesianInterpolator("interpolator"), Activity("after", master="robot")
@@ -43,6 +43,7 @@ class Robot:
             ("limits", EventMessage),
             ("halt", EventMessage),
             ("goals", EventMessage),
+            ("speed_cap", Scalar),
         ]:
             self.writers[name] = writer_port(hub, f"test/{name}", kind)
             self.container.connect("interpolator", name, f"test/{name}")
@@ -58,7 +59,8 @@ class Robot:
         self.configured = self.interp.configure() and self.interp.start()
         self.q = np.array(HOME, dtype=float)
         self.lag = np.zeros(7)
-        self.navigate(target=TARGET)
+        if navigator:
+            self.navigate(target=TARGET)
 
     def navigate(self, refused="", revisions=None, **goals):
         """The navigator says where the goals are now (base frame), as it does each sample."""
@@ -429,3 +431,43 @@ def test_a_goal_on_the_patient_needs_a_navigator(hub):
         assert robot.interp.call("go_to", goal="home")["phase"] == "moving"  # in the base
     finally:
         robot.close()
+
+
+def test_a_cycle_before_the_arms_first_joints_writes_nothing(robot):
+    robot.interp.update_hook()
+    assert robot.drain("setpoint") == [] and robot.drain("status") == []
+    assert robot.report() == {"phase": "waiting for joints"}
+
+
+def test_before_any_navigator_sample_a_base_frame_goal_is_taken(hub):
+    robot = Robot(hub, navigator=False)
+    try:
+        robot.cycle()
+        with pytest.raises(FwError, match="'target' is on the patient and no navigator said"):
+            robot.interp.call("go_to", goal="target")
+        assert robot.interp.call("go_to", goal="home")["phase"] == "moving"
+    finally:
+        robot.close()
+
+
+def test_a_speed_cap_from_the_port_slows_the_motion_and_a_cap_of_zero_stands_it(robot):
+    robot.cycle()
+    robot.limits(velocity=0.075)
+    robot.interp.call("go_to", goal="target")
+    robot.cycle(1000)
+    robot.writers["speed_cap"].write(Scalar(0.0, 0.02))
+    robot.cycle(1000)
+    assert robot.report()["speed"] == pytest.approx(0.02, abs=1e-12)
+    robot.writers["speed_cap"].write(Scalar(0.0, 0.0))
+    robot.cycle(1000)
+    assert robot.report()["phase"] == "moving" and robot.report()["speed"] == 0.0
+
+
+def test_configured_again_it_starts_afresh_from_the_arms_joints(robot):
+    robot.cycle()
+    robot.interp.call("go_to", goal="target")
+    robot.cycle(500)
+    assert robot.interp.stop() and robot.interp.configure() and robot.interp.start()
+    assert robot.report() == {"phase": "waiting for joints"}
+    robot.cycle()
+    assert robot.report()["phase"] == "idle" and robot.report()["goal"] == ""
