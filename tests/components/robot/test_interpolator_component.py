@@ -471,3 +471,8 @@ def test_configured_again_it_starts_afresh_from_the_arms_joints(robot):
     assert robot.report() == {"phase": "waiting for joints"}
     robot.cycle()
     assert robot.report()["phase"] == "idle" and robot.report()["goal"] == ""
+
+
+def test_a_report_before_configure_says_it_waits_for_joints():
+    """The console may ask any component for its report before it is configured."""
+    assert CartesianInterpolator("fresh").call("report") == {"phase": "waiting for joints"}
