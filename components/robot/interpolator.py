@@ -236,11 +236,9 @@ class InterpolatorCore:
                 self._in.target_acceleration = [0.0]
                 self._in.max_acceleration = [self.acceleration]
             return
-        if self._held:
+        if self._held:  # a pending correction slows the path again in this very step
             self._held = False
-            slowed = self._slowed
             self._position_control(self.length, self._allowed(), self.acceleration)
-            self._slowed = slowed
         self._in.max_velocity = [self._cruise()]
         self._in.max_acceleration = [self.acceleration]
 
@@ -582,7 +580,6 @@ class CartesianInterpolator(Component):
     def _core(self) -> InterpolatorCore:
         if self.core is None:
             raise FwError("no joint state received yet: is the robot interface running?")
-        assert self.core is not None
         return self.core
 
     @operation

@@ -181,8 +181,12 @@ def test_unknown_goals_and_bad_poses_are_refused(robot):
 
 
 def test_a_pose_and_a_new_target_are_reached_as_given(robot):
+    with pytest.raises(FwError, match="no joint state received yet"):
+        robot.interp.call("go_to_pose", position=[0.55, 0.05, 0.3], rpy_deg=[0, 180, 0])
     robot.cycle()
-    robot.interp.call("go_to_pose", position=[0.55, 0.05, 0.3], rpy_deg=[0, 180, 0])
+    assert robot.report()["goal"] == "", "a refused goal is no goal"
+    report = robot.interp.call("go_to_pose", position=[0.55, 0.05, 0.3], rpy_deg=[0, 180, 0])
+    assert report["phase"] == "moving" and report["goal"] == "pose"
     robot.until("reached")
     assert robot.report()["goal"] == "pose"
     assert robot.report()["tcp"] == pytest.approx([0.55, 0.05, 0.3], abs=1e-6)
@@ -209,8 +213,10 @@ def test_limits_from_the_supervisor_apply_at_once(robot):
     ("payload", "reason"),
     [
         ({"velocity": 0.0751}, "velocity 0.0751 m/s is over the procedure's 0.075"),
+        ({"velocity": 0.08}, "velocity 0.08 m/s is over the procedure's 0.075"),
         ({"velocity": 0.05, "acceleration": 0.26}, "acceleration 0.26 m/s^2 is over"),
         ({"velocity": 0.0}, "velocity must be in (0, 0.25], got 0.0"),
+        ({"velocity": 0.05, "acceleration": 0}, "acceleration must be in (0, 5], got 0.0"),
         ({"speed": 0.05}, "malformed limits: KeyError('velocity')"),
         ({"velocity": "fast"}, "malformed limits: ValueError"),
     ],
@@ -218,11 +224,20 @@ def test_limits_from_the_supervisor_apply_at_once(robot):
 def test_limits_beyond_the_procedure_or_malformed_are_refused_and_the_old_ones_stay(
     robot, payload, reason
 ):
+    refusals = []
+    robot.interp.add_refusal_listener(refusals.append)
     robot.cycle()
     robot.limits(velocity=0.02, acceleration=0.2)
     robot.limits(**payload)
     assert (robot.report()["velocity"], robot.report()["acceleration"]) == (0.02, 0.2)
     assert robot.interp.last_error.startswith(f"limits refused: {reason}")
+    assert [(r.port, r.reason) for r in refusals] == [("limits", robot.interp.last_error[16:])]
+
+
+def test_limits_given_as_text_on_the_port_are_numbers(robot):
+    robot.cycle()
+    robot.limits(velocity="0.02", acceleration="0.2")
+    assert (robot.report()["velocity"], robot.report()["acceleration"]) == (0.02, 0.2)
 
 
 def test_the_set_limits_operation_holds_to_the_procedure_too(robot):
@@ -256,8 +271,10 @@ def test_an_arm_that_stops_following_stops_the_motion(robot):
     robot.cycle()
     assert robot.report()["phase"] == "moving"
     robot.lag[1] = 0.051
+    stands = robot.q + robot.lag
     robot.cycle()
-    assert robot.report()["phase"] in ("stopped", "stopping")
+    assert robot.report()["phase"] == "stopped", "stopped where the arm stands: no braking"
+    assert np.allclose(robot.q, stands, atol=1e-9), "the setpoint is where the arm stands"
     assert robot.interp.last_error.startswith("the arm lags the command by 2.9 deg")
 
 
@@ -268,7 +285,8 @@ def test_stop_motion_then_a_plain_sync_while_moving_keeps_the_motion(robot):
     before = robot.report()["s"]
     robot.interp.call("sync")
     assert robot.report()["s"] == before, "a swap's sync must not cut the approach"
-    assert robot.interp.call("stop_motion")["phase"] == "stopping"
+    report = robot.interp.call("stop_motion")
+    assert report["phase"] == "stopping" and report["goal"] == ""
     robot.until("stopped")
 
 
@@ -397,6 +415,7 @@ def test_a_refusal_of_the_patients_motion_stops_the_motion_and_a_go_to(robot):
     robot.cycle()
     assert robot.report()["phase"] == "stopping"
     assert robot.report()["halted"] == "the patient moved 20.0 mm"
+    assert robot.report()["goal"] == "", "the goal is dropped, as by a halt"
     with pytest.raises(FwError, match=r"navigation refuses: the patient moved 20\.0 mm"):
         robot.interp.call("go_to", goal="target")
     robot.until("stopped")
@@ -428,6 +447,8 @@ def test_a_goal_on_the_patient_needs_a_navigator(hub):
         robot.cycle()
         with pytest.raises(FwError, match="'target' is on the patient and no navigator said"):
             robot.interp.call("go_to", goal="target")
+        robot.cycle(10)
+        assert robot.report()["phase"] == "idle", "refused: nothing moved"
         assert robot.interp.call("go_to", goal="home")["phase"] == "moving"  # in the base
     finally:
         robot.close()
@@ -476,3 +497,47 @@ def test_configured_again_it_starts_afresh_from_the_arms_joints(robot):
 def test_a_report_before_configure_says_it_waits_for_joints():
     """The console may ask any component for its report before it is configured."""
     assert CartesianInterpolator("fresh").call("report") == {"phase": "waiting for joints"}
+
+
+def test_a_cycle_says_its_ik_time_and_the_rest_of_the_interpolation_as_stages(robot, monkeypatch):
+    """`fw bench cost`'s per-stage figures: IK is the time inside the IK, interpolation
+    the rest of the cycle's steps (on a clock that moves only inside the two)."""
+    from components.robot import interpolator
+
+    now = [0.0]
+    monkeypatch.setattr(interpolator.time, "perf_counter", lambda: now[0])
+    robot.cycle()
+    core = robot.interp.core
+    solve, plan = core.ik.step, core._otg
+
+    def timed_ik(q, pose):
+        now[0] += 1e-4
+        return solve(q, pose)
+
+    class TimedRuckig:
+        def update(self, *args):
+            now[0] += 5e-5
+            return plan.update(*args)
+
+    core.ik.step, core._otg = timed_ik, TimedRuckig()
+    robot.interp.call("go_to", goal="target")
+    stages = []
+    monkeypatch.setattr(robot.interp, "stage", lambda *said: stages.append(said))
+    robot.cycle()
+    assert stages == [("IK", pytest.approx(1e-4)), ("interpolation", pytest.approx(5e-5))]
+
+
+def test_setpoints_commands_and_status_are_stamped_with_the_cycles_time(robot):
+    import time
+
+    robot.cycle()
+    robot.interp.call("go_to", goal="target")
+    for name in ("setpoint", "command", "status"):
+        robot.drain(name)
+    robot.writers["joints"].write(JointState(0.0, tuple(robot.q)))
+    before = time.time()
+    robot.interp.update_hook()
+    after = time.time()
+    said = robot.drain("setpoint") + robot.drain("command") + robot.drain("status")
+    assert len(said) == 3
+    assert all(before <= m.stamp <= after for m in said)
