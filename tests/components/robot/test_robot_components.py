@@ -634,6 +634,25 @@ def test_the_speed_cap_is_said_once_an_envelope_at_most_and_only_when_it_moved(h
         cell.close()
 
 
+def test_the_first_envelope_is_capped_for_its_age_now_and_the_next_look_ahead(hub):
+    """Until a second envelope arrives nobody knows when the next is due: the first is
+    capped for its age now; from the second on, for its age when the next is due (the
+    interval between the last two), which asks more room of the same person."""
+    cell, room = moving(hub)
+    try:
+        room.person(0.3)
+        cell.run(0.002)
+        first = cell.robot.call("report")["speed_cap"]
+        cell.run(1 / 30 - 0.002)
+        room.person(0.3)
+        cell.run(0.002)
+        second = cell.robot.call("report")["speed_cap"]
+        assert first is not None and second is not None
+        assert 0.0 < second < 0.98 * first, (first, second)
+    finally:
+        cell.close()
+
+
 def test_a_room_everyone_left_lifts_the_cap_at_once(hub):
     """Envelopes with nobody in them: no separation to keep, the cap is lifted in the
     cycle they arrive (not after a countdown) and nothing is latched."""
