@@ -22,6 +22,7 @@ chart deterministically with the interpreter and a `SimulatedClock`.
 from __future__ import annotations
 
 import contextlib
+import difflib
 import itertools
 import threading
 import time
@@ -96,7 +97,11 @@ class Admission:
             return f"{event} is the Coordinator's own event; nobody may send it"
         if self.external is not None and event not in self.external:
             allowed = ", ".join(sorted(self.external)) or "none"
-            return f"{event} is not an operator event of this topology (those are: {allowed})"
+            close = difflib.get_close_matches(event, sorted(self.external), n=1, cutoff=0.6)
+            hint = f"; did you mean {close[0]}?" if close else ""
+            return (
+                f"{event} is not an operator event of this topology (those are: {allowed})" + hint
+            )
         return ""
 
 

@@ -337,6 +337,16 @@ def test_the_operator_may_send_only_the_topologys_external_events(guarded):
     assert guarded.coordinator.call("offer", event="e_GO")["accepted"]
 
 
+def test_a_misspelt_operator_event_is_refused_with_the_nearest_one():
+    """A typo in `fw send` or a console gets the event meant, as `fw run` does."""
+    admission = Admission(external=frozenset({"e_START", "e_STOP", "e_RELEASE"}))
+    assert admission.refuse_command("e_STRAT") == (
+        "e_STRAT is not an operator event of this topology "
+        "(those are: e_RELEASE, e_START, e_STOP); did you mean e_START?"
+    )
+    assert admission.refuse_command("e_WHATEVER").endswith("e_STOP)"), "nothing near: no guess"
+
+
 def test_a_deployment_that_declares_nobody_refuses_every_command_and_sample(hub, peer, write):
     """No operator events in the topology means the operator may send none (not: any),
     and no components means no component may put an event: an empty rule refuses, only
