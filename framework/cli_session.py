@@ -8,6 +8,7 @@ import argparse
 import contextlib
 import difflib
 import json
+import os
 import sys
 import time
 from collections.abc import Iterator
@@ -20,8 +21,11 @@ from framework.errors import FwError
 KEYS_HELP = "the deployment's keystore, if fw deploy was given --keys (default: its own)"
 EPILOG_SEND = """\
 examples:
-  fw send e_START --topology topologies/demo.yaml
-  fw send e_TOK --payload '{"tracker": "certus"}' --topology topologies/demo.yaml
+  fw send --list --topology topologies/seeg.yaml      (each event, its payload fields)
+  fw send e_START --topology topologies/seeg.yaml
+  fw send e_STOP --payload '{"reason": "operator"}' --topology topologies/seeg.yaml
+  fw send e_GOTO --payload '{"where": "home"}' --topology topologies/seeg.yaml
+  fw send e_RELEASE --topology topologies/seeg.yaml
 """
 
 
@@ -65,12 +69,66 @@ def _json_object(text: str | None, option: str) -> dict[str, Any]:
     return value
 
 
+def example_payload(spec: Any) -> dict[str, Any]:
+    """A payload `spec` (an EventSpec) takes, to show how its event is sent: the first
+    allowed value, the lower limit (or 0) of a number, "..." for free text."""
+    example: dict[str, Any] = {}
+    for name, vtype in spec.payload.items():
+        limits = spec.fields.get(name, {})
+        if "values" in limits:
+            example[name] = limits["values"][0]
+        elif vtype in ("number", "integer"):
+            low, high = limits.get("min"), limits.get("max")
+            inside = 0 if (low is None or low <= 0) and (high is None or high >= 0) else low
+            example[name] = inside if inside is not None else high
+        elif vtype == "boolean":
+            example[name] = True
+        else:
+            example[name] = "..."
+    return example
+
+
+def list_events(topology_path: str) -> str:
+    """The operator events of a topology, each with its doc, its payload fields (type,
+    allowed values, limits, unit) and a command that sends it: read from the topology
+    and its chart, no deployment needed."""
+    from framework.statechart.loader import load_statechart
+    from framework.topology import load_topology
+
+    topology = load_topology(topology_path, classes=False)
+    if topology.statechart is None:
+        return f"{topology.name} has no statechart: no operator events"
+    chart = load_statechart(topology.statechart, validate=False)
+    lines = [f"operator events of {topology.name} ({os.path.normpath(topology.statechart)}):"]
+    for name in topology.external_events:
+        spec = chart.events.get(name)
+        if spec is None:
+            lines.append(f"  {name}: not declared by the chart")
+            continue
+        payload = example_payload(spec)
+        command = f"fw send {name}" + (f" --payload '{json.dumps(payload)}'" if payload else "")
+        lines.append(f"  {command} --topology {topology_path}")
+        if spec.doc:
+            lines.append(f"      {spec.doc}")
+        for field_name in spec.payload:
+            doc = spec.fields.get(field_name, {}).get("doc")
+            lines.append(f"      {spec.describe(field_name)}" + (f": {doc}" if doc else ""))
+    if not topology.external_events:
+        lines.append("  none: the topology lists no external_events, so every command is refused")
+    return "\n".join(lines)
+
+
 def cmd_send(args: argparse.Namespace) -> int:
     """Offer one operator event to the chart of a running deployment; print its answer."""
     import getpass
 
     from framework.remote import RemoteComponent, RemoteError
 
+    if args.list:
+        print(list_events(args.topology))
+        return 0
+    if args.event is None:
+        raise FwError("name the EVENT to send (fw send --list shows them)")
     payload = _json_object(args.payload, "--payload")
     with _joined(args.topology, args.keys) as (topology, bus):
         try:
@@ -261,7 +319,13 @@ def add_commands(sub: Any) -> None:
         epilog=EPILOG_SEND,
         formatter_class=raw,
     )
-    p.add_argument("event", metavar="EVENT")
+    p.add_argument("event", metavar="EVENT", nargs="?")
+    p.add_argument(
+        "--list",
+        action="store_true",
+        help="list the operator events with their payload fields and a command for each "
+        "(reads the topology; no deployment needed)",
+    )
     p.add_argument("--payload", metavar="JSON", help="event payload as a JSON object")
     p.add_argument("--topology", required=True, metavar="T")
     p.add_argument(

@@ -81,7 +81,16 @@ class _Builder:
         return doc
 
     def check_limits(self, event: str, name: str, spec: dict[str, Any], loc: Location) -> None:
-        """Limits only on numbers, and the lower one first."""
+        """Limits only on numbers, and the lower one first; allowed values of the field's
+        type."""
+        wrong = [v for v in spec.get("values", ()) if not has_type(v, spec["type"])]
+        if wrong:
+            self.error(
+                "payload-values",
+                f"payload field {event}.{name} is a {spec['type']}: "
+                f"{', '.join(repr(v) for v in wrong)} cannot be one of its values",
+                loc,
+            )
         low, high = spec.get("min"), spec.get("max")
         if (low is not None or high is not None) and spec["type"] not in ("number", "integer"):
             self.error(

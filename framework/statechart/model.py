@@ -225,13 +225,28 @@ class EventSpec:
             if isinstance(value, float) and not math.isfinite(value):
                 return f"{self.name}.{name} must be a finite {vtype}"
             limits = self.fields.get(name, {})
+            if "values" in limits and value not in limits["values"]:
+                return f"{self.name}.{name} must be one of {', '.join(map(str, limits['values']))}"
             unit = f" {limits['unit']}" if limits.get("unit") else ""
             if "min" in limits and value < limits["min"]:
                 return f"{self.name}.{name} must be at least {limits['min']:g}{unit}"
             if "max" in limits and value > limits["max"]:
                 return f"{self.name}.{name} must be at most {limits['max']:g}{unit}"
         missing = [n for n in self.payload if n not in payload] if complete else []
-        return f"{self.name} needs {', '.join(missing)}" if missing else ""
+        return f"{self.name} needs {', '.join(map(self.describe, missing))}" if missing else ""
+
+    def describe(self, name: str) -> str:
+        """One payload field as an operator should read it: `where (one of target,
+        home)`, `x (number, -0.5..0.5 m)`, `reason (string)`."""
+        limits = self.fields.get(name, {})
+        if "values" in limits:
+            return f"{name} (one of {', '.join(map(str, limits['values']))})"
+        low, high = limits.get("min"), limits.get("max")
+        span = ""
+        if low is not None or high is not None:
+            span = f", {'' if low is None else f'{low:g}'}..{'' if high is None else f'{high:g}'}"
+        unit = f" {limits['unit']}" if limits.get("unit") else ""
+        return f"{name} ({self.payload[name]}{span}{unit})"
 
 
 @dataclass(eq=False)

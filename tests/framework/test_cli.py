@@ -164,3 +164,38 @@ def test_commands_come_from_installed_packages_and_a_broken_one_only_warns(monke
     )
     parser = cli.build_parser()
     assert parser.parse_args(["bench", "--quick"]).func, "the installed commands are there"
+
+
+def test_send_list_shows_each_operator_event_with_its_fields_and_a_command_that_works(capsys):
+    """`fw send --list` needs no deployment: every event the topology lets an operator
+    send, its doc, its payload fields (allowed values, limits, units) and a command whose
+    payload the chart takes as it stands."""
+    import shlex
+
+    from framework.statechart.loader import load_statechart
+
+    assert main(["send", "--list", "--topology", "topologies/seeg.yaml"]) == 0
+    out = capsys.readouterr().out
+    assert "(statecharts/seeg.yaml)" in out
+    assert "where (one of target, home)" in out
+    assert "x (number, -0.5..0.5 m): on the patient" in out
+    chart = load_statechart(REPO / "statecharts" / "seeg.yaml", validate=False)
+    commands = [line.split() for line in out.splitlines() if line.strip().startswith("fw send")]
+    sent = [shlex.split(" ".join(c)) for c in commands]
+    assert [c[2] for c in sent] == ["e_START", "e_GOTO", "e_RELEASE", "e_STOP", "e_DEFINE_TARGET"]
+    for command in sent:
+        payload = json.loads(command[4]) if command[3] == "--payload" else {}
+        assert chart.events[command[2]].problem(payload) == "", command
+
+
+def test_send_without_an_event_says_how_to_find_one(capsys):
+    assert main(["send", "--topology", "topologies/seeg.yaml"]) == 1
+    assert "name the EVENT to send (fw send --list shows them)" in capsys.readouterr().err
+
+
+def test_send_help_shows_events_sent_with_their_payloads(capsys):
+    with pytest.raises(SystemExit):
+        main(["send", "--help"])
+    out = capsys.readouterr().out
+    assert """fw send e_STOP --payload '{"reason": "operator"}'""" in out
+    assert """fw send e_GOTO --payload '{"where": "home"}'""" in out

@@ -254,6 +254,10 @@ states: [{name: A, transitions: [{event: e_MOVE, target: A}]}]
     [
         ("{type: string, min: 1}", "payload field e_MOVE.x is a string: min/max apply to numbers"),
         ("{type: number, min: 2, max: 1}", "payload field e_MOVE.x: min 2 is above max 1"),
+        (
+            "{type: number, values: [1, two, 3.5]}",
+            "payload field e_MOVE.x is a number: 'two' cannot be one of its values",
+        ),
     ],
 )
 def test_impossible_payload_limits_are_errors(write, field, message):
@@ -267,7 +271,7 @@ initial: A
 states: [{{name: A}}]
 """,
     )
-    assert any(f.code == "payload-limits" and f.message == message for f in findings), findings
+    assert any(f.code.startswith("payload-") and f.message == message for f in findings), findings
 
 
 def test_an_event_declaration_says_why_a_payload_does_not_fit(chart):
@@ -281,9 +285,27 @@ states: [{name: A, transitions: [{event: e_MOVE, target: A}]}]
 """
     ).events["e_MOVE"]
     assert spec.problem({"x": 0.5, "where": "home"}) == ""
-    assert spec.problem({"x": 0.5}) == "e_MOVE needs where"
+    assert spec.problem({"x": 0.5}) == "e_MOVE needs where (string)"
+    assert spec.problem({}) == "e_MOVE needs x (number, 0.3..0.8 m), where (string)"
     assert spec.problem({"x": 0.5, "where": "home", "y": 1}) == "e_MOVE has no payload field 'y'"
     assert spec.problem({"x": True, "where": "home"}) == "e_MOVE.x must be a number"
     assert spec.problem({"x": float("nan"), "where": "a"}) == "e_MOVE.x must be a finite number"
     assert spec.problem({"x": 0.9, "where": "a"}) == "e_MOVE.x must be at most 0.8 m"
     assert spec.problem({"x": 0.1, "where": "a"}) == "e_MOVE.x must be at least 0.3 m"
+
+
+def test_a_field_with_allowed_values_takes_only_those_and_says_which(chart):
+    """`values:` (e_GOTO's where: target or home) refuses anything else before the
+    chart sees it, and a missing field says what it may be."""
+    spec = chart(
+        """
+statechart: values
+events:
+  e_GOTO: {payload: {where: {type: string, values: [target, home]}}}
+initial: A
+states: [{name: A, transitions: [{event: e_GOTO, target: A}]}]
+"""
+    ).events["e_GOTO"]
+    assert spec.problem({"where": "home"}) == ""
+    assert spec.problem({"where": "hone"}) == "e_GOTO.where must be one of target, home"
+    assert spec.problem({}) == "e_GOTO needs where (one of target, home)"
