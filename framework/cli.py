@@ -297,6 +297,17 @@ def cmd_describe(args: argparse.Namespace) -> int:
     return 0
 
 
+def installed_version() -> str:
+    """fw's version as installed (pyproject.toml's), or a clear stand-in when fw runs
+    from a checkout that was never installed."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("fw")
+    except PackageNotFoundError:
+        return "(not installed: run from a checkout)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `fw` (also used to render --help in the docs)."""
     parser = argparse.ArgumentParser(
@@ -305,6 +316,9 @@ def build_parser() -> argparse.ArgumentParser:
         "statecharts, deployments are YAML topologies.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="Run 'fw COMMAND --help' for examples. Docs: docs/statecharts.md",
+    )
+    parser.add_argument(
+        "--version", action="version", version=f"fw {installed_version()}", help="fw's version"
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     raw = argparse.RawDescriptionHelpFormatter

@@ -199,3 +199,13 @@ def test_send_help_shows_events_sent_with_their_payloads(capsys):
     out = capsys.readouterr().out
     assert """fw send e_STOP --payload '{"reason": "operator"}'""" in out
     assert """fw send e_GOTO --payload '{"where": "home"}'""" in out
+
+
+def test_version_is_the_installed_packages(capsys):
+    import tomllib
+
+    with pytest.raises(SystemExit) as exit:
+        main(["--version"])
+    assert exit.value.code == 0
+    declared = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["version"]
+    assert capsys.readouterr().out.strip() == f"fw {declared}"
