@@ -43,8 +43,11 @@ never evaluated. The exit status is 1 when a family scores under its target (90%
 cosmic-ray's, 95% for fw's), so the tool says what the report says.
 
 The tables go to the terminal and, per module and family, into
-`docs/results/mutation.md` (its section is replaced; the others stay). Needs the
-`mutation` extra: `pip install -e '.[mutation]'` (cosmic-ray, coverage).
+`docs/results/mutation.md` (its section is replaced; the others stay). A run that is
+stopped goes on where it stopped when started again on the same code: what it caught
+is kept in `.mutation-cache/` (`Caught`; `--fresh` tests everything). Needs the
+`mutation` extra for cosmic-ray's family: `pip install -e '.[mutation]'` (cosmic-ray,
+coverage); fw's family needs coverage only.
 """
 
 from __future__ import annotations
@@ -52,6 +55,7 @@ from __future__ import annotations
 import argparse
 import ast
 import functools
+import hashlib
 import json
 import os
 import queue
@@ -517,6 +521,51 @@ def _node_id(space: Workspace, context: str) -> str:
     return ""
 
 
+CACHE = REPO / ".mutation-cache"
+"""Mutants caught by runs that did not finish, per module and family (not tracked)."""
+
+
+class Caught:
+    """The mutants of one module's exact code that a run already caught (killed or
+    timed out), kept as the run goes so a long run that is stopped (a sitting ends, the
+    host is needed) goes on where it stopped: run again on the same code, it tests only
+    the rest. Keyed by the module's code: any edit of the module starts afresh. Tests
+    only grow between sittings, so a mutant they caught stays caught; survivors are
+    always tested again. `--fresh` ignores what is kept."""
+
+    def __init__(self, module: str, family: str, fresh: bool = False):
+        code = (REPO / module).read_text(encoding="utf-8")
+        self.digest = hashlib.sha256(code.encode()).hexdigest()
+        self.path = CACHE / f"{module.replace('/', '__')}.{family}.json"
+        self.statuses: dict[str, str] = {}
+        if not fresh and self.path.exists():
+            try:
+                kept = json.loads(self.path.read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                kept = {}
+            if kept.get("code") == self.digest:
+                self.statuses = dict(kept.get("caught", {}))
+
+    @staticmethod
+    def key(mutant: Mutant) -> str:
+        """A mutant's name within its module's code: operator, occurrence and line."""
+        return f"{mutant.operator}#{mutant.occurrence}@{mutant.line}"
+
+    def get(self, mutant: Mutant) -> str:
+        """ "killed" or "timeout" if a run of this code caught it, else ""."""
+        return self.statuses.get(self.key(mutant), "")
+
+    def add(self, mutant: Mutant) -> None:
+        """Keep `mutant`'s status if it was caught (written at once: a stop loses none)."""
+        if mutant.status not in ("killed", "timeout"):
+            return
+        self.statuses[self.key(mutant)] = mutant.status
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        partial = self.path.with_suffix(".tmp")
+        partial.write_text(json.dumps({"code": self.digest, "caught": self.statuses}))
+        partial.replace(self.path)
+
+
 def run_module(
     module: str,
     tests: list[str],
@@ -525,13 +574,16 @@ def run_module(
     coverage: bool,
     family: str = "cosmic-ray",
     mutants: list[Mutant] | None = None,
+    fresh: bool = False,
 ) -> list[Mutant]:
     """Make and test every mutant of `module` of one family (`FAMILIES`), or only
-    `mutants`; returns them with their status."""
+    `mutants`; returns them with their status. Mutants an earlier run of the same code
+    caught are not tested again unless `fresh` (`Caught`)."""
     known = load_equivalents()
     if mutants is None:
         mutants = fw_mutants(module, lines) if family == "fw" else make_mutants(module, lines)
     print(f"{module}: {len(mutants)} {family} mutants; tests: {' '.join(tests)}", flush=True)
+    caught = Caught(module, family, fresh)
     base = Path(tempfile.mkdtemp(prefix="fw-mutation-"))
     spaces: list[Workspace] = []
     try:
@@ -544,12 +596,22 @@ def run_module(
         covering = covering_tests(spaces[0], module, tests) if coverage else None
         print(f"  the tests take {normal:.1f} s; a mutant gets {timeout:.0f} s", flush=True)
         todo: queue.Queue[Mutant] = queue.Queue()
+        earlier = 0
         for mutant in mutants:
             reason = equivalent_reason(mutant, known)
             if reason:
                 mutant.status, mutant.detail = "equivalent", reason
+            elif caught.get(mutant):
+                mutant.status = caught.get(mutant)
+                earlier += 1
             else:
                 todo.put(mutant)
+        if earlier:
+            print(
+                f"  {earlier} caught by an earlier run of this code, not run again "
+                f"(kept in {caught.path.relative_to(REPO)}; --fresh runs them)",
+                flush=True,
+            )
         total, done = todo.qsize(), [0]
         lock = threading.Lock()
 
@@ -563,6 +625,7 @@ def run_module(
                 outcome = space.test(mutant, [first, tests] if first else [tests], timeout)
                 mutant.status = {"failed": "killed", "passed": "survived"}.get(outcome, outcome)
                 with lock:
+                    caught.add(mutant)
                     done[0] += 1
                     if mutant.status != "killed" or done[0] % 25 == 0 or done[0] == total:
                         print(
@@ -838,6 +901,11 @@ def main(argv: list[str] | None = None) -> int:
         help="test only the reported run's survivors again, against today's tests",
     )
     parser.add_argument(
+        "--fresh",
+        action="store_true",
+        help="test every mutant, also those an unfinished run of the same code caught",
+    )
+    parser.add_argument(
         "--rescore",
         action="store_true",
         help="no run: apply the current equivalents list to the module's reported run",
@@ -883,7 +951,9 @@ def main(argv: list[str] | None = None) -> int:
             elif args.rescore:
                 mutants, tests = rescored(module, family)
             else:
-                mutants = run_module(module, tests, args.jobs, lines, not args.no_coverage, family)
+                mutants = run_module(
+                    module, tests, args.jobs, lines, not args.no_coverage, family, None, args.fresh
+                )
             text = section(
                 module, tests, mutants, args.rescore or args.survivors, family, args.survivors
             )

@@ -253,3 +253,24 @@ def test_a_workspace_holds_the_compiled_extensions_the_build_put_beside_the_code
     space = mutation.Workspace(tmp_path / "w")
     assert all((space.root / name).is_file() for name in built)
     assert (space.root / "components/robot/interpolator.py").is_file()
+
+
+def test_what_a_stopped_run_caught_is_kept_for_the_same_code_only(tmp_path, monkeypatch):
+    """A long run stopped halfway goes on where it stopped: the mutants it killed or
+    timed out are not tested again while the module's code is unchanged; survivors are
+    never kept (new specs may kill them); an edit of the module, or --fresh, starts over."""
+    monkeypatch.setattr(mutation, "REPO", tmp_path)
+    monkeypatch.setattr(mutation, "CACHE", tmp_path / "cache")
+    (tmp_path / "m.py").write_text("x = 1\n")
+    killed = mutation.Mutant("m.py", "core/NumberReplacer", 0, 1, "x = 1", "x = 2", "", "killed")
+    survived = mutation.Mutant("m.py", "core/NumberReplacer", 1, 1, "x = 1", "x = 0", "")
+    survived.status = "survived"
+    run = mutation.Caught("m.py", "cosmic-ray")
+    run.add(killed)
+    run.add(survived)
+    again = mutation.Caught("m.py", "cosmic-ray")
+    assert again.get(killed) == "killed" and again.get(survived) == ""
+    assert mutation.Caught("m.py", "fw").get(killed) == "", "each family apart"
+    assert mutation.Caught("m.py", "cosmic-ray", fresh=True).get(killed) == ""
+    (tmp_path / "m.py").write_text("x = 1  # edited\n")
+    assert mutation.Caught("m.py", "cosmic-ray").get(killed) == ""
