@@ -208,8 +208,8 @@ class Bus:
             if hub and "Address already in use" in str(exc):
                 raise BusError(
                     f"cannot open the bus: port {config.hub_port} on {config.host} is in use. "
-                    f"Is this topology already running (`fw status TOPOLOGY`)? Stop it first, "
-                    f"or give this run another `bus: {{hub_port: N}}`"
+                    f"Is this topology already running (`fw status --topology TOPOLOGY`)? "
+                    f"Stop it first, or give this run another `bus: {{hub_port: N}}`"
                 ) from None
             raise BusError(
                 f"cannot open the bus ({'listen on' if hub else 'join'} {where}): {exc}"

@@ -7,10 +7,12 @@ read their ports) does not depend on the process that hosts them.
 
 from __future__ import annotations
 
+import difflib
 import importlib
 import sys
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 from framework.component import Component
 from framework.errors import FwError
@@ -41,5 +43,24 @@ def load_class(path: str) -> type[Component]:
         raise ClassPathError(f"cannot import {module_name!r}: {exc}") from None
     cls = getattr(module, class_name, None)
     if not (isinstance(cls, type) and issubclass(cls, Component)):
-        raise ClassPathError(f"{path!r} is not a Component class")
+        raise ClassPathError(f"{path!r} is not a Component class{_nearest(module, class_name)}")
     return cls
+
+
+def _nearest(module: Any, name: str) -> str:
+    """'; did you mean ...?' for the module's Component class nearest `name` (case
+    aside: NDITracker finds NdiTracker), or its Component classes, or ''."""
+    classes = sorted(
+        attr
+        for attr, value in vars(module).items()
+        if isinstance(value, type)
+        and issubclass(value, Component)
+        and value.__module__ == module.__name__
+    )
+    if not classes:
+        return f"; {module.__name__} defines no Component class"
+    lowered = {attr.lower(): attr for attr in classes}
+    close = difflib.get_close_matches(name.lower(), list(lowered), n=1, cutoff=0.6)
+    if close:
+        return f"; did you mean '{module.__name__}:{lowered[close[0]]}'?"
+    return f"; {module.__name__} defines {', '.join(classes)}"

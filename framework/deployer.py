@@ -27,7 +27,7 @@ from typing import Any
 from framework import keys
 from framework.access import access_control
 from framework.activity import Activity
-from framework.bus import Bus, BusConfig
+from framework.bus import Bus, BusConfig, BusError
 from framework.configurator import Configurator
 from framework.container import Container, raise_priority, spawn_container
 from framework.coordinator import (
@@ -219,7 +219,10 @@ class Deployment:
             topo.bus = self._credentials(control)
         mine = LOCAL if self.host is None else self.host
         here = dataclasses.replace(topo.bus, listen=topo.listen_address(mine))
-        self.hub = Bus(here, hub=control, subject=CONTROL_PROCESS if control else OPERATOR)
+        try:
+            self.hub = Bus(here, hub=control, subject=CONTROL_PROCESS if control else OPERATOR)
+        except BusError as exc:  # name the file, so the command it suggests runs as written
+            raise BusError(str(exc).replace("TOPOLOGY", topo.file)) from None
         names = sorted(
             {c.process for c in topo.components.values() if host_of(topo, c.process) == mine}
         )

@@ -501,8 +501,15 @@ class _Loader:
         """Every input a component's file declares is connected by `connections:`, or its
         data never comes (a sensor added to sensors.yaml, not to the topology)."""
         wired = {(step.component, step.target): step for step in topo.connections}
+        written = {
+            str(entry.get("port"))
+            for entry in data.get("connections") or []
+            if isinstance(entry, dict)
+        }
         for name, link in topo.file_links:
             step = wired.get((name, link.port))
+            if step is None and f"{name}.{link.port}" in written:
+                continue  # wired, but its source could not be checked: said where it failed
             if step is not None:
                 writers = [writer for writer, _ in topo.writers_of(step.key)]
                 if link.suggest and writers and link.suggest not in writers:

@@ -170,6 +170,7 @@ def test_a_second_deploy_on_a_port_in_use_says_so_and_returns(topology, bus_conf
     assert result.returncode == 1 and "Traceback" not in result.stderr
     assert f"port {bus_config.hub_port} on 127.0.0.1 is in use" in result.stderr
     assert "already running" in result.stderr and "tcp.rs" not in result.stderr
+    assert f"(`fw status --topology {topology}`)" in result.stderr, "a command that runs"
 
 
 def test_validate_checks_a_topology_with_its_chart(tmp_path):

@@ -267,6 +267,23 @@ def test_a_sensor_added_to_the_file_but_not_wired_is_an_error_that_says_what_to_
     assert "{port: sensor_manager.polaris_cto, from: " in wrong[0].hint
 
 
+@pytest.mark.parametrize(
+    ("typo", "said"),
+    [
+        ("NDITracker", "did you mean 'components.tracking.ndi_driver:NdiTracker'?"),
+        ("Zebra", "components.tracking.ndi_driver defines NdiTracker"),
+    ],
+)
+def test_a_misspelt_class_is_one_error_with_the_class_meant(tmp_path, typo, said):
+    """The class named wrongly is said with the one meant, and nothing built on the
+    wrong guess follows: the wiring from it is there, only not checkable (before, two
+    errors proposed to feed the Sensor Manager's Vicra ports from the Certus)."""
+    rewire = ("ndi_driver:NdiTracker", f"ndi_driver:{typo}")
+    _, found = check_topology(seeg_with(tmp_path, rewire=rewire))
+    assert [f.code for f in found if f.severity == "error"] == ["class"], found
+    assert found[0].message.endswith(said)
+
+
 def test_a_file_port_fed_by_another_device_than_the_file_names_is_a_warning(tmp_path):
     rewired = (
         "{port: sensor_manager.certus_rto, from: certus.rto}",
