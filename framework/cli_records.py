@@ -26,6 +26,8 @@ def _summary(topic: str, data: dict[str, Any]) -> str:
         return f"{kind:<10} {json.dumps(payload)}"
     if topic == "/fw/components":
         reason = f" ({data['reason']})" if data.get("reason") else ""
+        if data.get("old") == data.get("new"):  # a refusal or report, no change of state
+            return f"component  {data.get('component')}: still {data.get('new')}{reason}"
         return f"component  {data.get('component')}: {data.get('old')} -> {data.get('new')}{reason}"
     if topic == "/fw/refused":
         times = f" (x{data['count']})" if data.get("count", 1) > 1 else ""
@@ -58,6 +60,13 @@ def cmd_log(args: argparse.Namespace) -> int:
             and (data.get("payload") or {}).get("request_id") in requested
         ):
             continue
+        if (
+            not args.json
+            and topic == "/fw/components"
+            and data.get("old") == data.get("new")
+            and not data.get("reason")
+        ):
+            continue  # nothing changed and nothing was said: not a line of the timeline
         t0 = stamp if t0 is None else t0
         if args.json:
             print(json.dumps({"t": stamp, "topic": topic, "data": data}))

@@ -266,6 +266,10 @@ class FlightRecorder:
             self._file.close()
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+"""The first bytes of every MCAP file (the MCAP specification's magic)."""
+
+
 def _records(path: str | Path) -> Iterator[Any]:
     """Every whole record of an MCAP file, in file order, stopping quietly at a torn
     end (a recorder killed mid-write): what was written before is kept."""
@@ -275,6 +279,12 @@ def _records(path: str | Path) -> Iterator[Any]:
     if not Path(path).is_file():
         raise RecorderError(f"{path}: no such recording")
     with Path(path).open("rb") as handle:
+        if handle.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            raise RecorderError(
+                f"{path}: not a flight recording: it is no MCAP file "
+                "(`fw deploy TOPOLOGY --record run.mcap` writes one)"
+            )
+        handle.seek(0)
         try:
             yield from StreamReader(handle).records
         except (McapError, EOFError, ValueError, struct.error) as exc:

@@ -209,3 +209,37 @@ def test_version_is_the_installed_packages(capsys):
     assert exit.value.code == 0
     declared = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["version"]
     assert capsys.readouterr().out.strip() == f"fw {declared}"
+
+
+@pytest.mark.parametrize("content", [b"# fw\n\n```sh\n", b"", b"\x89MC"])
+def test_log_of_a_file_that_is_no_recording_says_so_in_words(tmp_path, capsys, content):
+    """Not the MCAP reader's 'invalid magic: (35, 32, 102, ...)': what the file is not
+    and what writes one."""
+    notes = tmp_path / "README.md"
+    notes.write_bytes(content)
+    assert main(["log", str(notes)]) == 1
+    err = capsys.readouterr().err
+    assert f"{notes}: not a flight recording: it is no MCAP file" in err
+    assert "--record run.mcap" in err and "(35, 32" not in err
+
+
+def test_log_shows_lifecycle_lines_only_for_changes_or_what_was_said(hub, tmp_path, capsys):
+    """A component state record with no change and no reason is no line of the
+    timeline; one with a reason reads 'still Stopped (why)', not 'Stopped -> Stopped'."""
+    from framework.recorder import FlightRecorder
+
+    recorder = FlightRecorder(tmp_path / "run.mcap", hub)
+    for old, new, reason in [
+        ("PreOperational", "Stopped", ""),
+        ("Stopped", "Stopped", ""),
+        ("Stopped", "Stopped", "configure refused: no device"),
+    ]:
+        record = {"component": "vicra", "old": old, "new": new, "reason": reason}
+        recorder.write("/fw/components", "fw.ComponentState", record)
+    recorder.close()
+    assert main(["log", str(tmp_path / "run.mcap"), "--topic", "/fw/components"]) == 0
+    lines = [line.split("] ", 1)[1] for line in capsys.readouterr().out.splitlines()]
+    assert lines == [
+        "component  vicra: PreOperational -> Stopped",
+        "component  vicra: still Stopped (configure refused: no device)",
+    ]
