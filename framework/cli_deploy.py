@@ -379,7 +379,7 @@ def scenario_report(runner: Any) -> int:
     passed = len(outcomes) - failed - unrun
     print(
         f"{'PASSED' if not failed else 'FAILED'}: {passed} passed, {failed} failed, "
-        f"{unrun} not run (their state never held)"
+        f"{unrun} not run (nothing to check: see each)"
     )
     return 1 if failed else 0
 

@@ -599,9 +599,22 @@ class ScenarioRunner(Listener):
                 note = f", {missed} more asked but not answered in time" if missed else ""
                 out.append(Outcome(True, inv.describe(), f"{samples} samples{note}"))
             else:
-                when = inv.state or "the run"
-                out.append(Outcome(True, inv.describe(), f"{when} never held", exercised=False))
+                out.append(Outcome(True, inv.describe(), self._unrun(inv), exercised=False))
         return out
+
+    def _unrun(self, inv: Invariant) -> str:
+        """Why an invariant was never sampled, in words: its state never active, or
+        never past its grace (the run ended or the state was left first)."""
+        if not inv.state:
+            return f"the run ended within its {inv.grace:g}s grace: nothing checked"
+        with self._changed:
+            entered = any(_matches(path, inv.state) for _, path in self.entries)
+        if not entered:
+            return f"{inv.state} was never active: nothing checked"
+        return (
+            f"{inv.state} was entered but never held past its {inv.grace:g}s grace "
+            "(left first, or the run ended): nothing checked"
+        )
 
 
 UNANSWERED_LIMIT = 3

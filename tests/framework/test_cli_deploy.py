@@ -295,6 +295,30 @@ def test_a_keystore_made_beforehand_is_used_and_kept(topology, tmp_path):
     assert (keys / "operator.key").is_file(), "a keystore given to fw deploy is kept"
 
 
+def test_an_invariant_never_checked_says_whether_its_state_came_or_not_past_its_grace():
+    """One clear verdict: 'Target_Reached never held' beside 'PASS state Target_Reached'
+    read as a contradiction; the state came, but the run ended within the grace."""
+    import threading
+    from types import SimpleNamespace
+
+    from framework.scenario import Invariant, ScenarioRunner
+
+    runner = SimpleNamespace(
+        _changed=threading.Condition(), entries=[(1.0, "Root.Task.Target_Reached")]
+    )
+    reached = Invariant("robot.report", state="Target_Reached", grace=0.5)
+    assert ScenarioRunner._unrun(runner, reached) == (
+        "Target_Reached was entered but never held past its 0.5s grace "
+        "(left first, or the run ended): nothing checked"
+    )
+    assert ScenarioRunner._unrun(runner, Invariant("robot.report", state="Fault")) == (
+        "Fault was never active: nothing checked"
+    )
+    assert ScenarioRunner._unrun(runner, Invariant("robot.report", grace=2.0)) == (
+        "the run ended within its 2s grace: nothing checked"
+    )
+
+
 def test_the_scenario_report_keeps_invariants_never_exercised_apart(capsys):
     from types import SimpleNamespace
 
@@ -312,7 +336,7 @@ def test_the_scenario_report_keeps_invariants_never_exercised_apart(capsys):
     assert scenario_report(runner) == 0, "nothing failed"
     out = capsys.readouterr().out
     assert "NOT RUN while No_Tracker" in out and "PASS    while Stopped" in out
-    assert "PASSED: 2 passed, 0 failed, 1 not run" in out
+    assert "PASSED: 2 passed, 0 failed, 1 not run (nothing to check: see each)" in out
     outcomes.append(Outcome(False, "never event e_STOP", "at 3s"))
     assert scenario_report(runner) == 1
     assert "FAILED: 2 passed, 1 failed, 1 not run" in capsys.readouterr().out
