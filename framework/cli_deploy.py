@@ -129,6 +129,9 @@ def live_screen(
                 f"send      {', '.join(deployment.topology.external_events)}   with: fw send "
                 f"EVENT --topology {os.path.relpath(deployment.topology.file)}"
             )
+    safety = deployment.topology.safety
+    if safety is not None:
+        lines.append(f"robot      {_robot_side(deployment.hub, safety.monitor)}")
     history = deployment.configurator.history[-5:] if deployment.configurator else []
     for outcome in history:
         mark = "ok  " if outcome.ok else "FAIL"
@@ -149,6 +152,19 @@ def live_screen(
     if watch is not None and watch.incidents:
         lines += ["", *watch.incidents[-5:]]
     return "\n".join(lines)
+
+
+def _robot_side(hub: Any, monitor: str) -> str:
+    """The robot side in the console's words (`robot_line`): released, braked and why,
+    or a latched safety stop with its reason and whether RELEASE would be taken now."""
+    from framework.remote import RemoteComponent, RemoteError
+    from framework.safety import robot_line
+
+    try:
+        report = RemoteComponent(hub, monitor, 0.3).call("report")
+    except RemoteError:
+        return f"({monitor} does not answer)"
+    return robot_line(report if isinstance(report, dict) else {})
 
 
 def _device_loop(spec: Any) -> bool:

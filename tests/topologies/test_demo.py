@@ -72,3 +72,45 @@ def test_the_live_screen_says_not_responding_only_after_two_silent_screens(bus_c
             os.kill(trackers.popen.pid, signal.SIGCONT)
     finally:
         deployment.stop()
+
+
+def test_the_live_screen_says_the_robot_sides_stop_and_why_as_the_console_does(hub):
+    """Not only 'Stopped': the brakes, the latch, its reason and whether a RELEASE would
+    be taken, asked of the component that hosts the safety monitor."""
+    from types import SimpleNamespace
+
+    from framework.activity import Activity, SteppedExecutor
+    from framework.clock import SimulatedClock
+    from framework.component import Component, operation
+    from framework.container import Container
+
+    class Robot(Component):
+        @operation(readonly=True)
+        def report(self) -> dict:
+            return {
+                "braked": True,
+                "latched": "arm.measured: no data for 52 ms (deadline 50 ms)",
+                "reason": "arm.measured: no data for 52 ms (deadline 50 ms)",
+                "problems": [],
+            }
+
+    container = Container("c", hub, SteppedExecutor(SimulatedClock()))
+    container.add(Robot("robot"), Activity.periodic(10))
+    container.start()
+    topology = SimpleNamespace(
+        name="t", external_events=[], components={}, safety=SimpleNamespace(monitor="robot")
+    )
+    deployment = SimpleNamespace(
+        topology=topology, coordinator=None, configurator=None, watch=None, hub=hub
+    )
+    try:
+        screen = live_screen(deployment, 0.0)
+        topology.safety = SimpleNamespace(monitor="nobody")
+        silent = live_screen(deployment, 0.0)
+    finally:
+        container.shutdown()
+    assert (
+        "robot      SAFETY STOP: arm.measured: no data for 52 ms (deadline 50 ms) "
+        "(RELEASE possible)" in screen
+    )
+    assert "robot      (nobody does not answer)" in silent

@@ -20,6 +20,7 @@ from typing import Any
 from framework.console.model import ConsoleModel
 from framework.console.panels import Panel, Tile
 from framework.messages import EventMessage, Pose, Scalar
+from framework.safety import robot_line
 
 TRACE_SECONDS = 20.0
 TRACE_RATE = 20.0
@@ -98,7 +99,7 @@ class SeegPanel(Panel):
         tracker = supervisor.get("tracker") or "No Sensor Available"
         distance = (view.get("min_distance") or {}).get("data")
         near = supervisor.get("users_near")
-        robot = _robot((view.get("robot") or {}).get("data") or {})
+        robot = robot_line((view.get("robot") or {}).get("data") or {})
         robot_age = (view.get("robot") or {}).get("age")
         robot_stale = robot_age is not None and robot_age > STALE_AFTER
         if robot_stale:  # an old "released" must never read as the robot's state now
@@ -211,20 +212,6 @@ class SeegPanel(Panel):
 
 def _fresh(section: dict[str, Any] | None) -> bool:
     return bool(section) and section.get("age") is not None and section["age"] < STALE_AFTER
-
-
-def _robot(report: dict[str, Any]) -> str:
-    """The robot side in one line: moving, braked (why), or a latched safety stop and
-    whether a RELEASE would be taken now (every safety input healthy)."""
-    if not report:
-        return "-"
-    if report.get("latched"):
-        problems = report.get("problems") or []
-        release = "RELEASE possible" if not problems else "not yet: " + "; ".join(problems[:2])
-        return f"SAFETY STOP: {report.get('reason')} ({release})"
-    if report.get("braked"):
-        return f"braked ({report.get('reason') or 'power on'})"
-    return "released"
 
 
 def _failure(payload: dict[str, Any] | None) -> str:
