@@ -33,8 +33,11 @@ examples:
                                                     the console for the OR's network (HTTPS)
 
 The operator console (a web page: status, START / RELEASE / Go To, the chart, the
-event log) is served on http://127.0.0.1:8470/?token=... when fw deploy runs in a terminal, or
-whenever --console-port is given; --no-console turns it off. It listens on
+event log) is served on http://127.0.0.1:8470/?token=... unless --headless (scripts,
+tests) or --no-console; also without a terminal (a service, nohup: the link goes to the
+log and to console.url in the work folder, readable by its owner only). On 8470 taken,
+the deployment runs on without it and says so; --console-port N serves it on N (0: any
+free port) and a taken N is an error. It listens on
 127.0.0.1 only, unless --console-host says otherwise; beyond this machine it is served
 over TLS only: with --console-cert/--console-key if given, else with a certificate made
 for the run, whose SHA-256 fingerprint is printed (compare it with the browser's).
@@ -223,7 +226,9 @@ def cmd_deploy(args: argparse.Namespace) -> int:
 
         resolve_type(kind)
     interactive = sys.stdout.isatty() and not args.headless
-    serve_console = not args.no_console and (args.console_port is not None or interactive)
+    # served unless --headless (scripts, tests) or --no-console: a deployment started
+    # without a terminal (a service, nohup) is exactly one whose operator needs the page
+    serve_console = not args.no_console and (args.console_port is not None or not args.headless)
     console_tls = _console_tls(args) if serve_console else (None, "")  # before anything starts
     workdir = Path(args.workdir) if args.workdir else Path(tempfile.mkdtemp(prefix="fw-"))
     listeners: list[Listener] = [] if interactive else [_Printer()]
@@ -296,7 +301,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         if serve_console:
-            console = _start_console(args, deployment, topology, console_tls)
+            console = _start_console(args, deployment, topology, console_tls, workdir)
         end = started + args.duration if args.duration else None
         runner = deployment.runner
         seen: dict[str, tuple[str, int]] = {}
@@ -333,9 +338,16 @@ def cmd_deploy(args: argparse.Namespace) -> int:
 
 
 def _start_console(
-    args: argparse.Namespace, deployment: Any, topology: Any, console_tls: tuple[Any, str]
+    args: argparse.Namespace,
+    deployment: Any,
+    topology: Any,
+    console_tls: tuple[Any, str],
+    workdir: Path,
 ) -> Any:
-    """Serve the operator console (over TLS if `console_tls` has a context)."""
+    """Serve the operator console (over TLS if `console_tls` has a context); its link
+    goes to stderr (a service's log) and to `console.url` in the work folder, readable
+    by its owner only (the link carries the run's login). On the default port, taken,
+    the deployment goes on without it and says why (None)."""
     from framework.console.model import ConsoleModel
     from framework.console.server import DEFAULT_PORT, ConsoleServer
 
@@ -346,10 +358,23 @@ def _start_console(
     server = ConsoleServer(model, args.console_host, port, tls=tls)
     try:
         url = server.start()
-    except FwError:
+    except FwError as exc:
         model.stop()
-        raise
-    print(f"fw: operator console on {url} (the link carries this run's login)", file=sys.stderr)
+        if args.console_port is not None:
+            raise
+        print(
+            f"fw: no operator console: {exc}; the deployment runs on without it",
+            file=sys.stderr,
+        )
+        return None
+    saved = workdir / "console.url"
+    with os.fdopen(os.open(saved, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600), "w") as out:
+        out.write(url + "\n")
+    print(
+        f"fw: operator console on {url} (the link carries this run's login; also in "
+        f"{saved}, readable by you only)",
+        file=sys.stderr,
+    )
     if certificate:
         print(f"fw: {certificate}", file=sys.stderr)
     return server

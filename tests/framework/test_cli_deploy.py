@@ -3,6 +3,7 @@ the flight recording read back with `fw log` / `fw replay` matches what happened
 
 import json
 import signal
+import re
 import subprocess
 import sys
 
@@ -383,3 +384,46 @@ def test_operator_commands_need_not_import_the_projects_components(topology, bus
     finally:
         bus.close()
         interrupt(deploy)
+
+
+def test_without_a_terminal_the_console_is_served_and_its_link_kept_for_its_owner(
+    topology, tmp_path
+):
+    """A deployment started by a service or nohup (no terminal, not --headless) serves
+    the console (here on any free port); the link with its login goes to the log and to
+    console.url, mode 0600."""
+    import stat
+
+    workdir = tmp_path / "work"
+    done = fw(
+        "deploy", str(topology), "--duration", "3", "--console-port", "0",
+        "--workdir", str(workdir),
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    said = re.search(r"operator console on (\S+) \(.*also in (\S+), readable", done.stderr)
+    assert said, done.stderr
+    saved = workdir / "console.url"
+    assert said.group(2) == str(saved) and saved.read_text().strip() == said.group(1)
+    assert "token=" in said.group(1)
+    assert stat.S_IMODE(saved.stat().st_mode) == 0o600
+
+
+def test_without_a_terminal_a_taken_console_port_leaves_the_deployment_running(topology):
+    """On the default port, taken (another deployment's console, anything): said in one
+    line, and the deployment runs on (a service must not fail for want of its page)."""
+    import socket
+
+    from framework.console.server import DEFAULT_PORT
+
+    with socket.socket() as taken:
+        try:
+            taken.bind(("127.0.0.1", DEFAULT_PORT))
+            taken.listen()
+        except OSError:
+            pass  # someone else holds it: taken all the same
+        done = fw("deploy", str(topology), "--duration", "3")
+    assert done.returncode == 0, done.stderr
+    assert f"fw: no operator console: cannot serve the console on 127.0.0.1:{DEFAULT_PORT}" in (
+        done.stderr
+    )
+    assert "the deployment runs on without it" in done.stderr and "Traceback" not in done.stderr
