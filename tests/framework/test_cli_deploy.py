@@ -2,8 +2,8 @@
 the flight recording read back with `fw log` / `fw replay` matches what happened."""
 
 import json
-import signal
 import re
+import signal
 import subprocess
 import sys
 
