@@ -113,3 +113,30 @@ def test_the_constraints_file_pins_every_dependency_fw_names():
         if "==" in line and not line.startswith("#")
     }
     assert names - pinned == set()
+
+
+def test_what_the_tutorial_runs_is_installed_by_the_readmes_first_command(tmp_path):
+    """The README's first command installs fw's runtime dependencies only: every
+    command of docs/tutorial.md and every import of what `fw new procedure` writes must
+    come from them (a new user met 'No module named pytest' in step 2)."""
+    import ast
+    import re
+    import tomllib
+
+    from framework.scaffold import new_procedure
+
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    runtime = {re.split(r"[<>=!~\[; ]", d, maxsplit=1)[0].lower() for d in project["dependencies"]}
+    tutorial = (REPO / "docs" / "tutorial.md").read_text()
+    for module in re.findall(r"^\$ python -m (\w+)", tutorial, re.M):
+        assert module in runtime, f"the tutorial runs `python -m {module}`"
+    imported = set()
+    for path in new_procedure("hello", tmp_path, 7447):
+        if path.suffix == ".py":
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.Import):
+                    imported |= {alias.name.split(".")[0] for alias in node.names}
+                elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                    imported.add(node.module.split(".")[0])
+    standard = set(sys.stdlib_module_names) | {"framework", "components"}
+    assert imported - standard <= runtime, imported - standard - runtime
