@@ -96,7 +96,11 @@ class SeegPanel(Panel):
         supervisor_stale = not _fresh(view.get("supervisor"))
         operation = _operation(leaves, supervisor.get("goal") or "")
         area = supervisor.get("area") or ("critical" if "Critical" in leaves else None)
-        tracker = supervisor.get("tracker") or "No Sensor Available"
+        tracker = supervisor.get("tracker") or ""
+        # a tracker is needed from the approach on (and No_Tracker says one is missing);
+        # at rest, braked and waiting for START, none selected yet is not a fault
+        needed = operation.startswith("approaching") or operation == "at the goal"
+        needed = needed or "No_Tracker" in leaves
         distance = (view.get("min_distance") or {}).get("data")
         near = supervisor.get("users_near")
         robot = robot_line((view.get("robot") or {}).get("data") or {})
@@ -119,8 +123,8 @@ class SeegPanel(Panel):
             Tile(
                 "tracker",
                 "tracker in use",
-                tracker,
-                "bad" if tracker == "No Sensor Available" else "ok",
+                tracker or ("No Sensor Available" if needed else "none selected yet"),
+                "ok" if tracker else "bad" if needed else "",
                 stale=supervisor_stale,
             ),
             Tile(

@@ -54,3 +54,24 @@ def test_the_trace_listens_to_the_slowest_thinned_stream_fast_enough_for_it():
     assert thinnest("robot/tcp", thinned, 100.0) == "robot/tcp/at_200hz"
     assert thinnest("robot/tcp", thinned, 500.0) == "robot/tcp", "none fast enough: every sample"
     assert thinnest("robot/tcp", None, 20.0) == "robot/tcp"
+
+
+def test_the_tracker_tile_is_calm_at_rest_and_red_only_when_a_tracker_is_needed():
+    """Braked and waiting for START nobody has chosen a tracker and nothing is wrong:
+    'none selected yet', neutral; from the approach on, none is 'No Sensor Available',
+    red; a tracker in use is green."""
+    from components.supervisor.panel import SeegPanel
+
+    def tracker_tile(active, tracker=None):
+        view = {
+            "chart": {"data": {"active": active}, "age": 0.1},
+            "supervisor": {"data": {"tracker": tracker, "goal": "target"}, "age": 0.1},
+        }
+        tile = {t.id: t for t in SeegPanel().tiles(view)}["tracker"]
+        return tile.text, tile.tone
+
+    waiting = ["System_OK.Task.Idle"]
+    assert tracker_tile(waiting) == ("none selected yet", "")
+    assert tracker_tile(["System_OK.Task.Tracker_Selection"]) == ("No Sensor Available", "bad")
+    assert tracker_tile(["System_OK.Task.No_Tracker"]) == ("No Sensor Available", "bad")
+    assert tracker_tile(["System_OK.Task.Moving.Certus_Up"], "certus") == ("certus", "ok")
