@@ -182,11 +182,22 @@ function buildForms(commands) {
     for (const [name, f] of fields) {
       const label = document.createElement("label");
       label.textContent = `${name}${f.unit ? ` (${f.unit})` : ""}`;
-      const input = document.createElement("input");
+      let input;
+      if (f.values) {  // allowed values: a choice, not free text
+        input = document.createElement("select");
+        for (const value of f.values) {
+          const option = document.createElement("option");
+          option.value = option.textContent = String(value);
+          input.appendChild(option);
+        }
+        input.dataset.type = f.type;
+      } else {
+        input = document.createElement("input");
+        input.type = f.type === "number" || f.type === "integer" ? "number" : "text";
+        if (input.type === "number") input.step = f.type === "integer" ? "1" : "any";
+      }
       input.name = name;
       input.required = true;
-      input.type = f.type === "number" || f.type === "integer" ? "number" : "text";
-      if (input.type === "number") input.step = f.type === "integer" ? "1" : "any";
       if (f.min !== undefined) input.min = f.min;
       if (f.max !== undefined) input.max = f.max;
       input.title = `${f.doc || name}${f.min !== undefined ? `, ${f.min} to ${f.max} ${f.unit || ""}` : ""}`;
@@ -201,6 +212,7 @@ function buildForms(commands) {
     form.appendChild(button);
     const submit = (e) => {
       e.preventDefault();
+      form.classList.add("tried");  // fields turn red only once a Send found them wrong
       if (!form.checkValidity()) {
         form.reportValidity();  // refused in the page: the server checks again
         $("answer").textContent = `${event}: refused: a value is missing or out of range`;
@@ -208,8 +220,9 @@ function buildForms(commands) {
         return;
       }
       const payload = {};
-      for (const input of form.querySelectorAll("input")) {
-        payload[input.name] = input.type === "number" ? Number(input.value) : input.value;
+      for (const input of form.querySelectorAll("input, select")) {
+        const number = input.type === "number" || ["number", "integer"].includes(input.dataset.type);
+        payload[input.name] = number ? Number(input.value) : input.value;
       }
       send(event, payload);
     };

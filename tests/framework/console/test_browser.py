@@ -175,11 +175,16 @@ def test_the_operator_drives_the_procedure_from_the_browser(page, seeg_console):
     form = "#form-e_DEFINE_TARGET"
     page.wait_for_selector(f"{form} button:enabled", timeout=WAIT_MS)
     on_patient = {"x": 0.23, "y": 0.24, "z": 0.17, "roll": 180, "pitch": 0, "yaw": 163}
+    red = "(el) => getComputedStyle(el).borderColor"
+    untouched = page.eval_on_selector_all(f"{form} input", f"els => els.map({red})")
+    assert len(set(untouched)) == 1, "empty fields are not errors before a Send"
     for name, value in on_patient.items():
         page.fill(f"{form} input[name={name}]", str(value))
     page.fill(f"{form} input[name=x]", "5")
     page.click(f"{form} button")
     text_is(page, "answer", "e_DEFINE_TARGET: refused: a value is missing or out of range")
+    after = page.eval_on_selector_all(f"{form} input", f"els => els.map({red})")
+    assert after[0] != untouched[0] and len(set(after[1:])) == 1, "after Send, x is shown wrong"
     page.evaluate("send('e_DEFINE_TARGET', {x: 5, y: 0, z: 0.1, roll: 0, pitch: 180, yaw: 0})")
     text_is(page, "answer", "e_DEFINE_TARGET: refused: e_DEFINE_TARGET.x must be at most 0.5 m")
     page.fill(f"{form} input[name=x]", "0.23")
