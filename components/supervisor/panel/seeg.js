@@ -61,7 +61,9 @@ function drawScene(state) {
   const stale = !state.scene || state.scene.age === null || state.scene.age > 2;
   ctx.fillStyle = stale ? "#f87171" : "#94a3b8";
   ctx.font = "12px sans-serif";
-  ctx.fillText(stale ? "no scene from the people detector (stale)" : `${scene.people.length} people`, 10, 18);
+  const n = scene.people.length;
+  const people = n === 0 ? "nobody in the room" : n === 1 ? "1 person in the room" : `${n} people in the room`;
+  ctx.fillText(stale ? "no scene from the people detector (stale)" : people, 10, 18);
 }
 
 function drawPlots(state) {

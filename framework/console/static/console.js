@@ -100,7 +100,17 @@ function highlight(paths) {
     const ident = title ? title.textContent.replace(/^cluster_/, "") : "";
     g.classList.toggle("active", active.has(idents[ident]));
   }
+  // the chart at its own size (readable), scrolled so the active leaf stays in view
+  const key = paths.join(" ");
+  const leaf = document.querySelector("#chart-svg g.node.active");
+  if (leaf && key !== lastFocus) {
+    lastFocus = key;
+    const pane = $("chart"), box = leaf.getBoundingClientRect(), at = pane.getBoundingClientRect();
+    pane.scrollLeft += box.left + box.width / 2 - (at.left + pane.clientWidth / 2);
+    pane.scrollTop += box.top + box.height / 2 - (at.top + pane.clientHeight / 2);
+  }
 }
+let lastFocus = "";
 
 async function send(event, payload) {
   $("answer").textContent = `${event}…`;

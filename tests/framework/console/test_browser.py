@@ -198,6 +198,18 @@ def test_the_operator_drives_the_procedure_from_the_browser(page, seeg_console):
     page.click("#start")
     text_is(page, "answer", "e_START: accepted")
     text_is(page, "operation", "approaching target")
+    page.wait_for_selector("#chart-svg g.node.active", timeout=WAIT_MS)
+    seen = page.evaluate(
+        """() => {
+          const pane = document.getElementById("chart").getBoundingClientRect();
+          const svg = document.querySelector("#chart-svg svg");
+          const leaf = document.querySelector("#chart-svg g.node.active").getBoundingClientRect();
+          const inside = leaf.left >= pane.left - 1 && leaf.right <= pane.right + 1
+            && leaf.top >= pane.top - 1 && leaf.bottom <= pane.bottom + 1;
+          return {inside, natural: svg.getBoundingClientRect().width >= svg.width.baseVal.value - 1};
+        }"""
+    )
+    assert seen == {"inside": True, "natural": True}, "the chart at its size, its active state shown"
     text_is(page, "tracker", "certus")
     moved = (
         "() => { const t = (lastState.trace && lastState.trace.data) || []; return t.length > 2 && Math.hypot("
