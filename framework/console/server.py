@@ -392,7 +392,7 @@ class _Handler(BaseHTTPRequestHandler):
         if not self.console.authorized(self.headers, query):
             return self._json({"error": LOGIN}, HTTPStatus.UNAUTHORIZED)
         if "token=" in query and path in ("/", "/index.html"):
-            return self._login()
+            return self._login(query)
         if path in ("/", "/index.html"):
             return self._file("index.html")
         if path.startswith("/static/"):
@@ -447,9 +447,11 @@ class _Handler(BaseHTTPRequestHandler):
         origin = f"{self.client_address[0]}:{self.client_address[1]}"
         self._json(self.console.command(body, origin))
 
-    def _login(self) -> None:
+    def _login(self, query: str) -> None:
         """The token from the URL goes into a cookie only this console's own pages send
-        (HttpOnly, SameSite=Strict); the address bar loses it."""
+        (HttpOnly, SameSite=Strict); the address bar loses it, and keeps the rest of
+        the query (`snapshot`)."""
+        rest = "&".join(p for p in query.split("&") if p and not p.startswith("token="))
         try:
             self.send_response(HTTPStatus.SEE_OTHER)
             secure = "; Secure" if self.console.tls is not None else ""
@@ -458,7 +460,7 @@ class _Handler(BaseHTTPRequestHandler):
                 f"{self.console.cookie}={self.console.token}; HttpOnly; SameSite=Strict; "
                 f"Path=/{secure}",
             )
-            self.send_header("Location", "/")
+            self.send_header("Location", "/" + (f"?{rest}" if rest else ""))
             self.send_header("Content-Length", "0")
             self.end_headers()
         except OSError:

@@ -338,4 +338,21 @@ function plotOn(canvas, series, labels, colors, unit) {
 
 $("details").addEventListener("change", (e) => $("log").classList.toggle("details", e.target.checked));
 
-loadLayout().then(() => { loadChart(); connect(); });
+// `?snapshot`: the state once, no stream, so the page finishes loading and a headless
+// browser (chromium --headless --screenshot) can take a picture of it for a bug report
+const snapshot = new URLSearchParams(location.search).has("snapshot");
+
+async function once() {
+  try {
+    render(await (await fetch("/api/state")).json());
+    $("link").textContent = `snapshot of ${new Date().toLocaleTimeString()} (not live)`;
+    $("link").className = "badge";
+  } catch (err) {
+    $("link").textContent = `cannot load the state: ${err}`;
+  }
+  document.body.dataset.snapshot = "ready";
+}
+
+loadLayout().then(async () => {
+  if (snapshot) { await loadChart(); await once(); } else { loadChart(); connect(); }
+});

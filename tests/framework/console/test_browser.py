@@ -209,7 +209,9 @@ def test_the_operator_drives_the_procedure_from_the_browser(page, seeg_console):
           return {inside, natural: svg.getBoundingClientRect().width >= svg.width.baseVal.value - 1};
         }"""
     )
-    assert seen == {"inside": True, "natural": True}, "the chart at its size, its active state shown"
+    assert seen == {"inside": True, "natural": True}, (
+        "the chart at its size, its active state shown"
+    )
     text_is(page, "tracker", "certus")
     moved = (
         "() => { const t = (lastState.trace && lastState.trace.data) || []; return t.length > 2 && Math.hypot("
@@ -397,3 +399,15 @@ def test_a_topology_of_its_own_gets_its_tiles_plots_and_buttons(bus_config, tmp_
         page.click("#swap-trackers-confirm")
         text_is(page, "answer", "e_SWAP: accepted")
         assert wait_until(lambda: deployment.coordinator.active()["active"] == ["Use_T2"])
+
+
+def test_a_snapshot_of_the_page_finishes_loading_for_a_screenshot(page, seeg_console):
+    """`?snapshot`: the state once, no stream: the page reaches network idle (a headless
+    browser's --screenshot returns) and shows the deployment as it was."""
+    server, _ = seeg_console
+    page.goto(f"{server.url}&snapshot", wait_until="networkidle")
+    page.wait_for_selector("body[data-snapshot=ready]", timeout=WAIT_MS)
+    assert page.text_content("[data-testid=link]").startswith("snapshot of ")
+    assert page.text_content("[data-testid=operation]") in ("setting up", "wait")
+    assert page.query_selector("#chart-svg g.node.active") is not None
+    shot(page, "console_snapshot")

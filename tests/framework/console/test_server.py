@@ -167,6 +167,10 @@ def test_the_printed_url_logs_in_with_a_cookie_only_this_console_sends(console):
     assert "HttpOnly" in cookie and "SameSite=Strict" in cookie
     status, kind, _ = get(server, "/", headers={"Cookie": cookie.split(";", 1)[0]})
     assert status == 200 and kind.startswith("text/html")
+    connection.request("GET", f"/?snapshot&token={server.token}")
+    reply = connection.getresponse()
+    reply.read()
+    assert reply.getheader("Location") == "/?snapshot", "the rest of the query is kept"
 
 
 def raw(server, request: bytes) -> bytes:
