@@ -102,7 +102,10 @@ function highlight(paths) {
   }
   // the chart at its own size (readable), scrolled so the active leaf stays in view
   const key = paths.join(" ");
-  const leaf = document.querySelector("#chart-svg g.node.active");
+  const deepest = [...paths].sort((a, b) => b.split(".").length - a.split(".").length)[0];
+  const first = Object.keys(idents).find((ident) => idents[ident] === deepest);
+  const leaf = [...document.querySelectorAll("#chart-svg g.node.active")].find(
+    (g) => (g.querySelector("title") || {}).textContent === first) || document.querySelector("#chart-svg g.node.active");
   if (leaf && key !== lastFocus) {
     lastFocus = key;
     const pane = $("chart"), box = leaf.getBoundingClientRect(), at = pane.getBoundingClientRect();
