@@ -20,6 +20,7 @@ from components.robot.interface import (
     POSITION_LIMIT_RAD,
     STEP_MARGIN,
     RobotInterface,
+    parse_address,
     tcp_message,
 )
 from framework.activity import Activity, SteppedExecutor
@@ -1250,3 +1251,29 @@ def test_an_acknowledge_while_the_stop_is_under_way_is_refused_and_acknowledges_
         arm.robot.call("acknowledge")
     report = arm.report()
     assert report["latched"] and report["safety"]["latched"] == report["reason"]
+
+
+@pytest.mark.parametrize(
+    ("text", "address"),
+    [("127.0.0.1:1", ("127.0.0.1", 1)), ("10.0.0.2:65535", ("10.0.0.2", 65535))],
+)
+def test_an_fri_address_takes_every_port_there_is(text, address):
+    assert parse_address(text) == address
+
+
+@pytest.mark.parametrize("text", ["127.0.0.1:0", "127.0.0.1:65536", "127.0.0.1:70000", ":49938"])
+def test_an_fri_address_beyond_the_ports_there_are_is_refused(text):
+    with pytest.raises(ValueError, match="an FRI address is HOST:PORT"):
+        parse_address(text)
+
+
+def test_the_first_measurement_says_the_joints_at_rest_and_no_step_seen(arm):
+    """One measurement gives no velocity (it takes two cycles): the joints' velocities
+    are seven zeros, and no setpoint step has been seen yet."""
+    arm.v = np.full(7, 0.5)
+    arm.cycle()
+    joints = drained(arm.readers["joints"])
+    assert joints and joints[-1].velocity == (0.0,) * 7
+    assert arm.report()["peak_step"] == 0.0
+    arm.cycle()
+    assert drained(arm.readers["joints"])[-1].velocity == pytest.approx((0.5,) * 7, rel=1e-3)

@@ -653,6 +653,30 @@ def test_the_first_envelope_is_capped_for_its_age_now_and_the_next_look_ahead(hu
         cell.close()
 
 
+def test_a_late_envelope_makes_the_next_look_ahead_no_more_than_a_tenth_of_a_second(
+    bus_config,
+):
+    """The look-ahead is the interval between the last two envelopes, at most
+    CAP_LOOKAHEAD (0.1 s). A person 80 cm from the moving arm: after 0.3 s without news
+    the old envelope asks for a cap (it aged: people may have come 48 cm closer), and
+    the fresh one lifts it as after a 0.1 s interval; looking 0.3 s ahead, it would not."""
+    caps = []
+    for gap in (0.1, 0.3):
+        cell, room = moving(Bus(bus_config, hub=True))  # the bus closes with it
+        try:
+            room.person(0.8)
+            cell.run(gap)
+            aged = cell.robot.call("report")["speed_cap"]
+            room.person(0.8)
+            cell.run(0.002)
+            caps.append((aged, cell.robot.call("report")["speed_cap"]))
+        finally:
+            cell.close()
+    (_, after_short), (aged, after_long) = caps
+    assert aged is not None and 0.0 < aged < 0.075, "the aged envelope slowed the arm"
+    assert after_short is None and after_long is None, caps
+
+
 def test_a_room_everyone_left_lifts_the_cap_at_once(hub):
     """Envelopes with nobody in them: no separation to keep, the cap is lifted in the
     cycle they arrive (not after a countdown) and nothing is latched."""
