@@ -1277,3 +1277,42 @@ def test_the_first_measurement_says_the_joints_at_rest_and_no_step_seen(arm):
     assert arm.report()["peak_step"] == 0.0
     arm.cycle()
     assert drained(arm.readers["joints"])[-1].velocity == pytest.approx((0.5,) * 7, rel=1e-3)
+
+
+def _measure_later(arm, seconds):
+    import threading
+
+    sender = threading.Timer(seconds, arm.measure)
+    sender.start()
+    return sender
+
+
+def test_the_loop_waits_for_the_krcs_next_measurement_and_takes_it_when_it_comes(arm):
+    """The KRC is the clock: with nothing queued, the loop's read waits (up to its
+    timeout) for the next measurement and takes it as it arrives, instead of giving up
+    at once (the loop would spin) or waiting for more."""
+    arm.cycle()
+    before = dict(arm.robot.link)
+    sender = _measure_later(arm, 0.1)
+    try:
+        assert arm.robot.read_hook(0.9), "the measurement sent while it waited is taken"
+    finally:
+        sender.join()
+    assert arm.robot.link["measurements"] == before["measurements"] + 1
+    assert arm.robot.link["skipped"] == before["skipped"]
+
+
+def test_a_measurement_already_queued_is_taken_without_waiting_for_another(arm):
+    """One measurement in the kernel's queue: the read takes it and returns; it does not
+    wait out its timeout for a second one (that cycle would be answered late)."""
+    arm.cycle()
+    arm.measure()
+    time.sleep(0.05)  # in the kernel's queue before the read begins
+    sender = _measure_later(arm, 0.5)
+    try:
+        assert arm.robot.read_hook(2.0)
+        taken = arm.robot._measurement.cycle
+    finally:
+        sender.join()
+    assert taken == arm.cycle_no - 1, "the queued one, not the one sent 0.5 s later"
+    assert arm.robot.link["skipped"] == 0
