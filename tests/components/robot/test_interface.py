@@ -934,9 +934,14 @@ def test_a_datagram_that_is_no_measurement_is_refused_counted_and_not_answered(a
     assert arm.robot.state.value == "Running"
 
 
-def test_a_measurement_from_another_sender_is_refused(arm):
+@pytest.mark.parametrize("host", ["127.0.0.1", "127.0.0.2"])
+def test_a_measurement_from_another_sender_is_refused(arm, host):
+    """Any other sender, its address ordered before or after the KRC's, is refused and
+    named."""
     arm.cycle()
     forger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    forger.bind((host, 0))
+    sender = forger.getsockname()
     try:
         datagram = fri.encode_measurement(
             arm.cycle_no + 1,
@@ -956,7 +961,7 @@ def test_a_measurement_from_another_sender_is_refused(arm):
     finally:
         forger.close()
     assert arm.report()["fri"]["refused"] == 1
-    assert "not the KRC" in said(arm)
+    assert said(arm) == f"a datagram from {sender[0]}:{sender[1]}, not the KRC"
     assert arm.report()["braked"] is True  # the forged "released" changed nothing
 
 
@@ -1316,3 +1321,11 @@ def test_a_measurement_already_queued_is_taken_without_waiting_for_another(arm):
         sender.join()
     assert taken == arm.cycle_no - 1, "the queued one, not the one sent 0.5 s later"
     assert arm.robot.link["skipped"] == 0
+
+
+def test_a_read_on_a_socket_closed_under_it_ends_with_no_measurement(arm):
+    """Stopping closes the socket while the loop may be reading: the read ends with no
+    measurement (False), not an exception in the loop's thread."""
+    arm.cycle()
+    arm.robot._socket.close()
+    assert arm.robot.read_hook(0.0) is False
