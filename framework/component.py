@@ -632,43 +632,80 @@ class Component:
                 self.heartbeat.beat()
 
     # -- hooks (override) -----------------------------------------------------------
+    # Every hook runs under the component's lifecycle lock, so no two of them (nor an
+    # exclusive operation) ever run at once; read_hook alone runs outside it. Lifecycle
+    # hooks run in the thread that asked for the transition: the container's control
+    # request (a Zenoh query thread), its startup (the process's main thread) or a local
+    # switch. Cycle hooks run in the activity's thread. A hook that raises sends the
+    # component to Exception (stop_hook, cleanup_hook, exception_hook run; any of them
+    # failing is FatalError); a refusal (`False`, or FwError for a reason) is no error.
+
     def configure_hook(self) -> bool | None:
-        """Prepare: open devices, check properties. Return False to refuse."""
+        """PreOperational or Stopped -> Stopped: read the properties, open devices and
+        files, build what the cycles need (never in a cycle). Runs in the thread that
+        asked (a control request, the container's startup), under the lifecycle lock.
+        Return False (with `last_error` set) or raise FwError to refuse: the component
+        stays where it was and the reason goes to whoever asked. May be called again
+        after `cleanup`, so it must set every member a cycle reads."""
         return True
 
     def start_hook(self) -> bool | None:
-        """About to run. Return False to refuse."""
+        """Stopped -> Running, just before the first cycle: reset per-run state. Runs in
+        the thread that asked, under the lifecycle lock; False or FwError refuses (the
+        component stays Stopped)."""
         return True
 
     def update_hook(self) -> None:
-        """One cycle of work (periodic, or when new data arrives)."""
+        """One cycle of work while Running: read inputs, compute, write outputs. Runs in
+        the activity's thread (periodic, event-driven, or the paced loop between its
+        read_hook and write_hook), under the lifecycle lock, never beside another hook
+        or an exclusive operation. Must not block (a paced loop has a 1 ms budget). An
+        exception sends the component to Exception; `error()` instead goes to
+        RunTimeError, where error_hook runs in its place."""
 
     def error_hook(self) -> None:
-        """Runs instead of update_hook while in RunTimeError."""
+        """Runs instead of update_hook while in RunTimeError (after the component called
+        `error()`), in the activity's thread, under the lifecycle lock, until
+        `recover()`. Keep outputs safe; an exception sends the component to Exception."""
 
     def idle_hook(self) -> None:
         """An event-driven activity's input was silent for its `idle` period (a paced
-        one's device, for its `idle`). Runs in the activity's thread."""
+        one's device, for its `idle`): check deadlines, say what is stale. Runs in the
+        activity's thread, under the lifecycle lock, while Running; an exception sends
+        the component to Exception."""
 
     def read_hook(self, timeout: float) -> bool:
         """Paced activity only, in the loop's thread, first in every cycle and outside the
         component's lock: wait (at most `timeout` s) for the device's next cycle and take
-        its data; True if it came. The device is the clock (the KRC's measurement)."""
+        its data; True if it came. The device is the clock (the KRC's measurement). It
+        may touch only what update_hook reads of the device (a stop may close the
+        device meanwhile: return False then); an exception sends the component to
+        Exception."""
         raise FwError(f"{type(self).__name__} has no read_hook: it cannot be paced")
 
     def write_hook(self) -> None:
         """Paced activity only, in the loop's thread, last in every cycle (after
-        update_hook and every component that runs after this one): send the cycle's
-        answer to the device."""
+        update_hook and every component that runs after this one), under the lifecycle
+        lock: send the cycle's answer to the device. An exception sends the component to
+        Exception."""
 
     def stop_hook(self) -> None:
-        """Stopping: make outputs safe."""
+        """Running or RunTimeError -> Stopped, and first on the way to Exception: make
+        outputs safe (brake, hold, tell the device). Runs in the thread that asked (a
+        control request, the container's shutdown, an exception in a cycle hook), under
+        the lifecycle lock, after the last cycle. It must not fail: an exception here on
+        the way to Exception is FatalError."""
 
     def cleanup_hook(self) -> None:
-        """Release what configure_hook acquired."""
+        """Stopped -> PreOperational, and on the way to Exception: release what
+        configure_hook acquired (sockets, files, devices). Runs in the thread that
+        asked, under the lifecycle lock; an exception on the way to Exception is
+        FatalError."""
 
     def exception_hook(self) -> None:
-        """Entering Exception: last chance to make things safe."""
+        """Entering Exception, after stop_hook and cleanup_hook: last chance to make
+        things safe. Runs in the thread whose hook failed (a cycle's, or the one that
+        asked), under the lifecycle lock; an exception here is FatalError."""
 
     # -- introspection ----------------------------------------------------------------
     def describe(self) -> dict[str, Any]:

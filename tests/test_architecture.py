@@ -197,3 +197,23 @@ def test_components_and_the_framework_never_release_the_lock_for_small_numpy_wor
         for line in lock_releasing_calls(ast.parse(p.read_text(encoding="utf-8")))
     }
     assert sorted(found) == [], LOCK_RELEASING
+
+
+def test_every_component_hook_says_when_it_runs_in_which_thread_and_what_a_failure_does():
+    """The component contract as OROCOS RTT writes it (TaskCore.hpp): an author of a
+    component reads, on each hook, when it is called, by which thread, and what an
+    exception or a refusal in it leads to."""
+    import inspect
+
+    from framework.component import Component
+
+    hooks = [n for n in vars(Component) if n.endswith("_hook") and not n.startswith("_")]
+    assert len(hooks) == 10, hooks
+    vague = []
+    for name in hooks:
+        doc = " ".join((inspect.getdoc(getattr(Component, name)) or "").split())
+        says = ("thread" in doc, "lifecycle lock" in doc or "outside the" in doc)
+        failure = "Exception" in doc or "FatalError" in doc or "refuse" in doc.lower()
+        if not (all(says) and failure):
+            vague.append(name)
+    assert vague == []
