@@ -554,5 +554,7 @@ class Navigator(Component):
             "refused": core.refused,
             "holding": core.suspect,
             "patient_mm": [round(float(v) * 1e3, 3) for v in core.patient_offset],
+            # where the patient's reference tool is (base frame, m): for the 3D view
+            "patient": [round(float(v), 4) for v in core.base_from_patient[:3, 3]],
             "patient_speed_mm_s": round(core.patient_speed * 1e3, 3),
         }

@@ -37,6 +37,9 @@ def thinnest(key: str, thinned: dict[str, float] | None, rate: float) -> str:
 
 STALE_AFTER = 2.0
 
+PATIENT_RATE = 5.0
+"""Hz: how often the 3D view needs the patient's reference."""
+
 
 class SeegPanel(Panel):
     """Tiles, the 3D view, plots and live latencies of the SEEG procedure."""
@@ -80,6 +83,16 @@ class SeegPanel(Panel):
         listen("interpolator", "status", EventMessage, self._on_motion, 16)
         listen("sensor_manager", "status", EventMessage, self._on_tracking, 16)
         listen("navigator", "sources", EventMessage, self._on_source, 16)
+        # where the patient's reference is, for the 3D view: a few times a second is
+        # enough (the slowest thinned stream of the navigator's goals that gives it)
+        listen(
+            "navigator",
+            "goals",
+            EventMessage,
+            lambda m: model.set("patient", m.payload.get("patient")),
+            1,
+            rate=PATIENT_RATE,
+        )
         # the robot side says its brakes and latch itself (on change, and at 2 Hz): no
         # question to ask its real-time process, whose loop would answer it between cycles
         listen("robot", "status", EventMessage, lambda m: model.set("robot", m.payload), 4)

@@ -30,6 +30,14 @@ function capsule(ctx, canvas, c, color) {
   ctx.stroke();
 }
 
+function marker(ctx, at, color, label) {
+  // a tracked tool: a dot and its name
+  ctx.fillStyle = color;
+  ctx.beginPath(); ctx.arc(at.x, at.y, 4, 0, 2 * Math.PI); ctx.fill();
+  ctx.font = "11px sans-serif";
+  ctx.fillText(label, at.x + 7, at.y - 6);
+}
+
 function drawScene(state) {
   const canvas = document.getElementById("scene");
   const distance = state.min_distance ? state.min_distance.data : null;
@@ -50,6 +58,15 @@ function drawScene(state) {
   for (const person of scene.people) for (const c of person.capsules) items.push([c, "rgba(251,146,60,0.8)"]);
   items.sort((u, v) => (project(v[0].slice(0, 3), canvas).depth - project(u[0].slice(0, 3), canvas).depth));
   for (const [c, color] of items) capsule(ctx, canvas, c, color);
+  const patient = state.patient && state.patient.data;
+  if (patient) {  // the patient's head around its reference tool (a 9 cm sphere)
+    const p = project(patient, canvas);
+    ctx.fillStyle = "rgba(148,163,184,0.25)";
+    ctx.beginPath(); ctx.arc(p.x, p.y, Math.max(4, 0.09 * p.f), 0, 2 * Math.PI); ctx.fill();
+    marker(ctx, p, "#4ade80", "reference tool");
+  }
+  const trace = (state.trace && state.trace.data) || [];
+  if (trace.length) marker(ctx, project(trace[trace.length - 1].slice(1, 4), canvas), "#22d3ee", "tool (TCP)");
   if (supervisor.target) {  // the target and its critical sphere
     const t = project(supervisor.target, canvas);
     ctx.strokeStyle = "#f87171";
@@ -125,7 +142,7 @@ fwPanels.seeg = {
     container.insertAdjacentHTML("beforeend", `
       <section id="view" aria-label="3D view">
         <canvas id="scene" width="640" height="420" data-testid="scene"></canvas>
-        <p class="hint">drag to turn · wheel to zoom · blue: robot · orange: people · red: target and its critical sphere</p>
+        <p class="hint">drag to turn · wheel to zoom · blue: robot · orange: people · grey: the patient's head, green its reference tool · cyan: the tool at the TCP · red: target and its critical sphere</p>
       </section>
       <section id="seeg-plots" aria-label="SEEG plots">
         <canvas id="plot-position" width="640" height="200"></canvas>

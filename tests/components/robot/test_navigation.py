@@ -552,3 +552,12 @@ def test_a_target_defined_anew_has_a_new_revision_and_a_bad_one_is_refused(navig
         "define_target", x=0.6, y=0, z=0.2, roll=0, pitch=180, yaw=0, frame="base"
     )
     assert base["goals"]["target"][:3] == [0.6, 0.0, 0.2]
+
+
+def test_the_goals_say_where_the_patients_reference_is_for_the_3d_view(navigator):
+    """The target is defined on the patient (its reference tool's frame): the reference
+    said beside it is the frame that puts the target where the goals say."""
+    payload = navigator.sample()
+    on_patient = navigator.nav.procedure.goals["target"]
+    reference = goal_of(payload) @ np.linalg.inv(on_patient)
+    assert payload["patient"] == pytest.approx(reference[:3, 3].tolist(), abs=1e-4)

@@ -141,6 +141,18 @@ def log_has(page, text):
     wait_for(page, script, text, "#log-lines", f"a line with {text!r}")
 
 
+PATIENT_AND_TOOL = """() => {
+  const c = document.getElementById("scene");
+  const d = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
+  let green = 0, cyan = 0;
+  for (let i = 0; i < d.length; i += 4) {
+    if (d[i] < 110 && d[i + 1] > 200 && d[i + 2] > 100 && d[i + 2] < 160) green++;
+    if (d[i] < 60 && d[i + 1] > 190 && d[i + 2] > 220) cyan++;
+  }
+  return green > 20 && cyan > 20;
+}"""
+
+
 ORANGE_PIXELS = """() => {
   const c = document.getElementById("scene");
   const d = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
@@ -163,6 +175,7 @@ def test_the_operator_drives_the_procedure_from_the_browser(page, seeg_console):
         "place", person=1, x=1.6, y=0.6, facing_deg=200.0
     )
     page.wait_for_function(ORANGE_PIXELS, timeout=WAIT_MS)
+    page.wait_for_function(PATIENT_AND_TOOL, timeout=WAIT_MS)  # the reference, the TCP tool
     shot(page, "wait")
     # and leaves before the arm moves: this spec is the console's; a person beside the
     # moving arm is the scenarios' (collision, crowd, walk_in) and test_seeg_faults'. With
