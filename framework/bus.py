@@ -203,7 +203,7 @@ class Bus:
             self.session = zenoh.open(zenoh_config(config, hub, subject))
         except FwError:
             raise
-        except Exception as exc:
+        except Exception as exc:  # zenoh raises its own ZError (and others): said as a BusError
             where = config.hub_endpoint
             if hub and "Address already in use" in str(exc):
                 raise BusError(

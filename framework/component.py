@@ -413,7 +413,7 @@ class Component:
             return method(**kwargs)
         except FwError:
             raise
-        except Exception as exc:
+        except Exception as exc:  # the user's operation: any error is the caller's answer
             raise OperationError(
                 f"{self.name}.{operation_name} failed: {type(exc).__name__}: {exc}"
             ) from exc
@@ -496,7 +496,7 @@ class Component:
             self._check(op)
             try:
                 ok, why = self._run_hook(hook)
-            except Exception as exc:
+            except Exception as exc:  # a hook's error of any kind: Exception, as RTT does
                 self.exception(f"{hook} raised {type(exc).__name__}: {exc}")
                 return False
             if ok:
@@ -554,7 +554,7 @@ class Component:
                 ):
                     self.cleanup_hook()
                 self.exception_hook()
-            except Exception as exc:
+            except Exception as exc:  # failing while making safe: FatalError, with both reasons
                 self._set_state(
                     State.FATAL_ERROR,
                     f"{reason}; then {type(exc).__name__} while handling it: {exc}",
@@ -577,7 +577,7 @@ class Component:
             hook = "update_hook" if state is State.RUNNING else "error_hook"
             try:
                 getattr(self, hook)()
-            except Exception as exc:
+            except Exception as exc:  # a cycle's error of any kind: Exception (made safe)
                 self.exception(f"{hook} raised {type(exc).__name__}: {exc}")
                 return
             if self.heartbeat is not None and self._state is State.RUNNING:
@@ -600,7 +600,7 @@ class Component:
             return False
         try:
             return bool(self.read_hook(timeout))
-        except Exception as exc:
+        except Exception as exc:  # a device read's error of any kind: Exception (made safe)
             if self._state is State.RUNNING:
                 self.exception(f"read_hook raised {type(exc).__name__}: {exc}")
             return False
@@ -613,7 +613,7 @@ class Component:
                 return
             try:
                 self.write_hook()
-            except Exception as exc:
+            except Exception as exc:  # a device write's error of any kind: Exception
                 self.exception(f"write_hook raised {type(exc).__name__}: {exc}")
 
     def idle(self) -> None:
@@ -625,7 +625,7 @@ class Component:
                 return
             try:
                 self.idle_hook()
-            except Exception as exc:
+            except Exception as exc:  # an idle tick's error of any kind: Exception (made safe)
                 self.exception(f"idle_hook raised {type(exc).__name__}: {exc}")
                 return
             if self.heartbeat is not None:

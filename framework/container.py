@@ -366,7 +366,7 @@ class Container:
             else:  # a container is stopped by its deployer's signal, never by a request
                 raise ContainerError(f"unknown container request {op!r}")
             query.reply(keys.container(self.name), json.dumps({"result": result}))
-        except Exception as exc:
+        except Exception as exc:  # any failure is the asker's answer, never this process's end
             with contextlib.suppress(Exception):
                 query.reply_err(json.dumps({"error": str(exc), "kind": type(exc).__name__}))
 

@@ -422,7 +422,7 @@ class ScenarioRunner(Listener):
                     continue
                 try:
                     result = self._call(inv.check, {})
-                except Exception as exc:
+                except Exception as exc:  # any failed check call is judged below, never lost
                     if getattr(exc, "kind", "") == "Timeout":  # asked, never answered
                         self.unanswered[index] = self.unanswered.get(index, 0) + 1
                         self._unanswered_run[index] = self._unanswered_run.get(index, 0) + 1
@@ -516,7 +516,7 @@ class ScenarioRunner(Listener):
                 while True:  # with `wait`, poll until the result matches (a hang bound)
                     try:
                         result = self._call(step.check, step.payload)
-                    except Exception:
+                    except Exception:  # retried until `until`, then raised: a FAIL of the step
                         if time.monotonic() >= until:  # no answer at all: a FAIL below
                             raise
                         self._stop.wait(0.05)

@@ -217,3 +217,15 @@ def test_every_component_hook_says_when_it_runs_in_which_thread_and_what_a_failu
         if not (all(says) and failure):
             vague.append(name)
     assert vague == []
+
+
+def test_every_broad_except_in_the_framework_says_why_and_where_the_error_goes():
+    """`except Exception` only with a comment on the line saying why everything must
+    be caught there and what becomes of the error (never silently)."""
+    silent = []
+    for path in sorted((REPO / "framework").rglob("*.py")):
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            stripped = line.strip()
+            if stripped.startswith("except Exception") and "#" not in stripped:
+                silent.append(f"{path.relative_to(REPO)}:{number}")
+    assert silent == []

@@ -73,7 +73,7 @@ def load_panels(names: list[str]) -> list[Panel]:
             raise FwError(f"no console panel {name!r} is installed ({hint})")
         try:
             panel = entry.load()()
-        except Exception as exc:
+        except Exception as exc:  # a third party's panel: any import error is said, located
             raise FwError(
                 f"console panel {name!r} ({entry.value}) cannot be loaded: "
                 f"{type(exc).__name__}: {exc}"

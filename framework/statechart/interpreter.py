@@ -749,7 +749,7 @@ class Interpreter:
         if self.on_output is not None:
             try:
                 self.on_output(output)
-            except Exception as exc:
+            except Exception as exc:  # the host's handler: its failure is the chart's error event
                 self._error(f"output handler failed on {output.kind}: {exc}", None)
 
     def _error(self, message: str, event: Event | None) -> None:
