@@ -23,13 +23,20 @@ from framework.statechart.model import CONFIG_DONE, CONFIG_FAILED
 from framework.statechart.trace import TracePrinter
 
 COMMANDS_GROUP = "fw.commands"
-"""Entry point group through which installed packages add `fw` commands: each names a
-function `add_commands(subparsers)` (the way pytest and ros2cli find their plugins),
-so the framework never names a procedure's packages:
+"""Entry point group through which installed packages add `fw` commands (the way
+ros2cli finds its verbs), so the framework never names a procedure's packages. The
+extension contract: the entry point is named as the command it adds, and names a
+function `add_commands(subparsers)` that adds that command's parser; its module may
+say `FW_EXTENSION_API = N` (default 1), and one of another version than
+`EXTENSION_API` is not loaded (a warning says so). Only the command named on the
+command line is loaded (every one for `fw --help` and for an unknown command):
 
     [project.entry-points."fw.commands"]
     calibrate = "components.sim.calibrate:add_commands"
 """
+
+EXTENSION_API = 1
+"""The version of the extension contract above (`FW_EXTENSION_API` of a plugin)."""
 
 EPILOG_VALIDATE = """\
 examples:
@@ -308,8 +315,35 @@ def installed_version() -> str:
         return "(not installed: run from a checkout)"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of `fw` (also used to render --help in the docs)."""
+def _wanted(argv: Sequence[str] | None) -> str | None:
+    """The command named on the command line (its first word that is no option), or
+    None (`fw --help`, no command)."""
+    words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+    return words[0] if words else None
+
+
+def _load_extension(entry: Any, sub: Any) -> None:
+    """Add one installed command (`COMMANDS_GROUP`'s contract), or warn why not: a
+    broken or incompatible plugin must not take `fw` down with it."""
+    try:
+        add = entry.load()
+        module = sys.modules.get(getattr(add, "__module__", ""), None)
+        api = getattr(module, "FW_EXTENSION_API", 1)
+        if api != EXTENSION_API:
+            raise FwError(f"it is written for extension API {api}, fw has {EXTENSION_API}")
+        add(sub)
+    except Exception as exc:  # any plugin failure: said as a warning, fw goes on
+        print(
+            f"fw: warning: commands of {entry.name!r} ({entry.value}) not loaded: "
+            f"{type(exc).__name__}: {exc}",
+            file=sys.stderr,
+        )
+
+
+def build_parser(argv: Sequence[str] | None = ()) -> argparse.ArgumentParser:
+    """The argument parser of `fw` (also used to render --help in the docs). Of the
+    installed commands, only the one `argv` names is loaded; every one when it names
+    none or an unknown one (the default: every one)."""
     parser = argparse.ArgumentParser(
         prog="fw",
         description="fw supervises a semi-autonomous surgical robot: procedures are YAML "
@@ -438,21 +472,19 @@ def build_parser() -> argparse.ArgumentParser:
 
     for module in (cli_deploy, cli_session, cli_records):
         module.add_commands(sub)
-    for entry in sorted(metadata.entry_points(group=COMMANDS_GROUP), key=lambda e: e.name):
-        try:
-            entry.load()(sub)
-        except Exception as exc:  # a broken plugin must not take `fw` down with it
-            print(
-                f"fw: warning: commands of {entry.name!r} ({entry.value}) not loaded: "
-                f"{type(exc).__name__}: {exc}",
-                file=sys.stderr,
-            )
+    wanted = _wanted(argv)
+    if wanted in sub.choices:
+        return parser  # a command of fw's own: no plugin needed
+    entries = sorted(metadata.entry_points(group=COMMANDS_GROUP), key=lambda e: e.name)
+    named = [e for e in entries if e.name == wanted]
+    for entry in named or entries:
+        _load_extension(entry, sub)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `fw` console script."""
-    parser = build_parser()
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     try:
         return int(args.func(args))

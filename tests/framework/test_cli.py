@@ -158,12 +158,53 @@ def test_commands_come_from_installed_packages_and_a_broken_one_only_warns(monke
         lambda group: [*real, broken] if group == cli.COMMANDS_GROUP else [],
     )
     assert main(["validate", str(REPO / "statecharts" / "seeg.yaml")]) == 0
+    assert "not loaded" not in capsys.readouterr().err, "fw's own command loads no plugin"
+    with pytest.raises(SystemExit):
+        main(["broken"])
     assert (
         "commands of 'broken' (no_such_package.cli:add_commands) not loaded"
         in capsys.readouterr().err
     )
     parser = cli.build_parser()
     assert parser.parse_args(["bench", "--quick"]).func, "the installed commands are there"
+
+
+def test_only_the_command_named_is_loaded_and_one_of_another_api_is_refused(monkeypatch, capsys):
+    """As ros2cli loads only the verb asked for: `fw bench` imports the bench's plugin
+    and no other; a plugin written for another extension API is not loaded, and says so."""
+    import sys
+    import types
+    from importlib import metadata
+
+    from framework import cli
+
+    loaded = []
+    for name, api in (("alpha", 1), ("beta", 1), ("gamma", 2)):
+        module = types.ModuleType(f"fw_test_plugin_{name}")
+        module.FW_EXTENSION_API = api
+
+        def add(sub, name=name):
+            loaded.append(name)
+            sub.add_parser(name).set_defaults(func=lambda args: 0)
+
+        add.__module__ = module.__name__
+        module.add_commands = add
+        monkeypatch.setitem(sys.modules, module.__name__, module)
+    entries = [
+        metadata.EntryPoint(n, f"fw_test_plugin_{n}:add_commands", cli.COMMANDS_GROUP)
+        for n in ("alpha", "beta", "gamma")
+    ]
+    monkeypatch.setattr(
+        cli.metadata, "entry_points", lambda group: entries if group == cli.COMMANDS_GROUP else []
+    )
+    assert main(["beta"]) == 0 and loaded == ["beta"]
+    loaded.clear()
+    cli.build_parser([])
+    assert loaded == ["alpha", "beta"], "fw --help lists every compatible one"
+    assert (
+        "'gamma' (fw_test_plugin_gamma:add_commands) not loaded: FwError: it is written for "
+        "extension API 2, fw has 1" in capsys.readouterr().err
+    )
 
 
 def test_send_list_shows_each_operator_event_with_its_fields_and_a_command_that_works(capsys):
