@@ -1329,3 +1329,73 @@ def test_a_read_on_a_socket_closed_under_it_ends_with_no_measurement(arm):
     arm.cycle()
     arm.robot._socket.close()
     assert arm.robot.read_hook(0.0) is False
+
+
+def test_requests_numbered_past_the_small_ints_are_served_and_followed_by_the_next(arm):
+    """Beside a KRC that served 300 requests: the next is 301, and once served the one
+    after goes out as 302 (numbers compared by value, not by identity)."""
+    arm.cycle(served=300)
+    arm.taken = 300
+    arm.robot.call("brake", reason="operator")
+    arm.cycle(served=300)
+    arm.cycle()  # served at once
+    arm.robot.call("release")
+    arm.cycle()
+    numbers = [(a.request_number, a.request) for a in arm.answers if a.request]
+    assert numbers[0] == (301, fri.Request.BRAKE) and numbers[-1] == (302, fri.Request.RELEASE)
+
+
+def test_a_measurement_repeating_the_last_cycle_number_gives_no_velocity_and_no_crash(arm):
+    """A KRC's cycle counter that does not move on (a new datagram, the same cycle): no
+    velocity can be derived from it (no division by a zero interval); the joints read as
+    still and the interface runs on."""
+    arm.cycle()
+    arm.cycle()
+    datagram = fri.encode_measurement(
+        arm.cycle_no + 1,
+        0,
+        timestamp=arm.cycle_no * 0.001,
+        state=fri.State.MON,
+        quality=fri.Quality.PERFECT,
+        msr_jnt_pos=tuple(arm.q),
+        cmd_jnt_pos=tuple(arm.q),
+        served=arm.served,
+        reason=0,
+        cycle=arm.cycle_no,  # the cycle of the last measurement again
+        braked=True,
+        latched=False,
+    )
+    arm.cycle_no += 1
+    _send(arm, datagram)
+    assert drained(arm.readers["joints"])[-1].velocity == (0.0,) * 7
+    assert arm.robot.state.value == "Running"
+
+
+class _Unreachable:
+    """The interface's own socket, whose sends the network refuses (a KRC's link down)."""
+
+    def __init__(self, sock):
+        self._sock = sock
+
+    def sendto(self, *_):
+        import errno
+
+        raise OSError(errno.ENETUNREACH, "Network is unreachable")
+
+    def __getattr__(self, name):
+        return getattr(self._sock, name)
+
+
+def test_an_answer_the_network_refuses_is_said_and_the_loop_goes_on(arm):
+    arm.cycle()
+    real = arm.robot._socket
+    arm.robot._socket = _Unreachable(real)
+    try:
+        arm.cycle()
+    finally:
+        arm.robot._socket = real
+    assert "cannot answer the KRC: Network is unreachable" in said(arm)
+    assert arm.robot.state.value == "Running"
+    answered = len(arm.answers)
+    arm.cycle()
+    assert len(arm.answers) == answered + 1, "answered again once the network takes it"
