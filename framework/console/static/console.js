@@ -102,7 +102,10 @@ function highlight(paths) {
   }
   // the chart at its own size (readable), scrolled so the active leaf stays in view
   const key = paths.join(" ");
-  const deepest = [...paths].sort((a, b) => b.split(".").length - a.split(".").length)[0];
+  // the deepest active state (the procedure's task, not a small side region); of equally
+  // deep ones the last (regions come in their chart's order: the main task last here)
+  const depth = (p) => p.split(".").length;
+  const deepest = paths.reduce((best, p) => (depth(p) >= depth(best) ? p : best), paths[0] || "");
   const first = Object.keys(idents).find((ident) => idents[ident] === deepest);
   const leaf = [...document.querySelectorAll("#chart-svg g.node.active")].find(
     (g) => (g.querySelector("title") || {}).textContent === first) || document.querySelector("#chart-svg g.node.active");

@@ -96,10 +96,27 @@ def page():
 
 
 def shot(page, name):
+    """With FW_SCREENSHOTS: a picture of the page as it is now, through its snapshot
+    view (`&snapshot`, the way a user takes one for a bug report: a second page that
+    finishes loading), for docs/console and the README."""
     folder = os.environ.get("FW_SCREENSHOTS")
-    if folder:
-        Path(folder).mkdir(parents=True, exist_ok=True)
+    if not folder:
+        return
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    url = page.url
+    if "snapshot" in url:
         page.screenshot(path=str(Path(folder) / f"console_{name}.png"), full_page=True)
+        return
+    context = page.context.browser.new_context(viewport=page.viewport_size)
+    context.add_cookies(page.context.cookies())  # this run's login
+    try:
+        still = context.new_page()
+        still.goto(url + ("&" if "?" in url else "?") + "snapshot", wait_until="networkidle")
+        still.wait_for_selector("body[data-snapshot=ready]")
+        still.wait_for_timeout(300)  # the panel's canvases drawn
+        still.screenshot(path=str(Path(folder) / f"console_{name}.png"), full_page=True)
+    finally:
+        context.close()
 
 
 def wait_for(page, script, arg, shown, expected):
