@@ -1399,3 +1399,42 @@ def test_an_answer_the_network_refuses_is_said_and_the_loop_goes_on(arm):
     answered = len(arm.answers)
     arm.cycle()
     assert len(arm.answers) == answered + 1, "answered again once the network takes it"
+
+
+def _measured(arm, cycle, **fields):
+    """The KRC's next measurement, numbered on, of the arm at rest and braked, with
+    `cycle` and any field given."""
+    arm.cycle_no += 1
+    values = {
+        "timestamp": arm.cycle_no * 0.001,
+        "state": fri.State.MON,
+        "quality": fri.Quality.PERFECT,
+        "msr_jnt_pos": tuple(arm.q),
+        "cmd_jnt_pos": tuple(arm.q),
+        "served": arm.served,
+        "reason": 0,
+        "cycle": cycle,
+        "braked": True,
+        "latched": False,
+    }
+    values.update(fields)
+    _send(arm, fri.encode_measurement(arm.cycle_no, 0, **values))
+
+
+def test_the_velocity_spans_the_krcs_cycles_between_two_measurements(arm):
+    """A cycle the KRC did not report (its counter moved on by 2): the joints' motion is
+    spread over both cycles, not taken as one cycle's."""
+    arm.cycle()
+    start = arm.cycle_no
+    arm.q = arm.q + 0.001
+    _measured(arm, start + 2)
+    assert drained(arm.readers["joints"])[-1].velocity == pytest.approx((0.5,) * 7, rel=3e-4)
+
+
+@pytest.mark.parametrize(("code", "said"), [(0, ""), (-1, "unknown"), (9, "unknown")])
+def test_a_brake_reason_code_outside_the_table_reads_unknown(arm, code, said):
+    """Code 0 is no reason; a code FRI's table does not have (a negative one included:
+    never Python's index from the end) reads 'unknown'."""
+    arm.cycle()
+    _measured(arm, arm.cycle_no + 1, reason=code)
+    assert arm.report()["reason"] == said
