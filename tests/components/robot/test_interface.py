@@ -363,6 +363,24 @@ def test_the_controllers_own_brake_latches_the_interface_once_it_is_not_ours(arm
     assert arm.report()["reason"] == f"the arm braked by itself: {fri.REASONS[3]}"
 
 
+def test_a_krc_latched_by_an_earlier_interfaces_safety_stop_says_so(arm):
+    """The KRC outlived the PC's process: latched by the safety stop a former interface
+    asked for (code 6), with nothing latched here, the trip says that reason."""
+    arm.cycle(braked=True, latched=True, reason=fri.REASONS[6])
+    assert arm.report()["reason"] == f"the arm braked by itself: {fri.REASONS[6]}"
+
+
+def test_the_brake_this_side_asked_for_says_its_reason_and_the_krcs_own_says_its(arm):
+    """Braked on this side's request (code 2): the reason given with the request; braked
+    by the KRC for its own reason afterwards (power on, code 1): that reason, not the
+    last request's."""
+    arm.robot.call("brake", reason="operator")
+    arm.cycle(braked=True, reason=fri.REASONS[2])
+    assert arm.report()["reason"] == "operator"
+    arm.cycle(braked=True, reason=fri.REASONS[1])
+    assert arm.report()["reason"] == fri.REASONS[1]
+
+
 def test_a_latched_stop_opens_only_with_acknowledge(arm):
     last = moving(arm)
     arm.cycle(last + step(5.0))
@@ -1124,6 +1142,22 @@ def test_a_silent_krc_trips_with_its_silence_and_timeout(arm):
     arm.clock.set(arm.clock.now() + 0.02)
     arm.robot.idle_hook()
     assert arm.report()["reason"] == "the KRC is silent: no measurement for 60 ms (timeout 50 ms)"
+
+
+def test_a_long_silence_is_said_to_the_millisecond(hub):
+    """Seconds of silence with a timeout of seconds: both said in whole milliseconds."""
+    arm = Arm(hub)
+    try:
+        assert arm.robot.stop() and arm.robot.set_property("krc_timeout", 2.0)
+        assert arm.robot.configure() and arm.robot.start()
+        moving(arm)
+        arm.clock.set(arm.clock.now() + 3.0)
+        arm.robot.idle_hook()
+        assert arm.report()["reason"] == (
+            "the KRC is silent: no measurement for 3000 ms (timeout 2000 ms)"
+        )
+    finally:
+        arm.close()
 
 
 def test_the_cycle_that_refuses_a_setpoint_already_carries_the_stops_first_command(arm):

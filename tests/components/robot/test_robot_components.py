@@ -677,6 +677,51 @@ def test_a_late_envelope_makes_the_next_look_ahead_no_more_than_a_tenth_of_a_sec
     assert after_short is None and after_long is None, caps
 
 
+def test_an_envelope_stamped_ahead_of_this_clock_counts_as_fresh_never_younger(bus_config):
+    """Another host's clock ahead (the cameras' PC): its envelope's age is taken as 0,
+    not as negative, which would ask less room of the same person than a fresh one."""
+    caps = []
+    for ahead in (0.0, 0.5):
+        cell, room = moving(Bus(bus_config, hub=True))  # the bus closes with it
+        try:
+            room.person(0.45, age=-ahead)
+            cell.run(0.002)
+            caps.append(cell.robot.call("report")["speed_cap"])
+        finally:
+            cell.close()
+    assert caps[0] is not None and caps[1] == caps[0], caps
+
+
+def test_an_envelope_stamped_ahead_ages_from_its_arrival(hub):
+    """Stamped a second ahead of this clock, the envelope is fresh on arrival and ages
+    from then on: a second without news later, the person 35 cm away is too close (as
+    for a fresh envelope), not still young for the second the clocks differ."""
+    cell, room = moving(hub)
+    try:
+        room.person(0.41, age=-1.0)
+        cell.run(0.005)
+        assert not cell.robot.call("report")["latched"]
+        cell.run(1.0)  # nothing new from the detector
+        protective_stop_latched(cell)
+    finally:
+        cell.close()
+
+
+def test_an_envelope_stamped_zero_is_ancient_a_protective_stop_not_a_crash(hub):
+    """A producer with no clock (stamp 0): the envelope is as old as the epoch; the
+    person in it is too close for anything but a stop, and the interface runs on."""
+    cell, room = moving(hub)
+    try:
+        x, y, z = cell.model_tcp()
+        a, b = (x, y + 1.0, z - 0.5), (x, y + 1.0, z + 0.5)
+        room.people.write(Envelopes(0.0, (*a,), (*b,), (0.15,)))
+        cell.run(0.005)
+        protective_stop_latched(cell)
+        assert cell.robot.state.value == "Running"
+    finally:
+        cell.close()
+
+
 def test_a_room_everyone_left_lifts_the_cap_at_once(hub):
     """Envelopes with nobody in them: no separation to keep, the cap is lifted in the
     cycle they arrive (not after a countdown) and nothing is latched."""
