@@ -14,6 +14,7 @@ import pytest
 
 from components.domain import fri
 from components.domain.procedure import load_procedure
+from components.domain.separation import SsmParams
 from components.robot.interface import RobotInterface
 from components.robot.interpolator import CartesianInterpolator
 from components.robot.navigation import Navigator
@@ -703,6 +704,32 @@ def test_an_envelope_stamped_ahead_ages_from_its_arrival(hub):
         assert not cell.robot.call("report")["latched"]
         cell.run(1.0)  # nothing new from the detector
         protective_stop_latched(cell)
+    finally:
+        cell.close()
+
+
+def test_a_far_person_becomes_too_close_as_the_silence_grows_past_its_arrival_time(hub):
+    """Ageing is the time since arrival, all of it: a person 1.3 m away, with nothing new
+    for two seconds, ends inside the protective distance (1.6 m/s of people's speed),
+    however long the clock ran before the envelope came. The reason's figures are the
+    verdict's: separation, protective distance and age, in cm and ms."""
+    cell, room = moving(hub)
+    try:
+        room.person(1.3)
+        cell.run(2.0)  # nothing new from the detector
+        report = protective_stop_latched(cell)
+        said = re.search(
+            r"a person ([\d.]+) cm away, under the protective distance ([\d.]+) cm at "
+            r"[\d.]+ cm/s \(envelope (\d+) ms old\)",
+            report["reason"],
+        )
+        assert said, report["reason"]
+        separation, protective, age = float(said[1]), float(said[2]), int(said[3])
+        speed = float(re.search(r"at ([\d.]+) cm/s", report["reason"])[1]) / 100
+        expected = SsmParams().protective_distance(speed, age / 1000) * 100
+        assert protective == pytest.approx(expected, abs=0.3), "the distance of that age, speed"
+        assert separation == pytest.approx(report["closest"] * 100, abs=0.1), "the least seen"
+        assert 100 < separation < protective and 500 < age < 2000
     finally:
         cell.close()
 
