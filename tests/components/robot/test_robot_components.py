@@ -709,13 +709,13 @@ def test_an_envelope_stamped_ahead_ages_from_its_arrival(hub):
 
 
 def test_a_far_person_becomes_too_close_as_the_silence_grows_past_its_arrival_time(hub):
-    """Ageing is the time since arrival, all of it: a person 1.3 m away, with nothing new
+    """Ageing is the time since arrival, all of it: a person 1.6 m away, with nothing new
     for two seconds, ends inside the protective distance (1.6 m/s of people's speed),
-    however long the clock ran before the envelope came. The reason's figures are the
+    the time since arrival grown past the clock's reading at arrival. The reason's figures are the
     verdict's: separation, protective distance and age, in cm and ms."""
     cell, room = moving(hub)
     try:
-        room.person(1.3)
+        room.person(1.6)
         cell.run(2.0)  # nothing new from the detector
         report = protective_stop_latched(cell)
         said = re.search(
