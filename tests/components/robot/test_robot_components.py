@@ -727,7 +727,7 @@ def test_a_far_person_becomes_too_close_as_the_silence_grows_past_its_arrival_ti
         separation, protective, age = float(said[1]), float(said[2]), int(said[3])
         speed = float(re.search(r"at ([\d.]+) cm/s", report["reason"])[1]) / 100
         expected = SsmParams().protective_distance(speed, age / 1000) * 100
-        assert protective == pytest.approx(expected, abs=0.3), "the distance of that age, speed"
+        assert protective == pytest.approx(expected, abs=0.25), "the distance of that age, speed"
         assert separation == pytest.approx(report["closest"] * 100, abs=0.1), "the least seen"
         assert 100 < separation < protective and 500 < age < 2000
     finally:
