@@ -733,6 +733,10 @@ def test_a_far_person_becomes_too_close_as_the_silence_grows_past_its_arrival_ti
         timing = report["protective_stop"]  # what `fw bench ssm` reads of it
         assert timing["check_ms"] >= 0.0 and timing["detected_to_command_ms"] >= 0.0
         assert timing["envelopes_taken"] > 0.0 and timing["stamp"] >= timing["envelopes_taken"]
+        # the check and the command came after the envelopes were taken, before the stamp
+        # (1 ms for the two clocks' readings: perf_counter and the wall clock)
+        since = (timing["stamp"] - timing["envelopes_taken"]) * 1e3
+        assert timing["check_ms"] + timing["detected_to_command_ms"] <= since + 1.0
     finally:
         cell.close()
 
