@@ -1472,3 +1472,22 @@ def test_a_brake_reason_code_outside_the_table_reads_unknown(arm, code, said):
     arm.cycle()
     _measured(arm, arm.cycle_no + 1, reason=code)
     assert arm.report()["reason"] == said
+
+
+def test_a_trip_after_a_single_command_stops_from_the_arms_measured_motion(arm):
+    """One command sent, then a trip: no second command to take a velocity from, so the
+    stop decelerates from the measured velocity (the arm still carries that motion),
+    and does not fail for want of a command before the last."""
+    arm.cycle()
+    arm.released()
+    arm.v = np.zeros(7)
+    arm.v[2] = 0.2  # A3 moving at 0.2 rad/s, measured
+    target = arm.q + step(0.5)
+    arm.cycle(target)  # the one command of this motion
+    arm.commands.clear()
+    arm.cycle(arm.q + 1.0)  # refused: a trip, the protective stop begins
+    assert arm.report()["latched"] and arm.robot.state.value == "Running"
+    for _ in range(5):
+        arm.cycle()
+    a3 = [c[2] for c in arm.commands]
+    assert len(a3) >= 3 and a3[-1] > a3[0], "the stop runs on from the measured motion"
