@@ -1491,3 +1491,16 @@ def test_a_trip_after_a_single_command_stops_from_the_arms_measured_motion(arm):
         arm.cycle()
     a3 = [c[2] for c in arm.commands]
     assert len(a3) >= 3 and a3[-1] > a3[0], "the stop runs on from the measured motion"
+
+
+def test_the_words_of_this_sides_last_brake_stay_until_it_asks_again(arm):
+    """A release is no brake: the reason of this side's last (unlatched) brake is what a
+    brake the KRC reports as asked for says, until this side asks again with others."""
+    arm.robot.call("brake", reason="operator")
+    arm.cycle(braked=True, reason=fri.REASONS[2])
+    arm.robot.call("release")
+    arm.cycle(braked=True, reason=fri.REASONS[2])
+    assert arm.report()["reason"] == "operator"
+    arm.robot.call("brake", reason="tool change")
+    arm.cycle(braked=True, reason=fri.REASONS[2])
+    assert arm.report()["reason"] == "tool change"
