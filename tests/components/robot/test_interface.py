@@ -1504,3 +1504,31 @@ def test_the_words_of_this_sides_last_brake_stay_until_it_asks_again(arm):
     arm.robot.call("brake", reason="tool change")
     arm.cycle(braked=True, reason=fri.REASONS[2])
     assert arm.report()["reason"] == "tool change"
+
+
+@pytest.mark.parametrize(
+    ("state", "said"),
+    [(fri.State.OFF, "OFF"), (fri.State.MON, "MON"), (fri.State.CMD, "CMD"), (3, 3)],
+)
+def test_the_link_report_names_each_state_of_the_krcs_interface(arm, state, said):
+    arm.cycle()
+    _measured(arm, arm.cycle_no + 1, state=state)
+    assert arm.report()["fri"]["state"] == said
+
+
+def test_await_ready_waits_for_the_arm_within_its_timeout(arm):
+    """Not ready yet (no measurement), ready a moment later: await_ready returns ready,
+    it does not give up before its timeout."""
+    import threading
+
+    def first_state():
+        arm.measure()
+        arm.container.executor.run_pending()  # the loop takes it
+
+    sender = threading.Timer(0.05, first_state)
+    sender.start()
+    try:
+        report = arm.robot.call("await_ready", timeout=0.95)  # under 1 s, on purpose
+    finally:
+        sender.join()
+    assert report["braked"] and not report["latched"]
