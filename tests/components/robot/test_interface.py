@@ -1532,3 +1532,24 @@ def test_await_ready_waits_for_the_arm_within_its_timeout(arm):
     finally:
         sender.join()
     assert report["braked"] and not report["latched"]
+
+
+@pytest.mark.parametrize(
+    ("code", "said"),
+    [(0, "UNACCEPTABLE"), (1, "BAD"), (2, "OK"), (3, "PERFECT"), (4, "4")],
+)
+def test_the_link_report_names_each_fri_quality_and_a_code_beyond_by_its_number(arm, code, said):
+    arm.cycle()
+    _measured(arm, arm.cycle_no + 1, quality=code)
+    assert arm.report()["fri"]["quality"] == said
+
+
+def test_the_report_gives_the_krcs_time_and_the_joints_to_their_precision(arm):
+    """The KRC's time from its cycle (ms), the joints to 1e-5 rad of what the datagram
+    carried (float32)."""
+    arm.q = HOME + 0.0012345
+    arm.cycle()
+    _measured(arm, 1234)
+    report = arm.report()
+    assert report["time"] == 1.234
+    assert report["q"] == [round(float(np.float32(v)), 5) for v in arm.q]
