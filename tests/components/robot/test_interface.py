@@ -1465,7 +1465,9 @@ def test_the_velocity_spans_the_krcs_cycles_between_two_measurements(arm):
     assert drained(arm.readers["joints"])[-1].velocity == pytest.approx((0.5,) * 7, rel=3e-4)
 
 
-@pytest.mark.parametrize(("code", "said"), [(0, ""), (-1, "unknown"), (9, "unknown")])
+@pytest.mark.parametrize(
+    ("code", "said"), [(0, ""), (-1, "unknown"), (9, "unknown"), (10, "unknown")]
+)
 def test_a_brake_reason_code_outside_the_table_reads_unknown(arm, code, said):
     """Code 0 is no reason; a code FRI's table does not have (a negative one included:
     never Python's index from the end) reads 'unknown'."""
