@@ -160,8 +160,8 @@ def live_screen(
 def _robot_side(hub: Any, monitor: str) -> str:
     """The robot side in the console's words (`robot_line`): released, braked and why,
     or a latched safety stop with its reason and whether RELEASE would be taken now."""
+    from framework.console.text import robot_line
     from framework.remote import RemoteComponent, RemoteError
-    from framework.safety import robot_line
 
     try:
         report = RemoteComponent(hub, monitor, 0.3).call("report")

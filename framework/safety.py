@@ -71,23 +71,6 @@ class Watch:
         return dict(self.__dict__)
 
 
-def robot_line(report: dict[str, Any]) -> str:
-    """The robot side in one line, from the `report` of the component that hosts the
-    safety monitor (its contract: `braked`, `latched`, `reason`, `problems`): released,
-    braked (why), or a latched safety stop and whether a RELEASE would be taken now
-    (every safety input healthy). The terminal's live screen and the console say the
-    same words."""
-    if not report:
-        return "-"
-    if report.get("latched"):
-        problems = report.get("problems") or []
-        release = "RELEASE possible" if not problems else "not yet: " + "; ".join(problems[:2])
-        return f"SAFETY STOP: {report.get('reason')} ({release})"
-    if report.get("braked"):
-        return f"braked ({report.get('reason') or 'power on'})"
-    return "released"
-
-
 @dataclass(frozen=True)
 class SafetySpec:
     """What one monitor watches: the deadlines and every component whose loss trips it."""

@@ -7,6 +7,23 @@ from typing import Any
 LOG_LINES = 8
 
 
+def robot_line(report: dict[str, Any]) -> str:
+    """The robot side in one line, from the `report` of the component that hosts the
+    safety monitor (its contract: `braked`, `latched`, `reason`, `problems`): released,
+    braked (why), or a latched safety stop and whether a RELEASE would be taken now
+    (every safety input healthy). The terminal's live screen and the console say the
+    same words."""
+    if not report:
+        return "-"
+    if report.get("latched"):
+        problems = report.get("problems") or []
+        release = "RELEASE possible" if not problems else "not yet: " + "; ".join(problems[:2])
+        return f"SAFETY STOP: {report.get('reason')} ({release})"
+    if report.get("braked"):
+        return f"braked ({report.get('reason') or 'power on'})"
+    return "released"
+
+
 def render_text(snapshot: dict[str, Any], width: int = 78) -> str:
     """One screen: the tiles, the chart, what the operator can send, an alert, the
     components and the recent log."""

@@ -19,8 +19,8 @@ from typing import Any
 
 from framework.console.model import ConsoleModel
 from framework.console.panels import Panel, Tile
+from framework.console.text import robot_line
 from framework.messages import EventMessage, Pose, Scalar
-from framework.safety import robot_line
 
 TRACE_SECONDS = 20.0
 TRACE_RATE = 20.0

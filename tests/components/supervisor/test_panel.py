@@ -1,7 +1,7 @@
 """Spec: the robot line (the SEEG panel's and the terminal's live screen's) tells the
 operator why the robot stopped and whether a RELEASE would be taken now."""
 
-from framework.safety import robot_line as _robot
+from framework.console.text import robot_line as _robot
 
 
 def test_a_latched_safety_stop_says_why_and_what_keeps_release_refused():
