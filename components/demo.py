@@ -1,7 +1,8 @@
-"""Small components that show the component contract and serve the runtime's tests.
+"""Small components that show the component contract (topologies/demo.yaml runs them).
 
-They are real components (no mocks): a counter that publishes at its rate,
-a doubler that reacts to data, and a sink that remembers what it received.
+They are real components (no mocks): a counter that publishes at its rate, a doubler
+that reacts to data, and a sink that remembers what it received. Components that fail
+on purpose for the runtime's specs live with the tests (tests/support/components.py).
 """
 
 from __future__ import annotations
@@ -9,7 +10,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from framework.component import Component, ConfigureError, In, Out, operation
+from framework.component import Component, In, Out, operation
 from framework.messages import Pose, Scalar
 from framework.ports import ReadStatus
 from framework.properties import prop
@@ -91,80 +92,3 @@ class Sink(Component):
     def fail(self) -> None:
         """Raises (to test error replies)."""
         raise ValueError("asked to fail")
-
-
-class Flaky(Component):
-    """A component whose hooks fail on demand (to test the lifecycle contract)."""
-
-    fail_in = prop(
-        str,
-        "",
-        choices=["", "configure", "start", "update", "stop", "cleanup", "exception"],
-        doc="which hook fails",
-    )
-    how = prop(
-        str,
-        "raise",
-        choices=["raise", "false", "refuse"],
-        doc="raise (a bug), return False, or refuse (ConfigureError)",
-    )
-
-    def _maybe(self, hook: str) -> bool:
-        if self.fail_in == hook:
-            if self.how == "raise":
-                raise RuntimeError(f"{hook} failed on purpose")
-            if self.how == "refuse":
-                raise ConfigureError(f"{hook} refused on purpose")
-            return False
-        return True
-
-    def configure_hook(self) -> bool:
-        return self._maybe("configure")
-
-    def start_hook(self) -> bool:
-        return self._maybe("start")
-
-    def update_hook(self) -> None:
-        self._maybe("update")
-
-    def stop_hook(self) -> None:
-        if self.fail_in == "stop":
-            raise RuntimeError("stop failed on purpose")
-
-    def cleanup_hook(self) -> None:
-        if self.fail_in == "cleanup":
-            raise RuntimeError("cleanup failed on purpose")
-
-    def exception_hook(self) -> None:
-        if self.fail_in == "exception":
-            raise RuntimeError("exception hook failed on purpose")
-
-
-class Pinger(Component):
-    """Writes `Scalar(time.perf_counter(), n)` each update: the stamp is the monotonic
-    clock shared by every process on the machine, so receivers can measure latency."""
-
-    out = Out(Scalar, doc="stamped counter")
-
-    def configure_hook(self) -> bool:
-        self.n = 0
-        return True
-
-    def update_hook(self) -> None:
-        self.n += 1
-        self.out.write(Scalar(time.perf_counter(), float(self.n)))
-
-
-class Broken(Component):
-    """Cannot even be constructed (to test how a deployment reports a dead process)."""
-
-    def __init__(self, name: str):
-        raise RuntimeError("the device driver is missing")
-
-
-class Sleepy(Component):
-    """Takes a minute to construct (to test the deployer's liveliness timeout)."""
-
-    def __init__(self, name: str):
-        time.sleep(60)
-        super().__init__(name)

@@ -38,6 +38,12 @@ command line is loaded (every one for `fw --help` and for an unknown command):
 EXTENSION_API = 1
 """The version of the extension contract above (`FW_EXTENSION_API` of a plugin)."""
 
+SEPARATE_COMMANDS = {
+    "bench": "it comes with fw-bench, the experiment harness: in an fw checkout, "
+    "`pip install -e tools/bench` (or `bash tools/install.sh --test`)",
+}
+"""Commands of fw's own distributions that are installed apart, and how to get them."""
+
 EPILOG_VALIDATE = """\
 examples:
   fw validate statecharts/seeg.yaml
@@ -479,6 +485,8 @@ def build_parser(argv: Sequence[str] | None = ()) -> argparse.ArgumentParser:
     named = [e for e in entries if e.name == wanted]
     for entry in named or entries:
         _load_extension(entry, sub)
+    if wanted in SEPARATE_COMMANDS and wanted not in sub.choices:
+        parser.exit(2, f"fw: {wanted!r} is not installed: {SEPARATE_COMMANDS[wanted]}\n")
     return parser
 
 

@@ -24,6 +24,12 @@ REPO = Path(__file__).resolve().parents[1]
 if "FW_KEYS" not in os.environ:
     os.environ["FW_KEYS"] = tempfile.mkdtemp(prefix="fw-test-keys-")
     atexit.register(shutil.rmtree, os.environ["FW_KEYS"], True)
+# Processes a test deploys may name test scaffolding (`tests.support.components:Broken`),
+# which is not installed with fw: they find it through the checkout.
+if str(REPO) not in os.environ.get("PYTHONPATH", "").split(os.pathsep):
+    os.environ["PYTHONPATH"] = os.pathsep.join(
+        p for p in (str(REPO), os.environ.get("PYTHONPATH", "")) if p
+    )
 
 
 @pytest.fixture

@@ -122,7 +122,7 @@ it imports none of them."""
 def _cross_component_imports() -> set[tuple[str, str]]:
     out = set()
     for module, deps in import_graph().items():
-        if not module.startswith("components.") or module.startswith("components.bench"):
+        if not module.startswith("components."):
             continue
         package = module.split(".")[1]
         for dep in deps:
@@ -149,7 +149,6 @@ def test_the_domain_package_imports_no_component():
 
 
 def test_no_component_package_imports_another():
-    """The bench is a harness, not a component: it may import anything."""
     assert sorted(_cross_component_imports()) == []
 
 
@@ -183,14 +182,9 @@ def test_the_lock_releasing_finder_finds_them():
 def test_components_and_the_framework_never_release_the_lock_for_small_numpy_work():
     """Their processes run several Python threads (components, bus callbacks): a call
     that releases the lock costs up to 5 ms there (measured: the Navigator's and the
-    Sensor Manager's updates waited milliseconds in `np.linalg.norm`). The bench, a
-    harness in a process of its own, may."""
-    files = [
-        p
-        for pkg in PACKAGES
-        for p in (REPO / pkg).rglob("*.py")
-        if "bench" not in p.relative_to(REPO).parts
-    ]
+    Sensor Manager's updates waited milliseconds in `np.linalg.norm`). The bench
+    (fw-bench, tools/bench), a harness in a process of its own, may."""
+    files = [p for pkg in PACKAGES for p in (REPO / pkg).rglob("*.py")]
     found = {
         f"{p.relative_to(REPO)}:{line}"
         for p in files
@@ -229,3 +223,24 @@ def test_every_broad_except_in_the_framework_says_why_and_where_the_error_goes()
             if stripped.startswith("except Exception") and "#" not in stripped:
                 silent.append(f"{path.relative_to(REPO)}:{number}")
     assert silent == []
+
+
+def test_fws_wheel_holds_no_test_code_and_no_harness():
+    """What fw ships (framework/, components/) never imports the specs' scaffolding
+    (tests/) or the experiment harness (fw-bench, a distribution of its own), and its
+    wheel takes only those two packages."""
+    import tomllib
+
+    reached = {
+        f"{module} -> {dep}"
+        for path in (p for pkg in PACKAGES for p in (REPO / pkg).rglob("*.py"))
+        for module in [_module(path)]
+        for dep in run_time_imports(ast.parse(path.read_text(encoding="utf-8")))
+        if dep.split(".")[0] in ("tests", "fw_bench")
+    }
+    assert sorted(reached) == []
+    project = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))
+    assert project["tool"]["setuptools"]["packages"]["find"]["include"] == [
+        "framework*",
+        "components*",
+    ]

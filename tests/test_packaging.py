@@ -1,7 +1,9 @@
 """Spec: fw works installed from its wheel, not only from a checkout. The wheel carries
-the schemas, the console's page and the SEEG panel's script; `fw bench` finds the SEEG
-deployment it measures through FW_HOME (or the current folder) and says so clearly
-when there is none. Built offline from a copy of the sources (nothing downloaded)."""
+the schemas, the console's page and the SEEG panel's script, and neither the specs'
+scaffolding nor the experiment harness; `fw bench` comes from fw-bench's own wheel,
+finds the SEEG deployment it measures through FW_HOME (or the current folder) and says
+so clearly when there is none. Built offline from a copy of the sources (nothing
+downloaded)."""
 
 import os
 import shutil
@@ -28,12 +30,18 @@ def installed(tmp_path_factory):
         shutil.copytree(REPO / name, source / name, ignore=shutil.ignore_patterns("__pycache__"))
     for name in ("pyproject.toml", "README.md"):
         shutil.copy(REPO / name, source / name)
+    shutil.copytree(
+        REPO / "tools" / "bench",
+        root / "bench",
+        ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"),
+    )
     wheels = root / "wheels"
-    subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
-         str(source), "-w", str(wheels)],
-        check=True, capture_output=True, cwd=root,
-    )  # fmt: skip
+    for tree in (source, root / "bench"):
+        subprocess.run(
+            [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
+             str(tree), "-w", str(wheels)],
+            check=True, capture_output=True, cwd=root,
+        )  # fmt: skip
     env_dir = root / "venv"
     venv.EnvBuilder(system_site_packages=True, with_pip=False).create(env_dir)
     python = env_dir / "bin" / "python"
@@ -46,10 +54,12 @@ def installed(tmp_path_factory):
     # neither the checkout nor an editable install's import hook
     folders = [p for p in sys.path if "site-packages" in p and Path(p).is_dir()]
     Path(own, "fw_test_dependencies.pth").write_text("\n".join(folders) + "\n")
-    wheel = next(wheels.glob("fw-*.whl"))
+    # --ignore-installed: the suite's own environment may hold fw (editable), which this
+    # one sees through its system site-packages; pip would then skip the wheel
     subprocess.run(
         [sys.executable, "-m", "pip", "--python", str(python), "install", "--no-deps",
-         "--no-index", "-q", str(wheel)],
+         "--ignore-installed",
+         "--no-index", "-q", *map(str, sorted(wheels.glob("*.whl")))],
         check=True, capture_output=True,
     )  # fmt: skip
     return env_dir
@@ -80,6 +90,15 @@ def test_the_wheel_is_what_runs_and_carries_its_files(installed, tmp_path):
     assert files == "True True"
     checked = run(installed, "fw", "validate", "topologies/pick_place.yaml", cwd=REPO)
     assert checked.returncode == 0, checked.stdout + checked.stderr
+
+
+def test_fws_wheel_holds_only_fw(installed):
+    """The specs' scaffolding and the experiment harness stay out of fw's wheel."""
+    import zipfile
+
+    wheel = next((installed.parent / "wheels").glob("fw-0*.whl"))
+    tops = {name.split("/")[0] for name in zipfile.ZipFile(wheel).namelist()}
+    assert {t for t in tops if not t.endswith(".dist-info")} == {"framework", "components"}
 
 
 def test_fw_bench_needs_a_seeg_home_and_says_where_it_looked(installed, tmp_path):

@@ -44,7 +44,8 @@ from pathlib import Path
 from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tools"))
+# the benchmarks' report writer, importable from the checkout without fw-bench installed
+sys.path.insert(0, str(REPO / "tools" / "bench"))
 FOLDERS = ("topologies", "statecharts", "procedures")
 FAILURES = ("traceback", "unlocated", "unescaped", "crash", "hang", "memory", "slow")
 
@@ -568,7 +569,7 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
 
 def report(args: argparse.Namespace, results: list[dict[str, Any]]) -> dict[str, Any]:
     """Counts per kind and outcome; failing mutants saved under --out for replay."""
-    from benchlib import percentiles, write_report
+    from fw_bench.micro.lib import percentiles, write_report
 
     files = shipped()
     out = Path(args.out)
@@ -628,7 +629,7 @@ def report(args: argparse.Namespace, results: list[dict[str, Any]]) -> dict[str,
 
 
 def main() -> int:
-    from benchlib import bench_parser
+    from fw_bench.micro.lib import bench_parser
 
     parser = bench_parser(__doc__, quick=None)
     parser.add_argument("--n", type=int, default=1000, help="mutants to try (default 1000)")

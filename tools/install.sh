@@ -4,6 +4,8 @@
 #   bash tools/install.sh --test python3 -m pytest      (what tools/test.sh does)
 #   bash tools/install.sh --pinned --test ...           the versions last known good
 #                                                       (tools/constraints.txt)
+#   bash tools/install.sh --bench fw bench --quick      with fw-bench, the experiment
+#                                                       harness (tools/bench; --test has it)
 # What it installs: the Debian packages a run needs when they are missing (graphviz
 # draws the console's live chart; with --test also chromium for the browser tests,
 # and python3-venv where a virtual environment must be made), then fw itself
@@ -17,10 +19,12 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 extras=""
+bench=""
 constraints=()
 while [ $# -gt 0 ]; do
   case "$1" in
-    --test) extras="[test]"; shift ;;
+    --test) extras="[test]"; bench=1; shift ;;
+    --bench) bench=1; shift ;;
     --pinned) constraints=(-c tools/constraints.txt); shift ;;
     *) break ;;
   esac
@@ -67,7 +71,8 @@ elif [ -z "${VIRTUAL_ENV:-}" ]; then
     . .venv/bin/activate
   fi
 fi
-python3 -m pip install --disable-pip-version-check -q -e ".$extras" "${constraints[@]+"${constraints[@]}"}"
+python3 -m pip install --disable-pip-version-check -q -e ".$extras" ${bench:+-e tools/bench} \
+  "${constraints[@]+"${constraints[@]}"}"
 [ -z "$fresh" ] || python3 -m pip freeze --exclude-editable | sed 's/^/  ci: /' | grep -iE \
   ' (numpy|scipy|pyyaml|jsonschema|eclipse-zenoh|pin|mujoco|pytest|hypothesis)==' >&2 || true
 [ $# -eq 0 ] || exec "$@"

@@ -149,7 +149,7 @@ def test_commands_come_from_installed_packages_and_a_broken_one_only_warns(monke
     from framework import cli
 
     installed = {e.name: e.value for e in metadata.entry_points(group=cli.COMMANDS_GROUP)}
-    assert installed["bench"] == "components.bench.cli:add_commands", "declared by the package"
+    assert installed["bench"] == "fw_bench.cli:add_commands", "declared by the package"
     broken = metadata.EntryPoint("broken", "no_such_package.cli:add_commands", cli.COMMANDS_GROUP)
     real = list(metadata.entry_points(group=cli.COMMANDS_GROUP))
     monkeypatch.setattr(

@@ -4,9 +4,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from components.demo import Doubler, Flaky, Sink
+from components.demo import Doubler, Sink
 from framework.component import ALLOWED, LifecycleError, OperationError, State
 from framework.properties import PropertyError, prop
+from tests.support.components import Flaky
 
 S = State
 

@@ -82,7 +82,7 @@ def test_an_operator_command_is_answered_accepted_or_refused_with_the_reason(dep
 
 def test_a_process_that_dies_gives_a_clear_deploy_error(toy, tmp_path):
     toy.components["t2"] = dataclasses.replace(
-        toy.components["t2"], class_path="components.demo:Broken"
+        toy.components["t2"], class_path="tests.support.components:Broken"
     )
     with pytest.raises(
         DeployError,
@@ -94,7 +94,7 @@ def test_a_process_that_dies_gives_a_clear_deploy_error(toy, tmp_path):
 
 def test_a_process_that_never_comes_up_is_named(toy, tmp_path):
     toy.components["supervisor"] = dataclasses.replace(
-        toy.components["supervisor"], class_path="components.demo:Sleepy"
+        toy.components["supervisor"], class_path="tests.support.components:Sleepy"
     )
     deployment = Deployment(toy, tmp_path, liveliness_timeout=2.0)
     with pytest.raises(

@@ -191,9 +191,9 @@ def test_who_turns_back_at_the_edge_of_the_views_has_their_identity_from_the_fir
     ],
 )
 def test_no_two_tracks_ever_bear_one_identity(variant, name):
-    from components.bench import scenes
-    from components.bench.people import detector
     from components.people.kinect_sim import frames
+    from fw_bench import scenes
+    from fw_bench.people import detector
 
     scene = dataclasses.replace({s.name: s for s in scenes.suite(variant)}[name], seconds=12.0)
     cams = scenes.cameras_for(scene)
