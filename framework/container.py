@@ -254,6 +254,11 @@ class Container:
             target.disconnect(key)
         return {"port": target.full_name}
 
+    def find_port(self, component: str, port: str) -> InputPort[Any] | OutputPort[Any]:
+        """A port of a component of this process (`ContainerError` if there is no such
+        component, `PortError` if it has no such port): what the local switches need."""
+        return self._component(component).port(port)
+
     def _component(self, name: str) -> Component:
         component = self.components.get(name)
         if component is None:
@@ -491,7 +496,9 @@ def build(spec: dict[str, Any], bus: Bus) -> Container:
         if item.get("start", False) and not component.start():
             raise ContainerError(f"{component.name}: start failed: {component.last_error}")
     if spec.get("switches"):
-        container.local_switches = LocalSwitches(container, spec["switches"])
+        container.local_switches = LocalSwitches(
+            container.bus, container.name, container.find_port, spec["switches"]
+        )
     container.start()
     return container
 

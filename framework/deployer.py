@@ -42,6 +42,7 @@ from framework.coordinator import (
 from framework.errors import FwError
 from framework.keystore import OPERATOR, Keystore, create_keystore, keystore_for
 from framework.local_switch import switch_spec
+from framework.process import Process
 from framework.statechart.events import Listener
 from framework.statechart.loader import load_statechart
 from framework.topology import CONTROL_PROCESS, Step, Topology, load_topology
@@ -50,24 +51,6 @@ from framework.watchdog import ProcessWatch
 
 class DeployError(FwError):
     """The deployment could not be brought up (what is missing and why)."""
-
-
-@dataclass
-class Process:
-    """One spawned container process."""
-
-    name: str
-    components: list[str]
-    shutdown: str
-    popen: subprocess.Popen[bytes] | None = None
-    stderr: Path | None = None
-
-    def tail(self, lines: int = 5) -> str:
-        """The last lines the process wrote to stderr (for error messages)."""
-        if self.stderr is None or not self.stderr.exists():
-            return ""
-        text = self.stderr.read_text(errors="replace").strip().splitlines()
-        return " | ".join(text[-lines:])
 
 
 LOCAL = "local"

@@ -20,19 +20,24 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from framework import keys, messages
+from framework.bus import Bus
 from framework.clock import late
 from framework.errors import FwError
 from framework.messages import ConfigAck, ConfigRequest
-from framework.ports import InputPort, PortError
+from framework.ports import InputPort, OutputPort, PortError
 
 if TYPE_CHECKING:
-    from framework.container import Container
     from framework.topology import Step, Topology
 
 log = logging.getLogger("fw.local_switch")
+
+PortLookup = Callable[[str, str], "InputPort[Any] | OutputPort[Any]"]
+"""(component, port) -> that port of a component of this process; `KeyError` if there
+is no such component (`Container.find_port`). All the switches know of their process."""
 
 
 def switch_spec(topology: Topology, process: str) -> dict[str, list[dict[str, Any]]]:
@@ -59,13 +64,18 @@ def _step_spec(step: Step) -> dict[str, Any]:
 class LocalSwitches:
     """Applies a container's local switches on the Coordinator's requests."""
 
-    def __init__(self, container: Container, switches: dict[str, list[dict[str, Any]]]):
-        self.container = container
+    def __init__(
+        self,
+        bus: Bus,
+        process: str,
+        find_port: PortLookup,
+        switches: dict[str, list[dict[str, Any]]],
+    ):
+        self.find_port = find_port
         self.switches = switches
         self.done: list[ConfigAck] = []
         """What this process switched, newest last (the last 64)."""
-        bus = container.bus
-        self._publisher = bus.publisher(keys.config_switched(container.name), cache=False)
+        self._publisher = bus.publisher(keys.config_switched(process), cache=False)
         self._subscriber = bus.subscribe(keys.CONFIG_REQUESTS, self._on_request, history=False)
 
     def _on_request(self, sample: Any) -> None:
@@ -96,7 +106,7 @@ class LocalSwitches:
         return ConfigAck(time.time(), request.request_id, True, request.tag)
 
     def _make(self, step: dict[str, Any]) -> None:
-        port = self.container.components[step["component"]].port(step["port"])
+        port = self.find_port(step["component"], step["port"])
         if not isinstance(port, InputPort):
             raise PortError(f"{port.full_name} is not an input port")
         if step["op"] == "disconnect":

@@ -27,14 +27,18 @@ import contextlib
 import subprocess
 import threading
 import time
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, Protocol
 
 from framework import keys, messages
 from framework.messages import EventMessage
+from framework.process import Process
 from framework.topology import Step
 
 if TYPE_CHECKING:
-    from framework.deployer import Deployment, Process
+    from framework.bus import Bus
+    from framework.configurator import Configurator
+    from framework.topology import Topology
 
 EVENTS_KEY = keys.DEPLOYER_EVENTS
 MAX_RESTARTS = 3
@@ -46,10 +50,31 @@ TARGETS = {"Running": "running", "Stopped": "stopped"}
 """Lifecycle states a restarted component is brought back to (others stay as spawned)."""
 
 
+class Watched(Protocol):
+    """What the watch uses of the deployment it watches (framework/deployer.py's
+    `Deployment` is one): its processes and their policy, a way to spawn one again and
+    wait for its components, and the Configurator that restores their wiring."""
+
+    hub: Bus | None
+    topology: Topology
+    processes: list[Process]
+    configurator: Configurator | None
+    report: Callable[[str], None] | None
+
+    def spawn(self, process: Process, fresh: bool = False) -> None:
+        """Start `process` again (its components come up unconfigured)."""
+
+    def wait_alive(self, components: list[str]) -> None:
+        """Return once every one of `components` is alive on the bus; raise otherwise."""
+
+    def wait_gone(self, components: list[str]) -> None:
+        """Return once none of `components` is alive on the bus any more."""
+
+
 class ProcessWatch:
     """Watches a deployment's processes until `stop` (see the module docstring)."""
 
-    def __init__(self, deployment: Deployment):
+    def __init__(self, deployment: Watched):
         self.deployment = deployment
         self.states: dict[str, str] = {}
         """The last lifecycle state each component published."""

@@ -2,7 +2,7 @@
 
 A panel is a class registered under the `fw.console` entry point group (the way pytest
 finds its plugins) and named in a topology's `console: panels:`. It may listen to ports
-and poll operations through the `ConsoleModel`, put tiles in the status row and an
+and poll operations through its `PanelHost` (the console's model), put tiles in the status row and an
 alert (a dialog) in the picture, and ship scripts the page loads: each script
 registers `fwPanels[name] = {init(container), render(state)}` (docs/console.md).
 """
@@ -10,16 +10,39 @@ registers `fwPanels[name] = {init(container), render(state)}` (docs/console.md).
 from __future__ import annotations
 
 import difflib
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from importlib import metadata
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from framework.console.spec import PANELS_GROUP
 from framework.errors import FwError
 
 if TYPE_CHECKING:
-    from framework.console.model import ConsoleModel
+    from framework.topology import Topology
+
+
+class PanelHost(Protocol):
+    """What a panel may use of the console hosting it (framework/console/model.py's
+    `ConsoleModel` is the one fw runs): the topology, its ports and operations, and the
+    named sections of the picture the page gets. Its calls are thread-safe; `listen`
+    handlers run in the bus's delivery thread and must be quick."""
+
+    topology: Topology
+
+    def listen(self, key: str, kind: type, handler: Callable[[Any], None], size: int) -> None:
+        """Call `handler(sample)` for every sample of type `kind` on `key` (a queue of
+        `size`)."""
+
+    def poll(self, section: str, component: str, operation: str, **args: Any) -> None:
+        """Call `component.operation(**args)` a few times a second into `section`."""
+
+    def set(self, name: str, data: Any) -> None:
+        """Put `data` in the picture's section `name`."""
+
+    def get(self, name: str) -> Any:
+        """The picture's section `name` as last set (None if never)."""
 
 
 @dataclass(frozen=True)
@@ -49,8 +72,9 @@ class Panel:
     warnings: tuple[str, ...] = ()
     """Chart events the event log shows as warnings (besides those into the safe state)."""
 
-    def start(self, model: ConsoleModel) -> None:
-        """Subscribe and register polls (`model.listen`, `model.poll`)."""
+    def start(self, model: PanelHost) -> None:
+        """Subscribe and register polls (`model.listen`, `model.poll`). Called once by
+        the console's model as it starts, in the thread that starts it."""
 
     def tiles(self, view: dict[str, Any]) -> list[Tile]:
         """The panel's tiles for one snapshot (`view`: its sections)."""

@@ -17,8 +17,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from framework.console.model import ConsoleModel
-from framework.console.panels import Panel, Tile
+from framework.console.panels import Panel, PanelHost, Tile
 from framework.console.text import robot_line
 from framework.messages import EventMessage, Pose, Scalar
 
@@ -50,7 +49,7 @@ class SeegPanel(Panel):
     warnings = ("e_STOP", "e_NOTRACKER", "e_TFAULT", "e_SETUP_FAILED")
 
     def __init__(self) -> None:
-        self.model: ConsoleModel | None = None
+        self.model: PanelHost | None = None
         self._lock = threading.Lock()
         self._trace: collections.deque = collections.deque()
         self._last_trace = -math.inf
@@ -58,7 +57,7 @@ class SeegPanel(Panel):
         self._fault: tuple[str, float] | None = None  # (tracker in use, verdict stamp)
         self._in_use: str | None = None
 
-    def start(self, model: ConsoleModel) -> None:
+    def start(self, model: PanelHost) -> None:
         """Listen to the robot, the people detector and the reactions; poll reports."""
         self.model = model
         components = model.topology.components
