@@ -26,13 +26,13 @@ from typing import Any
 from framework import keys, messages
 from framework.bus import Bus
 from framework.console.panels import Panel, Tile, load_panels
-from framework.console.spec import PlotSpec, Source, TileSpec
 from framework.coordinator import STATUS_KEY
 from framework.messages import EventMessage
 from framework.ports import ConnPolicy, InputPort, ReadStatus
 from framework.remote import RemoteComponent, RemoteError
 from framework.statechart.model import Statechart
 from framework.topology import Topology
+from framework.topology.console import PlotSpec, Source, TileSpec
 
 LOG_SIZE = 300
 PLOT_RATE = 20.0

@@ -16,8 +16,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from framework.console.spec import PANELS_GROUP
 from framework.errors import FwError
+from framework.topology.console import PANELS_GROUP
 
 if TYPE_CHECKING:
     from framework.topology import Topology

@@ -1,21 +1,16 @@
-"""Topologies: which components run where, how they are wired, and the named
-configurations the Configurator applies (see docs/topologies.md).
-
-Loading checks everything that can be checked before anything starts, and
-reports it like a statechart error (file:line:col, YAML path, hint): the
-schema; that every class imports and is a Component; every port, property
-and operation named anywhere exists, with compatible message types and valid
-values; the statechart, and that every tag it can request is defined here;
-and that every event the chart consumes has a producer.
+"""Reading a topology file and checking everything that can be checked before
+anything starts, each finding located like a statechart's (file:line:col, YAML path,
+hint): the schema; that every class imports and is a Component; every port, property
+and operation named anywhere exists, with compatible message types and valid values;
+the statechart, and that every tag it can request is defined; and that every event
+the chart consumes has a producer.
 """
 
 from __future__ import annotations
 
 import difflib
-import inspect
 import os
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -23,239 +18,26 @@ from framework import keys, schema
 from framework.activity import Activity, ActivityError
 from framework.bus import BusConfig
 from framework.classes import ClassPathError, add_import_paths, load_class
-from framework.component import Component, FileInput, In, Out, declarations
-from framework.console.spec import ConsoleSpec, parse_console
 from framework.durations import parse_duration
 from framework.errors import Finding, FindingsError, FwError, Location, MissingFileError
-from framework.messages import type_name
 from framework.ports import ConnPolicy, PortError
-from framework.properties import Property, PropertyError, load_property_file
+from framework.properties import PropertyError, load_property_file
 from framework.safety import DEFAULT_PROCESS_DEADLINE, SafetySpec, Watch
+from framework.topology.console import parse_console
+from framework.topology.model import (
+    CONTROL_PROCESS,
+    CONTROL_SLACK,
+    DEFAULT_STEP_TIMEOUT,
+    RESERVED_PROCESSES,
+    ClassInfo,
+    ComponentSpec,
+    Configuration,
+    Step,
+    Topology,
+    class_info,
+    declares_file_inputs,
+)
 from framework.yamlio import Document, load_yaml
-
-LIFECYCLE = ("running", "stopped", "preoperational", "ignore")
-CONTROL_PROCESS = "control"
-RESERVED_PROCESSES = (CONTROL_PROCESS, "operator")
-"""Process names fw uses itself (and as certificate subjects, framework/keystore.py)."""
-"""The process `fw deploy` itself runs in (the Coordinator and the Configurator)."""
-CONTROL_SLACK = 4.0
-"""Its heartbeat deadline, in process deadlines: the chart is not on the robot's fast path
-(the Supervisor's reflex and the robot side stop without it), and the process that hosts
-it also hosts the console and, in tests and tools, the caller's own work."""
-DEFAULT_STEP_TIMEOUT = 2.0
-
-
-@dataclass
-class ClassInfo:
-    """What a component class declares, read without instantiating it."""
-
-    cls: type[Component]
-    inputs: dict[str, str]
-    outputs: dict[str, str]
-    properties: dict[str, Property]
-    operations: dict[str, inspect.Signature]
-    emits: tuple[str, ...]
-    readonly: frozenset[str] = frozenset()
-    """Operations that change nothing (`@operation(readonly=True)`)."""
-
-
-def _declares_file_inputs(cls: type) -> bool:
-    """True if a component class declares input ports from its own files."""
-    return getattr(cls.file_inputs, "__func__", None) is not Component.file_inputs.__func__
-
-
-@dataclass
-class ComponentSpec:
-    """One component of the topology."""
-
-    name: str
-    class_path: str
-    process: str
-    activity: Activity
-    properties: dict[str, Any]
-    outputs: dict[str, str]
-    initial: str
-    location: Location
-    info: ClassInfo | None = None
-    file_inputs: dict[str, FileInput] = field(default_factory=dict)
-    """Input ports its configuration files declare (port -> declaration)."""
-
-    def output_key(self, port: str) -> str:
-        """The key an output port publishes on."""
-        return self.outputs.get(port, keys.default_output(self.name, port))
-
-
-@dataclass
-class Step:
-    """One action of a configuration, in order."""
-
-    kind: str  # state, disconnect, connect, set, call, write
-    component: str
-    target: str = ""  # port, property, operation or lifecycle state
-    key: str = ""
-    policy: dict[str, Any] | None = None
-    value: Any = None
-    args: dict[str, Any] = field(default_factory=dict)
-    timeout: float = DEFAULT_STEP_TIMEOUT
-    location: Location = field(default_factory=Location)
-
-    def describe(self) -> str:
-        """Human label used in failure reports: `connect supervisor.lwr_pose -> certus/cto`."""
-        if self.kind == "state":
-            return f"bring {self.component} to {self.target}"
-        if self.kind == "connect":
-            return f"connect {self.component}.{self.target} -> {self.key}"
-        if self.kind == "disconnect":
-            return f"disconnect {self.component}.{self.target}"
-        if self.kind == "set":
-            return f"set {self.component}.{self.target} = {self.value!r}"
-        if self.kind == "call":
-            return f"call {self.component}.{self.target}"
-        return f"write {self.component}.{self.target}"
-
-
-@dataclass
-class Configuration:
-    """A named configuration: pre states, actions, post states, as one ordered list."""
-
-    name: str
-    steps: list[Step]
-    timeout: float
-    doc: str
-    location: Location
-
-
-@dataclass
-class Topology:
-    """A loaded, checked topology."""
-
-    name: str
-    file: str
-    bus: BusConfig
-    processes: dict[str, dict[str, Any]]
-    components: dict[str, ComponentSpec]
-    connections: list[Step]
-    prepare: dict[str, list[str]]
-    configurations: dict[str, Configuration]
-    statechart: Path | None
-    procedure: Path | None
-    external_events: list[str]
-    description: str = ""
-    safety: SafetySpec | None = None
-    """What the robot-side monitor watches (None: the topology declares no monitor)."""
-    hosts: dict[str, str] = field(default_factory=dict)
-    """Other machines -> the address their processes listen on (`hosts:`)."""
-    import_paths: list[Path] = field(default_factory=list)
-    """Folders its component classes are also imported from: its own folder and its
-    `import_paths:` (relative to it)."""
-    console: ConsoleSpec = field(default_factory=ConsoleSpec)
-    """What the operator console shows besides the generic parts (`console:`)."""
-    thinned: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
-    """component -> output port -> thinned key -> rate (Hz): the thinned streams its
-    connections' `rate:` ask the writers for (framework/ports.py)."""
-    file_links: list[tuple[str, FileInput]] = field(default_factory=list)
-    """(component, input) of the input ports components declare in their configuration
-    files (a tracker's tools per sensor of sensors.yaml, a camera per camera of
-    cameras.yaml); `connections:` wires them like any other."""
-
-    def addresses(self) -> list[str]:
-        """Every address a process of this deployment listens on (a certificate of the
-        deployment names them all)."""
-        return list(dict.fromkeys(["127.0.0.1", self.bus.host, *self.hosts.values()]))
-
-    def listen_address(self, host: str) -> str:
-        """Where the processes of `host` listen ('' for the control host's address)."""
-        return self.hosts.get(host, "")
-
-    def heartbeats(self) -> dict[str, float]:
-        """Watched components and how often each proves it runs (s)."""
-        from framework.safety import heartbeat_period
-
-        if self.safety is None:
-            return {}
-        return {
-            w.producer: heartbeat_period(w.deadline)
-            for w in self.safety.watches
-            if w.key == keys.heartbeat(w.producer)
-        }
-
-    def on_loss(self, process: str) -> str:
-        """What losing `process` means: 'stop' (default) or 'restart'."""
-        return str(self.processes.get(process, {}).get("on_loss", "stop"))
-
-    def components_in(self, process: str) -> list[ComponentSpec]:
-        """Components hosted by one process, in topology order."""
-        return [c for c in self.components.values() if c.process == process]
-
-    def published(self) -> list[tuple[str, str, str]]:
-        """(component.port, key, message type) of every output port of the topology."""
-        return [
-            (f"{spec.name}.{port}", spec.output_key(port), kind)
-            for spec in self.components.values()
-            if spec.info is not None
-            for port, kind in spec.info.outputs.items()
-        ]
-
-    def key_of(self, source: str) -> str:
-        """The key of `component.port` if that is an output of the topology, else
-        `source` itself (a key)."""
-        name, _, port = source.partition(".")
-        spec = self.components.get(name)
-        if spec is not None and spec.info is not None and port in spec.info.outputs:
-            return spec.output_key(port)
-        return source
-
-    def local_switch(self, tag: str) -> tuple[str, list[Step]]:
-        """The process that can apply the first steps of configuration `tag` by itself,
-        the moment the chart asks, and those steps: disconnects and connects of input
-        ports its components have, each connect to a key the port keeps a standby
-        subscription to (`prepare:`). A tracker swap is such a switch, so it costs no
-        hop through the Configurator. ('', []) if the configuration begins otherwise."""
-        configuration = self.configurations.get(tag)
-        process, steps = "", []
-        for step in configuration.steps if configuration is not None else []:
-            spec = self.components.get(step.component)
-            if (
-                spec is None
-                or spec.info is None
-                or step.kind not in ("connect", "disconnect")
-                or step.target not in spec.info.inputs
-                or (process and spec.process != process)
-                or (
-                    step.kind == "connect"
-                    and step.key not in self.prepare.get(f"{step.component}.{step.target}", [])
-                )
-            ):
-                break
-            process = spec.process
-            steps.append(step)
-        return process, steps
-
-    def writers_of(self, key: str) -> list[tuple[str, str]]:
-        """(component.port, message type) of every output port publishing on `key`."""
-        return [(writer, kind) for writer, at, kind in self.published() if at == key]
-
-
-def class_info(cls: type[Component]) -> ClassInfo:
-    """Ports, properties and operations a Component class declares."""
-    inputs, outputs, props, ops = {}, {}, {}, {}
-    readonly = set()
-    for attr, decl in declarations(cls):
-        if isinstance(decl, In):
-            inputs[attr] = type_name(decl.type)
-        elif isinstance(decl, Out):
-            outputs[attr] = type_name(decl.type)
-        elif isinstance(decl, Property):
-            props[attr] = decl
-        else:
-            signature = inspect.signature(decl)
-            params = list(signature.parameters.values())[1:]  # drop self
-            ops[attr] = signature.replace(parameters=params)
-            if getattr(decl, "__fw_readonly__", False):
-                readonly.add(attr)
-    emits = tuple(getattr(cls, "emits", ()))
-    return ClassInfo(cls, inputs, outputs, props, ops, emits, frozenset(readonly))
-
 
 FileCheck = Callable[[str, str], list[Finding] | None]
 """Checks a file of a kind (`framework.filekinds.check_file`): its findings, or None
@@ -312,7 +94,7 @@ class _Loader:
             info = self.import_class(spec["class"], (*here, "class")) if self.classes else None
             try:
                 activity = Activity.from_spec(spec.get("activity"))
-                declares_own = info is not None and _declares_file_inputs(info.cls)
+                declares_own = info is not None and declares_file_inputs(info.cls)
                 if info is not None and not declares_own:  # else: once its files are read
                     for port in activity.ports:
                         if port not in info.inputs:
@@ -449,7 +231,7 @@ class _Loader:
         of sensors.yaml, a camera per camera of cameras.yaml): ports like the class's own,
         wired by `connections:` (checked by `file_links` once those are read)."""
         for spec in topo.components.values():
-            if spec.info is None or not _declares_file_inputs(spec.info.cls):
+            if spec.info is None or not declares_file_inputs(spec.info.cls):
                 continue
             self.unread_inputs.add(spec.name)  # until its files are read
             if spec.name in self.bad_files:  # their errors are reported already
@@ -485,7 +267,7 @@ class _Loader:
                 spec.file_inputs[link.port] = link
                 topo.file_links.append((spec.name, link))
         for spec in topo.components.values():
-            if spec.info is None or not _declares_file_inputs(spec.info.cls):
+            if spec.info is None or not declares_file_inputs(spec.info.cls):
                 continue
             for port in spec.activity.ports:
                 if port not in spec.info.inputs and port not in spec.file_inputs:
