@@ -1,321 +1,16 @@
-"""Scenarios: what happens when during a deployment, and what must come of it.
-
-`fw deploy TOPOLOGY --scenario FILE` plays the steps in order while the chart
-runs, then reports PASS or FAIL for every expectation (exit code 1 on FAIL).
-
-    scenario: all_trackers_occluded
-    start: System_OK            # time zero: this state's first entry (default: chart start)
-    timeout: 60s                # give up (FAIL) after this long
-    steps:
-      - {at: 0.5s, send: e_START}                       # as an operator would
-      - {when: Moving_Fast, after: 2s, call: certus.occlude, args: {tool: cto}}
-      - {when: No_Tracker, after: 1s, check: robot.report, expect: {braked: true}}
-      - {at: 20s, send: e_RELEASE}
-      - {when: Moving_Fast, after: 1s, fault: {process: supervision, signal: KILL}}
-      - {when: Moving_Fast, after: 1s, fault: {process: robot, signal: STOP, for: 2s}}
-    expect:
-      - {state: Target_Reached, within: 45s}   # entered at least once (in time)
-      - {event: e_NOTRACKER}                   # seen at least once
-      - {never_state: Fault}
-      - {never_event: e_STOP}
-    invariants:                                # sampled at 10 Hz during the whole run
-      - {while: No_Tracker, grace: 3s, check: robot.report, expect: {braked: true}}
-      - {while: Moving, check: interpolator.report, max: {speed: 0.0751}}
-    end: Target_Reached                        # stop early once this state is active
-
-Steps run one after the other: `at` waits until that time after time zero,
-`when` waits for the named state's first entry since the previous step was
-triggered (consecutive steps with the same `when` share one entry), and `after`
-adds a delay to either. A state is named by its full path or by any dotted
-suffix of it (`Stopped`, `Task.Stopped`). `check` calls an operation and
-compares the given fields of its result, equal to `expect` and no greater than
-`max` (a failed check is a FAIL, the scenario goes on); with `wait: 30s` it asks
-again until they match or the wait is over,
-for outcomes whose timing depends on the host (a simulated arm slows down, it
-does not skip, when the machine is busy). `fault` injects a fault into one of the
-deployment's processes: `KILL` (a crash), `STOP` (a hang: SIGSTOP, then SIGCONT
-after `for`), `TERM` or `INT`; every procedure can so prove how it fails safe.
-"""
+"""Playing a scenario against a running chart and judging it: steps on a thread of
+their own, expectations and invariants checked, one `Outcome` per report line."""
 
 from __future__ import annotations
 
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 from typing import Any
 
-from framework import schema
-from framework.durations import parse_duration
-from framework.errors import Finding, FindingsError, Location
+from framework.scenario.model import Expectation, Fault, Invariant, Scenario, ScenarioStep, matches
 from framework.statechart.events import Event, Listener
-from framework.yamlio import load_yaml
-
-
-@dataclass
-class ScenarioStep:
-    """One step: wait for its time or state, then send, call or check."""
-
-    at: float | None = None
-    when: str | tuple[str, ...] = ""
-    """A state (or several: whichever is entered first) to wait for."""
-    after: float = 0.0
-    send: str = ""
-    call: str = ""
-    check: str = ""
-    payload: dict[str, Any] = field(default_factory=dict)
-    expect: dict[str, Any] = field(default_factory=dict)
-    maximum: dict[str, float] = field(default_factory=dict)
-    """Numeric fields of a check's result that must not exceed these."""
-    wait: float = 0.0
-    fault: Fault | None = None
-    location: Location = field(default_factory=Location)
-
-    def describe(self) -> str:
-        """How the step reads in a report."""
-        when = self.when if isinstance(self.when, str) else " or ".join(self.when)
-        trigger = f"{self.at:g}s" if self.at is not None else f"on {when}"
-        if self.after:
-            trigger += f" +{self.after:g}s"
-        if self.send:
-            action = f"send {self.send}"
-        elif self.call:
-            action = f"call {self.call}"
-        elif self.fault is not None:
-            action = self.fault.describe()
-        else:
-            action = f"check {self.check}"
-        return f"{trigger}: {action}"
-
-
-@dataclass(frozen=True)
-class Fault:
-    """A fault to inject into one process: a signal, and for STOP how long it hangs."""
-
-    process: str
-    signal: str
-    hold: float = 0.0
-
-    def describe(self) -> str:
-        """How the fault reads in a report."""
-        hold = f" for {self.hold:g}s" if self.signal == "STOP" else ""
-        return f"fault {self.process} {self.signal}{hold}"
-
-
-@dataclass
-class Expectation:
-    """One thing the run must (or must never) show."""
-
-    kind: str  # state, event, never_state, never_event
-    name: str | tuple[str, ...]
-    """One name, or (`state` only) several: any one of them counts."""
-    within: float | None = None
-    location: Location = field(default_factory=Location)
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        """The name(s) as a tuple."""
-        return (self.name,) if isinstance(self.name, str) else self.name
-
-    def describe(self) -> str:
-        """How the expectation reads in a report."""
-        text = f"{self.kind.replace('_', ' ')} {' or '.join(self.names)}"
-        return text + (f" within {self.within:g}s" if self.within is not None else "")
-
-
-@dataclass
-class Invariant:
-    """Something that must hold whenever a state is active (after a grace period)."""
-
-    check: str
-    expect: dict[str, Any] = field(default_factory=dict)
-    maximum: dict[str, float] = field(default_factory=dict)
-    state: str = ""  # empty: always (from time zero)
-    grace: float = 0.0
-    location: Location = field(default_factory=Location)
-
-    def describe(self) -> str:
-        """How the invariant reads in a report."""
-        when = f"while {self.state}" + (f" (+{self.grace:g}s)" if self.grace else "")
-        what = ", ".join(
-            [f"{k} == {v!r}" for k, v in self.expect.items()]
-            + [f"{k} <= {v:g}" for k, v in self.maximum.items()]
-        )
-        return f"{when if self.state else 'always'}: {self.check} {what}"
-
-    def violation(self, result: Any) -> str:
-        """'' if `result` satisfies the invariant, else what is wrong."""
-        if not isinstance(result, dict):
-            return f"got {result!r}"
-        wrong = [f"{k}={result.get(k)!r}" for k, v in self.expect.items() if result.get(k) != v]
-        for k, v in self.maximum.items():
-            value = result.get(k)
-            if not isinstance(value, int | float) or value > v:
-                wrong.append(f"{k}={value!r}")
-        return ", ".join(wrong)
-
-
-@dataclass
-class Scenario:
-    """A loaded scenario."""
-
-    name: str
-    steps: list[ScenarioStep]
-    expect: list[Expectation] = field(default_factory=list)
-    start: str = ""
-    timeout: float = 120.0
-    end: str = ""
-    invariants: list[Invariant] = field(default_factory=list)
-
-
-def load_scenario(
-    path: str | Path,
-    events: set[str] | None = None,
-    operations: set[str] | None = None,
-    states: set[str] | None = None,
-    processes: set[str] | None = None,
-) -> Scenario:
-    """Load and check a scenario; `events`, `operations`, `states` (full paths) and
-    `processes`, when given, are the names it may use. Every problem is a located
-    finding."""
-    doc = load_yaml(path)
-    problems = schema.check(doc, "scenario")
-    if problems:
-        raise FindingsError(problems)
-    data = doc.data
-    findings: list[Finding] = []
-
-    def known_state(name: str, where: Location) -> None:
-        if states is not None and not any(_matches(s, name) for s in states):
-            findings.append(
-                Finding("error", "unknown-state", f"the chart has no state {name!r}", where)
-            )
-
-    steps = []
-    for i, spec in enumerate(data["steps"]):
-        where = doc.location(("steps", i))
-        step = ScenarioStep(
-            at=parse_duration(spec["at"]) if "at" in spec else None,
-            when=tuple(spec["when"])
-            if isinstance(spec.get("when"), list)
-            else spec.get("when", ""),
-            after=parse_duration(spec.get("after", 0)),
-            send=spec.get("send", ""),
-            call=spec.get("call", ""),
-            check=spec.get("check", ""),
-            payload=dict(spec.get("payload") or spec.get("args") or {}),
-            expect=dict(spec.get("expect") or {}),
-            maximum={k: float(v) for k, v in (spec.get("max") or {}).items()},
-            wait=parse_duration(spec.get("wait", 0)),
-            location=where,
-        )
-        if "fault" in spec:
-            fault = spec["fault"]
-            if "for" in fault and fault["signal"] != "STOP":
-                findings.append(
-                    Finding("error", "fault", "`for` is how long a STOP hangs: STOP only", where)
-                )
-            if fault["signal"] == "STOP" and "for" not in fault:
-                findings.append(
-                    Finding(
-                        "error",
-                        "fault",
-                        "a STOP needs `for`: how long the process stays hung",
-                        where,
-                        "e.g. {process: robot, signal: STOP, for: 2s}",
-                    )
-                )
-            if processes is not None and fault["process"] not in processes:
-                findings.append(
-                    Finding(
-                        "error",
-                        "unknown-process",
-                        f"the topology has no process {fault['process']!r}",
-                        where,
-                        f"known: {', '.join(sorted(processes))}",
-                    )
-                )
-            step.fault = Fault(
-                fault["process"], fault["signal"], parse_duration(fault.get("for", 0))
-            )
-        for state in (step.when,) if isinstance(step.when, str) else step.when:
-            if state:
-                known_state(state, where)
-        if step.send and events is not None and step.send not in events:
-            findings.append(
-                Finding(
-                    "error",
-                    "unknown-event",
-                    f"the chart has no event {step.send!r}",
-                    where,
-                    f"known: {', '.join(sorted(events))}",
-                )
-            )
-        for ref in (step.call, step.check):
-            if ref and operations is not None and ref not in operations:
-                findings.append(
-                    Finding(
-                        "error", "unknown-operation", f"no operation {ref!r} in the topology", where
-                    )
-                )
-        steps.append(step)
-    expectations = []
-    for i, spec in enumerate(data.get("expect") or []):
-        where = doc.location(("expect", i))
-        ((kind, name),) = ((k, v) for k, v in spec.items() if k != "within")
-        within = parse_duration(spec["within"]) if "within" in spec else None
-        if isinstance(name, list):
-            name = tuple(name)
-        if kind.endswith("state"):
-            for one in (name,) if isinstance(name, str) else name:
-                known_state(one, where)
-        elif events is not None and name not in events:
-            findings.append(
-                Finding("error", "unknown-event", f"the chart has no event {name!r}", where)
-            )
-        expectations.append(Expectation(kind, name, within, where))
-    invariants = []
-    for i, spec in enumerate(data.get("invariants") or []):
-        where = doc.location(("invariants", i))
-        inv = Invariant(
-            spec["check"],
-            dict(spec.get("expect") or {}),
-            {k: float(v) for k, v in (spec.get("max") or {}).items()},
-            spec.get("while", ""),
-            parse_duration(spec.get("grace", 0)),
-            where,
-        )
-        if inv.state:
-            known_state(inv.state, where)
-        if operations is not None and inv.check not in operations:
-            findings.append(
-                Finding(
-                    "error",
-                    "unknown-operation",
-                    f"no operation {inv.check!r} in the topology",
-                    where,
-                )
-            )
-        invariants.append(inv)
-    for key in ("start", "end"):
-        if data.get(key):
-            known_state(data[key], doc.location((key,)))
-    if findings:
-        raise FindingsError(findings)
-    return Scenario(
-        data["scenario"],
-        steps,
-        expectations,
-        data.get("start", ""),
-        parse_duration(data.get("timeout", "120s")),
-        data.get("end", ""),
-        invariants,
-    )
-
-
-def _matches(path: str, name: str) -> bool:
-    return path == name or path.endswith("." + name)
 
 
 @dataclass
@@ -372,7 +67,7 @@ class ScenarioRunner(Listener):
             if (
                 self._zero is None
                 and self.scenario.start
-                and _matches(state.path, self.scenario.start)
+                and matches(state.path, self.scenario.start)
             ):
                 self._zero = now
             self._changed.notify_all()
@@ -412,7 +107,7 @@ class ScenarioRunner(Listener):
                 if index in self.violations or self._zero is None:
                     continue
                 if inv.state:
-                    paths = [p for p in active if _matches(p, inv.state)]
+                    paths = [p for p in active if matches(p, inv.state)]
                     if not paths:
                         continue
                     entered = max(t for t, p in entries if p in paths)
@@ -432,7 +127,7 @@ class ScenarioRunner(Listener):
                 else:
                     self._unanswered_run[index] = 0
                 with self._changed:  # the state may have changed during the call
-                    still = not inv.state or any(_matches(p, inv.state) for p in self.active)
+                    still = not inv.state or any(matches(p, inv.state) for p in self.active)
                 problem = inv.violation(result)
                 self.samples[index] = self.samples.get(index, 0) + 1
                 if problem and still:
@@ -468,7 +163,7 @@ class ScenarioRunner(Listener):
                     return
                 previous = step
             if self.scenario.end:
-                self._wait(lambda: any(_matches(s, self.scenario.end) for s in self.active))
+                self._wait(lambda: any(matches(s, self.scenario.end) for s in self.active))
             else:
                 self._wait(self._expectations_met)
         finally:
@@ -483,7 +178,7 @@ class ScenarioRunner(Listener):
 
             def entered() -> bool:
                 for t, path in self.entries:
-                    if t >= mark and any(_matches(path, n) for n in names):
+                    if t >= mark and any(matches(path, n) for n in names):
                         self._mark = t
                         return True
                 return False
@@ -558,7 +253,7 @@ class ScenarioRunner(Listener):
         zero = self._zero if self._zero is not None else self._started
         limit = None if e.within is None else zero + e.within
         if e.kind in ("state", "never_state"):
-            times = [t for t, p in self.entries if any(_matches(p, n) for n in e.names)]
+            times = [t for t, p in self.entries if any(matches(p, n) for n in e.names)]
         else:
             came = [(t, payload) for t, n, payload in self.events if n in e.names]
             times = [t for t, _ in came]
@@ -608,7 +303,7 @@ class ScenarioRunner(Listener):
         if not inv.state:
             return f"the run ended within its {inv.grace:g}s grace: nothing checked"
         with self._changed:
-            entered = any(_matches(path, inv.state) for _, path in self.entries)
+            entered = any(matches(path, inv.state) for _, path in self.entries)
         if not entered:
             return f"{inv.state} was never active: nothing checked"
         return (
