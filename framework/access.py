@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 from framework import keys
 from framework.keystore import CONTROL, OPERATOR
+from framework.topology.model import StepKind
 
 if TYPE_CHECKING:
     from framework.topology import Topology
@@ -64,7 +65,7 @@ def process_keys(topology: Topology, process: str) -> dict[str, list[str]]:
             outputs.update(thinned)  # its streams thinned for slower readers (`rate:`)
     for configuration in topology.configurations.values():
         for step in configuration.steps:
-            if step.kind != "connect" or step.component not in names:
+            if step.kind is not StepKind.CONNECT or step.component not in names:
                 continue
             spec = topology.components[step.component]
             if spec.info is not None and step.target in spec.info.outputs and step.key:

@@ -44,7 +44,7 @@ from framework.errors import FwError
 from framework.messages import ConfigAck, ConfigRequest
 from framework.ports import ReadStatus
 from framework.remote import RemoteComponent, RemoteError
-from framework.topology import Step, Topology
+from framework.topology import Step, StepKind, Topology
 
 CALL_TAG = "@call"
 WRITE_TAG = "@write"
@@ -205,12 +205,12 @@ class Configurator(Component):
         topology's initial wiring (a restarted process starts with that one)."""
         initial = {(s.component, s.target): (s.key, s.policy) for s in self.topology.connections}
         steps = [
-            Step("connect", comp, port, key=key, policy=policy)
+            Step(StepKind.CONNECT, comp, port, key=key, policy=policy)
             for (comp, port), (key, policy) in self.wiring.items()
             if comp in components and initial.get((comp, port)) != (key, policy)
         ]
         steps += [
-            Step("disconnect", comp, port)
+            Step(StepKind.DISCONNECT, comp, port)
             for (comp, port) in initial
             if comp in components and (comp, port) not in self.wiring
         ]
@@ -296,17 +296,17 @@ class Configurator(Component):
         planned: dict[tuple[str, str], Any] = {}
         for step in steps:
             port = (step.component, step.target)
-            if step.kind == "disconnect":
+            if step.kind is StepKind.DISCONNECT:
                 planned[port] = None
-            elif step.kind == "connect":
+            elif step.kind is StepKind.CONNECT:
                 wired = planned[port] if port in planned else self.wiring.get(port)
                 planned[port] = (step.key, step.policy)
                 if not force and wired == (step.key, step.policy):
                     continue  # already so: re-applying is harmless
             if (
-                step.kind == "write"
+                step.kind is StepKind.WRITE
                 or not batches
-                or batches[-1][0].kind == "write"
+                or batches[-1][0].kind is StepKind.WRITE
                 or batches[-1][0].component != step.component
             ):
                 batches.append([step])
@@ -314,28 +314,14 @@ class Configurator(Component):
                 batches[-1].append(step)
         return batches
 
-    @staticmethod
-    def _request(step: Step) -> dict[str, Any]:
-        if step.kind == "state":
-            return {"op": "bring", "target": step.target}
-        if step.kind == "connect":
-            return {"op": "connect", "port": step.target, "key": step.key, "policy": step.policy}
-        if step.kind == "disconnect":
-            return {"op": "disconnect", "port": step.target}
-        if step.kind == "set":
-            return {"op": "exchange", "property": step.target, "value": step.value}
-        return {"op": "call", "operation": step.target, "args": step.args}
-
     def _send(self, batch: list[Step], undo: list[Step], deadline: float | None = None) -> None:
         first = batch[0]
-        if first.kind == "write":
+        if first.kind is StepKind.WRITE:
             self._write(first)
             return
         remote = RemoteComponent(self.bus, first.component, sum(s.timeout for s in batch))
         try:
-            answer = remote.request(
-                "batch", deadline=deadline, steps=[self._request(s) for s in batch]
-            )
+            answer = remote.request("batch", deadline=deadline, steps=[s.request() for s in batch])
         except RemoteError as exc:
             raise StepFailed(first.describe(), str(exc)) from None
         done = batch if answer["failed"] is None else batch[: answer["failed"]]
@@ -349,20 +335,26 @@ class Configurator(Component):
     def _record(self, step: Step, result: Any, undo: list[Step]) -> None:
         """Remember what an executed step changed, to undo it if a later step fails."""
         where = (step.component, step.target)
-        if step.kind == "connect":
+        if step.kind is StepKind.CONNECT:
             previous = self.wiring.get(where)
             self.wiring[where] = (step.key, step.policy)
             undo.append(self._restore(step, previous))
-        elif step.kind == "disconnect":
+        elif step.kind is StepKind.DISCONNECT:
             undo.append(self._restore(step, self.wiring.pop(where, None)))
-        elif step.kind == "set":
+        elif step.kind is StepKind.SET:
             undo.append(
-                Step("set", step.component, step.target, value=result["old"], timeout=step.timeout)
+                Step(
+                    StepKind.SET,
+                    step.component,
+                    step.target,
+                    value=result["old"],
+                    timeout=step.timeout,
+                )
             )
 
     def _restore(self, step: Step, previous: tuple[str, Any] | None) -> Step:
         if previous is None:
-            return Step("disconnect", step.component, step.target, timeout=step.timeout)
+            return Step(StepKind.DISCONNECT, step.component, step.target, timeout=step.timeout)
         return Step(
             "connect",
             step.component,

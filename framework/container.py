@@ -5,32 +5,24 @@ control queryable (lifecycle, connect/disconnect, properties, operations,
 introspection) and publishes every state change. It shuts down in order on
 SIGTERM/SIGINT: stop, cleanup, close the Zenoh session (an unclosed session
 can hang the process). Processes are started with `spawn_container`, a fresh
-interpreter (never fork: Zenoh sessions are not fork-safe).
-
-    python -m framework.container --spec '{"name": "c1", "bus": {...}, "components": [...]}'
+interpreter (never fork: Zenoh sessions are not fork-safe): framework/container_main.py
+is the process around it. The requests themselves: framework/control_requests.py.
 """
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import json
 import logging
-import os
-import signal
-import subprocess
-import sys
 import threading
 import time
-from collections.abc import Callable
 from typing import Any
 
 from framework import keys, messages
 from framework.activity import Activity, RealTimeExecutor, SteppedExecutor
-from framework.bus import Bus, BusConfig, BusError
-from framework.classes import add_import_paths, load_class
-from framework.clock import late
+from framework.bus import Bus, BusError
 from framework.component import Component, Heartbeat, LifecycleError, Refusal, StateChange
+from framework.control_requests import ContainerError, ControlRequests
 from framework.errors import FwError
 from framework.local_switch import LocalSwitches
 from framework.messages import EventMessage, Scalar
@@ -38,14 +30,6 @@ from framework.ports import ConnPolicy, InputPort, OutputPort, PortError
 from framework.safety import ProcessHeartbeat, SafetyMonitor, SafetySpec
 
 log = logging.getLogger("fw.container")
-
-
-class ContainerError(FwError):
-    """A container request or specification is wrong."""
-
-
-class LateRequest(ContainerError):
-    """A request whose deadline passed before it could run: refused, never run late."""
 
 
 class Container:
@@ -73,6 +57,8 @@ class Container:
         self._refusal_publishers: dict[str, Any] = {}
         self._lock = threading.RLock()
         self._closed = False
+        self.requests = ControlRequests(self)
+        """Runs the control requests of the hosted components (framework/control_requests.py)."""
         self._declared.append(bus.queryable(keys.container(name), self._on_container_query))
         self.local_switches: LocalSwitches | None = None
         """Configurations whose first steps this process switches itself (see
@@ -131,7 +117,7 @@ class Container:
         self.executor.add(component, activity)
         self._declared.append(
             self.bus.queryable(
-                f"{keys.control(name)}/**", lambda q, c=component: self._on_query(c, q)
+                f"{keys.control(name)}/**", lambda q, c=component: self.requests.on_query(c, q)
             )
         )
         self._declared.append(self.bus.token(keys.alive(name)))
@@ -268,100 +254,7 @@ class Container:
             )
         return component
 
-    # -- remote requests -------------------------------------------------------------
-    def handle(self, component: Component, request: dict[str, Any]) -> Any:
-        """Execute one control request (the body of the control queryable). A request
-        whose `deadline` (wall clock) has passed is refused with `LateRequest`, unrun."""
-        op = request.get("op")
-        name = component.name
-        deadline = request.get("deadline")
-
-        def check() -> None:
-            why = late(deadline)
-            if why:
-                raise LateRequest(f"{name}: {op}: {why}")
-
-        check()
-        if op in ("configure", "start", "stop", "cleanup", "recover"):
-            ok = getattr(component, op)()
-            return {"ok": ok, "state": component.state.value, "reason": component.last_error}
-        if op == "state":
-            return {"state": component.state.value, "reason": component.last_error}
-        if op == "bring":
-            return bring(component, request["target"], check)
-        if op == "exchange":
-            old = component.get_property(request["property"])
-            return {
-                "old": old,
-                "value": component.set_property(request["property"], request["value"]),
-            }
-        if op == "batch":
-            return self._batch(component, request["steps"], deadline)
-        if op == "describe":
-            info = component.describe()
-            info["activity"] = self.activities[name].to_dict()
-            info["container"] = self.name
-            return info
-        if op == "connect":
-            return self.connect(name, request["port"], request["key"], request.get("policy"))
-        if op == "disconnect":
-            return self.disconnect(name, request["port"], request.get("key"))
-        if op == "prepare":
-            return self.prepare(name, request["port"], request["key"])
-        if op == "get":
-            return component.get_property(request["property"])
-        if op == "set":
-            return component.set_property(request["property"], request["value"])
-        if op == "set_many":
-            component.set_properties(request["values"])
-            return {k: component.get_property(k) for k in request["values"]}
-        if op == "call":
-            return component.invoke(request["operation"], request.get("args", {}), deadline)
-        raise ContainerError(f"unknown request {op!r}")
-
-    def _batch(
-        self, component: Component, steps: list[dict[str, Any]], deadline: float | None = None
-    ) -> dict[str, Any]:
-        """Run several requests on one component in one round trip; stop at the first
-        failure (a step that would start after the batch's deadline is one) and say
-        which one failed and why."""
-        results: list[Any] = []
-        for index, step in enumerate(steps):
-            try:
-                result = self.handle(component, {**step, "deadline": deadline})
-            except (FwError, KeyError, TypeError, ValueError) as exc:
-                reason = f"missing field {exc}" if isinstance(exc, KeyError) else str(exc)
-                return {"results": results, "failed": index, "error": reason}
-            results.append(result)
-            if step.get("op") == "bring" and not result["ok"]:
-                return {"results": results, "failed": index, "error": result["reason"]}
-        return {"results": results, "failed": None, "error": ""}
-
-    def _on_query(self, component: Component, query: Any) -> None:
-        try:
-            payload = query.payload
-            request = json.loads(bytes(payload.to_bytes())) if payload is not None else {}
-            if not isinstance(request, dict):
-                raise ContainerError("a request must be a JSON object")
-            op = str(request.get("op", ""))
-            expected = keys.control_request(component.name, op, str(request.get("operation", "")))
-            if str(query.key_expr) != expected:  # the access rules judged it by its key
-                raise ContainerError(
-                    f"a {op!r} request must be sent on {expected}, not {query.key_expr}"
-                )
-            result = self.handle(component, request)
-            query.reply(query.key_expr, json.dumps({"result": result}))
-        except (FwError, KeyError, TypeError, ValueError) as exc:
-            message = f"missing field {exc}" if isinstance(exc, KeyError) else str(exc)
-            with contextlib.suppress(Exception):
-                query.reply_err(json.dumps({"error": message, "kind": type(exc).__name__}))
-        except Exception as exc:  # nothing crashes the container
-            log.exception("request to %s failed", component.name)
-            with contextlib.suppress(Exception):
-                query.reply_err(
-                    json.dumps({"error": f"internal error: {exc}", "kind": type(exc).__name__})
-                )
-
+    # -- the container's own query -----------------------------------------------
     def _on_container_query(self, query: Any) -> None:
         try:
             body = bytes(query.payload.to_bytes()) if query.payload is not None else b"{}"
@@ -413,183 +306,3 @@ class Container:
             with contextlib.suppress(Exception):
                 entity.undeclare()
         self.bus.close()
-
-
-# lifecycle state -> operations that lead to each target state
-LIFECYCLE_PATHS: dict[tuple[str, str], list[str]] = {
-    ("PreOperational", "stopped"): ["configure"],
-    ("PreOperational", "running"): ["configure", "start"],
-    ("Stopped", "running"): ["start"],
-    ("Stopped", "preoperational"): ["cleanup"],
-    ("Running", "stopped"): ["stop"],
-    ("Running", "preoperational"): ["stop", "cleanup"],
-    ("RunTimeError", "running"): ["recover"],
-    ("RunTimeError", "stopped"): ["stop"],
-    ("RunTimeError", "preoperational"): ["stop", "cleanup"],
-    ("Exception", "preoperational"): ["recover"],
-    ("Exception", "stopped"): ["recover", "configure"],
-    ("Exception", "running"): ["recover", "configure", "start"],
-}
-TARGET_STATES = {"running": "Running", "stopped": "Stopped", "preoperational": "PreOperational"}
-
-
-def bring(
-    component: Component, target: str, check: Callable[[], None] | None = None
-) -> dict[str, Any]:
-    """Drive a component to `running`, `stopped` or `preoperational` by the shortest
-    path of lifecycle operations; ok False with the reason if a hook refuses. `check`
-    runs before each operation (a request's deadline) and may raise to stop there."""
-    if target not in TARGET_STATES:
-        raise ContainerError(f"unknown target state {target!r} (known: {', '.join(TARGET_STATES)})")
-    start = component.state.value
-    if start == TARGET_STATES[target]:
-        return {"ok": True, "state": start, "reason": "", "from": start}
-    path = LIFECYCLE_PATHS.get((start, target))
-    if path is None:
-        return {
-            "ok": False,
-            "state": start,
-            "from": start,
-            "reason": f"{component.name!r} is {start}; it cannot be brought to "
-            f"{TARGET_STATES[target]}",
-        }
-    for op in path:
-        if check is not None:
-            check()
-        if not getattr(component, op)():
-            return {
-                "ok": False,
-                "state": component.state.value,
-                "from": start,
-                "reason": f"{op} failed: {component.last_error or 'its hook returned False'}",
-            }
-    return {"ok": True, "state": component.state.value, "reason": "", "from": start}
-
-
-# -- process entry point ---------------------------------------------------------------
-def build(spec: dict[str, Any], bus: Bus) -> Container:
-    """A container with the components of `spec` added (configured/started if asked)."""
-    container = Container(spec["name"], bus, beat=spec.get("beat"))
-    add_import_paths(spec.get("import_paths", []))
-    for item in spec.get("components", []):
-        cls = load_class(item["class"])
-        component = cls(item["name"])
-        safety = item.get("safety")
-        container.add(
-            component,
-            Activity.from_spec(item.get("activity")),
-            item.get("properties"),
-            item.get("outputs"),
-            item.get("heartbeat"),
-            SafetySpec.from_dict(safety) if safety else None,
-        )
-        for port, thinned in (item.get("thinned") or {}).items():
-            for key, rate in thinned.items():
-                container.connect_output(component.name, port, key, rate)
-        for port, conn in (item.get("connections") or {}).items():
-            container.connect(component.name, port, conn["key"], conn.get("policy"))
-        for port, candidates in (item.get("prepare") or {}).items():
-            for key in candidates:
-                container.prepare(component.name, port, key)
-        if item.get("configure", False) and not component.configure():
-            raise ContainerError(f"{component.name}: configure failed: {component.last_error}")
-        if item.get("start", False) and not component.start():
-            raise ContainerError(f"{component.name}: start failed: {component.last_error}")
-    if spec.get("switches"):
-        container.local_switches = LocalSwitches(
-            container.bus, container.name, container.find_port, spec["switches"]
-        )
-    container.start()
-    return container
-
-
-# Component processes keep Python's switch interval (5 ms): with 0.5 ms (tried,
-# 2026-11-27) a thread forced to hand the interpreter over every half millisecond
-# waited for the CPU each time it took it back on a saturated 2-core host (a Sensor
-# Manager update of 5 ms CPU took 50-120 ms, 55 hand-overs; perf sched), and the SEEG
-# approach stopped on that heartbeat in 3 of 3 runs, against 1 of 4 without. A device
-# loop's process sets its own (framework/realtime.py): there the loop must not wait.
-
-
-def raise_priority(nice: int, process: str) -> bool:
-    """Run this process at `nice` (negative: ahead of the host's other programs), so
-    a busy host does not starve the robot side or the safety producers past their
-    deadlines; needs root or CAP_SYS_NICE, otherwise a warning and False."""
-    try:
-        current = os.getpriority(os.PRIO_PROCESS, 0)
-        if current > nice:
-            os.setpriority(os.PRIO_PROCESS, 0, nice)
-        return True
-    except OSError as exc:
-        log.warning(
-            "process %s: cannot raise its priority to nice %d (%s): on a busy host a "
-            "safety deadline may be missed and stop the robot",
-            process,
-            nice,
-            exc.strerror,
-        )
-        return False
-
-
-def serve(spec: dict[str, Any], ready: Callable[[], None] | None = None) -> int:
-    """Run a container process until SIGTERM/SIGINT or a shutdown request."""
-    done = threading.Event()
-    starting = True
-
-    def on_signal(*_: object) -> None:
-        done.set()
-        if starting:  # still constructing components: give up at once
-            raise SystemExit(0)
-
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, on_signal)
-    if spec.get("nice"):
-        raise_priority(int(spec["nice"]), spec["name"])
-    bus = Bus(BusConfig.from_dict(spec["bus"]), hub=spec.get("hub", False), subject=spec["name"])
-    try:
-        container = build(spec, bus)
-    except BaseException:
-        bus.close()
-        raise
-    starting = False
-    if ready is not None:
-        ready()
-    parent = os.getppid()
-    while not done.is_set() and not bus.closed:
-        done.wait(0.2)
-        if os.getppid() != parent:  # whoever started us died: never linger as an orphan
-            log.warning(
-                "container %s: parent process %d is gone; shutting down", spec["name"], parent
-            )
-            break
-    container.shutdown()
-    return 0
-
-
-def spawn_container(spec: dict[str, Any], **popen: Any) -> subprocess.Popen[bytes]:
-    """Start a container in a new Python process (never a fork)."""
-    return subprocess.Popen(
-        [sys.executable, "-m", "framework.container", "--spec", json.dumps(spec)], **popen
-    )
-
-
-def main(argv: list[str] | None = None) -> int:
-    """`python -m framework.container --spec JSON`: one container process."""
-    parser = argparse.ArgumentParser(
-        prog="python -m framework.container", description="Host fw components in this process."
-    )
-    parser.add_argument("--spec", required=True, help="container specification as JSON")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
-    try:
-        return serve(json.loads(args.spec))
-    except FwError as exc:
-        print(f"fw container: {exc}", file=sys.stderr)
-        return 1
-    except Exception as exc:  # a component's own code failed while starting
-        print(f"fw container: {type(exc).__name__}: {exc}", file=sys.stderr)
-        return 1
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -29,7 +29,8 @@ from framework.access import access_control
 from framework.activity import Activity
 from framework.bus import Bus, BusConfig, BusError
 from framework.configurator import Configurator
-from framework.container import Container, raise_priority, spawn_container
+from framework.container import Container
+from framework.container_main import raise_priority, spawn_container
 from framework.coordinator import (
     ACKS_KEY,
     EVENTS_KEY,
@@ -45,7 +46,7 @@ from framework.local_switch import switch_spec
 from framework.process import Process
 from framework.statechart.events import Listener
 from framework.statechart.loader import load_statechart
-from framework.topology import CONTROL_PROCESS, Step, Topology, load_topology
+from framework.topology import CONTROL_PROCESS, Step, StepKind, Topology, load_topology
 from framework.watchdog import ProcessWatch
 
 
@@ -101,7 +102,7 @@ def host_of(topology: Topology, process: str) -> str:
 
 
 def container_spec(topology: Topology, process: str) -> dict[str, Any]:
-    """What `python -m framework.container` needs to host one process of the topology."""
+    """What `python -m framework.container_main` needs to host one process of the topology."""
     components = []
     for spec in topology.components_in(process):
         connections = {
@@ -261,7 +262,7 @@ class Deployment:
             if spec.initial not in ("preoperational", "ignore"):
                 outcome = self.configurator.run_steps(
                     f"initial state of {spec.name}",
-                    [Step("state", spec.name, spec.initial, timeout=5.0)],
+                    [Step(StepKind.STATE, spec.name, spec.initial, timeout=5.0)],
                 )
                 if not outcome.ok:
                     raise DeployError(f"{outcome.step}: {outcome.reason}")

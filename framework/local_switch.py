@@ -29,6 +29,7 @@ from framework.clock import late
 from framework.errors import FwError
 from framework.messages import ConfigAck, ConfigRequest
 from framework.ports import InputPort, OutputPort, PortError
+from framework.topology.model import StepKind
 
 if TYPE_CHECKING:
     from framework.topology import Step, Topology
@@ -51,14 +52,9 @@ def switch_spec(topology: Topology, process: str) -> dict[str, list[dict[str, An
 
 
 def _step_spec(step: Step) -> dict[str, Any]:
-    return {
-        "op": step.kind,
-        "component": step.component,
-        "port": step.target,
-        "key": step.key,
-        "policy": step.policy,
-        "label": step.describe(),
-    }
+    """The step as its container gets it: the request a container runs for it
+    (`Step.request`), with its component and its label for the report."""
+    return {**step.request(), "component": step.component, "label": step.describe()}
 
 
 class LocalSwitches:
@@ -106,10 +102,10 @@ class LocalSwitches:
         return ConfigAck(time.time(), request.request_id, True, request.tag)
 
     def _make(self, step: dict[str, Any]) -> None:
-        port = self.find_port(step["component"], step["port"])
+        port = self.find_port(step["component"], step["target"])
         if not isinstance(port, InputPort):
             raise PortError(f"{port.full_name} is not an input port")
-        if step["op"] == "disconnect":
+        if step["step"] == StepKind.DISCONNECT:
             port.disconnect()
         elif step["key"] in port.prepared:  # its type was checked when it was prepared
             port.connect(step["key"], step["policy"])

@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from framework import keys, messages
 from framework.messages import EventMessage
 from framework.process import Process
-from framework.topology import Step
+from framework.topology import Step, StepKind
 
 if TYPE_CHECKING:
     from framework.bus import Bus
@@ -209,7 +209,7 @@ class ProcessWatch:
             return
         steps = configurator.restore_steps(set(process.components))
         steps += [
-            Step("state", name, TARGETS[state], timeout=5.0)
+            Step(StepKind.STATE, name, TARGETS[state], timeout=5.0)
             for name, state in wanted.items()
             if state in TARGETS
         ]

@@ -17,6 +17,7 @@ from framework.topology.model import (
     ComponentSpec,
     Configuration,
     Step,
+    StepKind,
     Topology,
     class_info,
 )
@@ -30,6 +31,7 @@ __all__ = [
     "ComponentSpec",
     "Configuration",
     "Step",
+    "StepKind",
     "Topology",
     "check_topology",
     "class_info",

@@ -33,6 +33,7 @@ from framework.topology.model import (
     ComponentSpec,
     Configuration,
     Step,
+    StepKind,
     Topology,
     class_info,
     declares_file_inputs,
@@ -466,14 +467,16 @@ class _Loader:
         ((kind, arg),) = spec.items()
         here = (*where, kind)
         loc = self.doc.location(here)
-        if kind == "disconnect":
+        if kind == StepKind.DISCONNECT:
             comp, port, _ = self.port(topo, arg, here)
             return (
-                Step("disconnect", comp.name, port, timeout=timeout, location=loc) if comp else None
+                Step(StepKind.DISCONNECT, comp.name, port, timeout=timeout, location=loc)
+                if comp
+                else None
             )
-        if kind == "connect":
+        if kind == StepKind.CONNECT:
             return self.connection(topo, arg, here, timeout)
-        if kind == "set":
+        if kind == StepKind.SET:
             comp_name, prop = arg["property"].split(".", 1)
             comp = self.component(topo, comp_name, here)
             if comp is None or comp.info is None:
@@ -492,8 +495,8 @@ class _Loader:
             except PropertyError as exc:
                 self.error("property-value", str(exc), (*here, "value"))
                 return None
-            return Step("set", comp_name, prop, value=value, timeout=timeout, location=loc)
-        if kind == "call":
+            return Step(StepKind.SET, comp_name, prop, value=value, timeout=timeout, location=loc)
+        if kind == StepKind.CALL:
             ref = arg if isinstance(arg, str) else arg["operation"]
             args = {} if isinstance(arg, str) else dict(arg.get("args") or {})
             step_timeout = timeout
@@ -517,10 +520,10 @@ class _Loader:
             except TypeError as exc:
                 self.error("operation-args", f"{ref}: {exc}", here)
                 return None
-            return Step("call", comp_name, op, args=args, timeout=step_timeout, location=loc)
+            return Step(StepKind.CALL, comp_name, op, args=args, timeout=step_timeout, location=loc)
         comp, port, _ = self.port(topo, arg["port"], (*here, "port"), "in")
         return (
-            Step("write", comp.name, port, value=arg["value"], timeout=timeout, location=loc)
+            Step(StepKind.WRITE, comp.name, port, value=arg["value"], timeout=timeout, location=loc)
             if comp
             else None
         )

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import inspect
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -72,11 +73,31 @@ class ComponentSpec:
         return self.outputs.get(port, keys.default_output(self.name, port))
 
 
+class StepKind(StrEnum):
+    """What one configuration step does. The same word everywhere a step goes: the
+    topology (`connect`, `disconnect`, `set`, `call`, `write` under `do:`; `pre:` and
+    `post:` give `state` steps), the request a container runs (`Step.request`), the
+    local switches, the recording and `fw log` (`Step.describe`)."""
+
+    STATE = "state"
+    """Bring a component to a lifecycle state (`target`: running, stopped...)."""
+    CONNECT = "connect"
+    """Connect an input port (`target`) to a key with a policy."""
+    DISCONNECT = "disconnect"
+    """Disconnect an input port (`target`)."""
+    SET = "set"
+    """Set a property (`target`) to `value`; its old value comes back (for undo)."""
+    CALL = "call"
+    """Call an operation (`target`) with `args`."""
+    WRITE = "write"
+    """Write `value` on an output port (`target`): the Configurator does it itself."""
+
+
 @dataclass
 class Step:
     """One action of a configuration, in order."""
 
-    kind: str  # state, disconnect, connect, set, call, write
+    kind: StepKind
     component: str
     target: str = ""  # port, property, operation or lifecycle state
     key: str = ""
@@ -86,19 +107,32 @@ class Step:
     timeout: float = DEFAULT_STEP_TIMEOUT
     location: Location = field(default_factory=Location)
 
+    def __post_init__(self) -> None:
+        self.kind = StepKind(self.kind)  # ValueError for a kind fw does not have
+
     def describe(self) -> str:
-        """Human label used in failure reports: `connect supervisor.lwr_pose -> certus/cto`."""
-        if self.kind == "state":
-            return f"bring {self.component} to {self.target}"
-        if self.kind == "connect":
-            return f"connect {self.component}.{self.target} -> {self.key}"
-        if self.kind == "disconnect":
-            return f"disconnect {self.component}.{self.target}"
-        if self.kind == "set":
-            return f"set {self.component}.{self.target} = {self.value!r}"
-        if self.kind == "call":
-            return f"call {self.component}.{self.target}"
-        return f"write {self.component}.{self.target}"
+        """Human label used in reports, the recording and `fw log`:
+        `connect supervisor.lwr_pose -> certus/cto`, `state supervisor -> running`."""
+        where = f"{self.kind} {self.component}.{self.target}"
+        if self.kind is StepKind.STATE:
+            return f"state {self.component} -> {self.target}"
+        if self.kind is StepKind.CONNECT:
+            return f"{where} -> {self.key}"
+        if self.kind is StepKind.SET:
+            return f"{where} = {self.value!r}"
+        return where
+
+    def request(self) -> dict[str, Any]:
+        """The request a container runs for this step (framework/control_requests.py):
+        `{"op": "step", "step": kind, "target": ...}` and what the kind needs."""
+        out: dict[str, Any] = {"op": "step", "step": str(self.kind), "target": self.target}
+        if self.kind is StepKind.CONNECT:
+            out |= {"key": self.key, "policy": self.policy}
+        elif self.kind is StepKind.SET:
+            out["value"] = self.value
+        elif self.kind is StepKind.CALL:
+            out["args"] = self.args
+        return out
 
 
 @dataclass
@@ -205,11 +239,11 @@ class Topology:
             if (
                 spec is None
                 or spec.info is None
-                or step.kind not in ("connect", "disconnect")
+                or step.kind not in (StepKind.CONNECT, StepKind.DISCONNECT)
                 or step.target not in spec.info.inputs
                 or (process and spec.process != process)
                 or (
-                    step.kind == "connect"
+                    step.kind is StepKind.CONNECT
                     and step.key not in self.prepare.get(f"{step.component}.{step.target}", [])
                 )
             ):

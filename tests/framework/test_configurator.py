@@ -14,7 +14,8 @@ import pytest
 from framework import keys
 from framework.activity import Activity
 from framework.configurator import Configurator, StepFailed
-from framework.container import Container, build
+from framework.container import Container
+from framework.container_main import build
 from framework.deployer import container_spec
 from framework.messages import ConfigAck, ConfigRequest
 from framework.recorder import FlightRecorder, read_recording

@@ -14,7 +14,8 @@ from framework import keys
 from framework.activity import Activity
 from framework.bus import BusError
 from framework.component import FileInput
-from framework.container import Container, spawn_container
+from framework.container import Container
+from framework.container_main import spawn_container
 from framework.errors import FwError
 from framework.messages import Scalar
 from framework.properties import prop
@@ -220,7 +221,7 @@ def test_a_batch_stops_at_the_first_step_that_would_start_late(hub):
     component = container.add(Slow("slow"))
     container.start()
     try:
-        answer = container.handle(
+        answer = container.requests.handle(
             component,
             {
                 "op": "batch",

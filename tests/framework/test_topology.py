@@ -29,10 +29,10 @@ def test_the_toy_topology_is_clean():
     assert list(topology.configurations) == ["setup", "tracker_1_up", "tracker_2_up", "broken"]
     steps = [s.describe() for s in topology.configurations["tracker_1_up"].steps]
     assert steps == [
-        "bring supervisor to stopped",
+        "state supervisor -> stopped",
         "disconnect supervisor.inp",
         "connect supervisor.inp -> t1/out",
-        "bring supervisor to running",
+        "state supervisor -> running",
     ]
 
 

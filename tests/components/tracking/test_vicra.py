@@ -8,7 +8,7 @@ import pytest
 
 from components.tracking.ndi_driver import NdiTracker
 from framework import keys
-from framework.container import spawn_container
+from framework.container_main import spawn_container
 from framework.messages import Pose
 from framework.ports import InputPort, ReadStatus
 from framework.remote import RemoteComponent

@@ -329,7 +329,7 @@ def test_a_failed_setup_opens_a_dialog_and_the_robot_never_moves(bus_config, tmp
         page.goto(server.url)
         page.wait_for_selector("#alert[open]", timeout=WAIT_MS)
         assert page.inner_text("#alert-title") == "Setup failed"
-        assert "setup_components: bring patient to running" in page.inner_text("#alert-text")
+        assert "setup_components: state patient -> running" in page.inner_text("#alert-text")
         text_is(page, "operation", "stopped")
         assert page.is_disabled("#start")
 

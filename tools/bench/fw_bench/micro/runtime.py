@@ -30,7 +30,7 @@ from typing import Any
 
 from framework import keys
 from framework.bus import Bus, BusConfig, free_port
-from framework.container import spawn_container
+from framework.container_main import spawn_container
 from framework.messages import Scalar
 from framework.ports import InputPort, OutputPort
 from framework.remote import RemoteComponent
