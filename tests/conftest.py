@@ -335,9 +335,9 @@ def play_scenario(
         history.extend(deployment.configurator.history)
     failed = [o for o in deployment.runner.report() if not o.ok]
     if failed:  # what the chart was told, so a CI log says why it stopped
-        from framework.scenario import Outcome
+        from framework.scenario import Verdict
 
-        failed.append(Outcome(False, "the chart's events", "; ".join(log.seen) or "none"))
+        failed.append(Verdict(False, "the chart's events", "; ".join(log.seen) or "none"))
     return failed
 
 

@@ -39,16 +39,16 @@ after `for`), `TERM` or `INT`; every procedure can so prove how it fails safe.
 
 from framework.scenario.loader import load_scenario
 from framework.scenario.model import Expectation, Fault, Invariant, Scenario, ScenarioStep
-from framework.scenario.runner import UNANSWERED_LIMIT, Outcome, ScenarioRunner
+from framework.scenario.runner import UNANSWERED_LIMIT, ScenarioRunner, Verdict
 
 __all__ = [
     "UNANSWERED_LIMIT",
     "Expectation",
     "Fault",
     "Invariant",
-    "Outcome",
     "Scenario",
     "ScenarioRunner",
     "ScenarioStep",
+    "Verdict",
     "load_scenario",
 ]

@@ -1,5 +1,5 @@
 """Playing a scenario against a running chart and judging it: steps on a thread of
-their own, expectations and invariants checked, one `Outcome` per report line."""
+their own, expectations and invariants checked, one `Verdict` per report line."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from framework.statechart.events import Event, Listener
 
 
 @dataclass
-class Outcome:
-    """One line of the final report."""
+class Verdict:
+    """One line of the final report: passed or failed (or not exercised), and why."""
 
     ok: bool
     what: str
@@ -51,7 +51,7 @@ class ScenarioRunner(Listener):
         self.events: list[tuple[float, str, Any]] = []  # (monotonic time, name, payload)
         self.active: set[str] = set()
         self.done: list[ScenarioStep] = []
-        self.outcomes: list[Outcome] = []
+        self.outcomes: list[Verdict] = []
         self._mark = 0.0  # when the previous step's `at` or `when` was met
         self.violations: dict[int, tuple[float, str]] = {}  # invariant -> first (time, what)
         self.samples: dict[int, int] = {}
@@ -152,7 +152,7 @@ class ScenarioRunner(Listener):
         try:
             if not self._wait(lambda: self._zero is not None):
                 self.outcomes.append(
-                    Outcome(False, f"start state {self.scenario.start} never entered")
+                    Verdict(False, f"start state {self.scenario.start} never entered")
                 )
                 return
             previous: ScenarioStep | None = None
@@ -185,7 +185,7 @@ class ScenarioRunner(Listener):
 
             if not self._wait(entered):
                 self.outcomes.append(
-                    Outcome(False, step.describe(), f"{' or '.join(names)} never entered")
+                    Verdict(False, step.describe(), f"{' or '.join(names)} never entered")
                 )
                 return False
         if step.at is not None:
@@ -194,7 +194,7 @@ class ScenarioRunner(Listener):
         if step.after:
             self._wait(lambda: False, time.monotonic() + step.after)
         if self._stop.is_set() or time.monotonic() >= self._deadline():
-            self.outcomes.append(Outcome(False, step.describe(), "not played: time out"))
+            self.outcomes.append(Verdict(False, step.describe(), "not played: time out"))
             return False
         elapsed = time.monotonic() - self._zero
         try:
@@ -236,10 +236,10 @@ class ScenarioRunner(Listener):
                 got = result if missing or not isinstance(result, dict) else wrong
                 wanted = {**step.expect, **{k: f"<= {v:g}" for k, v in step.maximum.items()}}
                 detail = "" if ok else f"expected {wanted}, got {got}"
-                self.outcomes.append(Outcome(ok, step.describe(), detail))
+                self.outcomes.append(Verdict(ok, step.describe(), detail))
             self._report(f"scenario   {elapsed:7.3f}s {step.describe()}")
         except Exception as exc:  # a failing step is reported, the scenario goes on
-            self.outcomes.append(Outcome(False, step.describe(), f"failed: {exc}"))
+            self.outcomes.append(Verdict(False, step.describe(), f"failed: {exc}"))
             self._report(f"scenario   {elapsed:7.3f}s {step.describe()} failed: {exc}")
         self.done.append(step)
         return True
@@ -275,26 +275,26 @@ class ScenarioRunner(Listener):
         if self._thread is not None:
             self._thread.join(2.0)
 
-    def report(self) -> list[Outcome]:
+    def report(self) -> list[Verdict]:
         """Every check and expectation with PASS or FAIL."""
         out = list(self.outcomes)
         played = len(self.done)
         if played < len(self.scenario.steps) and not any(not o.ok for o in self.outcomes):
-            out.append(Outcome(False, f"only {played} of {len(self.scenario.steps)} steps played"))
+            out.append(Verdict(False, f"only {played} of {len(self.scenario.steps)} steps played"))
         for e in self.scenario.expect:
             ok, detail = self._check(e)
-            out.append(Outcome(ok, e.describe(), detail))
+            out.append(Verdict(ok, e.describe(), detail))
         for index, inv in enumerate(self.scenario.invariants):
             samples = self.samples.get(index, 0)
             if index in self.violations:
                 at, what = self.violations[index]
-                out.append(Outcome(False, inv.describe(), f"violated at {at:.3f}s: {what}"))
+                out.append(Verdict(False, inv.describe(), f"violated at {at:.3f}s: {what}"))
             elif samples:
                 missed = self.unanswered.get(index, 0)
                 note = f", {missed} more asked but not answered in time" if missed else ""
-                out.append(Outcome(True, inv.describe(), f"{samples} samples{note}"))
+                out.append(Verdict(True, inv.describe(), f"{samples} samples{note}"))
             else:
-                out.append(Outcome(True, inv.describe(), self._unrun(inv), exercised=False))
+                out.append(Verdict(True, inv.describe(), self._unrun(inv), exercised=False))
         return out
 
     def _unrun(self, inv: Invariant) -> str:

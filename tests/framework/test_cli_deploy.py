@@ -324,12 +324,12 @@ def test_the_scenario_report_keeps_invariants_never_exercised_apart(capsys):
     from types import SimpleNamespace
 
     from framework.cli_deploy import scenario_report
-    from framework.scenario import Outcome
+    from framework.scenario import Verdict
 
     outcomes = [
-        Outcome(True, "state Moving"),
-        Outcome(True, "while Stopped: robot.report braked == True", "12 samples"),
-        Outcome(
+        Verdict(True, "state Moving"),
+        Verdict(True, "while Stopped: robot.report braked == True", "12 samples"),
+        Verdict(
             True, "while No_Tracker: robot.report braked == True", "No_Tracker never held", False
         ),
     ]
@@ -338,7 +338,7 @@ def test_the_scenario_report_keeps_invariants_never_exercised_apart(capsys):
     out = capsys.readouterr().out
     assert "NOT RUN while No_Tracker" in out and "PASS    while Stopped" in out
     assert "PASSED: 2 passed, 0 failed, 1 not run (nothing to check: see each)" in out
-    outcomes.append(Outcome(False, "never event e_STOP", "at 3s"))
+    outcomes.append(Verdict(False, "never event e_STOP", "at 3s"))
     assert scenario_report(runner) == 1
     assert "FAILED: 2 passed, 1 failed, 1 not run" in capsys.readouterr().out
 
