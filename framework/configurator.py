@@ -100,12 +100,15 @@ class Configurator(Component):
         self._forced: dict[str, float] = {}  # component -> when steps were last forced on it
 
     def start_hook(self) -> bool:
+        """Listen for the processes' local switch reports (framework/local_switch.py).
+        Runs in the thread that starts the component."""
         self._report_subscription = self.bus.subscribe(
             keys.ALL_SWITCHED, self._on_report, history=False
         )
         return True
 
     def stop_hook(self) -> None:
+        """Stop listening for local switch reports."""
         subscription, self._report_subscription = self._report_subscription, None
         if subscription is not None:
             subscription.undeclare()
@@ -123,6 +126,8 @@ class Configurator(Component):
 
     # -- the request port ----------------------------------------------------------
     def update_hook(self) -> None:
+        """Serve every configuration request waiting, in order, and ack each (in the
+        component's own thread, woken by a request's arrival)."""
         while True:
             status, request = self.requests.read()
             if status is not ReadStatus.NEW:

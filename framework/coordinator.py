@@ -194,6 +194,9 @@ class Coordinator(Component):
 
     # -- lifecycle -----------------------------------------------------------------
     def start_hook(self) -> bool:
+        """Build the interpreter and start the chart's own thread (`fw-<name>`), which
+        from now on takes every event and ack; watch the components' liveliness if asked.
+        Runs in the thread that starts the component (the deployer's)."""
         self.events.on_data = self.acks.on_data = lambda _port: self._wake.set()
         self.interpreter = Interpreter(
             self.chart,
@@ -224,6 +227,8 @@ class Coordinator(Component):
             self.inject(COMPONENT_LOST, payload)
 
     def stop_hook(self) -> None:
+        """Stop watching liveliness and end the chart's thread (joined for up to 2 s).
+        Runs in the thread that stops the component."""
         if self._tokens is not None:
             self._tokens.undeclare()
             self._tokens = None

@@ -265,3 +265,36 @@ def test_fws_wheel_holds_no_test_code_and_no_harness():
         "framework*",
         "components*",
     ]
+
+
+def undocumented(module_name: str) -> list[str]:
+    """Public classes and functions of a module (and public methods of its classes)
+    without a docstring of their own or one they inherit from the method they override
+    (`inspect.getdoc`: a Listener's `on_entry` says what it does once, in Listener)."""
+    import importlib
+    import inspect
+
+    module = importlib.import_module(module_name)
+    out = []
+    for name, value in vars(module).items():
+        if name.startswith("_") or getattr(value, "__module__", None) != module_name:
+            continue
+        if not (inspect.isclass(value) or inspect.isfunction(value)):
+            continue
+        if not inspect.getdoc(value):
+            out.append(f"{module_name}.{name}")
+        if inspect.isclass(value):
+            for attr, member in vars(value).items():
+                if attr.startswith("_") or not callable(getattr(member, "fget", member)):
+                    continue
+                if not inspect.getdoc(getattr(value, attr)):
+                    out.append(f"{module_name}.{name}.{attr}")
+    return out
+
+
+def test_every_public_definition_of_the_framework_says_what_it_is():
+    """What a newcomer reads first: every public class and function of framework/ has
+    a docstring (its own, or the one of the hook or listener method it overrides)."""
+    modules = sorted(m for m in import_graph() if m.startswith("framework"))
+    missing = [name for m in modules for name in undocumented(m)]
+    assert missing == []

@@ -58,6 +58,7 @@ class Tile:
     wide: bool = False
 
     def view(self) -> dict[str, Any]:
+        """The tile as the page gets it (a JSON object of its fields)."""
         return asdict(self)
 
 

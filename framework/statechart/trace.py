@@ -20,6 +20,7 @@ class TracePrinter(Listener):
         self.as_json = as_json
 
     def emit(self, kind: str, text: str, **data: Any) -> None:
+        """Print one step: `[time] kind text`, or a JSON line of `data` with t and kind."""
         if self.as_json:
             print(json.dumps({"t": round(self.clock.now(), 6), "kind": kind, **data}))
         else:

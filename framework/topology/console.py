@@ -32,6 +32,7 @@ class Source:
 
     @property
     def polled(self) -> bool:
+        """True for an operation's answer polled a few times a second (no port key)."""
         return not self.key
 
     @property
