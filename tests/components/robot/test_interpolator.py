@@ -706,3 +706,40 @@ def test_the_new_path_begins_exactly_where_braking_on_the_old_one_ended():
         c.step()
         furthest = max(furthest, float((c.pose[:3, 3] - start) @ down))
     assert furthest - at == pytest.approx(speed**2 / (2 * 2.0), abs=1e-9)
+
+
+def test_a_stop_standing_on_a_cap_of_zero_ends_where_it_stands_with_no_way_back():
+    """Stopped while people hold the motion still, the robot is where the stop was
+    asserted: it ends STOPPED there, never passing through a return leg, even if the
+    cap rises before the stop is finished."""
+    c = core()
+    c.go_to(goal_at((0.0, 0.0, -0.20)))
+    for _ in range(600):
+        c.step()
+    c.set_cap(0.0)
+    for _ in range(800):
+        c.step()
+    assert c.phase is Phase.MOVING and c.speed == 0.0, "standing"
+    c.stop()
+    stop_pose = c.pose.copy()
+    c.set_cap(float("inf"))
+    phases = []
+    for _ in range(50):
+        c.step()
+        phases.append(c.phase)
+    assert Phase.RETURNING not in phases and c.phase is Phase.STOPPED
+    assert np.allclose(c.pose, stop_pose, atol=1e-12)
+
+
+def test_a_stop_whose_way_back_a_cap_of_zero_forbids_ends_where_braking_ended():
+    """The way back to the stop point is a motion too: with people holding the robot
+    still it is not made; the robot ends STOPPED where braking ended."""
+    c = core()
+    c.go_to(goal_at((0.0, 0.0, -0.25)))
+    for _ in range(700):
+        c.step()
+    c.stop()
+    c.set_cap(0.0)
+    trace = run(c, Phase.STOPPED, limit=2000)
+    assert c.speed == 0.0 and c.s > c.stop_s, "it braked past the stop point"
+    assert max(s for s, _ in trace) == pytest.approx(c.s, abs=1e-12), "and stayed there"

@@ -504,7 +504,7 @@ def test_a_cycle_says_its_ik_time_and_the_rest_of_the_interpolation_as_stages(ro
     the rest of the cycle's steps (on a clock that moves only inside the two)."""
     from components.robot import interpolator
 
-    now = [0.0]
+    now = [100.0]  # a clock's reading, not a duration
     monkeypatch.setattr(interpolator.time, "perf_counter", lambda: now[0])
     robot.cycle()
     core = robot.interp.core
@@ -541,3 +541,21 @@ def test_setpoints_commands_and_status_are_stamped_with_the_cycles_time(robot):
     said = robot.drain("setpoint") + robot.drain("command") + robot.drain("status")
     assert len(said) == 3
     assert all(before <= m.stamp <= after for m in said)
+
+
+def test_one_arm_state_is_caught_up_on_at_most_forty_steps(robot):
+    """A step per cycle the arm says passed (its monitor mode reports every few), but a
+    gap of more than 40 cycles is a stall, not time to catch up on: the command never
+    leaps ahead of an arm that was away."""
+    robot.cycle()
+    robot.limits(velocity=0.075)
+    robot.interp.call("go_to", goal="target")
+    robot.cycle(1000)
+    core = robot.interp.core
+    assert core.speed == pytest.approx(0.075, abs=1e-12), "at cruise speed"
+    for cycles, steps in ((10, 10), (40, 40), (41, 40), (100, 40)):
+        s = core.s
+        robot.writers["joints"].write(JointState(0.0, tuple(robot.q), cycles=cycles))
+        robot.interp.update_hook()
+        robot.drain("setpoint")
+        assert core.s - s == pytest.approx(steps * 0.001 * 0.075, rel=1e-9), cycles
