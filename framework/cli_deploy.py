@@ -252,7 +252,8 @@ def cmd_deploy(args: argparse.Namespace) -> int:
             for op in c.info.operations
         }
         processes = {c.process for c in topology.components.values()}
-        scenario = load_scenario(args.scenario, events, operations, states, processes)
+        hosts = {*topology.hosts, "control"}
+        scenario = load_scenario(args.scenario, events, operations, states, processes, hosts)
         if not args.record:  # a scenario run always leaves its flight recording
             args.record = str(Path("out") / "scenarios" / f"{scenario.name}.mcap")
             Path(args.record).parent.mkdir(parents=True, exist_ok=True)

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from framework import keys
+from framework import keys, netns
 from framework.access import access_control
 from framework.activity import Activity
 from framework.bus import Bus, BusConfig, BusError
@@ -180,6 +180,8 @@ class Deployment:
     keys: Path | None = None
     """A keystore made beforehand (`fw keys`); default: a fresh one per run."""
     _own_keys: Keystore | None = None
+    _heals: list[threading.Timer] = field(default_factory=list)
+    """Link faults still to be healed (healed at once by `stop`: no link stays down)."""
 
     @classmethod
     def from_file(cls, path: str | Path, workdir: str | Path, **options: Any) -> Deployment:
@@ -377,7 +379,12 @@ class Deployment:
 
     def inject_fault(self, fault: Any) -> None:
         """Signal one of this deployment's processes (a scenario's `fault` step, `fw bench
-        chaos`): KILL, TERM, INT, or STOP followed by SIGCONT after `fault.hold` s."""
+        chaos`): KILL, TERM, INT, or STOP followed by SIGCONT after `fault.hold` s; or,
+        for a `link` fault, cut or impair a host's network link for `fault.hold` s (the
+        hosts as network namespaces of this machine: framework/netns.py)."""
+        if fault.link:
+            self._link_fault(fault)
+            return
         process = next((p for p in self.processes if p.name == fault.process), None)
         if process is None or process.popen is None or process.popen.poll() is not None:
             raise DeployError(f"no running process {fault.process!r} in this deployment")
@@ -390,6 +397,28 @@ class Deployment:
             resume.daemon = True
             resume.start()
 
+    def _link_fault(self, fault: Any) -> None:
+        hosts = netns.Hosts(prefix=os.environ.get("FW_NETNS_PREFIX", "fw-"))
+        if not Path("/run/netns", hosts.namespace(fault.link)).exists():
+            raise DeployError(
+                f"no network namespace {hosts.namespace(fault.link)!r} for host "
+                f"{fault.link!r}: link faults need the hosts as network namespaces of this "
+                "machine (python -m framework.netns up)"
+            )
+        if self.watch is not None:
+            self.watch.note("fault_injected", fault.link, fault.describe())
+        try:
+            if fault.partition:
+                hosts.cut(fault.link)
+            else:
+                hosts.impair(fault.link, fault.loss, fault.delay, fault.jitter)
+        except netns.NetnsError as exc:
+            raise DeployError(str(exc)) from None
+        heal = threading.Timer(fault.hold, hosts.heal, args=(fault.link,))
+        heal.daemon = True
+        heal.start()
+        self._heals.append(heal)
+
     def send(self, event: str, payload: dict[str, Any] | None = None) -> None:
         """Give the chart an event (as `fw send` does)."""
         if self.coordinator is None:
@@ -398,6 +427,11 @@ class Deployment:
 
     def stop(self) -> None:
         """Shut down in order: `shutdown: first` processes, then the others, then control."""
+        for heal in self._heals:
+            if heal.is_alive():
+                heal.cancel()
+                with contextlib.suppress(Exception):  # the namespace may be gone already
+                    heal.function(*heal.args)
         if self.watch is not None:
             self.watch.stop()  # what exits from here on is the shutdown, not a loss
         if self.runner is not None:

@@ -112,6 +112,9 @@ class Document:
     data: Any
     file: str
     marks: dict[PathKey, tuple[int, int]] = field(default_factory=dict)
+    origins: dict[PathKey, str] = field(default_factory=dict)
+    """The file a value came from where it is not `file` (a document that extends
+    another: framework/topology/loader.py's `extends:`)."""
 
     def location(self, path: Iterable[str | int]) -> Location:
         """Location of `path`, or of its nearest ancestor that has one."""
@@ -120,7 +123,48 @@ class Document:
         while probe and probe not in self.marks:
             probe = probe[:-1]
         line, column = self.marks.get(probe, (1, 1))
-        return Location(self.file, line, column, format_path(key))
+        return Location(self.origins.get(probe, self.file), line, column, format_path(key))
+
+    def origin(self, path: Iterable[str | int]) -> str:
+        """The file the value at `path` (or its nearest ancestor with a place) was
+        written in."""
+        probe = tuple(path)
+        while probe and probe not in self.marks:
+            probe = probe[:-1]
+        return self.origins.get(probe, self.file)
+
+
+def extend(base: Document, overlay: Document) -> Document:
+    """`overlay` laid over `base`: mappings merged key by key (the overlay's value wins;
+    mappings in both are merged in turn), anything else replaced. Every value keeps
+    the place, and file, it was written in."""
+    marks = dict(base.marks)
+    origins = {key: base.origins.get(key, base.file) for key in base.marks}
+
+    def take(path: PathKey) -> None:
+        for key in [k for k in marks if k[: len(path)] == path]:
+            del marks[key]
+            origins.pop(key, None)
+        for key, mark in overlay.marks.items():
+            if key[: len(path)] == path:
+                marks[key] = mark
+                origins[key] = overlay.origins.get(key, overlay.file)
+
+    def merge(under: Any, over: Any, path: PathKey) -> Any:
+        if isinstance(under, dict) and isinstance(over, dict):
+            out = dict(under)
+            for key, value in over.items():
+                out[key] = merge(under.get(key), value, (*path, key))
+            if path in overlay.marks:
+                marks.setdefault(path, overlay.marks[path])
+            return out
+        take(path)
+        return over
+
+    data = merge(base.data, overlay.data, ())
+    return Document(
+        data, overlay.file, marks, {k: f for k, f in origins.items() if f != overlay.file}
+    )
 
 
 @dataclass

@@ -108,6 +108,12 @@ class ArmController(Component):
     fri_remote = prop(
         str, "127.0.0.1:49938", doc="the robot interface's FRI address (KRL friSetup's)"
     )
+    fri_local = prop(
+        str,
+        "",
+        doc="the KRC's own address on the FRI link (default: the robot interface's host, "
+        "as on one machine)",
+    )
     mode = prop(str, "position", choices=list(MODES), doc="joint servo mode at power on")
     model_errors = prop(
         str,
@@ -184,7 +190,7 @@ class ArmController(Component):
         self._inbox.clear()
         self._close()
         self._socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._socket.bind((self.remote[0], 0))
+        self._socket.bind((self.fri_local or self.remote[0], 0))
         self._socket.setblocking(False)
         return True
 
@@ -376,7 +382,7 @@ class ArmController(Component):
         """Another sender on the KRC's host (a forged measurement comes from it)."""
         if self._forger is None:
             self._forger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            self._forger.bind((self.remote[0], 0))
+            self._forger.bind((self.fri_local or self.remote[0], 0))
         return self._forger
 
     def _publish(self, steps: int) -> None:

@@ -18,10 +18,11 @@ def load_scenario(
     operations: set[str] | None = None,
     states: set[str] | None = None,
     processes: set[str] | None = None,
+    hosts: set[str] | None = None,
 ) -> Scenario:
-    """Load and check a scenario; `events`, `operations`, `states` (full paths) and
-    `processes`, when given, are the names it may use. Every problem is a located
-    finding."""
+    """Load and check a scenario; `events`, `operations`, `states` (full paths),
+    `processes` and `hosts`, when given, are the names it may use. Every problem is a
+    located finding."""
     doc = load_yaml(path)
     problems = schema.check(doc, "scenario")
     if problems:
@@ -53,7 +54,10 @@ def load_scenario(
             wait=parse_duration(spec.get("wait", 0)),
             location=where,
         )
-        if "fault" in spec:
+        if "fault" in spec and "link" in spec["fault"]:
+            step.fault, problems = _link_fault(spec["fault"], where, hosts)
+            findings += problems
+        elif "fault" in spec:
             fault = spec["fault"]
             if "for" in fault and fault["signal"] != "STOP":
                 findings.append(
@@ -155,3 +159,49 @@ def load_scenario(
         data.get("end", ""),
         invariants,
     )
+
+
+def _link_fault(spec: dict, where: Location, hosts: set[str] | None) -> tuple[Fault, list[Finding]]:
+    """A `fault: {link: ...}` step: a partition, or loss/delay/jitter for a while."""
+    problems = []
+    impairs = [k for k in ("loss", "delay", "jitter") if k in spec]
+    if ("partition" in spec) == bool(impairs):
+        problems.append(
+            Finding(
+                "error",
+                "fault",
+                "a link fault is either a `partition` or `loss`/`delay`/`jitter`",
+                where,
+                "e.g. {link: cameras, partition: 2s} or {link: tracking, delay: 80ms, for: 5s}",
+            )
+        )
+    if impairs and "for" not in spec:
+        problems.append(
+            Finding("error", "fault", "loss, delay and jitter need `for`: how long", where)
+        )
+    if "partition" in spec and "for" in spec:
+        problems.append(
+            Finding("error", "fault", "a partition says its own length: no `for`", where)
+        )
+    if hosts is not None and spec["link"] not in hosts:
+        problems.append(
+            Finding(
+                "error",
+                "unknown-host",
+                f"the topology has no host {spec['link']!r}",
+                where,
+                f"known: {', '.join(sorted(hosts)) or 'none (a topology without hosts:)'}",
+            )
+        )
+    loss = spec.get("loss", 0.0)
+    if isinstance(loss, str):
+        loss = float(loss.strip().rstrip("%")) / 100.0
+    fault = Fault(
+        link=spec["link"],
+        partition="partition" in spec,
+        hold=parse_duration(spec.get("partition", spec.get("for", 0))),
+        loss=float(loss),
+        delay=parse_duration(spec.get("delay", 0)),
+        jitter=parse_duration(spec.get("jitter", 0)),
+    )
+    return fault, problems

@@ -47,14 +47,28 @@ class ScenarioStep:
 
 @dataclass(frozen=True)
 class Fault:
-    """A fault to inject into one process: a signal, and for STOP how long it hangs."""
+    """A fault to inject: into one process (a signal, and for STOP how long it hangs),
+    or into one host's network link (`link`: a partition of `hold` s, or loss, delay
+    and jitter for `hold` s)."""
 
-    process: str
-    signal: str
+    process: str = ""
+    signal: str = ""
     hold: float = 0.0
+    link: str = ""
+    partition: bool = False
+    loss: float = 0.0
+    delay: float = 0.0
+    jitter: float = 0.0
 
     def describe(self) -> str:
         """How the fault reads in a report."""
+        if self.link:
+            if self.partition:
+                return f"fault link {self.link} partition {self.hold:g}s"
+            said = [f"loss {self.loss:.0%}"] if self.loss else []
+            said += [f"delay {self.delay * 1e3:g}ms"] if self.delay else []
+            said += [f"jitter {self.jitter * 1e3:g}ms"] if self.jitter else []
+            return f"fault link {self.link} {' '.join(said)} for {self.hold:g}s"
         hold = f" for {self.hold:g}s" if self.signal == "STOP" else ""
         return f"fault {self.process} {self.signal}{hold}"
 

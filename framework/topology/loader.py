@@ -19,7 +19,14 @@ from framework.activity import Activity, ActivityError
 from framework.bus import BusConfig
 from framework.classes import ClassPathError, add_import_paths, load_class
 from framework.durations import parse_duration
-from framework.errors import Finding, FindingsError, FwError, Location, MissingFileError
+from framework.errors import (
+    Finding,
+    FindingsError,
+    FwError,
+    LocatedError,
+    Location,
+    MissingFileError,
+)
 from framework.ports import ConnPolicy, PortError
 from framework.properties import PropertyError, load_property_file
 from framework.safety import DEFAULT_PROCESS_DEADLINE, SafetySpec, Watch
@@ -38,7 +45,7 @@ from framework.topology.model import (
     class_info,
     declares_file_inputs,
 )
-from framework.yamlio import Document, load_yaml
+from framework.yamlio import Document, extend, load_yaml
 
 FileCheck = Callable[[str, str], list[Finding] | None]
 """Checks a file of a kind (`framework.filekinds.check_file`): its findings, or None
@@ -55,6 +62,11 @@ class _Loader:
         self.checked_files: dict[str, list[Finding]] = {}  # "kind:path" -> its findings
         self.bad_files: set[str] = set()  # components a named file of which has errors
         self.unread_inputs: set[str] = set()  # components whose file inputs are unknown
+
+    def here(self, *path: str | int) -> Path:
+        """The folder of the file the value at `path` was written in (paths a topology
+        gives are relative to it, also where it extends another topology)."""
+        return Path(self.doc.origin(path)).parent
 
     def error(self, code: str, message: str, path: tuple[Any, ...], hint: str = "") -> None:
         self.findings.append(Finding("error", code, message, self.doc.location(path), hint))
@@ -132,7 +144,9 @@ class _Loader:
                     try:
                         values = {
                             **load_property_file(
-                                self.base / spec["property_file"], info.properties, name
+                                self.here(*here, "property_file") / spec["property_file"],
+                                info.properties,
+                                name,
                             ),
                             **values,
                         }
@@ -672,7 +686,7 @@ def check_topology(
     and `fw deploy` pass `framework.filekinds.check_file`, which sits above this
     module)."""
     try:
-        doc = load_yaml(path)
+        doc = _read(Path(path), ())
     except FwError as exc:
         location = getattr(exc, "location", Location(str(path)))
         return None, [Finding("error", "yaml", getattr(exc, "message", str(exc)), location)]
@@ -682,6 +696,10 @@ def check_topology(
     data = doc.data
     loader = _Loader(doc, classes, files)
     base = Path(doc.file).parent
+
+    def folder(key: str) -> Path:
+        return Path(doc.origin((key,))).parent
+
     bus_spec = data.get("bus") or {}
     bus = BusConfig(
         namespace=bus_spec.get("namespace", data["topology"]),
@@ -700,8 +718,8 @@ def check_topology(
         connections=[],
         prepare={},
         configurations={},
-        statechart=base / data["statechart"] if "statechart" in data else None,
-        procedure=base / data["procedure"] if "procedure" in data else None,
+        statechart=folder("statechart") / data["statechart"] if "statechart" in data else None,
+        procedure=folder("procedure") / data["procedure"] if "procedure" in data else None,
         external_events=list(data.get("external_events") or []),
         description=data.get("description", ""),
         hosts={name: spec["address"] for name, spec in (data.get("hosts") or {}).items()},
@@ -752,6 +770,38 @@ def check_topology(
         loader.chart(topo, data)
     findings = sorted(loader.findings, key=lambda f: (f.location.file, f.location.line))
     return topo, findings
+
+
+MAX_EXTENDS = 8
+"""How deep topologies may extend one another (a chain longer than this is a mistake)."""
+
+
+def _read(path: Path, chain: tuple[str, ...]) -> Document:
+    """A topology file, laid over the one it `extends:` (recursively): the other file's
+    path is relative to this one; its values stay located in their own file."""
+    doc = load_yaml(path)
+    data = doc.data
+    if not isinstance(data, dict) or "extends" not in data:
+        return doc
+    where = doc.location(("extends",))
+    name = data["extends"]
+    if not isinstance(name, str) or not name:
+        raise LocatedError("`extends:` names the topology file this one lays over", where)
+    base_path = (path.parent / name).resolve()
+    here = str(path.resolve())
+    if str(base_path) in (*chain, here):
+        cycle = " -> ".join(Path(p).name for p in (*chain, here, str(base_path)))
+        raise LocatedError(f"topologies extend each other in a circle: {cycle}", where)
+    if len(chain) >= MAX_EXTENDS:
+        raise LocatedError(f"more than {MAX_EXTENDS} topologies extend one another", where)
+    try:
+        base = _read(base_path, (*chain, here))
+    except MissingFileError as exc:
+        raise LocatedError(f"`extends:` names no readable file: {exc.message}", where) from None
+    overlay = Document(
+        {k: v for k, v in data.items() if k != "extends"}, doc.file, doc.marks, doc.origins
+    )
+    return extend(base, overlay)
 
 
 def load_topology(

@@ -103,7 +103,12 @@ class SeegRun:
     def start(self) -> SeegRun:
         """Deploy and wait until the robot waits for START (setup done)."""
         home = seeg_home()
-        topology = load_topology(home / "topologies" / "seeg.yaml")
+        old = os.getcwd()
+        os.chdir(home)  # the topology's and the properties' paths are relative to it
+        try:
+            topology = load_topology(home / "topologies" / "seeg.yaml")
+        finally:
+            os.chdir(old)
         topology.bus = dataclasses.replace(
             topology.bus,
             namespace=f"fw_bench_{os.getpid()}",
@@ -117,7 +122,6 @@ class SeegRun:
         topology.components["vicra_sim"].properties["link"] = link
         topology.components["vicra"].properties["device"] = link
         self.deployment = Deployment(topology, self.workdir, listeners=[self._states])
-        old = os.getcwd()
         os.chdir(home)  # property paths are relative to the repository
         try:
             self.deployment.start(run_chart=False)

@@ -1,0 +1,246 @@
+"""Several hosts on one machine: Linux network namespaces joined by a bridge, and the
+faults a real network has.
+
+An operating room's fw runs on several machines (a tracking PC, a camera PC, the
+robot's control PC, the operator's); `Hosts` builds them as network namespaces on one
+Linux machine so a deployment crosses real network interfaces: each host gets a
+namespace `<prefix><host>` with loopback and one veth into a bridge in the machine's own
+namespace (`10.77.0.0/24`, the hosts in order from .1), and the KRC, as FRI has its own
+network port, a namespace of its own on a point-to-point link to the robot's host
+(`10.78.0.1` robot side, `10.78.0.2` the KRC). Processes are placed with
+`ip netns exec <namespace> ...` (`Hosts.command`).
+
+Faults (`Hosts.cut` / `Hosts.heal`): a partition takes a host's link down (every
+connection through it stalls, as a pulled cable; TCP keeps its state) and up again.
+Loss and delay use `tc netem` when the kernel has it (`Hosts.impair`); where it has not
+(a kernel built without sch_netem, as some VMs' are), `impair` raises `NetnsError`
+saying so.
+
+Needs root (CAP_NET_ADMIN) and `ip`; `available()` says why not, and tests skip with
+that reason.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+from dataclasses import dataclass, field
+
+from framework.errors import FwError
+
+BRIDGE_NET = "10.77.0"
+KRC_NET = "10.78.0"
+KRC = "krc"
+"""The host name of the KRC's namespace (on its own link to the robot's host)."""
+
+
+class NetnsError(FwError):
+    """A namespace, link or fault could not be made (what and why)."""
+
+
+def available() -> str:
+    """Empty if this machine can build hosts as namespaces; else why not, in words."""
+    if os.geteuid() != 0:
+        return "network namespaces need root (CAP_NET_ADMIN)"
+    if shutil.which("ip") is None:
+        return "the `ip` command (iproute2) is missing"
+    probe = f"fwprobe{os.getpid()}"
+    made = subprocess.run(["ip", "netns", "add", probe], capture_output=True, text=True)
+    if made.returncode != 0:
+        return f"cannot make a network namespace: {made.stderr.strip()}"
+    subprocess.run(["ip", "netns", "del", probe], capture_output=True)
+    return ""
+
+
+def netem_available() -> bool:
+    """Does the kernel have the netem queueing discipline (loss, delay)?"""
+    probe = f"fwnetem{os.getpid()}"
+    subprocess.run(["ip", "netns", "add", probe], capture_output=True)
+    try:
+        run = subprocess.run(
+            ["ip", "netns", "exec", probe, "tc", "qdisc", "add", "dev", "lo", "root", "netem"],
+            capture_output=True,
+            text=True,
+        )
+        return run.returncode == 0
+    finally:
+        subprocess.run(["ip", "netns", "del", probe], capture_output=True)
+
+
+def _ip(*args: str) -> None:
+    run = subprocess.run(["ip", *args], capture_output=True, text=True)
+    if run.returncode != 0:
+        raise NetnsError(f"ip {' '.join(args)}: {run.stderr.strip() or run.returncode}")
+
+
+@dataclass
+class Hosts:
+    """The namespaces of one set of hosts (see the module docstring). `up()` builds
+    them (replacing any left by an earlier run), `down()` removes them."""
+
+    names: tuple[str, ...] = ("control", "tracking", "cameras", "robot")
+    prefix: str = "fw-"
+    krc: bool = True
+    """Also the KRC's namespace, linked to `robot` only."""
+    bridge: str = "fwbr0"
+    made: list[str] = field(default_factory=list)
+
+    def namespace(self, host: str) -> str:
+        """The namespace of `host`."""
+        return f"{self.prefix}{host}"
+
+    def address(self, host: str) -> str:
+        """Where `host` listens (the KRC: on its own link)."""
+        if host == KRC:
+            return f"{KRC_NET}.2"
+        return f"{BRIDGE_NET}.{self.names.index(host) + 1}"
+
+    @property
+    def krc_link_address(self) -> str:
+        """The robot host's address on the KRC's link (FRI's other end)."""
+        return f"{KRC_NET}.1"
+
+    def up(self) -> Hosts:
+        """Build every namespace, the bridge and the links (replacing leftovers)."""
+        self.down()
+        _ip("link", "add", self.bridge, "type", "bridge")
+        _ip("link", "set", self.bridge, "up")
+        for index, host in enumerate(self.names):
+            ns, here, there = self.namespace(host), self._veth(f"{index}h"), self._veth(f"{index}b")
+            self._namespace(ns)
+            _ip("link", "add", here, "type", "veth", "peer", "name", there)
+            _ip("link", "set", here, "netns", ns)
+            _ip("-n", ns, "link", "set", here, "name", "eth0")
+            _ip("-n", ns, "addr", "add", f"{self.address(host)}/24", "dev", "eth0")
+            _ip("-n", ns, "link", "set", "eth0", "up")
+            _ip("link", "set", there, "master", self.bridge)
+            _ip("link", "set", there, "up")
+        if self.krc and "robot" in self.names:
+            ns = self.namespace(KRC)
+            self._namespace(ns)
+            near, far = self._veth("k0"), self._veth("k1")
+            _ip("link", "add", near, "type", "veth", "peer", "name", far)
+            _ip("link", "set", near, "netns", self.namespace("robot"))
+            _ip("link", "set", far, "netns", ns)
+            robot = self.namespace("robot")
+            _ip("-n", robot, "link", "set", near, "name", "fri0")
+            _ip("-n", ns, "link", "set", far, "name", "fri0")
+            _ip("-n", robot, "addr", "add", f"{self.krc_link_address}/30", "dev", "fri0")
+            _ip("-n", ns, "addr", "add", f"{self.address(KRC)}/30", "dev", "fri0")
+            _ip("-n", robot, "link", "set", "fri0", "up")
+            _ip("-n", ns, "link", "set", "fri0", "up")
+            # the simulated KRC is also a process of the deployment (its status, the real
+            # TCP the simulated trackers see): its bus traffic is routed through the robot
+            # host, as a real KRC's would not be (it speaks FRI only)
+            subprocess.run(
+                ["ip", "netns", "exec", robot, "sysctl", "-qw", "net.ipv4.ip_forward=1"],
+                capture_output=True,
+            )
+            _ip("-n", ns, "route", "add", "default", "via", self.krc_link_address)
+            for host in self.names:
+                if host != "robot":
+                    _ip(
+                        "-n",
+                        self.namespace(host),
+                        "route",
+                        "add",
+                        f"{KRC_NET}.0/30",
+                        "via",
+                        self.address("robot"),
+                    )
+        return self
+
+    def _veth(self, suffix: str) -> str:
+        """A link's name in this machine's namespace, unique to this set of hosts."""
+        return (self.prefix.replace("-", "") + suffix)[:15]
+
+    def _namespace(self, ns: str) -> None:
+        _ip("netns", "add", ns)
+        self.made.append(ns)
+        _ip("-n", ns, "link", "set", "lo", "up")
+
+    def down(self) -> None:
+        """Remove the namespaces (their processes' links go with them) and the bridge."""
+        for host in [*self.names, KRC]:
+            subprocess.run(["ip", "netns", "del", self.namespace(host)], capture_output=True)
+        # a namespace's links go with it, but the kernel frees them later: an `up` right
+        # after would find their names taken
+        links = [self._veth(f"{i}{end}") for i in range(len(self.names)) for end in "hb"]
+        for link in [*links, self._veth("k0"), self._veth("k1"), self.bridge]:
+            subprocess.run(["ip", "link", "del", link], capture_output=True)
+        self.made.clear()
+
+    def command(self, host: str, *argv: str) -> list[str]:
+        """`argv` run on `host` (inside its namespace)."""
+        return ["ip", "netns", "exec", self.namespace(host), *argv]
+
+    def _link(self, host: str) -> tuple[str, str]:
+        return self.namespace(host), "fri0" if host == KRC else "eth0"
+
+    def cut(self, host: str) -> None:
+        """Partition `host`: its link goes down (the KRC's: its FRI link)."""
+        ns, dev = self._link(host)
+        _ip("-n", ns, "link", "set", dev, "down")
+
+    def heal(self, host: str) -> None:
+        """End a partition of `host` (and any impairment of its link)."""
+        ns, dev = self._link(host)
+        _ip("-n", ns, "link", "set", dev, "up")
+        subprocess.run(
+            ["ip", "netns", "exec", ns, "tc", "qdisc", "del", "dev", dev, "root"],
+            capture_output=True,
+        )
+
+    def impair(self, host: str, loss: float = 0.0, delay: float = 0.0, jitter: float = 0.0) -> None:
+        """Loss (0-1) and delay/jitter (s) on everything `host` sends (tc netem)."""
+        ns, dev = self._link(host)
+        argv = ["ip", "netns", "exec", ns, "tc", "qdisc", "replace", "dev", dev, "root", "netem"]
+        if delay or jitter:
+            argv += ["delay", f"{delay * 1e3:g}ms", f"{jitter * 1e3:g}ms"]
+        if loss:
+            argv += ["loss", f"{loss * 100:g}%"]
+        run = subprocess.run(argv, capture_output=True, text=True)
+        if run.returncode != 0:
+            raise NetnsError(
+                f"cannot impair {host}'s link: {run.stderr.strip()} (this kernel may lack "
+                "sch_netem; partitions still work)"
+            )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m framework.netns up|down`: build or remove the default hosts."""
+    import argparse
+    import sys
+
+    parser = argparse.ArgumentParser(
+        prog="python -m framework.netns",
+        description="Build the hosts of topologies/seeg_hosts.yaml as network namespaces "
+        "of this machine (control, tracking, cameras, robot, and the KRC on its own link), "
+        "or remove them. Needs root.",
+        epilog="then: ip netns exec fw-tracking fw deploy topologies/seeg_hosts.yaml "
+        "--keys KEYS --host tracking (one per host; control runs the chart)",
+    )
+    parser.add_argument("action", choices=["up", "down"])
+    args = parser.parse_args(argv)
+    why = available()
+    if why:
+        print(f"fw: cannot build hosts here: {why}", file=sys.stderr)
+        return 1
+    hosts = Hosts()
+    if args.action == "down":
+        hosts.down()
+        return 0
+    try:
+        hosts.up()
+    except NetnsError as exc:
+        hosts.down()
+        print(f"fw: {exc}", file=sys.stderr)
+        return 1
+    for host in (*hosts.names, KRC):
+        print(f"{host:<9} {hosts.namespace(host):<12} {hosts.address(host)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,55 @@
+"""Spec: the SEEG deployment on the machines of an operating room (issue 46), built as
+network namespaces of this machine joined by a bridge, the KRC on a link of its own
+(framework/netns.py): real interfaces between the hosts, every host's part started by
+its own `fw deploy --host`, nothing copied beyond what `fw keys` wrote. The procedure
+runs across them, and a host cut off from the others stops the robot by itself,
+latched through the heal until RELEASE."""
+
+import subprocess
+import sys
+
+import pytest
+
+from framework import netns
+from tests.conftest import REPO
+from tests.support.hosts import run_on_hosts
+
+WHY = netns.available()
+pytestmark = pytest.mark.skipif(bool(WHY), reason=f"no hosts as namespaces here: {WHY}")
+TOPOLOGY = REPO / "topologies" / "seeg_hosts.yaml"
+SCENARIOS = REPO / "procedures" / "seeg" / "scenarios"
+
+
+@pytest.fixture(scope="module")
+def hosts():
+    built = netns.Hosts(prefix="fwt-", bridge="fwtbr0").up()
+    yield built
+    built.down()
+
+
+@pytest.fixture(scope="module")
+def keys(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("keys") / "seeg_hosts"
+    made = subprocess.run(
+        [sys.executable, "-m", "framework.cli", "keys", str(TOPOLOGY), "-o", str(folder)],
+        capture_output=True, text=True, cwd=REPO,
+    )  # fmt: skip
+    assert made.returncode == 0, made.stderr
+    return folder
+
+
+def test_the_hosts_are_namespaces_on_real_links(hosts):
+    assert hosts.address("tracking") == "10.77.0.2" and hosts.address(netns.KRC) == "10.78.0.2"
+    links = subprocess.run(
+        hosts.command("robot", "ip", "-brief", "addr"), capture_output=True, text=True
+    ).stdout
+    assert "eth0" in links and "10.77.0.4/24" in links, "on the bridge"
+    assert "fri0" in links and "10.78.0.1/30" in links, "and on the KRC's own link"
+
+
+@pytest.mark.parametrize("scenario", ["nominal.yaml", "hosts/cameras_partition.yaml"])
+def test_the_procedure_runs_across_the_hosts(hosts, keys, scenario, monkeypatch):
+    monkeypatch.setenv("FW_NETNS_PREFIX", hosts.prefix)
+    run = run_on_hosts(hosts, TOPOLOGY, keys, SCENARIOS / scenario, REPO)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
+    assert "PASSED" in run.stdout
