@@ -19,7 +19,7 @@ from framework.container_main import build
 from framework.deployer import container_spec
 from framework.messages import ConfigAck, ConfigRequest
 from framework.recorder import FlightRecorder, read_recording
-from framework.topology import Step
+from framework.topology import Step, StepKind
 from tests.conftest import REPO, decoded_into, private_topology, wait_until, writer_port
 
 TOPOLOGY = REPO / "tests" / "data" / "configurator" / "configurator.yaml"
@@ -184,6 +184,24 @@ def test_forced_steps_are_sent_even_where_the_wiring_already_says_so(rig):
     again = Step("connect", "sink", "inp", key=sink.key, policy=None)
     assert rig.configurator.run_steps("restore of sink", [again]).ok
     assert sink.stats.discarded_on_rewire > 0, "reconnected: a restarted port is wired anew"
+
+
+def test_a_rollback_goes_on_past_an_undo_that_fails(rig, monkeypatch):
+    """Undoing is best effort: an undo that cannot be made is skipped and the ones after
+    it are still made (the gain is back although the connection could not be undone)."""
+    send = rig.configurator._send
+
+    def refusing_disconnects(batch, undo, deadline=None):
+        if batch[0].kind is StepKind.DISCONNECT and batch[0].component == "dbl":
+            raise StepFailed(batch[0].describe(), "refused for the test")
+        return send(batch, undo, deadline)
+
+    monkeypatch.setattr(rig.configurator, "_send", refusing_disconnects)
+    outcome = rig.apply("tune_then_fail")
+    assert not outcome.ok and outcome.step == "call sink.fail"
+    assert outcome.rolled_back == 2, "two of the three undone"
+    assert rig.workers.components["dbl"].get_property("gain") == 2.0, "the oldest undo made"
+    assert rig.port("dbl", "inp").key is not None, "the one that failed"
 
 
 def test_a_failure_undoes_property_and_connection_changes_newest_first(rig):
