@@ -796,7 +796,9 @@ def _read(path: Path, chain: tuple[str, ...]) -> Document:
         raise LocatedError(f"more than {MAX_EXTENDS} topologies extend one another", where)
     try:
         base = _read(base_path, (*chain, here))
-    except MissingFileError as exc:
+    except LocatedError as exc:
+        if exc.location.line and not isinstance(exc, MissingFileError):
+            raise  # a mistake inside the other file: located there
         raise LocatedError(f"`extends:` names no readable file: {exc.message}", where) from None
     overlay = Document(
         {k: v for k, v in data.items() if k != "extends"}, doc.file, doc.marks, doc.origins

@@ -67,10 +67,12 @@ def test_a_finding_is_located_in_the_file_that_wrote_the_value(toy_copy):
         ({"a.yaml": "extends: nowhere.yaml\n"}, "names no readable file"),
         ({"a.yaml": "extends: b.yaml\n", "b.yaml": "extends: a.yaml\n"}, "in a circle"),
         ({"a.yaml": "extends: a.yaml\n"}, "in a circle"),
+        ({"a.yaml": "extends: folder\n", "folder/x": ""}, "names no readable file"),
     ],
 )
 def test_a_missing_or_circular_base_is_a_located_error(tmp_path, files, said):
     for name, text in files.items():
+        (tmp_path / name).parent.mkdir(exist_ok=True)
         (tmp_path / name).write_text(text)
     with pytest.raises(FindingsError) as caught:
         load_topology(tmp_path / "a.yaml")
