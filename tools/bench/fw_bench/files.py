@@ -8,10 +8,12 @@ if it holds `topologies/seeg.yaml`.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from pathlib import Path
 
 from framework.errors import FwError
+from framework.topology import Topology, load_topology
 
 CHECKOUT = Path(__file__).resolve().parents[3]
 
@@ -36,3 +38,11 @@ def seeg_home() -> Path:
 def seeg_file(*parts: str) -> Path:
     """A file of the SEEG deployment, e.g. seeg_file('procedures', 'seeg.yaml')."""
     return seeg_home().joinpath(*parts)
+
+
+def toy_topology(namespace: str, hub_port: int) -> Topology:
+    """The runtime's own specs' toy deployment (two trackers, a supervisor, the swap
+    chart: tests/data/toy) on a bus of its own, for the micro-benchmarks."""
+    topology = load_topology(seeg_file("tests", "data", "toy", "toy.yaml"))
+    topology.bus = dataclasses.replace(topology.bus, namespace=namespace, hub_port=hub_port)
+    return topology

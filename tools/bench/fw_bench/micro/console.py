@@ -12,7 +12,6 @@
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import json
 import shutil
 import sys
@@ -26,11 +25,8 @@ from framework.bus import BusConfig, free_port
 from framework.console.model import ConsoleModel
 from framework.console.server import ConsoleServer
 from framework.deployer import Deployment
-from framework.topology import load_topology
-from fw_bench.files import seeg_file
+from fw_bench.files import toy_topology
 from fw_bench.micro.lib import bench_parser, percentiles, write_report
-
-TOY = ("tests", "data", "toy", "toy.yaml")  # the runtime's own specs' toy deployment
 
 
 @contextlib.contextmanager
@@ -124,10 +120,7 @@ def main() -> int:
     args = parser.parse_args()
     n = 20 if args.quick else 200
     config = BusConfig(namespace=f"fw_bench_console_{time.time_ns()}", hub_port=free_port())
-    topology = load_topology(seeg_file(*TOY))
-    topology.bus = dataclasses.replace(
-        topology.bus, namespace=config.namespace, hub_port=config.hub_port
-    )
+    topology = toy_topology(config.namespace, config.hub_port)
     with tempfile.TemporaryDirectory() as tmp, served(topology, Path(tmp)) as server:
         settle(server, "Use_T1")
         trips = percentiles(round_trips(server, n))

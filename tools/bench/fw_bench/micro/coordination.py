@@ -14,7 +14,6 @@ and, as the baseline of the same run, one remote request round trip.
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import platform
 import sys
@@ -28,11 +27,8 @@ from framework.bus import free_port
 from framework.deployer import Deployment
 from framework.remote import RemoteComponent
 from framework.statechart.events import Event, Listener, Output
-from framework.topology import load_topology
-from fw_bench.files import seeg_file
+from fw_bench.files import toy_topology
 from fw_bench.micro.lib import bench_parser, percentiles, write_report
-
-TOY = ("tests", "data", "toy", "toy.yaml")  # the runtime's own specs' toy deployment
 
 
 class Timing(Listener):
@@ -66,10 +62,7 @@ def main() -> int:
     parser.add_argument("--swaps", type=int, default=200)
     args = parser.parse_args()
     swaps = 30 if args.quick else args.swaps
-    topology = load_topology(seeg_file(*TOY))
-    topology.bus = dataclasses.replace(
-        topology.bus, namespace=f"bench_coord_{os.getpid()}", hub_port=free_port()
-    )
+    topology = toy_topology(f"bench_coord_{os.getpid()}", free_port())
     timing = Timing()
     results: dict[str, Any] = {}
     with tempfile.TemporaryDirectory() as workdir:
