@@ -274,20 +274,17 @@ class Configurator(Component):
         with self._reported:
             self._reported.wait_for(lambda: request.request_id in self._reports, wait)
             report = self._reports.pop(request.request_id, None)
-        if report is None:
-            for step in steps:  # it may have switched: restore what the wiring says
+        if report is None or not report.ok:
+            # It may have made any of them (a report's step name is the process's word,
+            # not a count): every switched port goes back to what the wiring says.
+            for step in steps:
                 undo.append(self._restore(step, self.wiring.get((step.component, step.target))))
-            raise StepFailed(
-                steps[0].describe(), f"{process} did not report its local switch within {wait:g} s"
-            )
-        labels = [step.describe() for step in steps]
-        made = (
-            len(steps) if report.ok else labels.index(report.step) if report.step in labels else 0
-        )
-        for step in steps[:made]:
-            self._record(step, None, undo)
-        if not report.ok:
+            if report is None:
+                why = f"{process} did not report its local switch within {wait:g} s"
+                raise StepFailed(steps[0].describe(), why)
             raise StepFailed(report.step, f"{process}: {report.reason}")
+        for step in steps:
+            self._record(step, None, undo)
         if any(self._forced.get(step.component, 0.0) > request.stamp for step in steps):
             for batch in self._batches(steps, True):  # a restore ran meanwhile: again
                 self._send(batch, [])

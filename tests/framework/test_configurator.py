@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from framework import keys
+from framework import keys, messages
 from framework.activity import Activity
 from framework.configurator import Configurator, StepFailed
 from framework.container import Container
@@ -341,6 +341,16 @@ def test_a_step_still_running_at_the_requests_deadline_fails_and_nothing_follows
     assert rig.workers.components["dbl"].get_property("gain") == 2.0, "never set"
 
 
+def test_a_configuration_already_overdue_fails_at_its_first_step_and_runs_none(rig):
+    """A configuration whose deadline passed before it started is refused at its first
+    step (here the sink's stop, which travels with the rewiring after it), and nothing
+    of it runs."""
+    outcome = rig.configurator.apply("to_b", deadline=time.time() - 1.0)
+    assert not outcome.ok and outcome.step == "state sink -> stopped"
+    assert "its deadline passed" in outcome.reason
+    assert rig.port("sink", "inp").key.endswith("a/out"), "not rewired"
+
+
 # -- local switches (framework/local_switch.py) ------------------------------------------
 def switch_routed(rig, hub):
     """Wait until the workers' process listens to the Coordinator's requests."""
@@ -477,11 +487,15 @@ class Link:
     """The network between the workers' process and the Configurator as the switch
     reports cross it: `lose` drops them, `delay` holds each that long (s)."""
 
-    def __init__(self, publisher, lose=False, delay=0.0):
+    def __init__(self, publisher, lose=False, delay=0.0, rewrite=None):
         self.publisher, self.lose, self.delay = publisher, lose, delay
+        self.rewrite = rewrite
 
     def put(self, data):
         time.sleep(self.delay)
+        if self.rewrite is not None:
+            report, _, _ = messages.decode(data, ConfigAck)
+            data = messages.encode(self.rewrite(report), ConfigAck)
         if not self.lose:
             self.publisher.put(data)
 
@@ -511,6 +525,24 @@ def test_a_switch_made_but_whose_report_is_lost_is_undone(rig, hub):
     assert rig.configurator.restore_steps({"sink"}) == [], "the Configurator's map agrees"
 
 
+def test_a_failed_switch_report_naming_no_step_of_it_restores_every_switched_port(rig, hub):
+    """A report that says the switch failed at a step the Configurator never asked for
+    (a garbled label, another version's) tells nothing of what was made: every port of
+    the switch goes back to what the wiring says, as when no report comes."""
+    switch_routed(rig, hub)
+
+    def garbled(report):
+        return ConfigAck(report.stamp, report.request_id, False, report.tag, "connect ?", "x")
+
+    cut_reports(rig, rewrite=garbled)
+    ack = rig.request("switch_to_b", alone=True)
+    assert rig.workers.local_switches.done[-1].ok, "the process switched"
+    assert not ack.ok and ack.step == "connect ?"
+    assert wait_until(lambda: rig.port("sink", "inp").key.endswith("a/out")), "switched back"
+    assert rig.workers.components["dbl"].get_property("gain") == 2.0, "nothing after it ran"
+    assert rig.configurator.restore_steps({"sink"}) == [], "the Configurator's map agrees"
+
+
 def test_a_switch_reported_after_the_requests_deadline_is_undone(rig, hub):
     """A switch-only configuration whose report comes late is no success: the chart gave
     up on it, so the switch is undone and the failure says why."""
@@ -534,7 +566,8 @@ def test_a_switch_reported_while_the_configurator_waits_wakes_it_at_once(rig, hu
     assert rig.workers.components["dbl"].get_property("gain") == 6.0
 
 
-def test_a_restore_forced_after_a_switch_was_asked_is_switched_over_again(rig, hub):
+@pytest.mark.parametrize("tag", ["switch_to_b", "connect_b"])
+def test_a_restore_forced_after_a_switch_was_asked_is_switched_over_again(rig, hub, tag):
     """A process switched on a request, then a forced restore (a restarted process's)
     put the port back before the Configurator got to the request: the Configurator
     makes the switch again, so the port is where the chart asked last and where the
@@ -550,7 +583,7 @@ def test_a_restore_forced_after_a_switch_was_asked_is_switched_over_again(rig, h
     )
     worker.start()
     assert wait_until(lambda: rig.configurator._apply_lock.locked())
-    ack = rig.request("switch_to_b", alone=True)
+    ack = rig.request(tag, alone=True)
     worker.join(30)
     assert done["o"].ok and ack.ok, ack.reason
     assert rig.workers.local_switches.done[-1].request_id == ack.request_id
