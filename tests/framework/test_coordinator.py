@@ -665,3 +665,18 @@ def test_a_chart_whose_inputs_never_received_anything_keeps_running(hub, write, 
         assert wait_until(lambda: coordinator.call("active")["finished"], 10)
     finally:
         control.shutdown()
+
+
+def test_a_refused_event_does_not_hold_back_the_events_that_came_after_it(sleepy_rig):
+    """Events taken in one wake are each judged: one refused (a sender not allowed to
+    send it) does not leave the good event behind it queued until some later wake (the
+    idle wait is an hour here)."""
+    rig = sleepy_rig
+    events = rig.coordinator.inputs["events"]
+    assert rig.coordinator.stop()  # both arrive while nobody reads: one wake takes them
+    before = events.stats.received
+    rig.put("config.done", source="intruder")
+    rig.put("e_GO")
+    assert wait_until(lambda: events.stats.received == before + 2, 10)
+    assert rig.coordinator.start()
+    assert wait_until(lambda: rig.active() == ["Working"], 10), "e_GO taken after the refusal"
