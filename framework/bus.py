@@ -66,6 +66,12 @@ class BusConfig:
     listen: str = ""
     """The address a process other than the hub listens on (empty: `host`, the control
     host's: right for every process on that machine)."""
+    listen_port: int = 0
+    """The port a process other than the hub listens on (0: any free one)."""
+    peers: tuple[str, ...] = ()
+    """Endpoints of other processes this one connects to itself, besides the hub, and
+    connects to again whenever the link is lost (a deployment on several hosts: gossip
+    alone left a link cut by a partition unmade, docs/hosts.md)."""
 
     @property
     def protocol(self) -> str:
@@ -90,12 +96,14 @@ class BusConfig:
             "keys": self.keys,
             "access": dict(self.access),
             "listen": self.listen,
+            "listen_port": self.listen_port,
+            "peers": list(self.peers),
         }
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> BusConfig:
         """Inverse of `to_dict`."""
-        return cls(**data)
+        return cls(**{**data, "peers": tuple(data.get("peers", ()))})
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -120,9 +128,11 @@ def zenoh_config(bus: BusConfig, hub: bool = False, subject: str = "") -> zenoh.
         "mode": "peer",
         "scouting/multicast/enabled": False,
         "listen/endpoints": [
-            bus.hub_endpoint if hub else f"{bus.protocol}/{bus.listen or bus.host}:0"
+            bus.hub_endpoint
+            if hub
+            else f"{bus.protocol}/{bus.listen or bus.host}:{bus.listen_port}"
         ],
-        "connect/endpoints": [] if hub else [bus.hub_endpoint],
+        "connect/endpoints": [] if hub else [bus.hub_endpoint, *bus.peers],
         "scouting/gossip/enabled": True,
         "scouting/gossip/autoconnect_strategy": {
             "peer": {"to_router": "always", "to_peer": "greater-zid"}

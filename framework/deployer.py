@@ -101,6 +101,42 @@ def host_of(topology: Topology, process: str) -> str:
     return topology.processes.get(process, {}).get("host", LOCAL)
 
 
+def mesh(topology: Topology) -> dict[str, tuple[str, int]]:
+    """Where each process of a deployment on several hosts listens, (address, port):
+    the port after the hub's for the first process by name, and so on; empty on one
+    host. Each process connects to every process before it itself (`BusConfig.peers`),
+    so every pair has one side that makes the link again after a partition: Zenoh's
+    gossip makes a peer link once, when it learns of the peer, and a partition shorter
+    than the lease (one side had closed the link, the other had not yet) left links
+    unmade for good (docs/hosts.md)."""
+    if not topology.hosts:
+        return {}
+    bus = topology.bus
+    return {
+        name: (topology.listen_address(host_of(topology, name)) or bus.host, bus.hub_port + 1 + i)
+        for i, name in enumerate(
+            sorted({c.process for c in topology.components.values()} - {CONTROL_PROCESS})
+        )
+    }
+
+
+def process_bus(topology: Topology, process: str) -> BusConfig:
+    """The bus settings of one process: where it listens and whom it connects to."""
+    bus = dataclasses.replace(
+        topology.bus, listen=topology.listen_address(host_of(topology, process))
+    )
+    places = mesh(topology)
+    if process not in places:
+        return bus
+    names = sorted(places)
+    before = names[: names.index(process)]
+    return dataclasses.replace(
+        bus,
+        listen_port=places[process][1],
+        peers=tuple(f"{bus.protocol}/{places[n][0]}:{places[n][1]}" for n in before),
+    )
+
+
 def container_spec(topology: Topology, process: str) -> dict[str, Any]:
     """What `python -m framework.container_main` needs to host one process of the topology."""
     components = []
@@ -129,10 +165,9 @@ def container_spec(topology: Topology, process: str) -> dict[str, Any]:
         if topology.safety is not None and topology.safety.monitor == spec.name:
             item["safety"] = topology.safety.to_dict()
         components.append(item)
-    listen = topology.listen_address(host_of(topology, process))
     spec: dict[str, Any] = {
         "name": process,
-        "bus": dataclasses.replace(topology.bus, listen=listen).to_dict(),
+        "bus": process_bus(topology, process).to_dict(),
         "components": components,
         "switches": switch_spec(topology, process),
         "import_paths": [str(p) for p in topology.import_paths],

@@ -425,3 +425,36 @@ def test_the_control_loops_processes_run_ahead_of_the_rest():
     assert realtime == {"robot", "arm"}
     demo = load_topology(REPO / "topologies" / "demo.yaml")
     assert "nice" not in container_spec(demo, "robot"), "no safety monitor: the host's own"
+
+
+def test_on_several_hosts_each_process_keeps_its_links_to_the_ones_before_it():
+    """A deployment on several hosts gives each process a port of its own on its host's
+    address, and each connects itself to every process before it (by name): every pair
+    of processes has a side that makes their link again after a partition, which
+    gossip alone did not (docs/hosts.md). On one host nothing is fixed."""
+    from framework.bus import BusConfig, zenoh_config
+    from framework.deployer import container_spec
+    from framework.topology import load_topology
+    from tests.conftest import REPO
+
+    hosts = load_topology(REPO / "topologies" / "seeg_hosts.yaml")
+    buses = {
+        p: BusConfig.from_dict(container_spec(hosts, p)["bus"])
+        for p in ("arm", "cameras", "robot", "supervision", "trackers", "vicra_device")
+    }
+    ports = {p: b.listen_port for p, b in buses.items()}
+    assert len(set(ports.values())) == len(ports) and hosts.bus.hub_port not in ports.values()
+    assert buses["robot"].listen == "10.77.0.4" and buses["arm"].listen == "10.78.0.2"
+    assert buses["arm"].peers == (), "the first by name connects to the hub only"
+    assert buses["robot"].peers == (
+        f"tcp/10.78.0.2:{ports['arm']}",
+        f"tcp/10.77.0.3:{ports['cameras']}",
+    )
+    assert len(buses["vicra_device"].peers) == 5
+    config = zenoh_config(dataclasses.replace(buses["robot"], secure=False))
+    assert f"tcp/10.77.0.4:{ports['robot']}" in config.get_json("listen/endpoints")
+    connect = config.get_json("connect/endpoints")
+    assert hosts.bus.hub_endpoint in connect and buses["robot"].peers[1] in connect
+    one = load_topology(REPO / "topologies" / "seeg.yaml")
+    bus = BusConfig.from_dict(container_spec(one, "robot")["bus"])
+    assert (bus.listen_port, bus.peers) == (0, ()), "one host: any free port, gossip"
