@@ -128,7 +128,7 @@ def process_bus(topology: Topology, process: str) -> BusConfig:
     places = mesh(topology)
     if process not in places:
         return bus
-    names = sorted(places)
+    names = list(places)  # by name (`mesh` builds it so)
     before = names[: names.index(process)]
     return dataclasses.replace(
         bus,
