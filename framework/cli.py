@@ -18,7 +18,7 @@ from typing import Any
 
 from framework.clock import SimulatedClock
 from framework.errors import Finding, FindingsError, FwError, printable
-from framework.statechart.events import Output
+from framework.statechart.events import Listener, Output
 from framework.statechart.model import CONFIG_DONE, CONFIG_FAILED
 from framework.statechart.trace import TracePrinter
 
@@ -92,6 +92,7 @@ examples:
   fw run statecharts/seeg.yaml --auto-ack --events e_START,e_TOK,e_CRITICAL_AREA,e_TARGET
   fw run statecharts/seeg.yaml --auto-ack --fail setup_trackers
   fw run statecharts/seeg.yaml --auto-ack -i          (type events, '?' lists them)
+  fw run statecharts/seeg.yaml --scenario counterexamples/seeg.no_motion.yaml
 """
 
 
@@ -230,6 +231,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             interpreter.queue(*value)
             interpreter.run()
 
+    if args.scenario:
+        return _replay(args.scenario, chart, interpreter, clock, args.json)
     for token in _split_tokens(args.events or ""):
         apply(token)
     if args.interactive:
@@ -240,6 +243,57 @@ def cmd_run(args: argparse.Namespace) -> int:
             + ("  [finished]" if interpreter.finished else "")
         )
     return 0
+
+
+def _replay(path: str, chart: Any, interpreter: Any, clock: SimulatedClock, as_json: bool) -> int:
+    """Play a scenario's `send` steps at their times on the simulated clock (the chart
+    alone: its `config.done`/`config.failed` steps are the Configurator's answers),
+    then judge its expectations; 1 if one fails. A counterexample `fw verify` wrote
+    is such a scenario."""
+    from framework.errors import LocatedError
+    from framework.scenario import load_scenario
+
+    class Seen(Listener):
+        def __init__(self) -> None:
+            self.states: set[str] = set()
+            self.events: set[str] = set()
+
+        def on_entry(self, state: Any) -> None:
+            self.states.add(state.path)
+
+        def on_event(self, event: Any) -> None:
+            self.events.add(event.name)
+
+    scenario = load_scenario(path, events=chart.event_names(), states=set(chart.states))
+    for step in scenario.steps:
+        if not step.send or step.at is None or step.when or scenario.start:
+            raise LocatedError(
+                "fw run replays only `send` steps at given times (`at:`); "
+                "`when`, `call`, `check`, `fault` and `start` need a deployment",
+                step.location,
+                f"fw deploy TOPOLOGY --scenario {path}",
+            )
+    seen = Seen()
+    for state in interpreter.configuration:
+        seen.states.add(state)
+    interpreter.listeners.insert(0, seen)
+    for step in scenario.steps:
+        interpreter.advance_to(max(clock.now(), step.at + step.after))
+        interpreter.queue(step.send, step.payload or None)
+        interpreter.run()
+    interpreter.advance_to(max(clock.now(), scenario.timeout))
+    failed = 0
+    for e in scenario.expect:
+        names = [chart.state(n).path if e.kind.endswith("state") else n for n in e.names]
+        pool = seen.states if e.kind.endswith("state") else seen.events
+        hit = any(n in pool for n in names)
+        ok = not hit if e.kind.startswith("never") else hit
+        failed += not ok
+        if not as_json:
+            print(f"{'PASS' if ok else 'FAIL'}  {e.describe()}")
+    if not as_json:
+        print(f"active: {', '.join(interpreter.leaves) or '(none)'}")
+    return 1 if failed else 0
 
 
 def _interactive(interpreter: Any, apply: Any) -> None:
@@ -426,6 +480,12 @@ def build_parser(argv: Sequence[str] | None = ()) -> argparse.ArgumentParser:
     )
     p.add_argument("--interactive", "-i", action="store_true", help="then read events from stdin")
     p.add_argument(
+        "--scenario",
+        metavar="FILE",
+        help="replay a scenario's timed `send` steps (e.g. a counterexample of fw verify) "
+        "and judge its expectations",
+    )
+    p.add_argument(
         "--auto-ack", action="store_true", help="acknowledge every configuration request at once"
     )
     p.add_argument(
@@ -474,9 +534,9 @@ def build_parser(argv: Sequence[str] | None = ()) -> argparse.ArgumentParser:
     )
     p.set_defaults(func=cmd_new)
 
-    from framework import cli_deploy, cli_records, cli_session
+    from framework import cli_deploy, cli_records, cli_session, cli_verify
 
-    for module in (cli_deploy, cli_session, cli_records):
+    for module in (cli_deploy, cli_session, cli_records, cli_verify):
         module.add_commands(sub)
     wanted = _wanted(argv)
     if wanted in sub.choices:

@@ -794,6 +794,36 @@ class Interpreter:
         except KeyError as exc:
             raise StatechartRuntimeError(f"snapshot names unknown state {exc}") from None
 
+    def _arcs_by_order(self) -> dict[int, _Arc]:
+        """Every arc by its transition's document order (built once: a snapshot's timers
+        name their transition by it)."""
+        arcs = getattr(self, "_arcs", None)
+        if arcs is None:
+            arcs = self._arcs = {
+                a.transition.order: a
+                for n in self._nodes.values()
+                for a in (*n.timed, *n.completion, *(x for v in n.by_event.values() for x in v))
+            }
+        return arcs
+
+    def load(self, snapshot: dict[str, Any]) -> None:
+        """Replace the whole run-time state with `snapshot`, started or not; no actions
+        run. The verifier's way back to a state it explored (`framework.verify`): the
+        compiled chart is kept, so going back costs no compilation."""
+        for node in self._nodes.values():
+            node.active = False
+            node.active_child = None
+        self.finished = False
+        self._internal.clear()
+        self._external.clear()
+        self._timers = []
+        self._pending = {}
+        self._pending_tags = {}
+        self._shallow = {}
+        self._deep = {}
+        self.started = False
+        self.restore(snapshot)
+
     def _restore(self, snap: dict[str, Any]) -> None:
         nodes, now = self._nodes, self.clock.now()
         self.started, self.finished = snap["started"], snap["finished"]
@@ -809,11 +839,7 @@ class Interpreter:
         self._deep = {nodes[p]: [nodes[c] for c in cs] for p, cs in snap["deep"].items()}
         self._pending = {nodes[p]: (tag, now + rest) for p, (tag, rest) in snap["pending"].items()}
         self._pending_tags = dict(snap["pending_tags"])
-        arcs = {
-            a.transition.order: a
-            for n in nodes.values()
-            for a in (*n.timed, *n.completion, *(x for v in n.by_event.values() for x in v))
-        }
+        arcs = self._arcs_by_order() if snap["timers"] else {}
         for rest, path, order in snap["timers"]:
             node = nodes[path]
             self._seq += 1
