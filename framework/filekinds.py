@@ -92,10 +92,25 @@ def _scenario(path: str) -> list[Finding]:
     return []
 
 
+def _properties(path: str) -> list[Finding]:
+    from framework.verify.properties import properties_findings
+
+    try:
+        return properties_findings(path)
+    except FwError as exc:
+        return findings_of(exc, path, "properties")
+
+
 _STATECHART = FileKind("statechart", "statechart", "a procedure's statechart", _statechart)
 BUILT_IN = (
     FileKind("topology", "topology", "a deployment: processes, components, wiring", _topology),
     FileKind("scenario", "scenario", "a scripted run with its expectations", _scenario),
+    FileKind(
+        "properties",
+        "properties",
+        "a chart's safety properties (its form; `fw verify` checks them against the chart)",
+        _properties,
+    ),
 )
 
 
