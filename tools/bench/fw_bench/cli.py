@@ -44,6 +44,7 @@ experiments:
               steering (--quick: 4 each; else 60), false faults and swaps, and a
               real reference-tool slip's detection
   statechart  transition latency vs depth, beside sismic (Fig. 3.8)
+  verify      fw verify on SEEG's whole state space with its properties (target 10 s)
   people      Tables 4.1/4.2, Kinect calibration (Fig. 4.4)
   scale       2-16 trackers, 2-8 cameras x 16 people
   chaos       every process x {KILL, STOP 2 s, STOP 0.3 s} while moving: time to the

@@ -877,6 +877,61 @@ def run_bumps(quick: bool, context: dict[str, Any]) -> list[Row]:
     return rows
 
 
+def run_verify(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """`fw verify` on SEEG with its shipped properties: the whole reachable state space
+    (at most 2 requests unanswered at once), timed end to end, repeated."""
+    import time
+
+    from framework.statechart.loader import load_statechart
+    from framework.verify.explore import Environment, Explorer
+    from framework.verify.properties import load_properties
+
+    chart = load_statechart(seeg_file("statecharts", "seeg.yaml"))
+    props = load_properties(seeg_file("procedures", "seeg", "properties.yaml"), chart)
+    runs = []
+    for _ in range(1 if quick else 5):
+        explorer = Explorer(chart, props.properties, Environment.of(chart), props.unanswered)
+        started = time.perf_counter()
+        result = explorer.run()
+        runs.append((time.perf_counter() - started, result))
+    seconds = [t for t, _ in runs]
+    result = runs[-1][1]
+    held = sum(v.holds for v in result.verdicts)
+    print(
+        f"verify: SEEG {result.states} states, {result.transitions} transitions, "
+        f"{held}/{len(result.verdicts)} properties hold; median {statistics.median(seconds):.2f} s, "
+        f"max {max(seconds):.2f} s over {len(seconds)} run(s)",
+        file=sys.stderr,
+    )
+    return [
+        Row(
+            "verify",
+            "SEEG whole state space: median",
+            statistics.median(seconds),
+            target=10.0,
+            unit="s",
+            n=len(seconds),
+        ),
+        Row(
+            "verify",
+            "SEEG whole state space: worst",
+            max(seconds),
+            target=10.0,
+            unit="s",
+            n=len(seconds),
+        ),
+        Row("verify", "SEEG states explored", float(result.states), unit="states", n=1),
+        Row(
+            "verify",
+            "SEEG properties violated",
+            float(len(result.verdicts) - held),
+            target=0.0,
+            unit="",
+            n=len(result.verdicts),
+        ),
+    ]
+
+
 OPT_IN = ("chaos",)
 """Experiments run only when named (long and destructive: a deployment per case)."""
 
@@ -893,6 +948,7 @@ EXPERIMENTS: dict[str, Callable[[bool, dict[str, Any]], list[Row]]] = {
     "navigation": run_navigation,
     "bumps": run_bumps,  # navigation's bumps on the deployed system
     "statechart": run_statechart,
+    "verify": run_verify,
     "people": run_people,
     "scale": run_scale,
     "chaos": run_chaos,
