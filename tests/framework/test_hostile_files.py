@@ -28,9 +28,18 @@ def fuzz(tmp_path, *args: str) -> dict:
 
 def test_a_thousand_seeded_mutants_of_every_kind_end_cleanly(tmp_path):
     seed = os.environ.get("FW_FUZZ_SEED", "16")  # another seed explores other mutants
-    summary = fuzz(tmp_path, "--n", "1050", "--seed", seed)
-    assert summary["mutants"] == 1050
-    kinds = {"topology", "statechart", "scenario", "procedure", "sensors", "tools", "cameras"}
+    summary = fuzz(tmp_path, "--n", "1200", "--seed", seed)
+    assert summary["mutants"] == 1200
+    kinds = {
+        "topology",
+        "statechart",
+        "scenario",
+        "properties",
+        "procedure",
+        "sensors",
+        "tools",
+        "cameras",
+    }
     assert kinds <= set(summary["by_kind"])
     assert all(sum(c.values()) >= 150 for c in summary["by_kind"].values())
     failures = [f"{f['outcome']} {f['saved']}: {f['detail']}" for f in summary["failures"]]
