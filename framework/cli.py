@@ -114,7 +114,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
     known = kinds()
     if args.kinds:
         for kind in known.values():
-            print(f"{kind.name:<12} ({kind.key}:)  {kind.summary}")
+            print(f"{kind.name:<12} {'(' + kind.key + ':)':<14} {kind.summary}")
         return 0
     if not args.files:
         raise FwError("name the file(s) to check (or --kinds to list what fw can check)")

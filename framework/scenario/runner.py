@@ -11,6 +11,7 @@ from typing import Any
 
 from framework.scenario.model import Expectation, Fault, Invariant, Scenario, ScenarioStep, matches
 from framework.statechart.events import Event, Listener
+from framework.statechart.model import CONFIG_DONE, CONFIG_FAILED
 
 
 @dataclass
@@ -24,6 +25,12 @@ class Verdict:
     """False for an invariant whose state never held: nothing was checked, so it is
     neither a pass nor a failure (reported apart: a scenario meant to exercise it
     does not)."""
+
+
+ANSWERS = (CONFIG_DONE, CONFIG_FAILED)
+"""Events only the Configurator sends: a scenario written for a chart alone (a
+counterexample of `fw verify`, replayed by `fw run --scenario`) gives them as steps; a
+deployment's own Configurator answers instead, so the runner does not send them."""
 
 
 class ScenarioRunner(Listener):
@@ -198,7 +205,12 @@ class ScenarioRunner(Listener):
             return False
         elapsed = time.monotonic() - self._zero
         try:
-            if step.send:
+            if step.send in ANSWERS:
+                self._report(
+                    f"scenario   {elapsed:7.3f}s {step.describe()}: not sent, the "
+                    "deployment's Configurator answers its requests itself"
+                )
+            elif step.send:
                 self._send(step.send, step.payload)
             elif step.call:
                 self._call(step.call, step.payload)

@@ -70,3 +70,33 @@ def test_an_answer_over_the_limit_is_a_violation_whatever_came_before(tmp_path):
     answers = itertools.chain([_unanswered(), {"peak_step": 1.5}], itertools.repeat({}))
     outcome = _played(tmp_path, answers)
     assert not outcome.ok and "peak_step" in outcome.detail
+
+
+def test_a_configurator_answer_in_a_scenario_is_not_sent_to_a_deployment(tmp_path):
+    """A counterexample of `fw verify` gives the Configurator's answers as steps (the
+    chart alone needs them); on a deployment the Configurator answers by itself, so the
+    runner plays the operator's events only and says why it skipped the others."""
+    path = tmp_path / "cx.yaml"
+    path.write_text(
+        textwrap.dedent(
+            """
+            scenario: cx
+            steps:
+              - {at: 0s, send: config.done, payload: {tag: setup}}
+              - {at: 0.1s, send: e_START}
+              - {at: 0.2s, send: config.failed, payload: {tag: auto_up, reason: x}}
+            """
+        )
+    )
+    sent, said = [], []
+    runner = ScenarioRunner(
+        load_scenario(path),
+        send=lambda event, payload: sent.append(event),
+        call=lambda *_: None,
+        report=said.append,
+    )
+    runner.start()
+    assert runner.finished.wait(10)
+    runner.stop()
+    assert sent == ["e_START"]
+    assert sum("not sent" in line for line in said) == 2
