@@ -813,7 +813,6 @@ class Interpreter:
         for node in self._nodes.values():
             node.active = False
             node.active_child = None
-        self.finished = False
         self._internal.clear()
         self._external.clear()
         self._timers = []
