@@ -34,7 +34,7 @@ import json
 import math
 import time
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from fractions import Fraction
 from typing import Any
@@ -428,7 +428,7 @@ class Explorer:
     def __init__(
         self,
         chart: Statechart,
-        properties: list[Property] = (),  # type: ignore[assignment]
+        properties: Sequence[Property] = (),
         environment: Environment | None = None,
         unanswered: int = DEFAULT_UNANSWERED,
         max_states: int = 2_000_000,
