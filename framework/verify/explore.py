@@ -573,15 +573,10 @@ class Explorer:
         """Replay `path` from the start to stamp each step with its time and the tag
         each answer carries; also the time at its end."""
         fresh = Interpreter(self.chart, SimulatedClock())
-        outstanding: list[str] = []
-
-        class _Requests(Listener):
-            def on_output(self, output: Output) -> None:
-                if output.kind == "configure":
-                    outstanding.append(output.tag)
-
-        fresh.listeners.append(_Requests())
+        requests = _Observer(fresh, [])  # only its record of the requests is used
+        fresh.listeners.append(requests)
         fresh.start()
+        outstanding = requests.outstanding
         steps: list[TraceStep] = []
         for inp in path:
             now = fresh.clock.now()
