@@ -24,6 +24,11 @@ examples:
   fw verify statecharts/pick_place.yaml --properties procedures/pick_place/properties.yaml
   fw verify statecharts/seeg.yaml --properties p.yaml --counterexamples /tmp/cx --json
 
+--spin checks the same question a second way: the chart and each property exported to
+Promela with semantics of their own (framework/verify/promela.py), searched by SPIN; a
+SPIN counterexample is played on fw's interpreter to confirm it. Needs `spin` and `cc`
+(tools/install.sh --test installs them).
+
 Properties are written as never / always / responds / precedes (docs/statecharts.md,
 "Proving properties"). Exit code 0: every property holds; 1: one is violated, the
 exploration stopped at --max-states, or a file has errors.
@@ -60,6 +65,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
             print(f"  ... {states} states, {transitions} transitions", file=sys.stderr)
 
     result = explorer.run(progress)
+    second = _cross_check(args, chart, props.properties, explorer) if args.spin else None
     out_dir = Path(args.counterexamples)
     written: dict[str, str] = {}
     for verdict in result.verdicts:
@@ -68,11 +74,72 @@ def cmd_verify(args: argparse.Namespace) -> int:
                 write_counterexample(out_dir, chart, verdict, args.chart)
             )
     if args.json:
-        print(json.dumps(_as_json(result, written), indent=2))
+        report = _as_json(result, written)
+        if second is not None:
+            report["spin"] = second
+        print(json.dumps(report, indent=2))
     else:
         _print(result, written, chart.name)
+        if second is not None:
+            _print_spin(second)
     failed = any(not v.holds for v in result.verdicts) or not result.complete
-    return 1 if failed else 0
+    disagree = second is not None and not all(c["agrees"] for c in second)
+    return 1 if failed or disagree else 0
+
+
+def _cross_check(
+    args: argparse.Namespace, chart: Any, properties: list[Any], explorer: Any
+) -> list[dict[str, Any]]:
+    """SPIN's verdict on every property beside fw's, and each SPIN counterexample played
+    on fw's interpreter: agreement means the same verdict and, on a violation, a SPIN
+    trace that fw's own engine confirms."""
+    from framework.verify import spin
+    from framework.verify.promela import Inputs
+
+    if not args.json:
+        print("  ... SPIN: one model per property (framework/verify/promela.py)", file=sys.stderr)
+    inputs = Inputs(
+        explorer.environment.events, explorer.observed, explorer.quantum, explorer.unanswered
+    )
+    verdicts = spin.check(chart, properties, inputs, keep=args.promela)
+    out = []
+    for i, (theirs, ours) in enumerate(zip(verdicts, explorer.last_verdicts, strict=True)):
+        confirmed = None
+        if not theirs.holds:
+            confirmed = i in explorer.judge(theirs.trace)
+        out.append(
+            {
+                "name": theirs.prop.name,
+                "spin_holds": theirs.holds,
+                "fw_holds": ours.holds,
+                "agrees": theirs.holds == ours.holds and confirmed is not False,
+                "spin_states": theirs.states,
+                "spin_seconds": round(theirs.seconds, 2),
+                "spin_trace_steps": len(theirs.trace) if not theirs.holds else None,
+                "fw_trace_steps": len(ours.trace) if not ours.holds else None,
+                "spin_trace_confirmed_by_fw": confirmed,
+                "model": theirs.model if args.promela else None,
+            }
+        )
+    return out
+
+
+def _print_spin(rows: list[dict[str, Any]]) -> None:
+    agree = sum(r["agrees"] for r in rows)
+    print(f"SPIN cross-check: {agree} of {len(rows)} properties agree")
+    width = max((len(r["name"]) for r in rows), default=0)
+    for r in rows:
+        mark = "agrees   " if r["agrees"] else "DISAGREES"
+        spin_says = "holds" if r["spin_holds"] else "violated"
+        fw_says = "holds" if r["fw_holds"] else "violated"
+        line = f"  {mark} {r['name']:<{width}}  SPIN {spin_says}, fw {fw_says}"
+        if not r["spin_holds"]:
+            ok = "confirmed" if r["spin_trace_confirmed_by_fw"] else "NOT confirmed"
+            line += (
+                f"; SPIN's trace ({r['spin_trace_steps']} steps) {ok} by fw's interpreter, "
+                f"fw's shortest {r['fw_trace_steps']} steps"
+            )
+        print(line + f"  [{r['spin_states']} SPIN states, {r['spin_seconds']:.1f} s]")
 
 
 def _topology_environment(path: str) -> tuple[list[str], list[tuple[str, str]]]:
@@ -176,6 +243,18 @@ def add_commands(sub: Any) -> None:
         default=2_000_000,
         metavar="N",
         help="stop (and fail) after this many states (default: 2000000)",
+    )
+    p.add_argument(
+        "--spin",
+        action="store_true",
+        help="judge every property a second time with the SPIN model checker (Debian's "
+        "spin and a C compiler) on a Promela model with semantics written anew; exit 1 "
+        "if the two disagree",
+    )
+    p.add_argument(
+        "--promela",
+        metavar="DIR",
+        help="with --spin: keep each property's Promela model (and SPIN's trail) in DIR",
     )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=cmd_verify)

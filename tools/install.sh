@@ -8,7 +8,7 @@
 #                                                       harness (tools/bench; --test has it)
 # What it installs: the Debian packages a run needs when they are missing (graphviz
 # draws the console's live chart; with --test also chromium for the browser tests,
-# and python3-venv where a virtual environment must be made), then fw itself
+# spin and gcc for `fw verify --spin`, and python3-venv where a virtual environment must be made), then fw itself
 # (with --test its test extras) into: the active virtual environment; else ./.venv if
 # it exists; else, when this Python is the system's own ("externally managed", as on
 # Debian 12), a new ./.venv; else this Python.
@@ -48,7 +48,11 @@ system_python() {  # PEP 668: pip may not install into this Python
 
 need=()
 command -v dot >/dev/null 2>&1 || need+=(graphviz)
-if [ -n "$extras" ]; then command -v chromium >/dev/null 2>&1 || need+=(chromium); fi
+if [ -n "$extras" ]; then
+  command -v chromium >/dev/null 2>&1 || need+=(chromium)
+  command -v spin >/dev/null 2>&1 || need+=(spin)   # fw verify --spin, the second checker
+  command -v cc >/dev/null 2>&1 || need+=(gcc)      # compiles SPIN's verifier
+fi
 fresh=""
 if [ "${CI:-}" = true ]; then fresh=1; fi
 if { [ -n "$fresh" ] || { [ -z "${VIRTUAL_ENV:-}" ] && [ ! -d .venv ] && system_python; }; } \

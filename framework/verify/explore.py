@@ -422,6 +422,27 @@ class _Observer(Listener):
 # -- the search ------------------------------------------------------------------------
 
 
+def _step(
+    interpreter: Interpreter,
+    observer: _Observer,
+    quantum: float | None,
+    inp: Input,
+    outstanding: list[str],
+    monitors: list[int],
+) -> None:
+    """One step: the input, then the chart until quiet, watched by `observer`."""
+    observer.begin(outstanding, monitors)
+    if inp.kind == TICK:
+        assert quantum is not None
+        interpreter.advance(quantum)
+    else:
+        tag = observer.outstanding.pop(0) if inp.kind in (DONE, FAILED) else ""
+        name, payload = inp.event(tag)
+        interpreter.queue(name, payload)
+        interpreter.run()
+    observer.end()
+
+
 class Explorer:
     """Breadth-first search of a chart's reachable states under an `Environment`."""
 
@@ -460,6 +481,8 @@ class Explorer:
         self.interpreter = Interpreter(chart, SimulatedClock())
         self.observer = _Observer(self.interpreter, self.properties)
         self.interpreter.listeners.append(self.observer)
+        self.last_verdicts: list[Verdict] = []
+        """After `run`: each property's verdict, in order."""
         self.visited: dict[str, Any] = {}
         """After `run`: every state explored (its key) with the step that first reached it."""
 
@@ -476,17 +499,24 @@ class Explorer:
         return outstanding, monitors
 
     def _apply(self, inp: Input, outstanding: list[str], monitors: list[int]) -> None:
-        observer, interpreter = self.observer, self.interpreter
-        observer.begin(outstanding, monitors)
-        if inp.kind == TICK:
-            assert self.quantum is not None
-            interpreter.advance(self.quantum)
-        else:
-            tag = observer.outstanding.pop(0) if inp.kind in (DONE, FAILED) else ""
-            name, payload = inp.event(tag)
-            interpreter.queue(name, payload)
-            interpreter.run()
+        _step(self.interpreter, self.observer, self.quantum, inp, outstanding, monitors)
+
+    def judge(self, path: Sequence[Input]) -> dict[int, str]:
+        """Play `path` from the start on a fresh interpreter with this explorer's
+        monitors; return the properties violated on the way (index: why). How another
+        checker's counterexample is confirmed by fw's own engine (`fw verify --spin`)."""
+        interpreter = Interpreter(self.chart, SimulatedClock())
+        observer = _Observer(interpreter, self.properties)
+        interpreter.listeners.append(observer)
+        observer.begin([], [_IDLE if p.pattern != "precedes" else 0 for p in self.properties])
+        interpreter.start()
         observer.end()
+        found = dict(observer.violated)
+        for inp in path:
+            _step(interpreter, observer, self.quantum, inp, observer.outstanding, observer.monitors)
+            for i, why in observer.violated.items():
+                found.setdefault(i, why)
+        return found
 
     def _inputs(self, outstanding: list[str]) -> list[Input]:
         inputs = self.environment.inputs(self.interpreter.accepts, self.observed)
@@ -546,6 +576,7 @@ class Explorer:
             path = self._path(parents, key) + ([inp] if inp is not None else [])
             trace, end = self._trace(path)
             verdicts.append(Verdict(prop, trace, leaves, why, end))
+        self.last_verdicts = verdicts
         return Result(
             len(parents),
             transitions,

@@ -415,7 +415,7 @@ def test_a_real_time_loop_beats_for_its_process_and_a_hung_loop_falls_silent(hub
     container.start()
     try:
         clock.start()
-        assert wait_until(lambda: seen.stats.received >= 5)
+        assert wait_until(lambda: seen.stats.received >= 5, timeout=20.0)
         assert clock.beaten_from == {"fw-clock"}, "beaten by the loop's own thread"
         assert not any(t.name.startswith("fw-beat-") for t in threading.enumerate())
         clock.hang.set()

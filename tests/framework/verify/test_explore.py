@@ -251,7 +251,12 @@ def test_a_counterexample_replayed_with_fw_run_reaches_the_violating_state(tmp_p
 def test_every_shipped_chart_holds_its_shipped_properties(
     tmp_path, capsys, chart, properties, topology
 ):
-    """What CI runs: `fw verify` on every shipped chart that has properties."""
+    """What CI runs: `fw verify` on every shipped chart that has properties, with the
+    SPIN cross-check where SPIN is installed (tools/install.sh --test installs it):
+    both checkers say every property holds."""
+    from framework.verify import spin
+
+    second = ["--spin", "--promela", str(tmp_path / "models")] if not spin.available() else []
     code = main(
         [
             "verify",
@@ -261,11 +266,18 @@ def test_every_shipped_chart_holds_its_shipped_properties(
             "-t",
             str(REPO / topology),
             "--counterexamples",
-            str(tmp_path),
+            str(tmp_path / "cx"),
+            *second,
             "--json",
         ]
     )
     report = json.loads(capsys.readouterr().out)
     assert code == 0, [p for p in report["properties"] if not p["holds"]]
     assert report["complete"] and report["states"] > 100
-    assert not list(tmp_path.iterdir())
+    assert not (tmp_path / "cx").exists()
+    if second:
+        rows = report["spin"]
+        assert [r["name"] for r in rows] == [p["name"] for p in report["properties"]]
+        assert all(r["agrees"] and r["spin_holds"] and r["fw_holds"] for r in rows)
+        assert all(r["spin_states"] > 100 for r in rows), "SPIN searched a real space"
+        assert len(list((tmp_path / "models").glob("*/model.pml"))) == len(rows)
