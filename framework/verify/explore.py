@@ -330,12 +330,14 @@ class _Observer(Listener):
         self.violated: dict[int, str] = {}
         self.event: Event | None = None
         self._answered: set[int] = set()  # responds: its `with` seen in this step
-        self._by_kind: dict[str, list[int]] = {}
+        watching: dict[tuple[str, str], set[int]] = {}
         for i, p in enumerate(properties):
             for m in (p.first, p.second, p.third):
                 if m is not None and m.kind:
-                    self._by_kind.setdefault(m.kind, []).append(i)
-        self._by_kind = {k: sorted(set(v)) for k, v in self._by_kind.items()}
+                    for name in m.names:
+                        watching.setdefault((m.kind, name), set()).add(i)
+        self._watching = {k: sorted(v) for k, v in watching.items()}
+        """The properties that watch each (kind, name): most observations concern none."""
 
     def begin(self, outstanding: list[str], monitors: list[int]) -> None:
         """Start a step from a state's requests and monitors."""
@@ -376,7 +378,7 @@ class _Observer(Listener):
         return m is not None and m.kind == kind and name in m.names and self._holds(m)
 
     def _observe(self, kind: str, name: str) -> None:
-        for i in self._by_kind.get(kind, ()):
+        for i in self._watching.get((kind, name), ()):
             p = self.properties[i]
             if p.pattern == "never":
                 if self._matches(p.first, kind, name):

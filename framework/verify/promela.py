@@ -537,7 +537,7 @@ class _Writer:
         for name, spec in chart.variables.items():
             emit(f"int v_{name} = {self.encode(spec.initial)};")
         emit("/* one step's scratch: cleared at the end of every step */")
-        emit("bit left[N]; bit want[N]; bit dflt[N]; bit cmp[N]; bit blk[N]; short rank[S];")
+        emit("bit exited[N]; bit want[N]; bit dflt[N]; bit cmp[N]; bit blk[N]; short rank[S];")
         emit("short chn[CH * MAXC]; byte chl[CH]; byte nch; short tmpc[MAXC]; byte tmplen;")
         emit("int ev; int evbit; bit noev; bit noev_x; bit viol; bit answered; bit gok; bit found;")
         emit("byte stage; byte then; bit started;")
@@ -678,7 +678,7 @@ class _Writer:
             "exit_one",
             [
                 "if :: exit_[x_n] != 0 -> noev_x = noev; noev = 1; run_actions(exit_[x_n]); noev = noev_x :: else -> skip fi;",
-                "act[x_n] = 0; left[x_n] = 1; pend[x_n] = 0;",
+                "act[x_n] = 0; exited[x_n] = 1; pend[x_n] = 0;",
                 "x_k = 0; do :: x_k < S -> if :: snode_[x_k] == x_n -> tm_on[x_k] = 0; tm_rem[x_k] = 0; tm_seq[x_k] = 0 :: else -> skip fi; x_k++ :: else -> break od;",
                 "observe_exit()",
             ],
@@ -773,9 +773,9 @@ class _Writer:
                 "f_i = 0;",
                 "do :: f_i < nch ->",
                 "     src = tsrc_[chn[f_i * MAXC]];",
-                "     if :: act[src] && !left[src] -> fire_chain() :: else -> skip fi; f_i++",
+                "     if :: act[src] && !exited[src] -> fire_chain() :: else -> skip fi; f_i++",
                 ":: else -> break od;",
-                "f_i = 0; do :: f_i < N -> left[f_i] = 0; f_i++ :: else -> break od;",
+                "f_i = 0; do :: f_i < N -> exited[f_i] = 0; f_i++ :: else -> break od;",
                 "f_i = 0; do :: f_i < CH -> chl[f_i] = 0; f_i++ :: else -> break od;",
                 "f_i = 0; do :: f_i < CH * MAXC -> chn[f_i] = 0; f_i++ :: else -> break od;",
                 "f_i = 0; nch = 0; src = 0; tgt = 0; dom = 0; f_last = 0; d_ = 0",
