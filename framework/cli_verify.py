@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from framework.errors import FindingsError
+from framework.errors import FindingsError, FwError
 
 EPILOG = """\
 Explores every state the chart can reach with fw's own interpreter (the engine that runs
@@ -42,6 +42,8 @@ def cmd_verify(args: argparse.Namespace) -> int:
     from framework.verify.properties import load_properties
     from framework.verify.scenario import write_counterexample
 
+    if args.promela and not args.spin:
+        raise FwError("--promela DIR keeps the models of --spin: add --spin")
     chart, findings = build_statechart(args.chart)
     errors = [f for f in findings if f.severity == "error"]
     if chart is None or errors:
