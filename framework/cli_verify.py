@@ -67,7 +67,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
             print(f"  ... {states} states, {transitions} transitions", file=sys.stderr)
 
     result = explorer.run(progress)
-    second = _cross_check(args, chart, props.properties, explorer) if args.spin else None
+    second = _cross_check(args, chart, props.properties, explorer, result) if args.spin else None
     out_dir = Path(args.counterexamples)
     written: dict[str, str] = {}
     for verdict in result.verdicts:
@@ -90,7 +90,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
 
 
 def _cross_check(
-    args: argparse.Namespace, chart: Any, properties: list[Any], explorer: Any
+    args: argparse.Namespace, chart: Any, properties: list[Any], explorer: Any, result: Any
 ) -> list[dict[str, Any]]:
     """SPIN's verdict on every property beside fw's, and each SPIN counterexample played
     on fw's interpreter: agreement means the same verdict and, on a violation, a SPIN
@@ -105,7 +105,7 @@ def _cross_check(
     )
     verdicts = spin.check(chart, properties, inputs, keep=args.promela)
     out = []
-    for i, (theirs, ours) in enumerate(zip(verdicts, explorer.last_verdicts, strict=True)):
+    for i, (theirs, ours) in enumerate(zip(verdicts, result.verdicts, strict=True)):
         confirmed = None
         if not theirs.holds:
             confirmed = i in explorer.judge(theirs.trace)

@@ -483,8 +483,6 @@ class Explorer:
         self.interpreter = Interpreter(chart, SimulatedClock())
         self.observer = _Observer(self.interpreter, self.properties)
         self.interpreter.listeners.append(self.observer)
-        self.last_verdicts: list[Verdict] = []
-        """After `run`: each property's verdict, in order."""
         self.visited: dict[str, Any] = {}
         """After `run`: every state explored (its key) with the step that first reached it."""
 
@@ -578,7 +576,6 @@ class Explorer:
             path = self._path(parents, key) + ([inp] if inp is not None else [])
             trace, end = self._trace(path)
             verdicts.append(Verdict(prop, trace, leaves, why, end))
-        self.last_verdicts = verdicts
         return Result(
             len(parents),
             transitions,

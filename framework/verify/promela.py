@@ -258,7 +258,7 @@ class _Writer:
         self.symbols: dict[str, int] = {}
         self.fields: set[str] = {"tag"}
         self.guards: list[str] = []
-        self.lists: list[tuple[tuple[Action, ...], bool]] = []
+        self.lists: list[tuple[Action, ...]] = []
         self._check_junctions()
 
     def _preorder(self, s: State) -> None:
@@ -325,14 +325,14 @@ class _Writer:
         self.guards.append(f"({d} && {v})")
         return len(self.guards)
 
-    def list_id(self, actions: tuple[Action, ...], exit_context: bool = False) -> int:
+    def list_id(self, actions: tuple[Action, ...]) -> int:
         """A number for an action list that changes the chart's state (0: none does)."""
         for a in actions:
             if a.kind == "raise":
                 raise PromelaUnsupported(f"{a.location}: Promela export: 'raise' actions")
         if not any(a.kind in ("set", "configure") for a in actions):
             return 0
-        self.lists.append((actions, exit_context))
+        self.lists.append(actions)
         return len(self.lists)
 
     def quanta(self, k: int) -> int:
@@ -487,7 +487,7 @@ class _Writer:
                 f"end_[{i}] = {self.end[i]}; tfirst_[{i}] = {first}; tlast_[{i}] = {first + len(s.transitions)}; "
                 f"init_[{i}] = {self.node_id(s.initial) if s.initial is not None else -1}; "
                 f"cfg_[{i}] = {self.tags.index(s.configure.tag) if s.configure else -1}; "
-                f"entry_[{i}] = {self.list_id(s.entry)}; exit_[{i}] = {self.list_id(s.exit, True)}; "
+                f"entry_[{i}] = {self.list_id(s.entry)}; exit_[{i}] = {self.list_id(s.exit)}; "
                 f"do_[{i}] = {self.list_id(s.do)};"
             )
         for k, t in enumerate(self.trans):
@@ -562,7 +562,7 @@ class _Writer:
         emit("}")
         emit("inline run_actions(a) {")
         emit("  if")
-        for i, (acts, _) in enumerate(self.lists, start=1):
+        for i, acts in enumerate(self.lists, start=1):
             body: list[str] = []
             self.actions(acts, body)
             emit(f"  :: a == {i} -> {' '.join(body)}")
