@@ -100,9 +100,7 @@ def _cross_check(
 
     if not args.json:
         print("  ... SPIN: one model per property (framework/verify/promela.py)", file=sys.stderr)
-    inputs = Inputs(
-        explorer.environment.events, explorer.observed, explorer.quantum, explorer.unanswered
-    )
+    inputs = Inputs.of(explorer)
     verdicts = spin.check(chart, properties, inputs, keep=args.promela)
     out = []
     for i, (theirs, ours) in enumerate(zip(verdicts, result.verdicts, strict=True)):

@@ -51,7 +51,7 @@ from framework.statechart.model import (
     Statechart,
     Transition,
 )
-from framework.verify.explore import DONE, FAILED, SEND, TICK, Input
+from framework.verify.explore import DONE, FAILED, SEND, TICK, Explorer, Input
 from framework.verify.properties import Matcher, Property
 
 AFTER = "after"
@@ -76,6 +76,13 @@ class Inputs:
     observed: frozenset[str]
     quantum: float | None
     unanswered: int
+
+    @classmethod
+    def of(cls, explorer: Explorer) -> Inputs:
+        """The question `explorer` answers, for SPIN to answer too."""
+        return cls(
+            explorer.environment.events, explorer.observed, explorer.quantum, explorer.unanswered
+        )
 
 
 @dataclass

@@ -28,12 +28,6 @@ needs_spin = pytest.mark.skipif(
 )
 
 
-def inputs_of(explorer: Explorer) -> Inputs:
-    return Inputs(
-        explorer.environment.events, explorer.observed, explorer.quantum, explorer.unanswered
-    )
-
-
 @needs_spin
 @pytest.mark.parametrize("bug", sorted(BUGS))
 def test_spin_catches_each_seeded_bug_and_fws_interpreter_confirms_its_trace(bug: str) -> None:
@@ -41,7 +35,7 @@ def test_spin_catches_each_seeded_bug_and_fws_interpreter_confirms_its_trace(bug
     chart, props = seeded(files, old, new)
     watched = [p for p in props.properties if p.name in expected.split()]
     explorer = Explorer(chart, props.properties, unanswered=props.unanswered)
-    verdicts = spin.check(chart, watched, inputs_of(explorer))
+    verdicts = spin.check(chart, watched, Inputs.of(explorer))
     caught = [v for v in verdicts if not v.holds]
     assert caught, f"SPIN missed {bug}"
     index = {p.name: i for i, p in enumerate(props.properties)}
@@ -140,7 +134,7 @@ def test_on_random_charts_spin_and_fw_verify_give_the_same_verdict(case, tmp_pat
     result = explorer.run()
     if not result.complete:
         return  # a counter without bound: nothing to compare
-    (theirs,) = spin.check(chart, props.properties, inputs_of(explorer))
+    (theirs,) = spin.check(chart, props.properties, Inputs.of(explorer))
     assert theirs.holds == result.verdicts[0].holds, (spec, props_doc)
     if not theirs.holds:
         assert 0 in explorer.judge(theirs.trace)
@@ -158,7 +152,7 @@ def test_the_export_refuses_what_it_does_not_cover_and_says_where(tmp_path) -> N
     props = load_properties(tmp_path / "p.yaml", chart)
     explorer = Explorer(chart, props.properties)
     with pytest.raises(PromelaUnsupported, match=r"r\.yaml:6:\d+: .*'raise'"):
-        export(chart, props.properties[0], inputs_of(explorer))
+        export(chart, props.properties[0], Inputs.of(explorer))
 
 
 def test_without_spin_the_cross_check_says_what_to_install(capsys, monkeypatch) -> None:
