@@ -41,10 +41,21 @@ class KinectModel:
     ghost_rate: float = 0.02  # ghosts started per second
     floor: float = 0.0  # the floor's height, where ghosts stand as people do
     rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
+    """Frame dropouts and joint noise: drawn frame by frame."""
+    ghost_rng: np.random.Generator | None = None
+    """When and where ghosts appear (default: a stream spawned from `rng`): drawn ghost
+    by ghost on the room's clock, apart from the frames, so the same seed gives the same
+    ghosts at the same room times however many frames a busy host makes."""
     _ids: dict[int, int] = field(default_factory=dict)
     _ghosts: list[tuple[float, float, np.ndarray, int]] = field(default_factory=list)
+    _next_ghost: float | None = None
+    """Room time (s) the next ghost appears; None until the first frame."""
     _inverse: tuple[np.ndarray | None, np.ndarray] = (None, np.eye(4))
     """(world_from_camera, its inverse), kept while the pose is the same array."""
+
+    def __post_init__(self) -> None:
+        if self.ghost_rng is None:
+            self.ghost_rng = self.rng.spawn(1)[0]
 
     def in_view(self, points: np.ndarray) -> np.ndarray:
         """Which camera-frame points are inside the field of view and depth range."""
@@ -79,10 +90,12 @@ class KinectModel:
         return hidden
 
     def observe(
-        self, people: dict[int, np.ndarray], now: float, dt: float
+        self, people: dict[int, np.ndarray], now: float
     ) -> list[tuple[int, np.ndarray]] | None:
-        """(user id, joints in the camera frame) for this frame; None when the camera
-        drops the frame (it sends nothing, which is not the same as seeing no one)."""
+        """(user id, joints in the camera frame) for the frame taken at room time `now`
+        (s); None when the camera drops the frame (it sends nothing, which is not the
+        same as seeing no one)."""
+        self._schedule_ghosts(now)
         if self.rng.random() < self.dropout:
             return None
         in_camera = {pid: self.to_camera(s) for pid, s in people.items()}
@@ -101,7 +114,7 @@ class KinectModel:
                 continue  # mostly hidden: the camera loses this user
             seen += self.noise(seen)
             out.append((self._user_id(pid), seen))
-        out += self._ghost_frame(now, dt)
+        out += [(uid, g + self.noise(g)) for _, _, g, uid in self._ghosts]
         return out[:MAX_USERS]
 
     def noise(self, joints: np.ndarray) -> np.ndarray:
@@ -118,25 +131,47 @@ class KinectModel:
             self._ids[person] = next(i for i in range(1, 100) if i not in used)
         return self._ids[person]
 
-    def _ghost_frame(self, now: float, dt: float) -> list[tuple[int, np.ndarray]]:
-        """Ghost skeletons: a body that is not there, standing 1.5-3.5 m in front of
-        the camera somewhere across its view, reported as a person would be (the
-        joints outside the view unseen, at most half the body out of it)."""
-        if self.rng.random() < self.ghost_rate * dt:
-            eye = self.world_from_camera[:3, 3]
-            axis = self.world_from_camera[:3, 2]
-            heading = math.atan2(axis[1], axis[0]) + self.rng.uniform(-H_FOV / 2, H_FOV / 2)
-            reach = self.rng.uniform(1.5, 3.5)
-            at = (eye[0] + reach * math.cos(heading), eye[1] + reach * math.sin(heading))
-            ghost = self.to_camera(standing(at, self.rng.uniform(0, 2 * math.pi), floor=self.floor))
-            inside = self.in_view(ghost)
-            if inside.mean() > 0.5:
-                ghost[~inside] = np.nan
-                self._ghosts.append(
-                    (now, now + self.rng.uniform(0.1, 0.9), ghost, 50 + len(self._ghosts))
-                )
+    def _schedule_ghosts(self, now: float) -> None:
+        """Start the ghosts due by room time `now` (a Poisson process of `ghost_rate`
+        per second from the first frame) and forget the ended ones. A ghost is a body
+        that is not there, standing 1.5-3.5 m in front of the camera somewhere across
+        its view, reported as a person would be (the joints outside the view unseen, at
+        most half the body out of it), for 0.1-0.9 s of the room's clock."""
+        if self._next_ghost is None:
+            self._next_ghost = now + self._ghost_gap()
+        while self._next_ghost <= now:
+            start = self._next_ghost
+            self._next_ghost = start + self._ghost_gap()
+            self._start_ghost(start, now)
         self._ghosts = [g for g in self._ghosts if g[1] > now]
-        return [(uid, g + self.noise(g)) for start, _, g, uid in self._ghosts]
+
+    def _ghost_gap(self) -> float:
+        """Room time (s) from one ghost to the next (inf: no ghosts)."""
+        if not self.ghost_rate > 0.0:
+            return math.inf
+        assert self.ghost_rng is not None
+        return float(self.ghost_rng.exponential(1.0 / self.ghost_rate))
+
+    def _start_ghost(self, start: float, now: float) -> None:
+        """Draw the ghost due at room time `start` and keep it if it stands in view and
+        lasts past `now` (a frame late or dropped may come after a short one ended):
+        every ghost draws the same numbers, so one left out shifts none after it."""
+        rng = self.ghost_rng
+        assert rng is not None
+        eye = self.world_from_camera[:3, 3]
+        axis = self.world_from_camera[:3, 2]
+        heading = math.atan2(axis[1], axis[0]) + rng.uniform(-H_FOV / 2, H_FOV / 2)
+        reach = rng.uniform(1.5, 3.5)
+        facing = rng.uniform(0, 2 * math.pi)
+        end = start + rng.uniform(0.1, 0.9)
+        if end <= now:  # over before this frame (a clock that jumped: no body to build)
+            return
+        at = (eye[0] + reach * math.cos(heading), eye[1] + reach * math.sin(heading))
+        ghost = self.to_camera(standing(at, facing, floor=self.floor))
+        inside = self.in_view(ghost)
+        if inside.mean() > 0.5:
+            ghost[~inside] = np.nan
+            self._ghosts.append((start, end, ghost, 50 + len(self._ghosts)))
 
     def to_message(self, users: list[tuple[int, np.ndarray]], stamp: float) -> Skeletons:
         """The `Skeletons` message of one frame (NaN joints sent with confidence 0)."""
@@ -152,11 +187,11 @@ class KinectModel:
 
 
 def frames(
-    cameras: list[KinectModel], people: dict[int, np.ndarray], now: float, dt: float
+    cameras: list[KinectModel], people: dict[int, np.ndarray], now: float
 ) -> dict[str, list[tuple[int, np.ndarray]]]:
-    """What these cameras send for one frame, by name: a camera that drops the frame
-    sends nothing and is left out."""
-    sent = {c.name: c.observe(people, now, dt) for c in cameras}
+    """What these cameras send for the frame at room time `now`, by name: a camera
+    that drops the frame sends nothing and is left out."""
+    sent = {c.name: c.observe(people, now) for c in cameras}
     return {name: users for name, users in sent.items() if users is not None}
 
 
@@ -190,23 +225,19 @@ class KinectSim(Component):
             rng=np.random.default_rng(self.seed),
         )
         self.people: dict[int, np.ndarray] = {}
-        self._last: float | None = None
         return True
 
     def update_hook(self) -> None:
-        # the camera lives in the room's time: a frame covers the time since the last
-        # one (a busy host makes fewer, longer frames), so a ghost lasts under a second
-        # of the clock that the people walk by, not a count of frames
+        # the camera lives in the room's time: its ghosts come and go by the clock the
+        # people walk by, not by a count of frames (a busy host makes fewer, longer ones)
         now = self.clock.now()
-        dt = 1.0 / 30.0 if self._last is None else min(max(now - self._last, 0.0), 0.1)
-        self._last = now
         status, truth = self.world.read()
         if status is not ReadStatus.NO_DATA and truth is not None:
             self.people = {
                 u.user_id: np.array(u.joints, dtype=float).reshape(len(JOINTS), 3)
                 for u in truth.users
             }
-        frame = self.model.observe(self.people, now, dt)
+        frame = self.model.observe(self.people, now)
         if frame is not None:  # a dropped frame sends nothing
             self.users.write(self.model.to_message(frame, time.time()))
 

@@ -49,7 +49,7 @@ def run(cams, core, people, frames, start=0, robot=None, drop=(), corrupt=False)
         for cam in cams:
             if cam.name in drop:
                 continue
-            seen = cam.observe(people, k * FRAME, FRAME)
+            seen = cam.observe(people, k * FRAME)
             if corrupt:
                 seen = [(u, np.where(np.arange(15)[:, None] == 3, np.nan, j)) for u, j in seen]
                 seen = [(u, j) for u, j in seen] + [(99, np.full((15, 3), np.inf))]
@@ -70,7 +70,7 @@ def test_the_robot_person_distance_names_the_closest_pair():
     alice = standing((0.7, 0.0), facing=np.pi)
     robot = (
         np.array([[0.0, 0.0, 0.3], [0.0, 0.0, 0.9]]),
-        np.array([[0.0, 0.0, 0.9], [0.45, 0.0, 1.2]]),
+        np.array([[0.0, 0.0, 0.9], [0.4, 0.0, 1.2]]),
         np.array([0.08, 0.06]),
     )
     frame = run(cams, core, {1: alice}, 40, robot=robot)
@@ -146,7 +146,7 @@ def test_a_person_with_an_unseen_joint_has_a_finite_envelope():
 
     frame = None
     for k in range(40):
-        users = {c.name: hide_hand(c.observe({1: alice}, k * FRAME, FRAME)) for c in cams}
+        users = {c.name: hide_hand(c.observe({1: alice}, k * FRAME)) for c in cams}
         frame = core.process(users, k * FRAME, robot)
     assert np.isnan(frame.people[0].sigma[5])
     assert 1.5 < frame.min_distance < 2.5, frame.min_distance
@@ -225,7 +225,7 @@ def test_a_person_whose_torso_is_hidden_still_counts_near_the_table():
         users = {
             c.name: [
                 (u, np.where(np.arange(15)[:, None] == 2, np.nan, j))
-                for u, j in c.observe({1: alice}, k * FRAME, FRAME)
+                for u, j in c.observe({1: alice}, k * FRAME)
             ]
             for c in cams
         }
@@ -259,7 +259,7 @@ def _walk(cams, core, still, start, end, speed, hide=None):
         people = {2: standing(tuple(at), 0.0)}
         if still is not None:
             people[1] = standing(still, -np.pi / 2)
-        users = {c.name: c.observe(people, k * FRAME, FRAME) for c in cams}
+        users = {c.name: c.observe(people, k * FRAME) for c in cams}
         walker_id = cams[0]._ids.get(2)
         if hide is not None and hide(at[0]):
             users["k0"] = [(u, j) for u, j in users["k0"] if u != walker_id]
@@ -406,7 +406,7 @@ def test_frames_a_busy_host_delivers_late_do_not_stretch_a_ghost_into_someone_gu
         taken = k * FRAME  # when the camera saw it
         late = 0.35 if k else 0.0
         clock.set(50.0 + taken + late)
-        users = camera.observe(ghost, taken, FRAME) if k < 27 else []
+        users = camera.observe(ghost, taken) if k < 27 else []
         message = camera.to_message(users, time.time() - late)
         detector.camera_ports["kinect_0"].deliver_local(messages.encode(message, Skeletons))
         detector.update_hook()

@@ -17,9 +17,9 @@ def camera(**kw) -> KinectModel:
 def test_a_dropped_frame_sends_nothing_which_is_not_seeing_no_one():
     alice = {1: standing((0.0, 0.0))}
     dropping = camera(dropout=1.0)
-    assert dropping.observe(alice, 0.0, FRAME) is None
+    assert dropping.observe(alice, 0.0) is None
     quiet = KinectModel("k1", look_at((0.0, 3.0, 2.2), (0.0, 0.0, 1.0)), dropout=0.0)
-    sent = frames([dropping, quiet], {}, 0.0, FRAME)
+    sent = frames([dropping, quiet], {}, 0.0)
     assert sent == {"k1": []}, "k0 sent nothing; k1 saw no one"
 
 
@@ -27,7 +27,7 @@ def test_ghosts_stand_in_the_cameras_own_view_and_are_reported_as_people_are():
     cam = camera(ghost_rate=30.0, dropout=0.0, rng=np.random.default_rng(3))
     ghosts = []
     for k in range(300):
-        ghosts += [j for uid, j in cam.observe({}, k * FRAME, FRAME) if uid >= 50]
+        ghosts += [j for uid, j in cam.observe({}, k * FRAME) if uid >= 50]
     assert len(ghosts) > 50
     for joints in ghosts:
         seen = ~np.isnan(joints).any(axis=1)
@@ -66,6 +66,28 @@ def test_a_ghost_lasts_under_a_second_of_the_rooms_clock_however_few_frames_a_bu
     assert max(lasted) < 1.0
 
 
+def test_the_same_seed_shows_the_same_ghosts_at_the_same_room_times_whatever_the_frame_rate():
+    # the ghosts were drawn frame by frame from the noise's stream: a busy host that made
+    # fewer frames drew other ghosts, elsewhere, so a scenario's run met a ghost by the
+    # arm (and a protective stop) or not depending on the host's load (CI, crowd.yaml)
+    def ghosts_at(period_frames: int) -> dict[int, list]:
+        cam = camera(ghost_rate=3.0, dropout=0.0, rng=np.random.default_rng(7))
+        seen = {}
+        for k in range(0, 600, period_frames):
+            users = cam.observe({}, k / 30.0)
+            torsos = [j[1] @ cam.world_from_camera[:3, :3].T for _, j in users]
+            seen[k] = [t for t in torsos if np.isfinite(t).all()]
+        return seen
+
+    every, starved = ghosts_at(1), ghosts_at(6)  # 30 Hz and a starved 5 Hz
+    assert sum(map(len, starved.values())) > 20
+    compared = [k for k in starved if every[k] or starved[k]]
+    same = [k for k in compared if len(every[k]) == len(starved[k])]
+    assert len(same) == len(compared), "as many ghosts at every common frame"
+    apart = [min(np.linalg.norm(a - b) for b in starved[k]) for k in same for a in every[k]]
+    assert max(apart) < 0.15, "standing in the same places (within the depth noise)"
+
+
 def test_ghosts_stand_on_the_floor_as_people_do():
     # they stood on z = 0 whatever the floor: in the SEEG room (floor at -0.8 m in the
     # robot's base frame) that put them 0.8 m up, level with the robot's shoulder, and
@@ -83,7 +105,7 @@ def test_ghosts_stand_on_the_floor_as_people_do():
     feet_joints = [JOINTS.index("left_foot"), JOINTS.index("right_foot")]
     feet = []
     for k in range(200):
-        for uid, joints in cam.observe({}, k * FRAME, FRAME):
+        for uid, joints in cam.observe({}, k * FRAME):
             if uid >= 50:
                 at = joints @ cam.world_from_camera[:3, :3].T + cam.world_from_camera[:3, 3]
                 feet += [z for z in at[feet_joints, 2] if not np.isnan(z)]

@@ -200,7 +200,7 @@ def test_no_two_tracks_ever_bear_one_identity(variant, name):
     core, script = detector(cams), scenes.Script(scene)
     for k in range(int(scene.seconds / scenes.FRAME)):
         t = k * scenes.FRAME
-        core.process(frames(cams, script.advance(t, scenes.FRAME), t, scenes.FRAME), t)
+        core.process(frames(cams, script.advance(t, scenes.FRAME), t), t)
         live = [track.id for track in core.tracker.tracks if not track.gone]
         assert len(live) == len(set(live)), f"t={t:.2f}: {sorted(live)}"
 

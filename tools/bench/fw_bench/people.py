@@ -116,7 +116,7 @@ def frame_cost(
         if everyone:
             users = {c.name: [(p + 1, seen(c, j)) for p, j in people.items()] for c in cams}
         else:
-            users = kinect_sim.frames(cams, people, k * FRAME, FRAME)
+            users = kinect_sim.frames(cams, people, k * FRAME)
         t0 = time.perf_counter()
         core.process(users, k * FRAME, ROBOT)
         times.append(time.perf_counter() - t0)
@@ -153,7 +153,7 @@ def protocol(users: int, trials: int) -> dict[str, float]:
             t = k * FRAME
             where = next(p for start, p in reversed(script) if start <= t and p is not None)
             people = {u: standing(xy) for u, xy in where.items()}
-            frame = core.process(kinect_sim.frames(cams, people, t, FRAME), t)
+            frame = core.process(kinect_sim.frames(cams, people, t), t)
             if abs(t - 3.5) < FRAME / 2:
                 judged_in = frame.users_near
             if abs(t - 5.9) < FRAME / 2:

@@ -410,7 +410,7 @@ def play(scene: Scene, matcher: str = "hungarian") -> Iterator[Step]:
     for k in range(int(scene.seconds / FRAME)):
         t = k * FRAME
         truth = script.advance(t, FRAME)
-        users = frames(cams, truth, t, FRAME)
+        users = frames(cams, truth, t)
         frame = core.process(users, t)
         if t >= WARMUP:
             reported = set()
