@@ -86,7 +86,14 @@ class Frame:
 Group = tuple[frozenset[str], np.ndarray, np.ndarray]
 """A person of one frame: the cameras that saw them, fused joints (15, 3) and sigma (15,)."""
 
-SUSPECT = 5.0  # frames of net disagreement with the master before a camera is suspect
+SUSPECT = 30.0
+"""Frames of net disagreement with the master before a camera is suspect: a second at
+the Kinect's 30 Hz, longer than a ghost lives. A master's ghost where another camera
+looks is missed by that camera for the ghost's whole life (up to 27 frames); at 5
+frames it took the other camera's trust, and the people only it saw went uncounted for
+as long as it took to earn it back (a scene's MOTA fell from 0.99 to 0.63). A bumped
+camera's copies are refused at once where the master should see them too (`missing`):
+this is for the places only it sees."""
 DOUBT_FOR = 1.0
 """s: how long a verified camera may go on seeing people alone where a verified camera
 should see them too before it must earn its trust again: longer than a ghost lives

@@ -361,6 +361,22 @@ def test_a_ghost_where_the_master_looks_costs_its_camera_no_trust():
     assert core.process({"k0": [], "k1": []}, 27 * FRAME).people == [], "never someone"
 
 
+def test_a_ghost_of_the_master_where_another_camera_looks_costs_that_camera_no_trust():
+    """The other way round: the master's ghost is missed by every camera that looks
+    there, for the ghost's whole life; they keep their trust, and who only they see
+    still counts (5 frames of it took k1's trust: a scene's MOTA fell to 0.63)."""
+    cams, core = setup(verified=True)
+    ghost = standing((0.3, 0.4))
+    assert all(c.in_view(c.to_camera(ghost)).all() for c in cams), "where both look"
+    for k in range(27):  # 0.9 s: k0 alone sees it, k1 sees no one
+        core.process({"k0": [(50, cams[0].to_camera(ghost))], "k1": []}, k * FRAME)
+    assert core.verified == {"k0", "k1"}
+    only_k1 = cams[1].to_camera(standing(ONLY_K1_SEES))
+    for k in range(27, 27 + 40):  # as a lone user of a trusted camera: after 1 s
+        frame = core.process({"k0": [], "k1": [(7, only_k1)]}, k * FRAME)
+    assert [p.cameras for p in frame.people] == [{"k1"}]
+
+
 def test_a_dropped_frame_is_no_evidence_that_someone_at_the_edge_of_a_view_left():
     """A camera that sends nothing in a frame says nothing about who it sees; a person
     with part of their body beyond its edge must not be taken for one walking out."""
