@@ -266,6 +266,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         scenario=scenario,
         report=printer.line if printer else None,
         keys=Path(args.keys) if args.keys else None,
+        liveliness_timeout=args.start_timeout,
     )
     from framework.deployer import LOCAL, host_of
 
@@ -426,6 +427,17 @@ def scenario_report(runner: Any) -> int:
     return 1 if failed else 0
 
 
+def _positive_seconds(text: str) -> float:
+    """An argparse type: seconds > 0 (argparse turns the ValueError into a usage error)."""
+    value = float(text)
+    if not value > 0.0 or value == float("inf"):  # NaN and inf too
+        raise ValueError(text)
+    return value
+
+
+_positive_seconds.__name__ = "seconds > 0"  # what argparse's error names
+
+
 def add_commands(sub: Any) -> None:
     """Register `fw deploy` on the `fw` parser."""
     raw = argparse.RawDescriptionHelpFormatter
@@ -455,6 +467,14 @@ def add_commands(sub: Any) -> None:
         metavar="NAME",
         help="start only the processes placed on host NAME (the Coordinator and "
         "Configurator run where --host is not given)",
+    )
+    p.add_argument(
+        "--start-timeout",
+        type=_positive_seconds,
+        default=30.0,
+        metavar="S",
+        help="how long to wait for every component to come up, other hosts' included, "
+        "before giving up and naming who did not (default 30)",
     )
     p.add_argument(
         "--keys",

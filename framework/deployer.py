@@ -101,6 +101,28 @@ def host_of(topology: Topology, process: str) -> str:
     return topology.processes.get(process, {}).get("host", LOCAL)
 
 
+def not_up(topology: Topology, missing: list[str], host: str | None = None) -> str:
+    """Which components never came up, by host and process: for a process on another
+    host, the command that starts that host's part (a host that never came up is the
+    usual cause on several machines, and waiting longer would not help)."""
+    mine = LOCAL if host is None else host
+    by_place: dict[tuple[str, str], list[str]] = {}
+    for name in missing:
+        spec = topology.components.get(name)
+        process = spec.process if spec is not None else "?"
+        by_place.setdefault((host_of(topology, process), process), []).append(name)
+    parts = []
+    for (where, process), names in sorted(by_place.items()):
+        part = f"{', '.join(names)} (process {process}"
+        if where != mine:
+            part += (
+                f" on host {where!r}: is its part running there? "
+                f"fw deploy {topology.file} --keys DIR --host {where}"
+            )
+        parts.append(part + ")")
+    return "; ".join(parts)
+
+
 def mesh(topology: Topology) -> dict[str, tuple[str, int]]:
     """Where each process of a deployment on several hosts listens, (address, port):
     the port after the hub's for the first process by name, and so on; empty on one
@@ -408,9 +430,10 @@ class Deployment:
                 raise DeployError(f"deployment failed: {what}")
             time.sleep(0.05)
         missing = sorted(k.rsplit("/", 1)[-1] for k in expected - alive)
-        by_process = {c: p.name for p in self.processes for c in p.components}
-        detail = ", ".join(f"{c} (process {by_process.get(c, '?')})" for c in missing)
-        raise DeployError(f"components not alive after {self.liveliness_timeout:g} s: {detail}")
+        raise DeployError(
+            f"components not alive after {self.liveliness_timeout:g} s: "
+            + not_up(self.topology, missing, self.host)
+        )
 
     def inject_fault(self, fault: Any) -> None:
         """Signal one of this deployment's processes (a scenario's `fault` step, `fw bench

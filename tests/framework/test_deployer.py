@@ -458,3 +458,18 @@ def test_on_several_hosts_each_process_keeps_its_links_to_the_ones_before_it():
     one = load_topology(REPO / "topologies" / "seeg.yaml")
     bus = BusConfig.from_dict(container_spec(one, "robot")["bus"])
     assert (bus.listen_port, bus.peers) == (0, ()), "one host: any free port, gossip"
+
+
+def test_components_that_never_came_up_are_named_by_host_with_the_command_that_starts_it():
+    """On several machines the usual cause is a host whose part was never started:
+    the error names each such host, its processes and the command to run there."""
+    from framework.deployer import not_up
+    from framework.topology import load_topology
+    from tests.conftest import REPO
+
+    hosts = load_topology(REPO / "topologies" / "seeg_hosts.yaml")
+    said = not_up(hosts, ["kinect_0", "people_detector", "robot"])
+    assert "kinect_0, people_detector (process cameras on host 'cameras'" in said
+    assert f"fw deploy {hosts.file} --keys DIR --host cameras" in said
+    assert "robot (process robot on host 'robot'" in said
+    assert not_up(hosts, ["robot"], host="robot") == "robot (process robot)", "its own: no hint"

@@ -55,3 +55,20 @@ def test_the_procedure_runs_across_the_hosts(hosts, keys, scenario, monkeypatch)
     run = run_on_hosts(hosts, TOPOLOGY, keys, SCENARIOS / scenario, REPO)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
     assert "PASSED" in run.stdout
+
+
+def test_a_host_that_never_comes_up_is_a_clear_error_naming_it_not_a_hang(hosts, keys):
+    from tests.support.hosts import FW
+
+    run = subprocess.run(
+        hosts.command(
+            "control", *FW, "deploy", str(TOPOLOGY), "--keys", str(keys), "--headless",
+            "--no-console", "--start-timeout", "5",
+        ),
+        capture_output=True, text=True, cwd=REPO, timeout=120,
+    )  # fmt: skip
+    assert run.returncode != 0
+    assert "Traceback" not in run.stderr
+    for host in ("tracking", "cameras", "robot", "krc"):
+        assert f"on host {host!r}: is its part running there?" in run.stderr, run.stderr
+    assert "components not alive after 5 s" in run.stderr
