@@ -254,9 +254,8 @@ class PeopleDetectorCore:
             if t.gone and now - t.last_seen <= RECENT:
                 lately.append(t)
         near = 0
-        counted = [t for t in confirmed if self._shown(t, now)]
-        if counted:
-            where = body_centers(np.stack([t.joints for t in counted]))[:, :2]
+        if confirmed:
+            where = body_centers(np.stack([t.joints for t in confirmed]))[:, :2]
             offset = where - np.array(self.config.area_center)
             with np.errstate(invalid="ignore"):  # nobody seen at all: NaN, not near
                 near = int((np.hypot(offset[:, 0], offset[:, 1]) <= self.config.area_radius).sum())
@@ -285,16 +284,6 @@ class PeopleDetectorCore:
             guarded,
             envelope[:3],
         )
-
-    def _shown(self, track: Track, now: float) -> bool:
-        """Whether a confirmed track counts near the table: one confirmed only because
-        it appeared where people come into sight waits until it walked beyond its noise,
-        a second camera saw it or `confirm_after` passed. A ghost at the edge of one
-        view stands still and is gone within a second; someone walking in shows it in a
-        few frames (the robot keeps its distance from both at once: they are guarded)."""
-        if not track.entered or len(track.cameras) > 1:
-            return True
-        return now - track.since >= self.config.confirm_after or track.walked_beyond_noise()
 
     def _whereabouts(self, track: Track, now: float, reporting: list[str], seen: np.ndarray) -> str:
         """Whether a confirmed track no camera saw this frame still stands for someone

@@ -147,11 +147,6 @@ class Track:
     at: float = 0.0
     """When `joints` stood there: the last detection, or the last frame it was coasted to."""
 
-    def walked_beyond_noise(self) -> bool:
-        """Whether this sighting's torso moved further from where it began than its
-        noise explains (`WALK_SIGMAS`): someone walking, not a ghost standing still."""
-        return self.walked >= WALK_SIGMAS * math.sqrt(2) * self.born_sigma
-
     def predicted(self, now: float) -> np.ndarray:
         """The joints where the person should be at `now`, walking on as they were (for
         at most a second unseen: after that, a walker has likely changed course)."""
@@ -432,7 +427,10 @@ class PeopleTracker:
         if track.entered and not track.untrusted:
             return True
         age = now - track.since
-        return age >= self.confirm_after or track.walked_beyond_noise()
+        return (
+            age >= self.confirm_after
+            or track.walked >= WALK_SIGMAS * math.sqrt(2) * track.born_sigma
+        )
 
     def lose(self, track: Track, left: bool = True) -> None:
         """The person a confirmed track stood for is gone: they `left` every view, or
