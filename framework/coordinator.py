@@ -189,6 +189,7 @@ class Coordinator(Component):
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._chart_lock = threading.RLock()  # not the lifecycle lock: stop() joins the loop
+        self._status_lock = threading.Lock()  # see `publish`
         self.last_events: list[str] = []
         self.unhandled: tuple[str, str] | None = None  # the last event nothing took, why
 
@@ -339,8 +340,14 @@ class Coordinator(Component):
 
     # -- status ----------------------------------------------------------------------
     def publish(self, kind: str, payload: dict[str, Any]) -> None:
-        """Publish one status message (best effort: status never stops the chart)."""
-        with contextlib.suppress(Exception):
+        """Publish one status message (best effort: status never stops the chart).
+
+        Called from the chart's thread and from operations (`offer`) that do not hold
+        the component's lock, so the writes are serialized here: a port numbers each
+        sample, and a reader drops a number at or below one it kept as a repeat, so two
+        writers overtaking each other between numbering and sending lost the earlier
+        record (a console missed `command e_START`)."""
+        with self._status_lock, contextlib.suppress(Exception):
             self.status.write(EventMessage(time.time(), kind, self.name, payload))
 
     def _publish_configuration(self) -> None:

@@ -162,7 +162,6 @@ class OutputPort(Port[T]):
         self._matching: dict[str, list[Any]] = {}  # stream key -> [matching?, listener]
         self._thinned: dict[str, list[float]] = {}  # key -> [period (s), next send due]
         self._lock = threading.Lock()
-        self._writing = threading.RLock()  # a write's number and its sending, as one
         self.clock: Callable[[], float] = time.monotonic
         """What thinned keys measure their period by (a test's simulated clock)."""
         self.last: T | None = None
@@ -222,50 +221,48 @@ class OutputPort(Port[T]):
         Readers in this process get the object itself (or, for a type with a JSON
         payload, its encoding); it is encoded for the bus only when needed.
 
-        Safe from several threads: a sample's sequence number and its sending are one
-        step, so every reader gets a port's samples in the order of their numbers (a
-        reader drops a number at or below one it has kept as a repeat: two threads that
-        overtook each other between numbering and sending lost the earlier sample).
-        Readers in this process are called inside that step: their callbacks must be
-        quick and never wait for a thread that writes the same port."""
+        One thread at a time per port (a component's lock serializes its updates and
+        operations): each sample is numbered, and readers drop a number at or below one
+        they kept as a repeat, so two threads overtaking each other between numbering
+        and sending lose a sample. No lock here: a loop at real-time priority would wait
+        on one held by a preempted thread of lower priority."""
         if type(value) is not self.type and not (self.type is float and type(value) is int):
             self._refuse_type(value)
-        with self._writing:
-            seq = self.last_seq = next(self._seq)
-            data: bytes | None = None
-            if not (self.stream and self.shareable):
-                data = self._encode(value, seq)
-            self.last, self.last_data = value, data
-            self.stats.written += 1
-            readers = self.bus.local_readers if self.bus is not None else {}
-            thinned = self._thinned
-            matching = self._matching
-            now = self.clock() if thinned else 0.0
-            for key, publisher in list(self._publishers.items()):
-                due = thinned.get(key)
-                if due is not None:
-                    period, next_due = due
-                    if now < next_due - 0.1 * period:  # 10%: a writer's jitter skips no period
-                        continue
-                    # on schedule, so the average rate holds (a late send does not push the
-                    # next one back); a writer that paused gets no burst to catch up
-                    due[1] = (next_due if next_due >= now - period else now) + period
-                flag = matching.get(key)
-                if flag is not None and not flag[0]:
-                    _recheck(flag, publisher)
-                if flag is None or flag[0]:  # a stream: only when another process listens
-                    if data is None:
-                        data = self.last_data = self._encode(value, seq)
-                    publisher.put(data)
-                local = readers.get(key)
-                if local:  # same process: no bus, and no encoding for a shareable type
-                    for reader in list(local.values()):
-                        if self.shareable:
-                            reader.deliver_value(value, self.publisher_id, seq)
-                        else:
-                            if data is None:
-                                data = self.last_data = self._encode(value, seq)
-                            reader.deliver_local(data)
+        seq = self.last_seq = next(self._seq)
+        data: bytes | None = None
+        if not (self.stream and self.shareable):
+            data = self._encode(value, seq)
+        self.last, self.last_data = value, data
+        self.stats.written += 1
+        readers = self.bus.local_readers if self.bus is not None else {}
+        thinned = self._thinned
+        matching = self._matching
+        now = self.clock() if thinned else 0.0
+        for key, publisher in list(self._publishers.items()):
+            due = thinned.get(key)
+            if due is not None:
+                period, next_due = due
+                if now < next_due - 0.1 * period:  # 10%: a writer's jitter skips no period
+                    continue
+                # on schedule, so the average rate holds (a late send does not push the
+                # next one back); a writer that paused gets no burst to catch up
+                due[1] = (next_due if next_due >= now - period else now) + period
+            flag = matching.get(key)
+            if flag is not None and not flag[0]:
+                _recheck(flag, publisher)
+            if flag is None or flag[0]:  # a stream: only when another process listens
+                if data is None:
+                    data = self.last_data = self._encode(value, seq)
+                publisher.put(data)
+            local = readers.get(key)
+            if local:  # same process: no bus, and no encoding for a shareable type
+                for reader in list(local.values()):
+                    if self.shareable:
+                        reader.deliver_value(value, self.publisher_id, seq)
+                    else:
+                        if data is None:
+                            data = self.last_data = self._encode(value, seq)
+                        reader.deliver_local(data)
 
     def wanted(self) -> bool:
         """Whether a sample written now would reach anyone: a reader in this process, or

@@ -6,6 +6,7 @@ and makes a lost component a chart event (docs/topologies.md, "The Coordinator")
 The test plays the Configurator and the components: it answers the requests itself,
 on another session of the test's bus, so every rule is seen from outside."""
 
+import sys
 import threading
 import time
 
@@ -680,3 +681,36 @@ def test_a_refused_event_does_not_hold_back_the_events_that_came_after_it(sleepy
     assert wait_until(lambda: events.stats.received == before + 2, 10)
     assert rig.coordinator.start()
     assert wait_until(lambda: rig.active() == ["Working"], 10), "e_GO taken after the refusal"
+
+
+def test_status_records_written_from_several_threads_all_reach_a_port(rig, peer):
+    """The chart's thread and an operator's `offer` both write the status: each record
+    is numbered by the port, and a reader drops a number at or below one it kept as a
+    repeat, so two writers overtaking each other lost a record (a console missed
+    `command e_START` on a loaded host)."""
+    from framework.ports import ConnPolicy, InputPort
+
+    port = InputPort("status", EventMessage, policy=ConnPolicy("buffer", 20_000))
+    port.owner, port.bus = "console", peer
+    port.on_data = lambda _port: None  # delivered as it comes
+    port.connect(STATUS_KEY)
+    assert wait_until(lambda: rig.coordinator.publish("log", {}) or port.stats.received, 10)
+    repeats = port.stats.dropped_duplicate
+
+    def say(n):
+        for i in range(n):
+            rig.coordinator.publish("log", {"i": i})
+
+    switching = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # threads switch between any two bytecodes
+    try:
+        writers = [threading.Thread(target=say, args=(3000,)) for _ in range(2)]
+        for thread in writers:
+            thread.start()
+        for thread in writers:
+            thread.join()
+    finally:
+        sys.setswitchinterval(switching)
+    time.sleep(0.5)  # the last records in flight (counted, not asserted on time)
+    assert port.stats.dropped_duplicate == repeats
+    port.close()
