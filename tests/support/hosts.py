@@ -33,13 +33,21 @@ def run_on_hosts(
                     start_new_session=True,
                 )
             )
-        return subprocess.run(
-            hosts.command("control", *deploy, "--scenario", str(scenario)),
-            cwd=cwd,
-            capture_output=True,
-            text=True,
-            timeout=timeout,
-        )
+        try:
+            return subprocess.run(
+                hosts.command("control", *deploy, "--scenario", str(scenario)),
+                cwd=cwd,
+                capture_output=True,
+                text=True,
+                timeout=timeout,
+            )
+        except subprocess.TimeoutExpired as exc:
+            raise AssertionError(
+                f"control's run of {scenario.name} did not end in {timeout:.0f} s; it printed:\n"
+                + _tail(exc.stdout)
+                + "\nand on stderr:\n"
+                + _tail(exc.stderr)
+            ) from None
     finally:
         for proc in others:
             with contextlib.suppress(ProcessLookupError):
@@ -51,6 +59,12 @@ def run_on_hosts(
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait(5)
         _empty(hosts)
+
+
+def _tail(output: bytes | str | None, lines: int = 80) -> str:
+    """The last `lines` lines of a timed-out run's output."""
+    text = output.decode(errors="replace") if isinstance(output, bytes) else output or ""
+    return "\n".join(text.splitlines()[-lines:])
 
 
 def _empty(hosts: Hosts) -> None:
