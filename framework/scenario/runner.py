@@ -145,15 +145,28 @@ class ScenarioRunner(Listener):
         return self._started + self.scenario.timeout
 
     def _wait(self, condition: Callable[[], bool], until: float | None = None) -> bool:
-        """Wait for `condition` (checked under the lock); False on stop or timeout."""
+        """Wait for `condition` (checked under the lock); False on stop, on timeout, or
+        once the run failed for good (`failed_for_good`)."""
         end = self._deadline() if until is None else min(until, self._deadline())
         with self._changed:
             while not condition():
                 left = end - time.monotonic()
-                if left <= 0 or self._stop.is_set():
+                if left <= 0 or self._stop.is_set() or self.failed_for_good():
                     return condition()
                 self._changed.wait(min(left, 0.05))
         return True
+
+    def failed_for_good(self) -> str:
+        """Why the run can no longer pass, or "": a `never_state` entered or a
+        `never_event` come. The run then ends at once instead of waiting out its steps'
+        states (a robot stopped by a fault never reaches the target: without this the
+        run waited its whole timeout, minutes, to say so)."""
+        for e in self.scenario.expect:
+            if e.kind.startswith("never"):
+                ok, detail = self._check(e)
+                if not ok:
+                    return f"{e.describe().replace('never ', '', 1)} came {detail}"
+        return ""
 
     def _play(self) -> None:
         try:
@@ -191,17 +204,20 @@ class ScenarioRunner(Listener):
                 return False
 
             if not self._wait(entered):
-                self.outcomes.append(
-                    Verdict(False, step.describe(), f"{' or '.join(names)} never entered")
-                )
+                why = self.failed_for_good()
+                detail = f"not played: {why}" if why else f"{' or '.join(names)} never entered"
+                self.outcomes.append(Verdict(False, step.describe(), detail))
                 return False
         if step.at is not None:
             self._wait(lambda: False, self._zero + step.at)
             self._mark = max(self._mark, self._zero + step.at)
         if step.after:
             self._wait(lambda: False, time.monotonic() + step.after)
-        if self._stop.is_set() or time.monotonic() >= self._deadline():
-            self.outcomes.append(Verdict(False, step.describe(), "not played: time out"))
+        why = self.failed_for_good()
+        if why or self._stop.is_set() or time.monotonic() >= self._deadline():
+            self.outcomes.append(
+                Verdict(False, step.describe(), f"not played: {why or 'time out'}")
+            )
             return False
         elapsed = time.monotonic() - self._zero
         try:

@@ -100,3 +100,39 @@ def test_a_configurator_answer_in_a_scenario_is_not_sent_to_a_deployment(tmp_pat
     runner.stop()
     assert sent == ["e_START"]
     assert sum("not sent" in line for line in said) == 2
+
+
+def test_a_run_that_can_no_longer_pass_ends_at_once_and_says_why(tmp_path):
+    """A `never_event` that came (the robot stopped by a fault) fails the run whatever
+    follows: the run ends then, naming the event and its payload, instead of waiting out
+    its timeout for a target the stopped robot never reaches (the multi-host run waited
+    166 s)."""
+    from framework.statechart.events import Event
+
+    path = tmp_path / "doomed.yaml"
+    path.write_text(
+        textwrap.dedent(
+            """
+            scenario: doomed
+            timeout: 600s
+            steps:
+              - {at: 0s, send: e_START}
+              - {when: Target_Reached, check: robot.report, expect: {braked: false}}
+            expect:
+              - {never_event: e_STOP}
+            """
+        )
+    )
+    runner = ScenarioRunner(
+        load_scenario(path),
+        send=lambda event, payload: runner.on_event(Event("e_STOP", {"reason": "FRI"})),
+        call=lambda *_: {"braked": False},
+    )
+    runner.start()
+    assert runner.finished.wait(60), "still waiting for Target_Reached"
+    runner.stop()
+    failed = {v.what: v.detail for v in runner.report() if not v.ok}
+    assert failed["on Target_Reached: check robot.report"].startswith(
+        "not played: event e_STOP came at"
+    )
+    assert "FRI" in failed["never event e_STOP"]
