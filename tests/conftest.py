@@ -441,3 +441,36 @@ def _host_capabilities() -> str:
 def pytest_terminal_summary(terminalreporter) -> None:  # type: ignore[no-untyped-def]
     """End the run with what the host allowed (see `_host_capabilities`)."""
     terminalreporter.write_line(_host_capabilities())
+
+
+# Tests that start a deployment's processes, a browser, network namespaces or the
+# benchmarks: they run one at a time after the rest (`tools/test.sh`), as their
+# processes watch each other's deadlines and a second test beside them on a 2-core host
+# would starve them into safety stops that are correct but not what the test is about.
+SERIAL = (
+    "tests/bench/",
+    "tests/docs/",
+    "tests/topologies/",
+    "tests/framework/console/",
+    "tests/framework/test_cli_deploy.py",
+    "tests/framework/test_deployer.py",
+    "tests/framework/test_netns.py",
+    "tests/framework/test_realtime.py",
+    "tests/framework/test_scenario_links.py",
+    "tests/framework/test_container.py",
+)
+
+
+def pytest_configure(config) -> None:  # type: ignore[no-untyped-def]
+    """Declare the `serial` marker (see `SERIAL`)."""
+    config.addinivalue_line(
+        "markers", "serial: starts real processes of a deployment; run alone (tools/test.sh)"
+    )
+
+
+def pytest_collection_modifyitems(config, items) -> None:  # type: ignore[no-untyped-def]
+    """Mark the tests under `SERIAL` as `serial`."""
+    for item in items:
+        where = Path(str(item.fspath)).relative_to(REPO).as_posix()
+        if where.startswith(SERIAL):
+            item.add_marker(pytest.mark.serial)
