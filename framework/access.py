@@ -78,6 +78,7 @@ def process_keys(topology: Topology, process: str) -> dict[str, list[str]]:
     queryable = [f"{keys.control(n)}/**" for n in sorted(names)]
     queryable += [keys.port_type(k) for k in sorted(outputs)]
     queryable.append(keys.container(process))
+    queryable.append(keys.clock(process))
     token = [keys.alive(n) for n in sorted(names)]
     return {"put": put, "queryable": queryable, "token": token}
 
@@ -101,7 +102,7 @@ def data_keys(topology: Topology) -> list[str]:
         | {f"{r}" for r in roots}
         | exact
         | {f"fw/{k}/**" for k in FW_DATA}
-        | {"fw/events", "fw/deployer/events"}
+        | {"fw/events", "fw/deployer/events", keys.clock("*")}
     )
 
 

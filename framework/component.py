@@ -41,6 +41,7 @@ from enum import Enum
 from typing import Any
 
 from framework.clock import Clock, MonotonicClock, late
+from framework.clock_offset import OffsetEstimate
 from framework.errors import FwError
 from framework.ports import ConnPolicy, InputPort, OutputPort
 from framework.properties import Property, PropertyError
@@ -238,6 +239,9 @@ class Component:
         """The bus of the hosting container (set when a container adds the component)."""
         self.clock: Clock = MonotonicClock()
         """The time of the hosting executor: monotonic, or a test's simulated clock."""
+        self.peer_clocks: Callable[[str | None], OffsetEstimate | None] = lambda key: None
+        """The measured offset of the clock that stamps a key's samples when another
+        host writes it (framework/peer_clocks.py), else None: set by the container."""
         self.heartbeat: Heartbeat | None = None
         self.file_error = ""
         """Why the ports its configuration files declare could not be (see file_ports)."""
@@ -320,6 +324,13 @@ class Component:
                     port.connect(*awaited)
             ports.append(port)
         return ports
+
+    def stamp_clock(self, port: str) -> OffsetEstimate | None:
+        """The offset of the clock that stamps input `port`'s samples, if another host
+        writes them (its interval bounds their age: `OffsetEstimate.age`); None if this
+        host does (its own clock: no offset) or the port is not connected."""
+        inp = self.inputs.get(port)
+        return self.peer_clocks(inp.key if inp is not None else None)
 
     def wake_on(self, ports: tuple[str, ...], callback: Callable[[Any], None]) -> None:
         """Call `callback(port)` when any of these inputs receives a sample (an event

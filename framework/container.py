@@ -21,11 +21,13 @@ from typing import Any
 from framework import keys, messages
 from framework.activity import Activity, RealTimeExecutor, SteppedExecutor
 from framework.bus import Bus, BusError
+from framework.clock_offset import OffsetEstimate
 from framework.component import Component, Heartbeat, LifecycleError, Refusal, StateChange
 from framework.control_requests import ContainerError, ControlRequests
 from framework.errors import FwError
 from framework.local_switch import LocalSwitches
 from framework.messages import EventMessage, Scalar
+from framework.peer_clocks import PeerClocks, answer_clock
 from framework.ports import ConnPolicy, InputPort, OutputPort, PortError
 from framework.safety import ProcessHeartbeat, SafetyMonitor, SafetySpec
 
@@ -60,6 +62,11 @@ class Container:
         self.requests = ControlRequests(self)
         """Runs the control requests of the hosted components (framework/control_requests.py)."""
         self._declared.append(bus.queryable(keys.container(name), self._on_container_query))
+        self._declared.append(answer_clock(bus, name))
+        self.clocks: PeerClocks | None = None
+        """Other hosts' clocks, measured (set by `build` from the topology's hosts)."""
+        self.key_hosts: dict[str, str] = {}
+        """Which other host writes each key this process may read (`build`)."""
         self.local_switches: LocalSwitches | None = None
         """Configurations whose first steps this process switches itself (see
         framework/local_switch.py); set by `build` from the topology."""
@@ -88,6 +95,7 @@ class Container:
         activity.check(component)
         component.bus = self.bus
         component.clock = self.executor.clock
+        component.peer_clocks = self.peer_clock
         if heartbeat:
             port: OutputPort[Any] = OutputPort("heartbeat", Scalar, "proof of life")
             port.owner, port.bus = name, self.bus
@@ -255,6 +263,13 @@ class Container:
         return component
 
     # -- the container's own query -----------------------------------------------
+    def peer_clock(self, key: str | None) -> OffsetEstimate | None:
+        """The measured offset of the host that writes `key`, if another host does."""
+        host = self.key_hosts.get(key) if key is not None else None
+        if host is None or self.clocks is None:
+            return None
+        return self.clocks.of(host)
+
     def _on_container_query(self, query: Any) -> None:
         try:
             body = bytes(query.payload.to_bytes()) if query.payload is not None else b"{}"
@@ -277,6 +292,8 @@ class Container:
             self._closed = True
         if self.beat is not None:
             self.beat.stop()
+        if self.clocks is not None:
+            self.clocks.stop()
         if self.local_switches is not None:
             self.local_switches.close()
         for component in reversed(list(self.components.values())):

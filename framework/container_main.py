@@ -24,6 +24,7 @@ from framework.container import Container
 from framework.control_requests import ContainerError
 from framework.errors import FwError
 from framework.local_switch import LocalSwitches
+from framework.peer_clocks import PeerClocks
 from framework.safety import SafetySpec
 
 log = logging.getLogger("fw.container")
@@ -57,6 +58,10 @@ def build(spec: dict[str, Any], bus: Bus) -> Container:
             raise ContainerError(f"{component.name}: configure failed: {component.last_error}")
         if item.get("start", False) and not component.start():
             raise ContainerError(f"{component.name}: start failed: {component.last_error}")
+    container.key_hosts = dict(spec.get("key_hosts") or {})
+    if spec.get("peer_clocks"):
+        container.clocks = PeerClocks(container.bus, spec["peer_clocks"])
+        container.clocks.start()
     if spec.get("switches"):
         container.local_switches = LocalSwitches(
             container.bus, container.name, container.find_port, spec["switches"]

@@ -159,6 +159,35 @@ def process_bus(topology: Topology, process: str) -> BusConfig:
     )
 
 
+def clock_peers(topology: Topology, process: str) -> tuple[dict[str, str], dict[str, str]]:
+    """Which other host writes each key `process` reads, and per such host the process
+    to ask its clock (framework/peer_clocks.py): samples stamped on another host's clock
+    are judged with that clock's measured offset, never as if it were this host's."""
+    mine = host_of(topology, process)
+    writers: dict[str, tuple[str, str]] = {}  # key -> (host, process)
+    for spec in topology.components.values():
+        host = host_of(topology, spec.process)
+        if host == mine or spec.info is None:
+            continue
+        for port in spec.info.outputs:
+            writers[spec.output_key(port)] = (host, spec.process)
+            for key in topology.thinned.get(spec.name, {}).get(port, {}):
+                writers[key] = (host, spec.process)
+    here = {c.name for c in topology.components_in(process)}
+    read = {s.key for s in topology.connections if s.component in here}
+    read |= {
+        key
+        for ref, candidates in topology.prepare.items()
+        if ref.split(".", 1)[0] in here
+        for key in candidates
+    }
+    key_hosts = {key: writers[key][0] for key in sorted(read) if key in writers}
+    peers: dict[str, str] = {}
+    for key in sorted(key_hosts):
+        peers.setdefault(writers[key][0], writers[key][1])
+    return key_hosts, peers
+
+
 def container_spec(topology: Topology, process: str) -> dict[str, Any]:
     """What `python -m framework.container_main` needs to host one process of the topology."""
     components = []
@@ -194,6 +223,9 @@ def container_spec(topology: Topology, process: str) -> dict[str, Any]:
         "switches": switch_spec(topology, process),
         "import_paths": [str(p) for p in topology.import_paths],
     }
+    key_hosts, peers = clock_peers(topology, process)
+    if peers:
+        spec["key_hosts"], spec["peer_clocks"] = key_hosts, peers
     if topology.safety is not None:
         spec["beat"] = topology.safety.process_beat
         spec["nice"] = CONTROL_NICE if process in control_processes(topology) else SAFETY_NICE

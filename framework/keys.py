@@ -51,6 +51,12 @@ def container(name: str) -> str:
     return f"fw/container/{name}"
 
 
+def clock(process: str) -> str:
+    """Queryable of a process's wall clock (framework/clock_offset.py): any member may
+    ask it, to measure how far that host's clock is from its own."""
+    return f"fw/clock/{process}"
+
+
 def heartbeat(component: str) -> str:
     """Where a watched component proves, from its own activity thread, that it runs."""
     return f"fw/heartbeat/{component}"

@@ -488,15 +488,22 @@ class RobotInterface(Component):
                 if not self.latched:
                     self._trip(f"envelopes refused: {wrong}", state)
                 return
+            # their age is the camera frame's on arrival, then this cycle's own clock:
+            # a wall clock step after arrival cannot make them younger, and on a
+            # simulated clock they age with the simulation
+            taken = time.time()
+            age = self._age_on_arrival(message.stamp, taken)
+            if age is None:  # stamped by a host whose clock is not measured yet
+                unknown = "stamped by a host whose clock offset is not measured yet"
+                self.refuse("envelopes", unknown)
+                if (self._commanding or not state.braked) and not self.latched:
+                    self._trip(f"envelopes of unknown age: {unknown}", state)
+                return  # braked: nothing to judge until that host's clock is measured
             arrived = self.clock.now()
             if self._people is not None:
                 self._interval = min(max(0.0, arrived - self._arrived), CAP_LOOKAHEAD)
             self._people = people
-            # their age is the camera frame's on arrival, then this cycle's own clock:
-            # a wall clock step after arrival cannot make them younger, and on a
-            # simulated clock they age with the simulation
-            self._taken = time.time()
-            self._age_at_arrival = max(0.0, self._taken - message.stamp)
+            self._taken, self._age_at_arrival = taken, age
             self._arrived = arrived
             self._quiet = 0  # news: check now
         if self._people is None or (state.braked and not self._commanding):
@@ -555,6 +562,17 @@ class RobotInterface(Component):
             return
         self._cap_sent = cap
         self.speed_cap.write(Scalar(time.time(), cap))
+
+    def _age_on_arrival(self, stamp: float, taken: float) -> float | None:
+        """The envelopes' age when taken at wall time `taken`: by this host's clock if
+        this host stamped them, else the most it can be given the measured offset of
+        the host that did (framework/clock_offset.py: an offset may make them look
+        older, never fresher); None while that host's clock is not measured."""
+        clock = self.stamp_clock("envelopes")
+        if clock is None:
+            return max(0.0, taken - stamp)
+        age = clock.age(stamp, taken)
+        return None if age is None else max(0.0, age)
 
     def _trip(self, reason: str, state: ArmState) -> None:
         self.latched = reason

@@ -22,9 +22,11 @@ from components.sim.arm_controller import ArmController
 from framework.activity import Activity, SteppedExecutor
 from framework.bus import Bus, free_udp_port
 from framework.clock import SimulatedClock
+from framework.clock_offset import Exchange
 from framework.container import Container
 from framework.errors import FwError
 from framework.messages import Envelopes, Scalar
+from framework.peer_clocks import PeerClocks
 from tests.conftest import REPO, drained, reader_port, wait_until, writer_port
 
 PROCEDURE = REPO / "procedures" / "seeg.yaml"
@@ -1055,5 +1057,62 @@ def test_a_person_against_the_released_arm_holding_still_is_a_protective_stop(hu
         room.person(0.0)
         cell.run(0.01)
         protective_stop_latched(cell)
+    finally:
+        cell.close()
+
+
+def cameras_clock(cell, offset: float | None) -> None:
+    """The envelopes come from another host (`cameras`) whose clock is `offset` s ahead
+    of this one, as measured by a 1 ms round trip (None: not measured yet)."""
+    clocks = PeerClocks(cell.container.bus, {"cameras": "cameras"})
+    if offset is not None:
+        now = time.time()
+        clocks.estimates["cameras"].add(Exchange(now - 0.001, now - 0.0005 + offset, now))
+    cell.container.clocks = clocks
+    cell.container.key_hosts = {"test/envelopes": "cameras"}
+
+
+def test_an_old_envelope_from_a_host_whose_clock_runs_ahead_is_as_old_as_it_is(hub):
+    """The cameras' host runs a second ahead: an envelope it made a second ago carries
+    a stamp of this host's now. Judged by the stamp alone it would be fresh and the
+    person 35 cm away far enough; with the host's measured offset it is a second old,
+    and the person too close: a protective stop at once."""
+    cell, room = moving(hub)
+    try:
+        cameras_clock(cell, 1.0)
+        room.person(0.41, age=1.0 - 1.0)  # made 1 s ago, stamped 1 s ahead
+        cell.run(0.005)
+        report = protective_stop_latched(cell)
+        assert "ms old" in report["reason"]
+    finally:
+        cell.close()
+
+
+def test_a_fresh_envelope_from_a_host_whose_clock_runs_behind_is_fresh(hub):
+    """The cameras' host runs half a second behind: a fresh envelope's stamp is half a
+    second old by this host's clock. With the measured offset it is fresh: the person
+    35 cm away slows the arm and stops nothing."""
+    cell, room = moving(hub)
+    try:
+        cameras_clock(cell, -0.5)
+        room.person(0.41, age=0.5)  # made now, stamped 0.5 s behind
+        cell.run(0.005)
+        report = cell.robot.call("report")
+        assert not report["latched"], report["reason"]
+        assert 0.3 <= report["separation"] <= 0.4, report["separation"]
+    finally:
+        cell.close()
+
+
+def test_envelopes_from_a_host_whose_clock_is_unmeasured_stop_the_moving_arm(hub):
+    """Until the cameras' host has answered for its clock, its envelopes' age is
+    unknown: refused, and the moving arm stops latched (braked, they wait)."""
+    cell, room = moving(hub)
+    try:
+        cameras_clock(cell, None)
+        room.person(2.0)
+        cell.run(0.005)
+        report = cell.robot.call("report")
+        assert report["latched"] and "unknown age" in report["reason"], report
     finally:
         cell.close()
