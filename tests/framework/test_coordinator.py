@@ -645,7 +645,7 @@ def test_every_event_ack_and_injection_wakes_the_charts_loop(sleepy_rig):
         rig.put("e_GO")
         assert wait_until(lambda: rig.active() == ["Working"], 10)
         # the request reaches this session a moment after the chart entered Working
-        assert wait_until(lambda: len(rig.requests) > asked, 10)
+        assert wait_until(lambda asked=asked: len(rig.requests) > asked, 10)
         rig.ack(rig.requests[-1])
         assert wait_until(lambda: rig.active() == ["Done"], 10)
     rig.coordinator.inject("e_GO")
