@@ -496,7 +496,7 @@ class RobotInterface(Component):
             if age is None:  # stamped by a host whose clock is not measured yet
                 unknown = "stamped by a host whose clock offset is not measured yet"
                 self.refuse("envelopes", unknown)
-                if (self._commanding or not state.braked) and not self.latched:
+                if not state.braked and not self.latched:
                     self._trip(f"envelopes of unknown age: {unknown}", state)
                 return  # braked: nothing to judge until that host's clock is measured
             arrived = self.clock.now()

@@ -1116,3 +1116,50 @@ def test_envelopes_from_a_host_whose_clock_is_unmeasured_stop_the_moving_arm(hub
         assert report["latched"] and "unknown age" in report["reason"], report
     finally:
         cell.close()
+
+
+def test_a_braked_arm_waits_for_the_cameras_clock_then_takes_their_envelopes(hub):
+    """Braked, envelopes of unknown age stop nothing (nothing can move): refused and
+    said; once the cameras' host has answered for its clock, the envelopes are judged."""
+    cell = Cell(hub)
+    room = Room(hub, cell)
+    said, subscription = _refusals(hub, "robot")
+    try:
+        cameras_clock(cell, None)
+        room.person(0.41)
+        cell.run(0.005)
+        assert not cell.robot.call("report")["latched"], "braked: nothing to stop"
+        assert wait_until(lambda: any("not measured" in r.get("reason", "") for r in said), 10), (
+            said
+        )
+        now = time.time()
+        cell.container.clocks.estimates["cameras"].add(Exchange(now - 0.001, now - 0.0005, now))
+        cell.release()
+        cell.interp.call("go_to", goal="target")
+        cell.run(0.5)
+        room.person(0.41)
+        cell.run(0.005)
+        report = cell.robot.call("report")
+        assert not report["latched"], report["reason"]
+        assert 0.3 <= report["separation"] <= 0.4, report["separation"]
+    finally:
+        subscription.undeclare()
+        cell.close()
+
+
+def test_a_released_arm_not_yet_commanded_stops_on_envelopes_of_unknown_age(hub):
+    """Released, before the first setpoint: the brakes are off, so envelopes of unknown
+    age stop it as they stop a moving arm."""
+    cell = Cell(hub)
+    room = Room(hub, cell)
+    try:
+        cameras_clock(cell, None)
+        cell.robot.call("release")
+        cell.run(SERVED)
+        assert not cell.robot.call("report")["braked"], "released"
+        room.person(2.0)
+        cell.run(0.005)
+        report = cell.robot.call("report")
+        assert report["latched"] and "unknown age" in report["reason"], report
+    finally:
+        cell.close()
