@@ -1163,3 +1163,20 @@ def test_a_released_arm_not_yet_commanded_stops_on_envelopes_of_unknown_age(hub)
         assert report["latched"] and "unknown age" in report["reason"], report
     finally:
         cell.close()
+
+
+def test_an_envelope_stamped_beyond_its_hosts_measured_clock_counts_as_fresh(bus_config):
+    """The cameras' host measured in step with this one, yet an envelope stamped half a
+    second ahead of it (a faulty stamp): taken as fresh, never as negatively old, which
+    would ask less room of the same person than a fresh envelope."""
+    caps = []
+    for ahead in (0.0, 0.5):
+        cell, room = moving(Bus(bus_config, hub=True))  # the bus closes with it
+        try:
+            cameras_clock(cell, 0.0)
+            room.person(0.45, age=-ahead)
+            cell.run(0.002)
+            caps.append(cell.robot.call("report")["speed_cap"])
+        finally:
+            cell.close()
+    assert caps[0] is not None and caps[1] == caps[0], caps
