@@ -448,8 +448,8 @@ def pytest_terminal_summary(terminalreporter) -> None:  # type: ignore[no-untype
 # processes watch each other's deadlines and a second test beside them on a 2-core host
 # would starve them into safety stops that are correct but not what the test is about.
 SERIAL = (
-    "tests/bench/",
-    "tests/docs/",
+    "tests/bench/test_bench.py",
+    "tests/docs/test_tutorial.py",
     "tests/topologies/",
     "tests/framework/console/",
     "tests/framework/test_cli_deploy.py",

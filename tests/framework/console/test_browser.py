@@ -276,7 +276,9 @@ def test_the_operator_drives_the_procedure_from_the_browser(page, seeg_console):
     assert page.is_visible("#release-confirm") and page.is_hidden("#release")
     page.click("#release-confirm")
     text_is(page, "answer", "e_RELEASE: accepted")
-    text_is(page, "operation", "approaching")
+    # the approach goes on; the STOP may have come close enough to the target that a
+    # page served late by a busy host first shows it at the goal (CI: 1 s after RELEASE)
+    text_matches(page, "operation", r"^(approaching|at the goal)")
 
     # a command the chart cannot take now is answered with the reason
     page.evaluate("send('e_START')")
