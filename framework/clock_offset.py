@@ -24,7 +24,6 @@ treats the data as of unknown age.
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 
 DRIFT = 200e-6
@@ -33,6 +32,11 @@ usual +-100 ppm, without any synchronisation."""
 
 KEEP = 8
 """Exchanges intersected (the last ones; at one per second, the last 8 s)."""
+
+
+UNMEASURED = "stamped by a host whose clock offset is not measured yet"
+"""Why a sample from another host cannot be timed: that host's clock has not answered
+yet (framework/peer_clocks.py asks at once, then every second)."""
 
 
 @dataclass(frozen=True)
@@ -57,12 +61,13 @@ class Exchange:
 
 class OffsetEstimate:
     """The offset of one peer's clock from this host's, as a true interval (module
-    docstring). Not thread-safe: one measuring thread adds, readers call `interval`
-    (a tuple read whole)."""
+    docstring). One measuring thread adds; any thread reads: the exchanges are a tuple
+    replaced whole, never changed while a reader goes through it."""
 
     def __init__(self, drift: float = DRIFT, keep: int = KEEP):
         self.drift = drift
-        self._exchanges: deque[Exchange] = deque(maxlen=keep)
+        self.keep = keep
+        self._exchanges: tuple[Exchange, ...] = ()
         self.refused = 0  # exchanges not taken (not finite, or answered before asked)
 
     def add(self, exchange: Exchange) -> bool:
@@ -71,11 +76,11 @@ class OffsetEstimate:
         if not all(math.isfinite(v) for v in values) or exchange.answered < exchange.asked:
             self.refused += 1
             return False
-        self._exchanges.append(exchange)
-        low, high = self._intersection(exchange.answered)
+        kept = (*self._exchanges, exchange)[-self.keep :]
+        low, high = self._intersection(kept, exchange.answered)
         if low > high:  # they do not meet: a clock was stepped; the newest is the truth
-            self._exchanges.clear()
-            self._exchanges.append(exchange)
+            kept = (exchange,)
+        self._exchanges = kept
         return True
 
     @property
@@ -85,13 +90,14 @@ class OffsetEstimate:
 
     def interval(self, now: float) -> tuple[float, float] | None:
         """(low, high) offset at local wall time `now`, or None if unmeasured."""
-        if not self._exchanges:
+        exchanges = self._exchanges
+        if not exchanges:
             return None
-        return self._intersection(now)
+        return self._intersection(exchanges, now)
 
-    def _intersection(self, now: float) -> tuple[float, float]:
+    def _intersection(self, exchanges: tuple[Exchange, ...], now: float) -> tuple[float, float]:
         low, high = -math.inf, math.inf
-        for e in self._exchanges:
+        for e in exchanges:
             widen = self.drift * max(0.0, now - e.asked)
             low = max(low, e.low - widen)
             high = min(high, e.high + widen)
@@ -113,3 +119,12 @@ class OffsetEstimate:
         if bounds is None:
             return None
         return stamp - (bounds[0] + bounds[1]) / 2
+
+    def peer_now(self, now: float) -> float | None:
+        """The latest the peer's clock can read at local wall time `now`, or None if
+        unmeasured: a deadline the peer set, judged by it, is never found later than it
+        is (a request run after its deadline is one its requester gave up on)."""
+        bounds = self.interval(now)
+        if bounds is None:
+            return None
+        return now + bounds[1]

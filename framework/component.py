@@ -332,6 +332,18 @@ class Component:
         inp = self.inputs.get(port)
         return self.peer_clocks(inp.key if inp is not None else None)
 
+    def local_stamp(self, port: str, stamp: float) -> float | None:
+        """`stamp`, a sample of input `port`, on this host's wall clock: as it is when
+        this host writes the port, moved by the measured offset of the host that does
+        (the interval's middle: off by at most half a round trip), None while that
+        host's clock is not measured yet. For pairing stamps of different hosts in
+        time (a tracker's sample with the joints of its moment); ages are judged with
+        `stamp_clock(port).age`, which never errs on the fresh side."""
+        clock = self.stamp_clock(port)
+        if clock is None:
+            return stamp
+        return clock.local_time(stamp, time.time())
+
     def wake_on(self, ports: tuple[str, ...], callback: Callable[[Any], None]) -> None:
         """Call `callback(port)` when any of these inputs receives a sample (an event
         activity's wake); a port its file declares later gets it when created."""

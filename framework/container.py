@@ -67,6 +67,9 @@ class Container:
         """Other hosts' clocks, measured (set by `build` from the topology's hosts)."""
         self.key_hosts: dict[str, str] = {}
         """Which other host writes each key this process may read (`build`)."""
+        self.requester_host: str | None = None
+        """The host of the Configurator and the Coordinator when it is another one (its
+        clock is among `clocks`): the host whose clock their requests' deadlines use."""
         self.local_switches: LocalSwitches | None = None
         """Configurations whose first steps this process switches itself (see
         framework/local_switch.py); set by `build` from the topology."""
@@ -263,6 +266,22 @@ class Container:
         return component
 
     # -- the container's own query -----------------------------------------------
+    def requester_now(self, wait: bool = True) -> float | None:
+        """Now on the requester's clock (`requester_host`), at the latest it can read:
+        a request's deadline judged by it is never found later than it is. This host's
+        clock when the requester runs here; None when its host is not measured (with
+        `wait`, asked at once and waited for, briefly: its first requests come right
+        after start; without, for a caller in the bus's thread)."""
+        now = time.time()
+        if self.requester_host is None or self.clocks is None:
+            return now
+        estimate = self.clocks.of(self.requester_host)
+        if estimate is None:
+            return now
+        if wait and not estimate.measured:
+            self.clocks.wait_measured(self.requester_host)
+        return estimate.peer_now(time.time())
+
     def peer_clock(self, key: str | None) -> OffsetEstimate | None:
         """The measured offset of the host that writes `key`, if another host does."""
         host = self.key_hosts.get(key) if key is not None else None

@@ -59,12 +59,17 @@ def build(spec: dict[str, Any], bus: Bus) -> Container:
         if item.get("start", False) and not component.start():
             raise ContainerError(f"{component.name}: start failed: {component.last_error}")
     container.key_hosts = dict(spec.get("key_hosts") or {})
+    container.requester_host = spec.get("requester_host")
     if spec.get("peer_clocks"):
         container.clocks = PeerClocks(container.bus, spec["peer_clocks"])
         container.clocks.start()
     if spec.get("switches"):
         container.local_switches = LocalSwitches(
-            container.bus, container.name, container.find_port, spec["switches"]
+            container.bus,
+            container.name,
+            container.find_port,
+            spec["switches"],
+            lambda: container.requester_now(wait=False),  # runs in the bus's thread
         )
     container.start()
     return container

@@ -24,6 +24,7 @@ from typing import Any, Protocol
 from framework import keys
 from framework.activity import Activity
 from framework.clock import late
+from framework.clock_offset import UNMEASURED
 from framework.component import Component
 from framework.errors import FwError
 from framework.topology.model import StepKind
@@ -56,6 +57,10 @@ class RequestHost(Protocol):
 
     def prepare(self, component: str, port: str, key: str) -> dict[str, Any]:
         """Give an input port a standby subscription to `key`."""
+
+    def requester_now(self, wait: bool = True) -> float | None:
+        """Now on the clock of the host that sets the requests' deadlines, at the latest
+        it can read (None: that clock is not measured; `wait`: ask and wait briefly)."""
 
 
 # lifecycle state -> operations that lead to each target state
@@ -193,7 +198,10 @@ class ControlRequests:
         deadline = request.get("deadline")
 
         def check() -> None:
-            why = late(deadline)
+            if not deadline:
+                return
+            now = self.host.requester_now()  # the deadline is on the requester's clock
+            why = late(deadline, now) if now is not None else f"cannot be timed: {UNMEASURED}"
             if why:
                 raise LateRequest(f"{component.name}: {op}: {why}")
 

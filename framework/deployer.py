@@ -162,7 +162,9 @@ def process_bus(topology: Topology, process: str) -> BusConfig:
 def clock_peers(topology: Topology, process: str) -> tuple[dict[str, str], dict[str, str]]:
     """Which other host writes each key `process` reads, and per such host the process
     to ask its clock (framework/peer_clocks.py): samples stamped on another host's clock
-    are judged with that clock's measured offset, never as if it were this host's."""
+    are judged with that clock's measured offset, never as if it were this host's. A
+    process away from the control host also measures that host (`control` answers
+    there): the Configurator's and the Coordinator's deadlines are on its clock."""
     mine = host_of(topology, process)
     writers: dict[str, tuple[str, str]] = {}  # key -> (host, process)
     for spec in topology.components.values():
@@ -185,6 +187,8 @@ def clock_peers(topology: Topology, process: str) -> tuple[dict[str, str], dict[
     peers: dict[str, str] = {}
     for key in sorted(key_hosts):
         peers.setdefault(writers[key][0], writers[key][1])
+    if mine != LOCAL:  # the Coordinator's and Configurator's: their requests' deadlines
+        peers.setdefault(LOCAL, CONTROL_PROCESS)
     return key_hosts, peers
 
 
@@ -226,6 +230,8 @@ def container_spec(topology: Topology, process: str) -> dict[str, Any]:
     key_hosts, peers = clock_peers(topology, process)
     if peers:
         spec["key_hosts"], spec["peer_clocks"] = key_hosts, peers
+    if LOCAL in peers:
+        spec["requester_host"] = LOCAL  # deadlines are on the control host's clock
     if topology.safety is not None:
         spec["beat"] = topology.safety.process_beat
         spec["nice"] = CONTROL_NICE if process in control_processes(topology) else SAFETY_NICE

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 from framework import keys, messages
 from framework.bus import Bus
 from framework.clock import late
+from framework.clock_offset import UNMEASURED
 from framework.errors import FwError
 from framework.messages import ConfigAck, ConfigRequest
 from framework.ports import InputPort, OutputPort, PortError
@@ -66,9 +67,13 @@ class LocalSwitches:
         process: str,
         find_port: PortLookup,
         switches: dict[str, list[dict[str, Any]]],
+        requester_now: Callable[[], float | None] = time.time,
     ):
         self.find_port = find_port
         self.switches = switches
+        self.requester_now = requester_now
+        """Now on the Coordinator's clock, at the latest (its requests' deadlines use
+        it; `Container.requester_now`); None while that clock is not measured."""
         self.done: list[ConfigAck] = []
         """What this process switched, newest last (the last 64)."""
         self._publisher = bus.publisher(keys.config_switched(process), cache=False)
@@ -81,9 +86,17 @@ class LocalSwitches:
             log.warning("a configuration request that is not one: %s", exc)
             return
         steps = self.switches.get(request.tag)
-        if not steps or not request.alone or late(request.deadline):
-            return  # the Configurator applies it (or refuses it late)
-        report = self.apply(request, steps)
+        if not steps or not request.alone:
+            return  # the Configurator applies it
+        # never switched late: the deadline is on the Coordinator's clock
+        now = self.requester_now() if request.deadline else time.time()
+        why = late(request.deadline, now) if now is not None else f"cannot be timed: {UNMEASURED}"
+        if why:  # said at once: the request fails now, not when the wait for a report ends
+            report = ConfigAck(
+                time.time(), request.request_id, False, request.tag, steps[0]["label"], why
+            )
+        else:
+            report = self.apply(request, steps)
         self.done = [*self.done[-63:], report]
         try:
             self._publisher.put(messages.encode(report, ConfigAck))

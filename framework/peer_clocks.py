@@ -66,6 +66,16 @@ class PeerClocks:
             self._soon.set()
         return estimate
 
+    def wait_measured(self, host: str, timeout: float = ANSWER_TIMEOUT) -> bool:
+        """Wait up to `timeout` for `host`'s first answer (asked at once); whether it
+        came. For a reader that cannot go on without it; the measuring thread asks."""
+        estimate = self.of(host)
+        end = time.monotonic() + timeout
+        while estimate is not None and not estimate.measured and time.monotonic() < end:
+            self._soon.set()
+            time.sleep(0.005)
+        return estimate is not None and estimate.measured
+
     def start(self) -> None:
         """Measure every peer at once, then once per period."""
         if self._thread is None and self.peers:

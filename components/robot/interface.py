@@ -60,6 +60,7 @@ from components.domain.geometry import matrix_to_quat
 from components.domain.lwr4 import POSITION_LIMIT, VELOCITY_LIMIT, Kinematics
 from components.domain.separation import CLEAR, SeparationMonitor, SsmParams, Verdict
 from components.robot.safe_stop import SafeStop
+from framework.clock_offset import UNMEASURED
 from framework.component import Component, ConfigureError, In, Out, operation
 from framework.errors import FwError
 from framework.messages import ArmState, Envelopes, EventMessage, JointState, Pose, Scalar
@@ -494,10 +495,9 @@ class RobotInterface(Component):
             taken = time.time()
             age = self._age_on_arrival(message.stamp, taken)
             if age is None:  # stamped by a host whose clock is not measured yet
-                unknown = "stamped by a host whose clock offset is not measured yet"
-                self.refuse("envelopes", unknown)
+                self.refuse("envelopes", UNMEASURED)
                 if not state.braked and not self.latched:
-                    self._trip(f"envelopes of unknown age: {unknown}", state)
+                    self._trip(f"envelopes of unknown age: {UNMEASURED}", state)
                 return  # braked: nothing to judge until that host's clock is measured
             arrived = self.clock.now()
             if self._people is not None:

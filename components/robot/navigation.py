@@ -71,6 +71,7 @@ from components.domain.geometry import invert, norm, pose_from_list, pose_list, 
 from components.domain.lwr4 import Kinematics
 from components.domain.procedure import Procedure, load_procedure
 from components.domain.sensors import SensorsConfig, load_sensors
+from framework.clock_offset import UNMEASURED
 from framework.component import Component, In, Out, operation
 from framework.messages import EventMessage, JointState, Pose
 from framework.ports import ReadStatus
@@ -155,7 +156,8 @@ class NavigatorCore:
 
     # --- inputs ------------------------------------------------------------------------
     def joints(self, stamp: float, q: np.ndarray) -> None:
-        """A measured joint state (stamps on the samples' clock)."""
+        """A measured joint state (stamped on the clock of the samples' stamps: this
+        host's, `Component.local_stamp`)."""
         self._times.append(stamp)
         self._joints.append(np.asarray(q, dtype=float))
         if stamp - self._times[0] > 2 * JOINT_MEMORY:
@@ -428,7 +430,9 @@ class Navigator(Component):
             status, state = self.joints.read()
             if status is not ReadStatus.NEW:
                 break
-            self.core.joints(state.stamp, np.asarray(state.position))
+            stamp = self.local_stamp("joints", state.stamp)
+            if stamp is not None:  # None: the robot's host is not measured yet
+                self.core.joints(stamp, np.asarray(state.position))
         status, tracking = self.tracking.read()
         if status is ReadStatus.NEW and tracking is not None:
             self._take_offsets(tracking.payload.get("offsets"))
@@ -437,19 +441,25 @@ class Navigator(Component):
             self._rto = rto
         status, cto = self.cto.read()
         if status is ReadStatus.NEW and self._usable(cto):
-            q = self.core.joints_at(cto.stamp)
+            # the tracker's stamp on the joints' clock (another host's may run apart)
+            stamp = self.local_stamp("cto", cto.stamp)
+            if stamp is None:
+                self.refuse("cto", f"{cto.frame!r}: {UNMEASURED}")
+                self._say_goals()
+                return
+            q = self.core.joints_at(stamp)
             steered = self.steering()
             if q is not None and self.core.offer(
                 cto.frame,
                 pose_matrix(cto),
                 pose_matrix(self._rto),  # type: ignore[arg-type]
                 self.kinematics.tcp(q),
-                cto.stamp,
+                stamp,
                 math.hypot(cto.rms, self._rto.rms),  # type: ignore[union-attr]
             ):
                 self._last_sample = time.time()
                 if cto.frame != steered:
-                    payload = {"tracker": cto.frame, "sample_stamp": cto.stamp}
+                    payload = {"tracker": cto.frame, "sample_stamp": stamp}
                     self.sources.write(
                         EventMessage(self._last_sample, "tracked_source", self.name, payload)
                     )

@@ -66,8 +66,11 @@ class TrackerSim(Component):
         truth = pose_matrix(ee) if seen else ee_path(time.monotonic() - self.t0)
         # the markers are seen where the arm was at the truth's stamp, so the sample
         # carries that stamp (a real tracker stamps its capture): a truth thinned to
-        # fewer samples than 1 kHz then costs no accuracy, only age
-        stamp = ee.stamp if seen else time.time()
+        # fewer samples than 1 kHz then costs no accuracy, only age; on this host's
+        # clock, as a real tracker's (the robot's host may run apart)
+        stamp = self.local_stamp("ee_pose", ee.stamp) if seen else time.time()
+        if stamp is None:
+            return  # this host cannot tell the capture's time yet: no frame
         status, head = self.head.read()
         base_from_rto = (
             invert(self.model.rto_from_base)

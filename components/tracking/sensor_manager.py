@@ -48,6 +48,7 @@ health and cause.
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -65,6 +66,7 @@ from components.domain.geometry import (
     rotation_angle,
 )
 from components.domain.sensors import SensorConfig, SensorsConfig, load_sensors
+from framework.clock_offset import UNMEASURED
 from framework.component import Component, FileInput, In, Out, operation
 from framework.errors import FwError
 from framework.messages import EventMessage, Pose
@@ -900,13 +902,24 @@ class SensorManager(Component):
                 status, pose = port.read()
                 if status is not ReadStatus.NEW:
                     break
+                # samples and robot poses are paired in time on this host's clock
+                stamp = self.local_stamp(f"{sensor}_{tool}", pose.stamp)
+                if stamp is None:
+                    self.refuse(f"{sensor}_{tool}", UNMEASURED)
+                    continue
+                if stamp != pose.stamp:
+                    pose = dataclasses.replace(pose, stamp=stamp)
                 self.core.offer(sensor, tool, pose, now)
                 frames[sensor, tool] = pose.frame_number
         while True:  # every pose since the last update (200 Hz; the trackers' are 20-100)
             status, ee = self.ee_pose.read()
             if status is not ReadStatus.NEW or ee is None:
                 break
-            self.core.set_kinematics(pose_matrix(ee), ee.stamp)
+            stamp = self.local_stamp("ee_pose", ee.stamp)
+            if stamp is None:
+                self.refuse("ee_pose", UNMEASURED)
+                continue
+            self.core.set_kinematics(pose_matrix(ee), stamp)
         if not idle and not self._postponed and self._half_a_frame():
             self._postponed = True
             return

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import dataclasses
 import math
 import os
 import queue
@@ -456,7 +457,10 @@ class VicraSimulator(Component):
             status, pose = self.ee_pose.read()
             if status is not ReadStatus.NEW or pose is None:
                 break
-            self._tcp.append(pose)
+            # on this host's clock, as the frame's time is (the robot's host may differ)
+            stamp = self.local_stamp("ee_pose", pose.stamp)
+            if stamp is not None:
+                self._tcp.append(dataclasses.replace(pose, stamp=stamp))
         at, nearest, gap = self.device.frame_time, None, math.inf
         for pose in reversed(self._tcp):  # stamps rise: the frame's is near the newest
             if abs(pose.stamp - at) > gap:

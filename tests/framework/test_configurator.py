@@ -461,6 +461,23 @@ def test_a_prepared_switch_with_a_deadline_is_made_and_answered_in_time(rig, hub
     assert rig.port("sink", "inp").key.endswith("b/out")
 
 
+@pytest.mark.parametrize("ahead", [1.0, None], ids=["requester ahead", "requester unmeasured"])
+def test_a_process_never_switches_for_a_request_late_on_the_requesters_clock(rig, hub, ahead):
+    """The Coordinator's host runs 1 s ahead of the process's (or is not measured yet):
+    a request whose deadline passed there is not switched by the process, though on its
+    own clock half a second would be left. It says so at once, and the request fails
+    with its reason, nothing switched."""
+    switch_routed(rig, hub)
+    switches = rig.workers.local_switches
+    switches.requester_now = (lambda: time.time() + ahead) if ahead else (lambda: None)
+    before = rig.port("sink", "inp").key
+    ack = rig.request("switch_to_b", alone=True, deadline=time.time() + 0.5)
+    assert not ack.ok and ("deadline passed" in ack.reason or "cannot be timed" in ack.reason)
+    assert "workers" in ack.reason and "did not report" not in ack.reason, "said, not waited"
+    assert rig.port("sink", "inp").key == before, "nothing switched"
+    assert not switches.done[-1].ok and ack.step == "disconnect sink.inp"
+
+
 def test_a_configuration_that_connects_a_port_twice_ends_on_the_second(rig):
     """A connection already so is skipped as judged by the steps before it: connecting
     b and then a again leaves the port on a (the wiring's own value), not on b."""

@@ -201,6 +201,58 @@ def test_a_request_that_comes_after_its_deadline_is_refused_not_run(process, hub
     assert remote.get("step") == 1.0
 
 
+def requester_apart(container, offset):
+    """The container's requests come from the control host (`local`), whose clock is
+    `offset` s ahead of this one as measured by a 1 ms round trip (None: not yet)."""
+    import time
+
+    from framework.clock_offset import Exchange
+    from framework.peer_clocks import PeerClocks
+
+    container.clocks = PeerClocks(container.bus, {"local": "control"})
+    if offset is not None:
+        now = time.time()
+        container.clocks.estimates["local"].add(Exchange(now - 0.001, now - 0.0005 + offset, now))
+    container.requester_host = "local"
+
+
+@pytest.mark.parametrize(
+    ("offset", "deadline_in", "runs"),
+    [
+        (1.0, -0.5, False),  # ahead: its deadline passed 0.5 s ago, here 0.5 s to come
+        (-1.0, 0.5, True),  # behind: 0.5 s to go, though here 0.5 s passed
+        (None, 60.0, False),  # not measured: it cannot be timed
+    ],
+    ids=["requester ahead", "requester behind", "requester unmeasured"],
+)
+def test_a_requests_deadline_is_judged_on_the_requesters_clock(hub, offset, deadline_in, runs):
+    """The Configurator's deadlines are its host's wall clock. A control PC whose clock
+    runs 1 s ahead of this one sets deadlines that look 1 s later here: judged on this
+    clock, a request it gave up on would still run. By the control host's measured
+    offset it is refused; one behind is not refused early; an unmeasured one is not
+    run at all."""
+    import time
+
+    from components.demo import Counter
+
+    container = Container("local", hub)
+    component = container.add(Counter("counter"))
+    container.start()
+    requester_apart(container, offset)
+    try:
+        deadline = time.time() + (offset or 0.0) + deadline_in  # on the requester's clock
+        request = {"op": "set", "property": "step", "value": 3.0, "deadline": deadline}
+        if runs:
+            container.requests.handle(component, request)
+            assert component.get_property("step") == 3.0
+        else:
+            with pytest.raises(FwError, match=r"deadline passed|cannot be timed"):
+                container.requests.handle(component, request)
+            assert component.get_property("step") == 1.0, "the late request did not run"
+    finally:
+        container.shutdown()
+
+
 def test_a_batch_stops_at_the_first_step_that_would_start_late(hub):
     """Steps on one component run in turn; the first that would start after the batch's
     deadline is refused with its reason, and the rest are not run."""

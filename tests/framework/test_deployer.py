@@ -473,3 +473,26 @@ def test_components_that_never_came_up_are_named_by_host_with_the_command_that_s
     assert f"fw deploy {hosts.file} --keys DIR --host cameras" in said
     assert "robot (process robot on host 'robot'" in said
     assert not_up(hosts, ["robot"], host="robot") == "robot (process robot)", "its own: no hint"
+
+
+def test_a_process_on_another_host_measures_the_clocks_of_the_hosts_it_depends_on():
+    """On several hosts a process measures the clock of every host whose samples it
+    reads (their stamps are that clock's) and of the control host (the Configurator's
+    and the Coordinator's deadlines are on its clock); on one host, none."""
+    from framework.deployer import container_spec
+    from framework.topology import load_topology
+    from tests.conftest import REPO
+
+    hosts = load_topology(REPO / "topologies" / "seeg_hosts.yaml")
+    supervision = container_spec(hosts, "supervision")
+    assert supervision["peer_clocks"] == {
+        "tracking": "trackers",
+        "cameras": "cameras",
+        "local": "control",
+    }, "its own host (robot) has no offset"
+    assert supervision["key_hosts"]["certus/calibration_tool_optical"] == "tracking"
+    assert supervision["requester_host"] == "local"
+    assert container_spec(hosts, "arm")["peer_clocks"] == {"local": "control"}
+    one = load_topology(REPO / "topologies" / "seeg.yaml")
+    spec = container_spec(one, "supervision")
+    assert "peer_clocks" not in spec and "requester_host" not in spec

@@ -7,16 +7,12 @@ import os
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
 
 from framework.peer_clocks import PeerClocks
 from tests.conftest import REPO, wait_until
-
-FAKETIME = next(
-    (p for p in Path("/usr/lib").glob("*/faketime/libfaketimeMT.so.1") if p.exists()), None
-)
+from tests.support import faketime
 
 PEER = """
 import json, sys, time
@@ -31,15 +27,10 @@ bus.close()
 """
 
 
-@pytest.mark.skipif(FAKETIME is None, reason="libfaketime is not installed (Debian: faketime)")
+@pytest.mark.skipif(faketime.LIBRARY is None, reason=faketime.MISSING)
 @pytest.mark.parametrize("offset", [0.05, -0.05])
 def test_a_host_whose_clock_is_off_by_50_ms_is_measured_so(hub, bus_config, offset):
-    env = dict(
-        os.environ,
-        LD_PRELOAD=str(FAKETIME),
-        FAKETIME=f"{offset:+}",
-        FAKETIME_DONT_FAKE_MONOTONIC="1",
-    )
+    env = dict(os.environ, **faketime.clock_apart(offset))
     peer = subprocess.Popen(
         [sys.executable, "-c", PEER, json.dumps(bus_config.to_dict())],
         cwd=REPO,

@@ -16,17 +16,26 @@ FW = [sys.executable, "-m", "framework.cli"]
 
 
 def run_on_hosts(
-    hosts: Hosts, topology: Path, keys: Path, scenario: Path, cwd: Path, timeout: float = 180
+    hosts: Hosts,
+    topology: Path,
+    keys: Path,
+    scenario: Path,
+    cwd: Path,
+    timeout: float = 180,
+    environment: dict[str, dict[str, str]] | None = None,
 ) -> subprocess.CompletedProcess[str]:
     """Start each host's part (all but control), then control's with `scenario`; the
-    control run's output once it ends; every host's part stopped afterwards."""
+    control run's output once it ends; every host's part stopped afterwards.
+    `environment`: variables for a host's part, by host (a clock set apart:
+    tests/support/faketime.py)."""
     others = []
     deploy = [*FW, "deploy", str(topology), "--keys", str(keys), "--headless"]
     try:
         for host in (*[h for h in hosts.names if h != "control"], KRC):
+            variables = [f"{k}={v}" for k, v in (environment or {}).get(host, {}).items()]
             others.append(
                 subprocess.Popen(
-                    hosts.command(host, *deploy, "--host", host),
+                    hosts.command(host, "env", *variables, *deploy, "--host", host),
                     cwd=cwd,
                     stdout=subprocess.DEVNULL,
                     stderr=subprocess.DEVNULL,

@@ -10,7 +10,8 @@ import sys
 import pytest
 
 from framework import netns
-from tests.conftest import REPO
+from tests.conftest import REPO, check_scenarios
+from tests.support import faketime
 from tests.support.hosts import run_on_hosts
 
 WHY = netns.available()
@@ -37,6 +38,10 @@ def keys(tmp_path_factory):
     return folder
 
 
+def test_every_scenario_for_several_hosts_is_checked_against_the_chart_and_topology():
+    check_scenarios(TOPOLOGY, sorted((SCENARIOS / "hosts").glob("*.yaml")))
+
+
 def test_the_hosts_are_namespaces_on_real_links(hosts):
     assert hosts.address("tracking") == "10.77.0.2" and hosts.address(netns.KRC) == "10.78.0.2"
     links = subprocess.run(
@@ -53,6 +58,21 @@ def test_the_hosts_are_namespaces_on_real_links(hosts):
 def test_the_procedure_runs_across_the_hosts(hosts, keys, scenario, monkeypatch):
     monkeypatch.setenv("FW_NETNS_PREFIX", hosts.prefix)
     run = run_on_hosts(hosts, TOPOLOGY, keys, SCENARIOS / scenario, REPO)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
+    assert "PASSED" in run.stdout
+
+
+@pytest.mark.skipif(faketime.LIBRARY is None, reason=faketime.MISSING)
+@pytest.mark.parametrize("offset", [0.05, -0.05], ids=["ahead", "behind"])
+def test_a_tracking_host_whose_clock_runs_apart_neither_stops_on_fresh_data_nor_hides_stale(
+    hosts, keys, offset, monkeypatch
+):
+    """The tracking PC's part runs with its clock 50 ms ahead, then behind, of every
+    other host's (libfaketime): procedures/seeg/scenarios/hosts/tracking_clock.yaml."""
+    monkeypatch.setenv("FW_NETNS_PREFIX", hosts.prefix)
+    scenario = SCENARIOS / "hosts" / "tracking_clock.yaml"
+    apart = {"tracking": faketime.clock_apart(offset)}
+    run = run_on_hosts(hosts, TOPOLOGY, keys, scenario, REPO, environment=apart)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
     assert "PASSED" in run.stdout
 

@@ -22,9 +22,11 @@ from components.robot.interpolator import InterpolatorCore, Phase
 from components.robot.navigation import Navigator, NavigatorCore, frames_of
 from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
+from framework.clock_offset import Exchange
 from framework.container import Container
 from framework.errors import FwError
 from framework.messages import EventMessage, JointState, Pose
+from framework.peer_clocks import PeerClocks
 from tests.conftest import REPO, drained, reader_port, writer_port
 
 KIN = Kinematics()
@@ -561,3 +563,67 @@ def test_the_goals_say_where_the_patients_reference_is_for_the_3d_view(navigator
     on_patient = navigator.nav.procedure.goals["target"]
     reference = goal_of(payload) @ np.linalg.inv(on_patient)
     assert payload["patient"] == pytest.approx(reference[:3, 3].tolist(), abs=1e-4)
+
+
+# --- trackers on a host whose clock runs apart (issue 46, docs/hosts.md) ------------------
+
+
+def tracking_host_clock(rig: NavigatorRig, offset: float | None) -> None:
+    """The tracker's samples (cto, rto) come from another host (`tracking`) whose clock
+    is `offset` s ahead of this one, as measured by a 1 ms round trip (None: not yet)."""
+    clocks = PeerClocks(rig.container.bus, {"tracking": "trackers"})
+    if offset is not None:
+        now = time.time()
+        clocks.estimates["tracking"].add(Exchange(now - 0.001, now - 0.0005 + offset, now))
+    rig.container.clocks = clocks
+    rig.container.key_hosts = {"test/cto": "tracking", "test/rto": "tracking"}
+
+
+def sample_of_the_past(rig: NavigatorRig, skew: float) -> dict:
+    """The arm passed HOME 50 ms ago, moving 1.5 cm each 50 ms; the tracker saw it at
+    HOME then and stamped that moment on its host's clock, `skew` s ahead. The goals."""
+    now = time.time()
+    step = np.array([0.025, 0, 0, 0, 0, 0, 0])  # the base joint: about 1.5 cm at the TCP
+    rig.writers["joints"].write(JointState(now - 0.1, tuple(np.array(HOME) - step)))
+    rig.writers["joints"].write(JointState(now - 0.05, HOME))
+    rig.writers["joints"].write(JointState(now, tuple(np.array(HOME) + step)))
+    real = ARM_ERROR @ KIN.tcp(np.array(HOME))
+    cto, rto = dataclasses.replace(CERTUS, noise=0.0).observe(
+        real, rig.rng, now - 0.05 + skew, base_from_rto=BASE_FROM_RTO
+    )
+    rig.writers["rto"].write(rto)
+    rig.writers["cto"].write(cto)
+    rig.clock.advance(1 / rig.nav.goals_rate)
+    rig.nav.update_hook()
+    return drained(rig.goals)[-1].payload
+
+
+@pytest.mark.parametrize("skew", [0.05, -0.05])
+def test_a_sample_stamped_on_a_clock_apart_is_paired_with_the_joints_of_its_moment(hub, skew):
+    """The tracking PC's clock runs 50 ms ahead (or behind) of the robot's. Paired by
+    its stamp as written, the sample would meet the joints of another moment (1.5 cm
+    away) and move the target by as much; on the robot's clock, by the host's measured
+    offset, it meets HOME's and the target is where the arm must go."""
+    rig = NavigatorRig(hub)
+    try:
+        tracking_host_clock(rig, skew)
+        payload = sample_of_the_past(rig, skew)
+        assert payload["tracker"] == "certus"
+        wanted = invert(ARM_ERROR) @ BASE_FROM_RTO @ TARGET
+        assert np.linalg.norm(goal_of(payload)[:3, 3] - wanted[:3, 3]) < 3e-3
+    finally:
+        rig.close()
+
+
+def test_samples_from_a_host_whose_clock_is_not_measured_yet_steer_nothing(hub):
+    """Until the tracking PC's clock has answered, its samples cannot be placed in time:
+    refused, said why, and no tracker steers."""
+    rig = NavigatorRig(hub)
+    try:
+        tracking_host_clock(rig, None)
+        assert rig.sample()["tracker"] is None
+        assert "clock offset is not measured yet" in rig.refusals[0].reason
+        tracking_host_clock(rig, 0.0)
+        assert rig.sample()["tracker"] == "certus"
+    finally:
+        rig.close()

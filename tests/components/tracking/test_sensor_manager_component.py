@@ -1,6 +1,7 @@
 """Spec: the Sensor Manager component reads real tracker ports and publishes its choice."""
 
 import dataclasses
+import time
 
 import numpy as np
 import pytest
@@ -12,8 +13,10 @@ from components.tracking.certus_sim import TrackerSim
 from components.tracking.sensor_manager import SensorManager
 from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
+from framework.clock_offset import Exchange
 from framework.container import Container
 from framework.messages import EventMessage, Pose
+from framework.peer_clocks import PeerClocks
 from framework.ports import InputPort
 from tests.conftest import drained, reader_port, wait_until, writer_port
 
@@ -293,3 +296,62 @@ def test_trackers_that_all_fall_silent_are_said_stale_by_the_idle_wake(hub, tmp_
         assert {h["cause"] for h in last["health"].values()} == {"stale"}, last
     finally:
         rig.container.shutdown()
+
+
+# --- trackers on a host whose clock runs apart (issue 46, docs/hosts.md) ------------------
+
+
+def on_tracking_host(stepped: Stepped, offset: float | None) -> None:
+    """Both trackers' samples come from another host (`tracking`) whose clock is
+    `offset` s ahead of this one, as measured by a 1 ms round trip (None: not yet)."""
+    clocks = PeerClocks(stepped.container.bus, {"tracking": "trackers"})
+    if offset is not None:
+        now = time.time()
+        clocks.estimates["tracking"].add(Exchange(now - 0.001, now - 0.0005 + offset, now))
+    stepped.container.clocks = clocks
+    stepped.container.key_hosts = dict.fromkeys(stepped.trackers, "tracking")
+
+
+def approach(stepped: Stepped, skew: float, seconds: float, speed: float = 0.075) -> None:
+    """The robot moves at `speed` (m/s) for `seconds`; both trackers see it at each
+    tick's moment and stamp it on their host's clock, `skew` s ahead of the robot's,
+    which stamps its end-effector pose on its own."""
+    for _ in range(round(seconds / TICK)):
+        stepped.ticks += 1
+        t = stepped.ticks * TICK
+        truth = rigid((speed * t, 0.0, 0.0), (0.0, 0.0, 0.0)) @ ee_path(0.0)
+        for rig in stepped.rigs:
+            seen = rig.observe(truth, stepped.rng, t + skew)
+            for tool, pose in zip(("cto", "rto"), seen, strict=True):
+                stepped.trackers[f"{rig.name}/{tool}"].write(pose)
+        stepped.ee.write(Pose(tuple(truth[:3, 3]), matrix_to_quat(truth[:3, :3]), t))
+        stepped.container.executor.advance(TICK)
+        stepped.statuses += [(stepped.ticks, m.payload) for m in drained(stepped.status)]
+
+
+@pytest.mark.parametrize("skew", [0.1, -0.1])
+def test_samples_stamped_on_a_clock_apart_are_checked_against_the_robot_of_their_moment(
+    stepped, skew
+):
+    """The tracking PC's clock runs 100 ms ahead (or behind) of the robot's while the
+    robot approaches at 7.5 cm/s. Compared by their stamps as written, every sample
+    would meet the robot 7.5 mm from where it saw it, beyond the 5 mm tolerance: a
+    calibration fault on fresh, correct data. On the robot's clock, by the measured
+    offset, both trackers agree with the kinematics throughout."""
+    on_tracking_host(stepped, skew)
+    approach(stepped, skew, 1.0)
+    assert stepped.best() == "certus"
+    causes = {p["health"][n]["cause"] for _, p in stepped.statuses for n in ("certus", "vicra")}
+    assert "calibration" not in causes
+
+
+def test_samples_from_a_host_whose_clock_is_not_measured_yet_are_refused_and_said(stepped):
+    refusals = []
+    stepped.manager.add_refusal_listener(refusals.append)
+    on_tracking_host(stepped, None)
+    approach(stepped, 0.0, 0.1)
+    assert stepped.best() is None
+    assert "clock offset is not measured yet" in refusals[0].reason
+    on_tracking_host(stepped, 0.0)
+    approach(stepped, 0.0, 0.2)
+    assert stepped.best() == "certus"
