@@ -51,8 +51,7 @@ command -v dot >/dev/null 2>&1 || need+=(graphviz)
 if [ -n "$extras" ]; then
   command -v chromium >/dev/null 2>&1 || need+=(chromium)
   command -v spin >/dev/null 2>&1 || need+=(spin)   # fw verify --spin, the second checker
-  command -v cc >/dev/null 2>&1 || need+=(gcc)      # compiles SPIN's verifier
-  command -v faketime >/dev/null 2>&1 || need+=(faketime)  # hosts whose clocks differ
+  command -v cc >/dev/null 2>&1 || need+=(gcc)      # SPIN's verifier; the tests' clock shim
 fi
 fresh=""
 if [ "${CI:-}" = true ]; then fresh=1; fi

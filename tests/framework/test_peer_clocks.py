@@ -1,6 +1,7 @@
 """Spec: another host's clock is measured over the bus as an interval that holds its
-real offset. The other host is a real process whose wall clock libfaketime moves
-(Debian's `faketime`: the clock the process reads, as a host set differently would)."""
+real offset. The other host is a real process whose wall clock is set apart
+(tests/support/clock_apart.py: the clock the process reads, as on a host set
+differently)."""
 
 import json
 import os
@@ -12,7 +13,7 @@ import pytest
 
 from framework.peer_clocks import PeerClocks
 from tests.conftest import REPO, wait_until
-from tests.support import faketime
+from tests.support import clock_apart
 
 PEER = """
 import json, sys, time
@@ -27,10 +28,10 @@ bus.close()
 """
 
 
-@pytest.mark.skipif(faketime.LIBRARY is None, reason=faketime.MISSING)
+@pytest.mark.skipif(clock_apart.library() is None, reason=clock_apart.MISSING)
 @pytest.mark.parametrize("offset", [0.05, -0.05])
 def test_a_host_whose_clock_is_off_by_50_ms_is_measured_so(hub, bus_config, offset):
-    env = dict(os.environ, **faketime.clock_apart(offset))
+    env = dict(os.environ, **clock_apart.environment(offset))
     peer = subprocess.Popen(
         [sys.executable, "-c", PEER, json.dumps(bus_config.to_dict())],
         cwd=REPO,

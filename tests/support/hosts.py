@@ -27,7 +27,7 @@ def run_on_hosts(
     """Start each host's part (all but control), then control's with `scenario`; the
     control run's output once it ends; every host's part stopped afterwards.
     `environment`: variables for a host's part, by host (a clock set apart:
-    tests/support/faketime.py)."""
+    tests/support/clock_apart.py)."""
     others = []
     deploy = [*FW, "deploy", str(topology), "--keys", str(keys), "--headless"]
     try:
