@@ -53,8 +53,9 @@ class SimulatedClock:
 
 def late(deadline: float | None, now: float | None = None) -> str:
     """'' if a request with this wall-clock deadline (s; None or 0: none) may still run,
-    else the reason to refuse it. Deadlines compare wall clocks, so every host of a
-    deployment needs its clock synchronised (NTP, PTP) to well under the deadlines."""
+    else the reason to refuse it. Deadlines compare wall clocks: `now` is the
+    requester's, on another host the latest its measured clock can read
+    (`Container.requester_now`), so an offset never lets a late request run."""
     if not deadline:
         return ""
     overdue = (time.time() if now is None else now) - float(deadline)

@@ -137,19 +137,22 @@ class Hosts:
                 ["ip", "netns", "exec", robot, "sysctl", "-qw", "net.ipv4.ip_forward=1"],
                 capture_output=True,
             )
-            _ip("-n", ns, "route", "add", "default", "via", self.krc_link_address)
-            for host in self.names:
-                if host != "robot":
-                    _ip(
-                        "-n",
-                        self.namespace(host),
-                        "route",
-                        "add",
-                        f"{KRC_NET}.0/30",
-                        "via",
-                        self.address("robot"),
-                    )
+            for host in (*self.names, KRC):
+                self._route(host)
         return self
+
+    def _route(self, host: str) -> None:
+        """The route of `host`'s bus traffic to or from the KRC, through the robot host:
+        made by `up`, and made again by `heal` (a link taken down loses every route
+        through it, and brought up gets back only its own subnet's: a healed host could
+        no longer reach the KRC, nor the KRC anyone)."""
+        if not (self.krc and "robot" in self.names) or host == "robot":
+            return
+        if host == KRC:
+            route = ["default", "via", self.krc_link_address]
+        else:
+            route = [f"{KRC_NET}.0/30", "via", self.address("robot")]
+        _ip("-n", self.namespace(host), "route", "replace", *route)
 
     def _veth(self, suffix: str) -> str:
         """A link's name in this machine's namespace, unique to this set of hosts."""
@@ -187,6 +190,7 @@ class Hosts:
         """End a partition of `host` (and any impairment of its link)."""
         ns, dev = self._link(host)
         _ip("-n", ns, "link", "set", dev, "up")
+        self._route(host)
         subprocess.run(
             ["ip", "netns", "exec", ns, "tc", "qdisc", "del", "dev", dev, "root"],
             capture_output=True,

@@ -71,6 +71,16 @@ def test_a_cut_host_is_unreachable_until_healed(hosts, served):
     assert ask(hosts, "control", hosts.address("robot")) == "hi"
 
 
+@pytest.mark.parametrize("host", ["control", netns.KRC])
+def test_a_healed_host_reaches_the_krc_again(hosts, served, host):
+    """Its route to the KRC (through the robot's host) goes with its link: a heal
+    makes it again (before, a cut of the control host left the KRC unreachable from
+    the operator's machine for good)."""
+    hosts.cut(host)
+    hosts.heal(host)
+    assert ask(hosts, "control", hosts.address(netns.KRC)) == "hi"
+
+
 def test_loss_and_delay_need_the_kernels_netem_and_say_so(hosts):
     if netns.netem_available():
         hosts.impair("robot", delay=0.01)
