@@ -132,7 +132,7 @@ def zenoh_config(bus: BusConfig, hub: bool = False, subject: str = "") -> zenoh.
             if hub
             else f"{bus.protocol}/{bus.listen or bus.host}:{bus.listen_port}"
         ],
-        "connect/endpoints": [] if hub else [bus.hub_endpoint, *bus.peers],
+        "connect/endpoints": [*bus.peers] if hub else [bus.hub_endpoint, *bus.peers],
         "scouting/gossip/enabled": True,
         "scouting/gossip/autoconnect_strategy": {
             "peer": {"to_router": "always", "to_peer": "greater-zid"}

@@ -2,6 +2,7 @@
 really rewire data; failures are reported and handled; shutdown is orderly."""
 
 import dataclasses
+import json
 
 import pytest
 
@@ -433,7 +434,7 @@ def test_on_several_hosts_each_process_keeps_its_links_to_the_ones_before_it():
     of processes has a side that makes their link again after a partition, which
     gossip alone did not (docs/hosts.md). On one host nothing is fixed."""
     from framework.bus import BusConfig, zenoh_config
-    from framework.deployer import container_spec
+    from framework.deployer import container_spec, hub_peers
     from framework.topology import load_topology
     from tests.conftest import REPO
 
@@ -455,9 +456,16 @@ def test_on_several_hosts_each_process_keeps_its_links_to_the_ones_before_it():
     assert f"tcp/10.77.0.4:{ports['robot']}" in config.get_json("listen/endpoints")
     connect = config.get_json("connect/endpoints")
     assert hosts.bus.hub_endpoint in connect and buses["robot"].peers[1] in connect
+    hub = zenoh_config(
+        dataclasses.replace(hosts.bus, secure=False, peers=hub_peers(hosts)), hub=True
+    )
+    assert set(json.loads(hub.get_json("connect/endpoints"))) == {
+        f"tcp/{b.listen}:{b.listen_port}" for b in buses.values()
+    }, "the hub makes its links to every process again too"
     one = load_topology(REPO / "topologies" / "seeg.yaml")
     bus = BusConfig.from_dict(container_spec(one, "robot")["bus"])
     assert (bus.listen_port, bus.peers) == (0, ()), "one host: any free port, gossip"
+    assert hub_peers(one) == ()
 
 
 def test_components_that_never_came_up_are_named_by_host_with_the_command_that_starts_it():
