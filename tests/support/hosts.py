@@ -15,6 +15,43 @@ from framework.netns import KRC, Hosts
 FW = [sys.executable, "-m", "framework.cli"]
 
 
+def stretched(topology: Path, margin: float, folder: Path) -> Path:
+    """A topology file laid over `topology` (`extends:`) with every safety deadline,
+    watchdog, reply timeout and tracker staleness limit x `margin`, as
+    `tests.conftest.with_deadlines_stretched` does to a loaded one: for runs that test
+    the procedure across the hosts, not the watches, on a shared 2-core host where
+    five hosts' processes starve each other (a process heartbeat 100 ms late was seen).
+    test_seeg_faults.py proves the watches at the shipped deadlines."""
+    import yaml
+
+    from framework.topology import load_topology
+    from tests.conftest import with_deadlines_stretched
+
+    loaded = load_topology(topology)
+    before = {name: dict(spec.properties) for name, spec in loaded.components.items()}
+    loaded = with_deadlines_stretched(loaded, margin)
+    assert loaded.safety is not None
+    overlay: dict = {
+        "extends": str(topology.resolve()),
+        "safety": {
+            "process_deadline": f"{loaded.safety.process_deadline * 1e3:g}ms",
+            "watch": {  # those the file declares (a process's own follows process_deadline)
+                w.name: f"{w.deadline * 1e3:g}ms"
+                for w in loaded.safety.watches
+                if not w.name.startswith("process ")
+            },
+        },
+        "components": {},
+    }
+    for name, spec in loaded.components.items():
+        changed = {k: v for k, v in spec.properties.items() if before[name].get(k) != v}
+        if changed:
+            overlay["components"][name] = {"properties": changed}
+    path = folder / f"{topology.stem}_x{margin:g}.yaml"
+    path.write_text(yaml.safe_dump(overlay, sort_keys=False))
+    return path
+
+
 def run_on_hosts(
     hosts: Hosts,
     topology: Path,

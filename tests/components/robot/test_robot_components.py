@@ -1109,6 +1109,17 @@ def test_an_old_envelope_from_a_host_whose_clock_runs_ahead_is_as_old_as_it_is(h
         cell.close()
 
 
+def slows_for_a_fresh_person_35_cm_away(cell, room, age: float = 0.0) -> None:
+    """A person 35 cm from the moving arm on an envelope `age` s old by this host's
+    clock (fresh on its own): outside the protective distance, the arm slows and
+    nothing latches."""
+    room.person(0.41, age=age)
+    cell.run(0.005)
+    report = cell.robot.call("report")
+    assert not report["latched"], report["reason"]
+    assert 0.3 <= report["separation"] <= 0.4, report["separation"]
+
+
 def test_a_fresh_envelope_from_a_host_whose_clock_runs_behind_is_fresh(hub):
     """The cameras' host runs half a second behind: a fresh envelope's stamp is half a
     second old by this host's clock. With the measured offset it is fresh: the person
@@ -1116,11 +1127,7 @@ def test_a_fresh_envelope_from_a_host_whose_clock_runs_behind_is_fresh(hub):
     cell, room = moving(hub)
     try:
         cameras_clock(cell, -0.5)
-        room.person(0.41, age=0.5)  # made now, stamped 0.5 s behind
-        cell.run(0.005)
-        report = cell.robot.call("report")
-        assert not report["latched"], report["reason"]
-        assert 0.3 <= report["separation"] <= 0.4, report["separation"]
+        slows_for_a_fresh_person_35_cm_away(cell, room, age=0.5)  # stamped 0.5 s behind
     finally:
         cell.close()
 
@@ -1163,11 +1170,7 @@ def test_a_braked_arm_waits_for_the_cameras_clock_then_takes_their_envelopes(hub
         cell.release()
         cell.interp.call("go_to", goal="target")
         cell.run(0.5)
-        room.person(0.41)
-        cell.run(0.005)
-        report = cell.robot.call("report")
-        assert not report["latched"], report["reason"]
-        assert 0.3 <= report["separation"] <= 0.4, report["separation"]
+        slows_for_a_fresh_person_35_cm_away(cell, room)
     finally:
         subscription.undeclare()
         cell.close()
