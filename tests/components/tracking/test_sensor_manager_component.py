@@ -312,10 +312,12 @@ def on_tracking_host(stepped: Stepped, offset: float | None) -> None:
     stepped.container.key_hosts = dict.fromkeys(stepped.trackers, "tracking")
 
 
-def approach(stepped: Stepped, skew: float, seconds: float, speed: float = 0.075) -> None:
+def approach(
+    stepped: Stepped, skew: float, seconds: float, speed: float = 0.075, robot_skew: float = 0.0
+) -> None:
     """The robot moves at `speed` (m/s) for `seconds`; both trackers see it at each
-    tick's moment and stamp it on their host's clock, `skew` s ahead of the robot's,
-    which stamps its end-effector pose on its own."""
+    tick's moment and stamp it on their host's clock, `skew` s ahead of this one, and
+    the robot stamps its end-effector pose on its own, `robot_skew` s ahead."""
     for _ in range(round(seconds / TICK)):
         stepped.ticks += 1
         t = stepped.ticks * TICK
@@ -324,7 +326,8 @@ def approach(stepped: Stepped, skew: float, seconds: float, speed: float = 0.075
             seen = rig.observe(truth, stepped.rng, t + skew)
             for tool, pose in zip(("cto", "rto"), seen, strict=True):
                 stepped.trackers[f"{rig.name}/{tool}"].write(pose)
-        stepped.ee.write(Pose(tuple(truth[:3, 3]), matrix_to_quat(truth[:3, :3]), t))
+        stamp = t + robot_skew
+        stepped.ee.write(Pose(tuple(truth[:3, 3]), matrix_to_quat(truth[:3, :3]), stamp))
         stepped.container.executor.advance(TICK)
         stepped.statuses += [(stepped.ticks, m.payload) for m in drained(stepped.status)]
 
@@ -355,3 +358,34 @@ def test_samples_from_a_host_whose_clock_is_not_measured_yet_are_refused_and_sai
     on_tracking_host(stepped, 0.0)
     approach(stepped, 0.0, 0.2)
     assert stepped.best() == "certus"
+
+
+def on_robot_host(stepped: Stepped, offset: float | None) -> None:
+    """The end-effector poses come from another host (`robot`) whose clock is `offset` s
+    ahead of this one (None: not measured yet); the trackers are this host's."""
+    clocks = PeerClocks(stepped.container.bus, {"robot": "robot"})
+    if offset is not None:
+        now = time.time()
+        clocks.estimates["robot"].add(Exchange(now - 0.001, now - 0.0005 + offset, now))
+    stepped.container.clocks = clocks
+    stepped.container.key_hosts = {"test/ee_pose": "robot"}
+
+
+@pytest.mark.parametrize("skew", [0.1, -0.1])
+def test_robot_poses_stamped_on_a_clock_apart_are_paired_on_this_hosts_clock(stepped, skew):
+    """The robot's host runs 100 ms apart from the Sensor Manager's, the trackers' is
+    its own: the robot's poses move onto this clock before a sample meets them, so the
+    trackers agree with the kinematics through the approach."""
+    on_robot_host(stepped, skew)
+    approach(stepped, 0.0, 1.0, robot_skew=skew)
+    assert stepped.best() == "certus"
+    causes = {p["health"][n]["cause"] for _, p in stepped.statuses for n in ("certus", "vicra")}
+    assert "calibration" not in causes
+
+
+def test_robot_poses_from_a_host_whose_clock_is_not_measured_yet_are_refused_and_said(stepped):
+    refusals = []
+    stepped.manager.add_refusal_listener(refusals.append)
+    on_robot_host(stepped, None)
+    approach(stepped, 0.0, 0.2)
+    assert any(r.port == "ee_pose" and "not measured yet" in r.reason for r in refusals)
