@@ -204,15 +204,9 @@ def test_a_request_that_comes_after_its_deadline_is_refused_not_run(process, hub
 def requester_apart(container, offset):
     """The container's requests come from the control host (`local`), whose clock is
     `offset` s ahead of this one as measured by a 1 ms round trip (None: not yet)."""
-    import time
+    from tests.support.peer_clock import from_host_apart
 
-    from framework.clock_offset import Exchange
-    from framework.peer_clocks import PeerClocks
-
-    container.clocks = PeerClocks(container.bus, {"local": "control"})
-    if offset is not None:
-        now = time.time()
-        container.clocks.estimates["local"].add(Exchange(now - 0.001, now - 0.0005 + offset, now))
+    from_host_apart(container, "local", "control", offset)
     container.requester_host = "local"
 
 

@@ -22,12 +22,11 @@ from components.robot.interpolator import InterpolatorCore, Phase
 from components.robot.navigation import Navigator, NavigatorCore, frames_of
 from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
-from framework.clock_offset import Exchange
 from framework.container import Container
 from framework.errors import FwError
 from framework.messages import EventMessage, JointState, Pose
-from framework.peer_clocks import PeerClocks
 from tests.conftest import REPO, drained, reader_port, writer_port
+from tests.support.peer_clock import from_host_apart
 
 KIN = Kinematics()
 DT = 0.001
@@ -571,12 +570,7 @@ def test_the_goals_say_where_the_patients_reference_is_for_the_3d_view(navigator
 def tracking_host_clock(rig: NavigatorRig, offset: float | None) -> None:
     """The tracker's samples (cto, rto) come from another host (`tracking`) whose clock
     is `offset` s ahead of this one, as measured by a 1 ms round trip (None: not yet)."""
-    clocks = PeerClocks(rig.container.bus, {"tracking": "trackers"})
-    if offset is not None:
-        now = time.time()
-        clocks.estimates["tracking"].add(Exchange(now - 0.001, now - 0.0005 + offset, now))
-    rig.container.clocks = clocks
-    rig.container.key_hosts = {"test/cto": "tracking", "test/rto": "tracking"}
+    from_host_apart(rig.container, "tracking", "trackers", offset, ("test/cto", "test/rto"))
 
 
 def sample_of_the_past(rig: NavigatorRig, skew: float) -> dict:

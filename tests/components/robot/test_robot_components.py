@@ -26,8 +26,8 @@ from framework.clock_offset import Exchange
 from framework.container import Container
 from framework.errors import FwError
 from framework.messages import Envelopes, Scalar
-from framework.peer_clocks import PeerClocks
 from tests.conftest import REPO, drained, reader_port, wait_until, writer_port
+from tests.support.peer_clock import from_host_apart
 
 PROCEDURE = REPO / "procedures" / "seeg.yaml"
 SENSORS = REPO / "procedures" / "seeg" / "sensors.yaml"
@@ -1083,12 +1083,7 @@ def test_a_person_against_the_released_arm_holding_still_is_a_protective_stop(hu
 def cameras_clock(cell, offset: float | None) -> None:
     """The envelopes come from another host (`cameras`) whose clock is `offset` s ahead
     of this one, as measured by a 1 ms round trip (None: not measured yet)."""
-    clocks = PeerClocks(cell.container.bus, {"cameras": "cameras"})
-    if offset is not None:
-        now = time.time()
-        clocks.estimates["cameras"].add(Exchange(now - 0.001, now - 0.0005 + offset, now))
-    cell.container.clocks = clocks
-    cell.container.key_hosts = {"test/envelopes": "cameras"}
+    from_host_apart(cell.container, "cameras", "cameras", offset, ("test/envelopes",))
 
 
 @pytest.mark.parametrize("offset", [1.0, 0.0, -0.5], ids=["ahead", "agreeing", "behind"])

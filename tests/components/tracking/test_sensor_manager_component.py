@@ -1,7 +1,6 @@
 """Spec: the Sensor Manager component reads real tracker ports and publishes its choice."""
 
 import dataclasses
-import time
 
 import numpy as np
 import pytest
@@ -13,12 +12,11 @@ from components.tracking.certus_sim import TrackerSim
 from components.tracking.sensor_manager import SensorManager
 from framework.activity import Activity, SteppedExecutor
 from framework.clock import SimulatedClock
-from framework.clock_offset import Exchange
 from framework.container import Container
 from framework.messages import EventMessage, Pose
-from framework.peer_clocks import PeerClocks
 from framework.ports import InputPort
 from tests.conftest import drained, reader_port, wait_until, writer_port
+from tests.support.peer_clock import from_host_apart
 
 
 def as_yaml(t):
@@ -304,12 +302,7 @@ def test_trackers_that_all_fall_silent_are_said_stale_by_the_idle_wake(hub, tmp_
 def on_tracking_host(stepped: Stepped, offset: float | None) -> None:
     """Both trackers' samples come from another host (`tracking`) whose clock is
     `offset` s ahead of this one, as measured by a 1 ms round trip (None: not yet)."""
-    clocks = PeerClocks(stepped.container.bus, {"tracking": "trackers"})
-    if offset is not None:
-        now = time.time()
-        clocks.estimates["tracking"].add(Exchange(now - 0.001, now - 0.0005 + offset, now))
-    stepped.container.clocks = clocks
-    stepped.container.key_hosts = dict.fromkeys(stepped.trackers, "tracking")
+    from_host_apart(stepped.container, "tracking", "trackers", offset, tuple(stepped.trackers))
 
 
 def approach(
@@ -332,6 +325,13 @@ def approach(
         stepped.statuses += [(stepped.ticks, m.payload) for m in drained(stepped.status)]
 
 
+def agrees_with_the_kinematics_throughout(stepped: Stepped) -> None:
+    """The Certus chosen, and no tracker ever faulted for its calibration."""
+    assert stepped.best() == "certus"
+    causes = {p["health"][n]["cause"] for _, p in stepped.statuses for n in ("certus", "vicra")}
+    assert "calibration" not in causes
+
+
 @pytest.mark.parametrize("skew", [0.1, -0.1])
 def test_samples_stamped_on_a_clock_apart_are_checked_against_the_robot_of_their_moment(
     stepped, skew
@@ -343,9 +343,7 @@ def test_samples_stamped_on_a_clock_apart_are_checked_against_the_robot_of_their
     offset, both trackers agree with the kinematics throughout."""
     on_tracking_host(stepped, skew)
     approach(stepped, skew, 1.0)
-    assert stepped.best() == "certus"
-    causes = {p["health"][n]["cause"] for _, p in stepped.statuses for n in ("certus", "vicra")}
-    assert "calibration" not in causes
+    agrees_with_the_kinematics_throughout(stepped)
 
 
 def test_samples_from_a_host_whose_clock_is_not_measured_yet_are_refused_and_said(stepped):
@@ -363,12 +361,7 @@ def test_samples_from_a_host_whose_clock_is_not_measured_yet_are_refused_and_sai
 def on_robot_host(stepped: Stepped, offset: float | None) -> None:
     """The end-effector poses come from another host (`robot`) whose clock is `offset` s
     ahead of this one (None: not measured yet); the trackers are this host's."""
-    clocks = PeerClocks(stepped.container.bus, {"robot": "robot"})
-    if offset is not None:
-        now = time.time()
-        clocks.estimates["robot"].add(Exchange(now - 0.001, now - 0.0005 + offset, now))
-    stepped.container.clocks = clocks
-    stepped.container.key_hosts = {"test/ee_pose": "robot"}
+    from_host_apart(stepped.container, "robot", "robot", offset, ("test/ee_pose",))
 
 
 @pytest.mark.parametrize("skew", [0.1, -0.1])
@@ -378,9 +371,7 @@ def test_robot_poses_stamped_on_a_clock_apart_are_paired_on_this_hosts_clock(ste
     trackers agree with the kinematics through the approach."""
     on_robot_host(stepped, skew)
     approach(stepped, 0.0, 1.0, robot_skew=skew)
-    assert stepped.best() == "certus"
-    causes = {p["health"][n]["cause"] for _, p in stepped.statuses for n in ("certus", "vicra")}
-    assert "calibration" not in causes
+    agrees_with_the_kinematics_throughout(stepped)
 
 
 def test_robot_poses_from_a_host_whose_clock_is_not_measured_yet_are_refused_and_said(stepped):
