@@ -225,9 +225,13 @@ def load_equivalents() -> list[dict[str, str]]:
     """The mutants known to change nothing, with why (tools/mutation_equivalents.yaml)."""
     if not EQUIVALENTS.exists():
         return []
-    import yaml
+    from framework.yamlio import YamlError, load_yaml
 
-    return list(yaml.safe_load(EQUIVALENTS.read_text(encoding="utf-8")) or [])
+    try:
+        entries = load_yaml(EQUIVALENTS).data
+    except YamlError as exc:  # a hand-edited list: say where, not a traceback
+        raise SystemExit(f"fw mutation: {exc}") from None
+    return list(entries or [])
 
 
 @functools.lru_cache(maxsize=64)
