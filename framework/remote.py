@@ -20,6 +20,9 @@ from framework import keys
 from framework.bus import Bus, BusError
 from framework.errors import FwError
 
+ROUTE_RETRY = 0.05
+"""s between two asks of a component that is alive but that the bus has no route to yet."""
+
 
 class RemoteError(FwError):
     """A remote request failed; `kind` is the remote error class name."""
@@ -40,16 +43,42 @@ class RemoteComponent:
     ) -> Any:
         """Send one control request and return its result. It carries its deadline (wall
         clock, s: now + timeout unless given): the container refuses it, unrun, if it
-        arrives or would start later (a process that was busy or hung)."""
+        arrives or would start later (a process that was busy or hung). A component
+        whose process is alive but that the bus has no route to yet (just after a link
+        came back) is asked again until the deadline; one nobody hosts fails at once."""
         wait = self.timeout if timeout is None else timeout
         now = time.time()
         deadline = now + wait if deadline is None else min(deadline, now + wait)
         wait = max(deadline - now, 0.001)
         body = json.dumps({"op": op, **fields, "deadline": deadline}).encode()
-        asked = time.monotonic()
+        key = keys.control_request(self.name, op, str(fields.get("operation", "")))
+        while True:
+            asked = time.monotonic()
+            replies = self._ask(key, body, wait, op, fields)
+            if replies:
+                return json.loads(replies[0])["result"]
+            what = f"operation {fields['operation']!r}" if op == "call" else f"{op!r}"
+            if time.monotonic() - asked >= wait / 2:
+                raise RemoteError(
+                    f"no answer from component {self.name!r} to {what} within "
+                    f"{wait:g} s (is its process running?)",
+                    "Timeout",
+                )
+            # The bus knew nobody to ask. Unless the component is alive (a route not
+            # made yet after a link came back, eclipse-zenoh/zenoh#588, #2517), say so.
+            wait = deadline - time.time() - ROUTE_RETRY
+            if wait <= ROUTE_RETRY or not self._alive(min(wait, ROUTE_RETRY)):
+                raise RemoteError(
+                    f"no answer from component {self.name!r} to {what}: nothing on the bus "
+                    "takes it (is its process running? may this session ask it?)",
+                    "Timeout",
+                )
+            time.sleep(ROUTE_RETRY)
+
+    def _ask(self, key: str, body: bytes, wait: float, op: str, fields: dict[str, Any]) -> list:
+        """One query: its replies, or a `RemoteError` for an error reply or a timeout."""
         try:
-            key = keys.control_request(self.name, op, str(fields.get("operation", "")))
-            replies = self.bus.query(key, body, wait)
+            return self.bus.query(key, body, wait)
         except BusError as exc:
             try:
                 info = json.loads(str(exc))
@@ -63,20 +92,13 @@ class RemoteComponent:
                     ) from None
                 raise RemoteError(f"{self.name}: {exc}") from None
             raise RemoteError(f"{self.name}: {info['error']}", info.get("kind", "")) from None
-        if not replies:
-            what = f"operation {fields['operation']!r}" if op == "call" else f"{op!r}"
-            if time.monotonic() - asked < wait / 2:  # the bus knew nobody to ask
-                raise RemoteError(
-                    f"no answer from component {self.name!r} to {what}: nothing on the bus "
-                    "takes it (is its process running? may this session ask it?)",
-                    "Timeout",
-                )
-            raise RemoteError(
-                f"no answer from component {self.name!r} to {what} within "
-                f"{wait:g} s (is its process running?)",
-                "Timeout",
-            )
-        return json.loads(replies[0])["result"]
+
+    def _alive(self, wait: float) -> bool:
+        """Is the component's liveliness token on the bus (its process runs and is linked)?"""
+        try:
+            return bool(self.bus.alive(keys.alive(self.name), timeout=wait))
+        except BusError:
+            return False
 
     def configure(self) -> dict[str, Any]:
         """Remote `configure()`; the result says whether the hook succeeded and why not."""
