@@ -142,14 +142,6 @@ def mesh(topology: Topology) -> dict[str, tuple[str, int]]:
     }
 
 
-def hub_peers(topology: Topology) -> tuple[str, ...]:
-    """The endpoints the hub (the control host's session) connects to itself on several
-    hosts: every process's (`mesh`). A link between the hub and a process then has two
-    sides that make it again after a partition, whichever closed first."""
-    bus = topology.bus
-    return tuple(f"{bus.protocol}/{address}:{port}" for address, port in mesh(topology).values())
-
-
 def process_bus(topology: Topology, process: str) -> BusConfig:
     """The bus settings of one process: where it listens and whom it connects to."""
     bus = dataclasses.replace(
@@ -308,8 +300,6 @@ class Deployment:
             topo.bus = self._credentials(control)
         mine = LOCAL if self.host is None else self.host
         here = dataclasses.replace(topo.bus, listen=topo.listen_address(mine))
-        if control:  # the hub makes its links to every process again too (`hub_peers`)
-            here = dataclasses.replace(here, peers=hub_peers(topo))
         try:
             self.hub = Bus(here, hub=control, subject=CONTROL_PROCESS if control else OPERATOR)
         except BusError as exc:  # name the file, so the command it suggests runs as written

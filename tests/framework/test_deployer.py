@@ -432,9 +432,11 @@ def test_on_several_hosts_each_process_keeps_its_links_to_the_ones_before_it():
     """A deployment on several hosts gives each process a port of its own on its host's
     address, and each connects itself to every process before it (by name): every pair
     of processes has a side that makes their link again after a partition, which
-    gossip alone did not (docs/hosts.md). On one host nothing is fixed."""
+    gossip alone did not (docs/hosts.md). Only one side: the hub links to nobody itself
+    (with links made from both sides, Zenoh left routes unmade after most heals,
+    tools/zenoh_partition.py). On one host nothing is fixed."""
     from framework.bus import BusConfig, zenoh_config
-    from framework.deployer import container_spec, hub_peers
+    from framework.deployer import container_spec
     from framework.topology import load_topology
     from tests.conftest import REPO
 
@@ -456,16 +458,13 @@ def test_on_several_hosts_each_process_keeps_its_links_to_the_ones_before_it():
     assert f"tcp/10.77.0.4:{ports['robot']}" in config.get_json("listen/endpoints")
     connect = config.get_json("connect/endpoints")
     assert hosts.bus.hub_endpoint in connect and buses["robot"].peers[1] in connect
-    hub = zenoh_config(
-        dataclasses.replace(hosts.bus, secure=False, peers=hub_peers(hosts)), hub=True
-    )
-    assert set(json.loads(hub.get_json("connect/endpoints"))) == {
-        f"tcp/{b.listen}:{b.listen_port}" for b in buses.values()
-    }, "the hub makes its links to every process again too"
+    retry = json.loads(config.get_json("connect/retry"))
+    assert retry["period_max_ms"] <= 1000, "a link lost to a partition is tried every second"
+    hub = zenoh_config(dataclasses.replace(hosts.bus, secure=False), hub=True)
+    assert json.loads(hub.get_json("connect/endpoints")) == [], "the hub links to nobody"
     one = load_topology(REPO / "topologies" / "seeg.yaml")
     bus = BusConfig.from_dict(container_spec(one, "robot")["bus"])
     assert (bus.listen_port, bus.peers) == (0, ()), "one host: any free port, gossip"
-    assert hub_peers(one) == ()
 
 
 def test_components_that_never_came_up_are_named_by_host_with_the_command_that_starts_it():

@@ -1,0 +1,206 @@
+"""How long after a partition heals Zenoh alone routes queries and samples again.
+
+Plain Zenoh sessions, no fw component: the hub on a `control` namespace and five
+peers placed as topologies/seeg_hosts.yaml places fw's processes (the arm on the
+KRC's link), each connected as fw's deployer connects them (`framework.bus`:
+peer mode, gossip, each pair linked from both sides). Every peer declares a
+queryable, a liveliness token and an echo subscriber; the hub asks and pings each
+one every ~0.4 s. The control host is cut off for `--partition` seconds, then the
+tool reports, per run, when every peer answered both again after the heal
+(`--cut` another host).
+
+Written for issue 46: after a control-host partition fw's requests to some
+processes got "nothing on the bus takes it" for 10 s and more while their tokens
+were alive. This tool shows it happens without fw (eclipse-zenoh/zenoh#2517 is
+the nearest upstream report) and checks a new Zenoh release again:
+
+    sudo python tools/zenoh_partition.py --runs 6
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+NAMES = ("arm", "cameras", "robot", "supervision", "trackers")
+HOST = {"arm": "krc", "cameras": "cameras", "robot": "robot", "supervision": "robot"}
+HOST["trackers"] = "tracking"
+PORT = 7600
+
+
+def _config(name: str, address: dict[str, str]):
+    """fw's bus settings for the hub (`name` == "hub") or one peer, linked as
+    `address["links"]` says (`--links`)."""
+    from framework.bus import BusConfig
+
+    def endpoint(peer: str) -> str:
+        return f"tcp/{address[peer]}:{PORT + 1 + NAMES.index(peer)}"
+
+    hub = address["hub"]
+    links = address.get("links", "fw")
+    if name == "hub":
+        hub_links = tuple(endpoint(n) for n in NAMES if links == "both")
+        return BusConfig("zp", PORT, hub, peers=hub_links)
+    i = NAMES.index(name)
+    before = tuple(endpoint(n) for n in NAMES[:i] if links != "gossip")
+    return BusConfig("zp", PORT, hub, listen=address[name], listen_port=PORT + 1 + i, peers=before)
+
+
+def peer(name: str, address: dict[str, str]) -> None:
+    """One peer: a queryable, a token and an echo, until killed."""
+    from framework.bus import Bus
+
+    bus = Bus(_config(name, address))
+    bus.queryable(f"q/{name}", lambda query: query.reply(query.key_expr, b"1"))
+    bus.token(f"alive/{name}")
+    echo = bus.session.declare_publisher(f"r/{name}")
+    bus.session.declare_subscriber(f"s/{name}", lambda s: echo.put(s.payload.to_bytes()))
+    threading.Event().wait()
+
+
+def hub(address: dict[str, str], seconds: float) -> None:
+    """Ask and ping every peer until `seconds` pass; print one JSON line per round."""
+    from framework.bus import Bus
+
+    bus = Bus(_config("hub", address), hub=True)
+    echoed: dict[str, bytes] = {}
+    bus.session.declare_subscriber(
+        "r/*", lambda s: echoed.__setitem__(str(s.key_expr).rsplit("/", 1)[1], s.payload.to_bytes())
+    )
+    pings = {n: bus.session.declare_publisher(f"s/{n}") for n in NAMES}
+    start, n = time.monotonic(), 0
+    while time.monotonic() - start < seconds:
+        n += 1
+        answered = {}
+        for name in NAMES:
+            try:
+                answered[name] = bool(bus.query(f"q/{name}", b"", 0.3))
+            except Exception:
+                answered[name] = False
+            pings[name].put(str(n).encode())
+        time.sleep(0.1)
+        # the echo of this round's ping or of the last one's (it may still be on its way)
+        fresh = {str(n).encode(), str(n - 1).encode()}
+        ok = [m for m in NAMES if answered[m] and echoed.get(m) in fresh]
+        deaf = [m for m in NAMES if echoed.get(m) not in fresh]
+        mute = [m for m in NAMES if not answered[m]]
+        line = {"t": round(time.monotonic() - start, 2), "ok": ok, "mute": mute, "deaf": deaf}
+        line["linked"] = bus.peers()
+        print(json.dumps(line), flush=True)
+
+
+def one_run(
+    partition: float, after: float, links: str = "fw", cut: str = "control"
+) -> float | None:
+    """Seconds from the heal until every peer answered and echoed (None: not within
+    `after`)."""
+    from framework import netns
+
+    hosts = netns.Hosts(prefix="zp-", bridge="zpbr0").up()
+    address = {"hub": hosts.address("control"), "links": links}
+    address |= {n: hosts.address(HOST[n]) for n in NAMES}
+    me = [sys.executable, __file__]
+    peers = [
+        subprocess.Popen(hosts.command(HOST[n], *me, "--peer", n, json.dumps(address)))
+        for n in NAMES
+    ]
+    try:
+        time.sleep(0.5)
+        watch = subprocess.Popen(
+            hosts.command("control", *me, "--hub", json.dumps(address), str(3 + partition + after)),
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        time.sleep(3)
+        hosts.cut(cut)
+        time.sleep(partition)
+        hosts.heal(cut)
+        lines, _ = watch.communicate(timeout=60 + partition + after)
+        rounds = [json.loads(line) for line in lines.splitlines() if line.startswith("{")]
+        heal_at = 3 + partition
+        after_heal = [r for r in rounds if r["t"] > heal_at]
+        # back: the first round from which every later one reached every peer
+        back = None
+        for r in reversed(after_heal):
+            if len(r["ok"]) != len(NAMES):
+                break
+            back = r["t"]
+        if back is None:
+            last = after_heal[-1] if after_heal else {"mute": NAMES, "deaf": NAMES}
+            print(
+                f"  at the end, queries unanswered: {', '.join(last['mute']) or 'none'}; "
+                f"pings not echoed: {', '.join(last['deaf']) or 'none'}; "
+                f"the hub linked to {last.get('linked', 0)} of {len(NAMES)}"
+            )
+            return None
+        return back - heal_at
+    finally:
+        for p in peers:
+            p.kill()
+            p.wait()
+        hosts.down()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Parse the command line and run (or play one role of a run)."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--runs", type=int, default=6)
+    parser.add_argument("--partition", type=float, default=2.0, help="s the control host is cut")
+    parser.add_argument("--after", type=float, default=15.0, help="s watched after the heal")
+    parser.add_argument(
+        "--links",
+        choices=("fw", "both", "gossip"),
+        default="fw",
+        help="fw: each peer links to the hub and to the peers before it (as fw deploys); "
+        "both: the hub also links to every peer (fw until 2026-11-29); gossip: each "
+        "peer links to the hub only, gossip makes the rest",
+    )
+    parser.add_argument("--cut", default="control", help="the host cut off (default control)")
+    parser.add_argument("--peer", nargs=2, help=argparse.SUPPRESS)
+    parser.add_argument("--hub", nargs=2, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.peer:
+        peer(args.peer[0], json.loads(args.peer[1]))
+        return 0
+    if args.hub:
+        hub(json.loads(args.hub[0]), float(args.hub[1]))
+        return 0
+    from framework import netns
+
+    why = netns.available()
+    if why:
+        print(f"zenoh_partition: {why}", file=sys.stderr)
+        return 2
+    from importlib.metadata import version
+
+    times: list[float] = []
+    lost = 0
+    for i in range(args.runs):
+        back = one_run(args.partition, args.after, args.links, args.cut)
+        said = "not back" if back is None else f"{back:.2f} s"
+        print(f"run {i + 1}/{args.runs}: every peer answers again {said} after the heal")
+        if back is None:
+            lost += 1
+        else:
+            times.append(back)
+    print(
+        f"eclipse-zenoh {version('eclipse-zenoh')}, links {args.links}, "
+        f"{args.cut} cut for {args.partition:g} s: "
+        f"{len(times)} of {args.runs} runs back within {args.after:g} s"
+        + (f" (median {statistics.median(times):.2f} s, max {max(times):.2f} s)" if times else "")
+        + f"; {lost} with routes missing for the whole {args.after:g} s"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
