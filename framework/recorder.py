@@ -10,6 +10,12 @@ reads a file cut anywhere (no summary, a torn last record) up to its last whole
 record. (A power loss can still lose what the OS had not written to disk yet.) Port
 samples can be recorded too, by key.
 
+Beside fw's own JSON channels it writes Foxglove's well-known messages
+(`framework/scene.py`): every record as a `foxglove.Log` line on `/fw/log`, and the
+recorded joints, poses and people's envelopes as joint states, transforms and a 3D
+scene, so Foxglove shows the run without fw's schemas. `fw log` and `fw replay` read
+the JSON channels and skip those.
+
     fw deploy topologies/demo.yaml --record run.mcap
     fw log run.mcap                   # the timeline
     fw replay run.mcap                # feed the recorded events to the chart again
@@ -123,9 +129,11 @@ class FlightRecorder:
         bus: Bus,
         samples: dict[str, str] | None = None,
         metadata: dict[str, str] | None = None,
+        foxglove: bool = True,
     ):
         """`samples` maps extra keys to record to their message type name; `metadata`
-        (for example the statechart's path, used by `fw replay`) is stored in the file."""
+        (for example the statechart's path, used by `fw replay`) is stored in the file;
+        `foxglove`: also write Foxglove's well-known messages (framework/scene.py)."""
         from mcap.writer import CompressionType, Writer
 
         self.path = Path(path)
@@ -145,6 +153,12 @@ class FlightRecorder:
             for name, spec in _SCHEMAS.items()
         }
         self._ports: list[InputPort[Any]] = []
+        self._scene = None
+        if foxglove:
+            from framework import scene
+
+            self._scene = scene
+        self._foxglove_schemas: dict[str, int] = {}
         self.count = 0
         self._closed = False
         self._file.flush()
@@ -173,7 +187,7 @@ class FlightRecorder:
         ]
         for key, type_name in (samples or {}).items():
             kind = messages.resolve_type(type_name)
-            self._listen(bus, key, kind, f"/fw/samples/{key}", "fw.Sample", _plain)
+            self._listen(bus, key, kind, f"/fw/samples/{key}", "fw.Sample", _plain, key)
 
     def _channel(self, topic: str, schema: str) -> int:
         channel = self._channels.get(topic)
@@ -186,18 +200,72 @@ class FlightRecorder:
     def write(
         self, topic: str, schema: str, data: dict[str, Any], stamp: float | None = None
     ) -> None:
-        """Append one message (thread-safe)."""
-        now = time.time_ns()
-        log_time = int((stamp or time.time()) * 1e9)
+        """Append one message (thread-safe); with Foxglove's messages on, its timeline
+        line too (`/fw/log`), samples excepted (their scene is written by `_sample`)."""
+        when = stamp or time.time()
         body = json.dumps(data, default=str).encode()
+        log = None
+        if self._scene is not None and schema != "fw.Sample":
+            from framework.timeline import line
+
+            log = self._scene.log(when, line(topic, data))
         with self._lock:
             if self._closed:
                 return
-            self._writer.add_message(
-                self._channel(topic, schema), log_time=max(log_time, 0), data=body, publish_time=now
+            self._add(self._channel(topic, schema), when, body)
+            if log is not None:
+                self._add(self._foxglove_channel(self._scene.LOG_TOPIC, log), when, log.data)
+
+    def _add(self, channel: int, when: float, body: bytes) -> None:
+        """One message on `channel` (the lock held)."""
+        self._writer.add_message(
+            channel, log_time=max(int(when * 1e9), 0), data=body, publish_time=time.time_ns()
+        )
+        self.count += 1
+        self._dirty = True
+
+    def _foxglove_channel(self, topic: str, converted: Any) -> int:
+        """The channel of a Foxglove message's topic, its protobuf schema registered once
+        (the lock held)."""
+        channel = self._channels.get(topic)
+        if channel is None:
+            schema = self._foxglove_schemas.get(converted.schema_name)
+            if schema is None:
+                schema = self._foxglove_schemas[converted.schema_name] = (
+                    self._writer.register_schema(
+                        name=converted.schema_name, encoding="protobuf", data=converted.schema
+                    )
+                )
+            channel = self._channels[topic] = self._writer.register_channel(
+                topic=topic, message_encoding="protobuf", schema_id=schema
             )
-            self.count += 1
-            self._dirty = True
+        return channel
+
+    def _sample(self, key: str, value: Any) -> None:
+        """A recorded sample Foxglove can draw, as its well-known message."""
+        convert = self._scene.CONVERTERS.get(type(value)) if self._scene else None
+        if convert is None:
+            return
+        try:
+            converted = convert(value, key)
+        except (ValueError, TypeError, IndexError) as exc:  # a malformed sample: said once
+            self.write(
+                "/fw/refused",
+                "fw.Refusal",
+                {
+                    "component": "recorder",
+                    "port": key,
+                    "reason": f"not drawable: {exc}",
+                    "count": 1,
+                },
+            )
+            return
+        when = getattr(value, "stamp", 0.0) or time.time()
+        with self._lock:
+            if self._closed:
+                return
+            topic = self._scene.topic_for(type(value), key)
+            self._add(self._foxglove_channel(topic, converted), when, converted.data)
 
     def _flush_loop(self) -> None:
         """Hand what was written to the operating system every `FLUSH_PERIOD`: a killed
@@ -211,8 +279,17 @@ class FlightRecorder:
                     self._dirty = False
 
     def _listen(
-        self, bus: Bus, key: str, kind: type, topic: str, schema: str, convert: Any
+        self,
+        bus: Bus,
+        key: str,
+        kind: type,
+        topic: str,
+        schema: str,
+        convert: Any,
+        sample: str = "",
     ) -> None:
+        """Record what arrives on `key` (`sample`: the key of a port sample, also drawn
+        for Foxglove when it can be)."""
         port: InputPort[Any] = InputPort(topic, kind, policy=ConnPolicy("buffer", 4096))
         port.bus = bus
 
@@ -222,6 +299,8 @@ class FlightRecorder:
                 if status is not ReadStatus.NEW:
                     return
                 self.write(topic, schema, convert(value), getattr(value, "stamp", None))
+                if sample:
+                    self._sample(sample, value)
 
         port.on_data = drain
         port.connect(key)
@@ -302,9 +381,10 @@ def read_recording(path: str | Path) -> Iterator[tuple[str, float, dict[str, Any
     found: list[tuple[int, str, bytes]] = []
     for record in _records(path):
         if isinstance(record, Channel):
-            topics[record.id] = record.topic
-        elif isinstance(record, Message):
-            found.append((record.log_time, topics.get(record.channel_id, "?"), record.data))
+            if record.message_encoding == "json":  # Foxglove's protobuf ones are not fw's
+                topics[record.id] = record.topic
+        elif isinstance(record, Message) and record.channel_id in topics:
+            found.append((record.log_time, topics[record.channel_id], record.data))
     found.sort(key=lambda item: item[0])
     for log_time, topic, data in found:
         try:

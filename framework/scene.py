@@ -1,0 +1,178 @@
+"""fw's records and samples as Foxglove's well-known messages (issue 48), so Foxglove
+shows a flight recording as a log and a 3D scene without knowing fw's own schemas.
+
+Encoded by Foxglove's SDK (`foxglove.messages`, protobuf), not by hand. Imported only
+where recording happens (the control process): every library a safety process maps
+lengthens its crash detection, and none of them records.
+
+* every record `fw log` prints -> `foxglove.Log` on `/fw/log`, with the same line
+  (`framework/timeline.py`); refusals, faults and failed steps as warnings or errors;
+* a `JointState` sample -> `foxglove.JointStates` (joints `a1`..`a7`);
+* a `Pose` sample -> `foxglove.FrameTransforms`: the pose's frame (or `world`) as the
+  parent, the recorded key as the child (`certus/cto`: the tool the Certus sees);
+* an `Envelopes` sample -> `foxglove.SceneUpdate`: each person's capsule as a
+  cylinder between two spheres, in the robot's base frame.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from framework.messages import Envelopes, JointState, Pose
+
+LOG_TOPIC = "/fw/log"
+BASE_FRAME = "base"
+"""The frame envelopes are in (the robot's base, as the people detector gives them)."""
+
+WARNING_WORDS = ("REFUSED", "unhandled", "FAILED", "refused", "error", "Exception", "lost")
+"""A timeline line with one of these is a warning in Foxglove's log panel."""
+
+
+@dataclass(frozen=True)
+class Converted:
+    """One Foxglove message: its schema's name, the schema (protobuf descriptors) and
+    the encoded message."""
+
+    schema_name: str
+    schema: bytes
+    data: bytes
+
+
+def _stamp(seconds: float) -> Any:
+    from foxglove.messages import Timestamp
+
+    seconds = max(seconds, 0.0) if math.isfinite(seconds) else 0.0
+    whole = int(seconds)
+    return Timestamp(sec=whole, nsec=min(round((seconds - whole) * 1e9), 999_999_999))
+
+
+def _converted(message: Any) -> Converted:
+    schema = type(message).get_schema()
+    return Converted(schema.name, bytes(schema.data), bytes(message.encode()))
+
+
+def log(stamp: float, line: str, name: str = "fw") -> Converted:
+    """A timeline line (as `fw log` prints it) as a Foxglove Log."""
+    from foxglove.messages import Log, LogLevel
+
+    level = LogLevel.Warning if any(w in line for w in WARNING_WORDS) else LogLevel.Info
+    return _converted(Log(timestamp=_stamp(stamp), level=level, message=line, name=name))
+
+
+def joint_states(sample: JointState, key: str) -> Converted:
+    """The arm's joints (a1..a7: KUKA's axis names) with velocity and effort if given."""
+    from foxglove.messages import JointState as FoxJoint
+    from foxglove.messages import JointStates
+
+    def at(values: tuple[float, ...], i: int) -> float | None:
+        return float(values[i]) if i < len(values) else None
+
+    joints = [
+        FoxJoint(
+            name=f"a{i + 1}",
+            position=float(q),
+            velocity=at(sample.velocity, i),
+            effort=at(sample.effort, i),
+        )
+        for i, q in enumerate(sample.position)
+    ]
+    return _converted(JointStates(timestamp=_stamp(sample.stamp), joints=joints))
+
+
+def frame_transforms(sample: Pose, key: str) -> Converted:
+    """The pose as the transform from its frame (or `world`) to a frame named `key`.
+    fw's quaternions are (w, x, y, z); Foxglove's fields are named, so no reordering
+    is left to chance."""
+    from foxglove.messages import FrameTransform, FrameTransforms, Quaternion, Vector3
+
+    w, x, y, z = (float(v) for v in sample.orientation)
+    transform = FrameTransform(
+        timestamp=_stamp(sample.stamp),
+        parent_frame_id=sample.frame or "world",
+        child_frame_id=key,
+        translation=Vector3(x=sample.position[0], y=sample.position[1], z=sample.position[2]),
+        rotation=Quaternion(x=x, y=y, z=z, w=w),
+    )
+    return _converted(FrameTransforms(transforms=[transform]))
+
+
+def people(sample: Envelopes, key: str) -> Converted:
+    """Each person's capsules (segment a-b, radius) as a cylinder and two end spheres,
+    one entity per recorded key, replaced whole at each sample."""
+    from foxglove.messages import (
+        Color,
+        CylinderPrimitive,
+        Quaternion,
+        SceneEntity,
+        SceneUpdate,
+        SpherePrimitive,
+        Vector3,
+    )
+    from foxglove.messages import Pose as FoxPose
+
+    orange = Color(r=1.0, g=0.5, b=0.1, a=0.6)
+    cylinders, spheres = [], []
+    for i, radius in enumerate(sample.radius):
+        a = sample.a[3 * i : 3 * i + 3]
+        b = sample.b[3 * i : 3 * i + 3]
+        for end in (a, b):
+            spheres.append(
+                SpherePrimitive(
+                    pose=FoxPose(position=Vector3(x=end[0], y=end[1], z=end[2])),
+                    size=Vector3(x=2 * radius, y=2 * radius, z=2 * radius),
+                    color=orange,
+                )
+            )
+        axis = [b[k] - a[k] for k in range(3)]
+        length = math.sqrt(sum(v * v for v in axis))
+        if length < 1e-9:
+            continue
+        middle = Vector3(x=(a[0] + b[0]) / 2, y=(a[1] + b[1]) / 2, z=(a[2] + b[2]) / 2)
+        cylinders.append(
+            CylinderPrimitive(
+                pose=FoxPose(position=middle, orientation=_z_to(axis, length, Quaternion)),
+                size=Vector3(x=2 * radius, y=2 * radius, z=length),
+                bottom_scale=1.0,
+                top_scale=1.0,
+                color=orange,
+            )
+        )
+    entity = SceneEntity(
+        timestamp=_stamp(sample.stamp),
+        frame_id=BASE_FRAME,
+        id=key,
+        cylinders=cylinders,
+        spheres=spheres,
+    )
+    return _converted(SceneUpdate(entities=[entity]))
+
+
+def _z_to(axis: list[float], length: float, quaternion: Any) -> Any:
+    """The rotation taking +z onto `axis` (a cylinder's axis is its z)."""
+    ux, uy, uz = (v / length for v in axis)
+    if uz < -1 + 1e-9:  # opposite to z: half a turn about x
+        return quaternion(x=1.0, y=0.0, z=0.0, w=0.0)
+    # half-way vector between z and the axis: q = (z x u, 1 + z.u), normalised
+    x, y, z, w = -uy, ux, 0.0, 1.0 + uz
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    return quaternion(x=x / norm, y=y / norm, z=z / norm, w=w / norm)
+
+
+CONVERTERS: dict[type, Callable[[Any, str], Converted]] = {
+    JointState: joint_states,
+    Pose: frame_transforms,
+    Envelopes: people,
+}
+"""Sample types Foxglove can draw, and how."""
+
+TOPICS: dict[type, str] = {JointState: "/joint_states", Pose: "/tf", Envelopes: "/people"}
+"""Where each kind goes: transforms share one topic (`/tf`) as Foxglove expects; the
+others are per recorded key under these prefixes."""
+
+
+def topic_for(kind: type, key: str) -> str:
+    """The Foxglove topic a sample of `kind` recorded from `key` goes to."""
+    return TOPICS[kind] if kind is Pose else f"{TOPICS[kind]}/{key}"
