@@ -286,11 +286,15 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         if args.record:
             from framework.recorder import FlightRecorder
 
-            samples = dict(item.split("=", 1) for item in args.record_samples)
+            # the topology's `record:` outputs, and any --record-samples on top
+            samples = {**deployment.topology.recorded}
+            samples.update(item.split("=", 1) for item in args.record_samples)
             recorder = FlightRecorder(
                 args.record,
                 deployment.hub,
                 samples,
+                frames=deployment.topology.recorded_frames,
+                names=deployment.topology.recorded_names,
                 metadata={
                     "topology": str(Path(args.topology).resolve()),
                     "statechart": str(topology.statechart.resolve()) if topology.statechart else "",

@@ -130,10 +130,14 @@ class FlightRecorder:
         samples: dict[str, str] | None = None,
         metadata: dict[str, str] | None = None,
         foxglove: bool = True,
+        frames: dict[str, str] | None = None,
+        names: dict[str, str] | None = None,
     ):
         """`samples` maps extra keys to record to their message type name; `metadata`
         (for example the statechart's path, used by `fw replay`) is stored in the file;
-        `foxglove`: also write Foxglove's well-known messages (framework/scene.py)."""
+        `foxglove`: also write Foxglove's well-known messages (framework/scene.py), a
+        recorded key's in the frame `frames` names for it, named as `names` says (else
+        by its key)."""
         from mcap.writer import CompressionType, Writer
 
         self.path = Path(path)
@@ -159,6 +163,8 @@ class FlightRecorder:
 
             self._scene = scene
         self._foxglove_schemas: dict[str, int] = {}
+        self._frames = dict(frames or {})
+        names = dict(names or {})
         self.count = 0
         self._closed = False
         self._file.flush()
@@ -187,7 +193,9 @@ class FlightRecorder:
         ]
         for key, type_name in (samples or {}).items():
             kind = messages.resolve_type(type_name)
-            self._listen(bus, key, kind, f"/fw/samples/{key}", "fw.Sample", _plain, key)
+            name = names.get(key, key)
+            self._frames.setdefault(name, self._frames.get(key, ""))
+            self._listen(bus, key, kind, f"/fw/samples/{key}", "fw.Sample", _plain, name)
 
     def _channel(self, topic: str, schema: str) -> int:
         channel = self._channels.get(topic)
@@ -247,7 +255,7 @@ class FlightRecorder:
         if convert is None:
             return
         try:
-            converted = convert(value, key)
+            converted = convert(value, key, self._frames.get(key, ""))
         except (ValueError, TypeError, IndexError) as exc:  # a malformed sample: said once
             self.write(
                 "/fw/refused",

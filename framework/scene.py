@@ -12,6 +12,9 @@ lengthens its crash detection, and none of them records.
   parent, the recorded key as the child (`certus/cto`: the tool the Certus sees);
 * an `Envelopes` sample -> `foxglove.SceneUpdate`: each person's capsule as a
   cylinder between two spheres, in the robot's base frame.
+
+The frame a sample is in comes from the topology's `record:` entry (`frame:`) where
+the sample does not say it.
 """
 
 from __future__ import annotations
@@ -62,7 +65,7 @@ def log(stamp: float, line: str, name: str = "fw") -> Converted:
     return _converted(Log(timestamp=_stamp(stamp), level=level, message=line, name=name))
 
 
-def joint_states(sample: JointState, key: str) -> Converted:
+def joint_states(sample: JointState, key: str, parent: str = "") -> Converted:
     """The arm's joints (a1..a7: KUKA's axis names) with velocity and effort if given."""
     from foxglove.messages import JointState as FoxJoint
     from foxglove.messages import JointStates
@@ -82,8 +85,9 @@ def joint_states(sample: JointState, key: str) -> Converted:
     return _converted(JointStates(timestamp=_stamp(sample.stamp), joints=joints))
 
 
-def frame_transforms(sample: Pose, key: str) -> Converted:
-    """The pose as the transform from its frame (or `world`) to a frame named `key`.
+def frame_transforms(sample: Pose, key: str, parent: str = "") -> Converted:
+    """The pose as the transform from `parent` (else its own frame, else `world`) to a
+    frame named `key`.
     fw's quaternions are (w, x, y, z); Foxglove's fields are named, so no reordering
     is left to chance."""
     from foxglove.messages import FrameTransform, FrameTransforms, Quaternion, Vector3
@@ -91,7 +95,7 @@ def frame_transforms(sample: Pose, key: str) -> Converted:
     w, x, y, z = (float(v) for v in sample.orientation)
     transform = FrameTransform(
         timestamp=_stamp(sample.stamp),
-        parent_frame_id=sample.frame or "world",
+        parent_frame_id=parent or sample.frame or "world",
         child_frame_id=key,
         translation=Vector3(x=sample.position[0], y=sample.position[1], z=sample.position[2]),
         rotation=Quaternion(x=x, y=y, z=z, w=w),
@@ -99,7 +103,7 @@ def frame_transforms(sample: Pose, key: str) -> Converted:
     return _converted(FrameTransforms(transforms=[transform]))
 
 
-def people(sample: Envelopes, key: str) -> Converted:
+def people(sample: Envelopes, key: str, parent: str = "") -> Converted:
     """Each person's capsules (segment a-b, radius) as a cylinder and two end spheres,
     one entity per recorded key, replaced whole at each sample."""
     from foxglove.messages import (
@@ -142,7 +146,7 @@ def people(sample: Envelopes, key: str) -> Converted:
         )
     entity = SceneEntity(
         timestamp=_stamp(sample.stamp),
-        frame_id=BASE_FRAME,
+        frame_id=parent or BASE_FRAME,
         id=key,
         cylinders=cylinders,
         spheres=spheres,
@@ -161,12 +165,12 @@ def _z_to(axis: list[float], length: float, quaternion: Any) -> Any:
     return quaternion(x=x / norm, y=y / norm, z=z / norm, w=w / norm)
 
 
-CONVERTERS: dict[type, Callable[[Any, str], Converted]] = {
+CONVERTERS: dict[type, Callable[[Any, str, str], Converted]] = {
     JointState: joint_states,
     Pose: frame_transforms,
     Envelopes: people,
 }
-"""Sample types Foxglove can draw, and how."""
+"""Sample types Foxglove can draw, and how: (sample, recorded key, frame it is in)."""
 
 TOPICS: dict[type, str] = {JointState: "/joint_states", Pose: "/tf", Envelopes: "/people"}
 """Where each kind goes: transforms share one topic (`/tf`) as Foxglove expects; the

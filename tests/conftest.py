@@ -229,14 +229,14 @@ what prove the watches."""
 
 
 def play_seeg_scenario(
-    path, bus_config, tmp_path, history: list | None = None, margin: float = 1.0
+    path, bus_config, tmp_path, history: list | None = None, margin: float = 1.0, record=None
 ) -> list:
     """Play a scenario on the SEEG deployment (real processes, a private bus); the
     outcomes that failed. `history` receives the Configurator's outcomes; `margin`
     stretches the safety deadlines (`SHARED_HOST_MARGIN`), the simulated KRC's FRI
     quality counter among them."""
     return play_scenario(
-        REPO / "topologies" / "seeg.yaml", path, bus_config, tmp_path, history, margin
+        REPO / "topologies" / "seeg.yaml", path, bus_config, tmp_path, history, margin, record
     )
 
 
@@ -313,10 +313,12 @@ def play_scenario(
     tmp_path,
     history: list | None = None,
     margin: float = 1.0,
+    record=None,
 ) -> list:
     """Play a scenario on a deployment of `topology_file` (real processes, a private
     bus); the outcomes that failed. `history` receives the Configurator's outcomes;
-    `margin` stretches the safety deadlines (`SHARED_HOST_MARGIN`)."""
+    `margin` stretches the safety deadlines (`SHARED_HOST_MARGIN`); `record`: a path
+    for its flight recording, made as `fw deploy --record` makes it."""
     from framework.deployer import Deployment
     from framework.scenario import load_scenario
 
@@ -326,11 +328,25 @@ def play_scenario(
     deployment = Deployment(topology, tmp_path / "logs", scenario=scenario)
     log = _ChartEvents()
     deployment.listeners.append(log)
-    deployment.start()
+    recorder = None
+    deployment.start(run_chart=False)
     try:
+        if record is not None:
+            from framework.recorder import FlightRecorder
+
+            recorder = FlightRecorder(
+                record,
+                deployment.hub,
+                dict(topology.recorded),
+                frames=topology.recorded_frames,
+                names=topology.recorded_names,
+            )
+        deployment.run_chart()
         assert deployment.runner.finished.wait(scenario.timeout + 30), "scenario never finished"
     finally:
         deployment.stop()
+        if recorder is not None:
+            recorder.close()
     if history is not None and deployment.configurator is not None:
         history.extend(deployment.configurator.history)
     failed = [o for o in deployment.runner.report() if not o.ok]

@@ -371,6 +371,22 @@ class _Loader:
             return None, port, ""
         return comp, port, ports[port]
 
+    def recorded(self, topo: Topology, spec: dict[str, Any], where: tuple[Any, ...]) -> None:
+        """One `record:` entry: the output's key (thinned to its rate, as a connection's
+        `rate:` thins it: samples not recorded are never sent) and its message type."""
+        src, src_port, src_kind = self.port(topo, spec["from"], (*where, "from"), "out")
+        if src is None:
+            return
+        key = src.output_key(src_port)
+        rate = spec.get("rate")
+        if rate is not None:  # the schema made it a positive number
+            key = keys.thinned(key, float(rate))
+            topo.thinned.setdefault(src.name, {}).setdefault(src_port, {})[key] = float(rate)
+        topo.recorded[key] = src_kind
+        topo.recorded_names[key] = spec["from"]
+        if spec.get("frame"):
+            topo.recorded_frames[key] = spec["frame"]
+
     def connection(
         self, topo: Topology, spec: dict[str, Any], where: tuple[Any, ...], timeout: float
     ) -> Step | None:
@@ -742,6 +758,8 @@ def check_topology(
         if step is not None:
             topo.connections.append(step)
     loader.file_links(topo, data)
+    for i, spec in enumerate(data.get("record") or []):
+        loader.recorded(topo, spec, ("record", i))
     for ref, candidates in (data.get("prepare") or {}).items():
         comp, _port, _ = loader.port(topo, ref, ("prepare", ref), "in")
         if comp is not None:

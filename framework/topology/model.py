@@ -171,6 +171,13 @@ class Topology:
     `import_paths:` (relative to it)."""
     console: ConsoleSpec = field(default_factory=ConsoleSpec)
     """What the operator console shows besides the generic parts (`console:`)."""
+    recorded: dict[str, str] = field(default_factory=dict)
+    """Key -> message type name of the output samples a flight recording keeps
+    (`record:`; a thinned key where a rate is given)."""
+    recorded_frames: dict[str, str] = field(default_factory=dict)
+    """Key -> the frame a recorded Pose output is in (`record:`'s `frame:`)."""
+    recorded_names: dict[str, str] = field(default_factory=dict)
+    """Key -> the output it records, as `component.port` (what a viewer names it)."""
     thinned: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
     """component -> output port -> thinned key -> rate (Hz): the thinned streams its
     connections' `rate:` ask the writers for (framework/ports.py)."""

@@ -113,6 +113,28 @@ def test_a_rate_thins_the_writers_stream_for_that_reader_and_the_writer_may_publ
     assert "t1/out/at_10hz" not in process_keys(topology, "control_side")["put"]
 
 
+def test_a_recorded_output_is_thinned_at_its_writer_and_named_for_a_viewer(write):
+    """`record:` keeps an output in flight recordings: thinned where a rate is given
+    (the writer publishes that stream, as for a connection's rate), with its message
+    type, the frame its poses are in and its `component.port` name."""
+    from framework.access import process_keys
+
+    write((REPO / "tests" / "data" / "toy" / "toy_chart.yaml").read_text(), "toy_chart.yaml")
+    recorded = "record:\n  - {from: t1.out, rate: 10, frame: camera}\n  - {from: t2.out}\nprepare:"
+    topology = load_topology(write(TOY.replace("prepare:", recorded, 1)))
+    assert topology.recorded == {"t1/out/at_10hz": "Scalar", "t2/out": "Scalar"}
+    assert topology.recorded_frames == {"t1/out/at_10hz": "camera"}
+    assert topology.recorded_names == {"t1/out/at_10hz": "t1.out", "t2/out": "t2.out"}
+    assert "t1/out/at_10hz" in process_keys(topology, "trackers")["put"]
+
+
+def test_a_recorded_output_that_does_not_exist_is_located(write):
+    write((REPO / "tests" / "data" / "toy" / "toy_chart.yaml").read_text(), "toy_chart.yaml")
+    found = findings(write, TOY.replace("prepare:", "record:\n  - {from: t1.outt}\nprepare:", 1))
+    (error,) = [f for f in found if f.code == "unknown-port"]
+    assert "no output port 'outt'" in error.message and error.location.line > 0
+
+
 def test_schema_errors_are_located_with_hints(write):
     found = findings(
         write,
