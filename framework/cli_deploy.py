@@ -28,6 +28,7 @@ examples:
   fw deploy topologies/demo.yaml                    live status until Ctrl-C
   fw deploy topologies/demo.yaml --headless --duration 10
   fw deploy topologies/demo.yaml --record run.mcap  keep a flight recording
+  fw deploy topologies/seeg.yaml --foxglove         watch it live in Foxglove (ws://127.0.0.1:8765)
   fw deploy topologies/seeg.yaml --console-port 8080   the operator console on another port
   fw deploy topologies/seeg.yaml --console-host 0.0.0.0 --console-cert or3.pem --console-key or3.key
                                                     the console for the OR's network (HTTPS)
@@ -233,6 +234,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     workdir = Path(args.workdir) if args.workdir else Path(tempfile.mkdtemp(prefix="fw-"))
     listeners: list[Listener] = [] if interactive else [_Printer()]
     recorder = None
+    live = None
     console = None
     scenario = None
     if args.scenario:
@@ -283,7 +285,16 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     previous = stop_on_signals()
     try:
         deployment.start(run_chart=False)
-        if args.record:
+        if args.foxglove is not None:
+            from framework.live_view import LiveView
+
+            live = LiveView(args.foxglove)
+            print(
+                f"fw: Foxglove live view on ws://127.0.0.1:{live.port} (Foxglove: Open "
+                "connection, Foxglove WebSocket)",
+                file=sys.stderr,
+            )
+        if args.record or live is not None:
             from framework.recorder import FlightRecorder
 
             # the topology's `record:` outputs, and any --record-samples on top
@@ -295,6 +306,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
                 samples,
                 frames=deployment.topology.recorded_frames,
                 names=deployment.topology.recorded_names,
+                live=live,
                 metadata={
                     "topology": str(Path(args.topology).resolve()),
                     "statechart": str(topology.statechart.resolve()) if topology.statechart else "",
@@ -332,7 +344,10 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         deployment.stop()
         if recorder is not None:
             recorder.close()
-            print(f"fw: flight recording in {args.record}", file=sys.stderr)
+            if args.record:
+                print(f"fw: flight recording in {args.record}", file=sys.stderr)
+        if live is not None:
+            live.close()
         if not args.workdir and not args.keep_logs:
             shutil.rmtree(workdir, ignore_errors=True)
         for sig, handler in previous.items():
@@ -459,6 +474,15 @@ def add_commands(sub: Any) -> None:
         help="print one line per chart step instead of the live screen",
     )
     p.add_argument("--record", metavar="FILE", help="write a flight recording (MCAP)")
+    p.add_argument(
+        "--foxglove",
+        nargs="?",
+        type=int,
+        const=8765,
+        metavar="PORT",
+        help="serve Foxglove's live view on ws://127.0.0.1:PORT (default 8765; loopback "
+        "only: its server has no authentication)",
+    )
     p.add_argument(
         "--record-samples",
         action="append",

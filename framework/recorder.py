@@ -120,31 +120,55 @@ def _plain(value: Any) -> Any:
     return value
 
 
+class _Discard:
+    """A file that keeps nothing, only counts: a recorder that only feeds the live view
+    (the MCAP writer asks where it is)."""
+
+    def __init__(self) -> None:
+        self._at = 0
+
+    def write(self, data: Any) -> int:
+        self._at += len(data)
+        return len(data)
+
+    def tell(self) -> int:
+        return self._at
+
+    def flush(self) -> None:
+        return None
+
+    def close(self) -> None:
+        return None
+
+
 class FlightRecorder:
     """Records a deployment's coordination traffic (and chosen port samples) to MCAP."""
 
     def __init__(
         self,
-        path: str | Path,
+        path: str | Path | None,
         bus: Bus,
         samples: dict[str, str] | None = None,
         metadata: dict[str, str] | None = None,
         foxglove: bool = True,
         frames: dict[str, str] | None = None,
         names: dict[str, str] | None = None,
+        live: Any = None,
     ):
         """`samples` maps extra keys to record to their message type name; `metadata`
         (for example the statechart's path, used by `fw replay`) is stored in the file;
         `foxglove`: also write Foxglove's well-known messages (framework/scene.py), a
         recorded key's in the frame `frames` names for it, named as `names` says (else
-        by its key)."""
+        by its key); `live`: a `framework.live_view.LiveView` served the same Foxglove
+        messages as they come (`path` None: nothing written, only served)."""
         from mcap.writer import CompressionType, Writer
 
-        self.path = Path(path)
+        self.path = Path(path) if path is not None else None
         try:
-            self._file = self.path.open("wb")
+            self._file = self.path.open("wb") if self.path is not None else _Discard()
         except OSError as exc:
             raise RecorderError(f"cannot write {self.path}: {exc}") from None
+        self._live = live
         self._writer = Writer(self._file, compression=CompressionType.NONE, use_chunking=False)
         self._writer.start(profile="", library="fw")
         self._writer.add_metadata(name="fw", data={k: str(v) for k, v in (metadata or {}).items()})
@@ -158,7 +182,7 @@ class FlightRecorder:
         }
         self._ports: list[InputPort[Any]] = []
         self._scene = None
-        if foxglove:
+        if foxglove or live is not None:
             from framework import scene
 
             self._scene = scene
@@ -223,6 +247,8 @@ class FlightRecorder:
             self._add(self._channel(topic, schema), when, body)
             if log is not None:
                 self._add(self._foxglove_channel(self._scene.LOG_TOPIC, log), when, log.data)
+        if log is not None and self._live is not None:
+            self._live.publish(self._scene.LOG_TOPIC, log, when)
 
     def _add(self, channel: int, when: float, body: bytes) -> None:
         """One message on `channel` (the lock held)."""
@@ -274,6 +300,8 @@ class FlightRecorder:
                 return
             topic = self._scene.topic_for(type(value), key)
             self._add(self._foxglove_channel(topic, converted), when, converted.data)
+        if self._live is not None:
+            self._live.publish(topic, converted, when)
 
     def _flush_loop(self) -> None:
         """Hand what was written to the operating system every `FLUSH_PERIOD`: a killed
