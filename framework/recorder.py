@@ -187,8 +187,8 @@ class FlightRecorder:
 
             self._scene = scene
         self._foxglove_schemas: dict[str, int] = {}
-        self._frames = dict(frames or {})
         names = dict(names or {})
+        self._frames = {names.get(key, key): frame for key, frame in (frames or {}).items()}
         self.count = 0
         self._closed = False
         self._file.flush()
@@ -218,7 +218,6 @@ class FlightRecorder:
         for key, type_name in (samples or {}).items():
             kind = messages.resolve_type(type_name)
             name = names.get(key, key)
-            self._frames.setdefault(name, self._frames.get(key, ""))
             self._listen(bus, key, kind, f"/fw/samples/{key}", "fw.Sample", _plain, name)
 
     def _channel(self, topic: str, schema: str) -> int:
