@@ -155,14 +155,17 @@ def people(sample: Envelopes, key: str, parent: str = "") -> Converted:
 
 
 def _z_to(axis: list[float], length: float, quaternion: Any) -> Any:
-    """The rotation taking +z onto `axis` (a cylinder's axis is its z)."""
+    """The rotation taking +z onto `axis` (a cylinder's axis is its z): about z x axis by
+    the angle between them (atan2: exact also next to -z, where 1 + cos loses it)."""
     ux, uy, uz = (v / length for v in axis)
-    if uz < -1 + 1e-9:  # opposite to z: half a turn about x
-        return quaternion(x=1.0, y=0.0, z=0.0, w=0.0)
-    # half-way vector between z and the axis: q = (z x u, 1 + z.u), normalised
-    x, y, z, w = -uy, ux, 0.0, 1.0 + uz
-    norm = math.sqrt(x * x + y * y + z * z + w * w)
-    return quaternion(x=x / norm, y=y / norm, z=z / norm, w=w / norm)
+    across = math.hypot(ux, uy)  # |z x u|
+    angle = math.atan2(across, uz)
+    if across < 1e-12:  # along z (no turn) or against it (half a turn, about x)
+        ex, ey = 1.0, 0.0
+    else:
+        ex, ey = -uy / across, ux / across
+    half = math.sin(angle / 2)
+    return quaternion(x=ex * half, y=ey * half, z=0.0, w=math.cos(angle / 2))
 
 
 CONVERTERS: dict[type, Callable[[Any, str, str], Converted]] = {
