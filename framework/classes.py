@@ -47,6 +47,20 @@ def load_class(path: str) -> type[Component]:
     return cls
 
 
+def load_function(path: str) -> Any:
+    """`package.module:function` -> the function (a hook a topology names: the links a
+    recording draws a robot with); a `ClassPathError` saying why otherwise."""
+    module_name, _, name = path.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ClassPathError(f"cannot import {module_name!r}: {exc}") from None
+    function = getattr(module, name, None)
+    if not callable(function):
+        raise ClassPathError(f"{path!r} is not a function of {module_name!r}")
+    return function
+
+
 def _nearest(module: Any, name: str) -> str:
     """'; did you mean ...?' for the module's Component class nearest `name` (case
     aside: NDITracker finds NdiTracker), or its Component classes, or ''."""

@@ -306,6 +306,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
                 samples,
                 frames=deployment.topology.recorded_frames,
                 names=deployment.topology.recorded_names,
+                links=deployment.topology.recorded_links,
                 live=live,
                 metadata={
                     "topology": str(Path(args.topology).resolve()),

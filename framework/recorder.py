@@ -120,6 +120,16 @@ def _plain(value: Any) -> Any:
     return value
 
 
+def _hook(path: str) -> Any:
+    """The function a topology names, or a `RecorderError` saying why not."""
+    from framework.classes import ClassPathError, load_function
+
+    try:
+        return load_function(path)
+    except ClassPathError as exc:
+        raise RecorderError(f"cannot draw the robot's links: {exc}") from None
+
+
 class _Discard:
     """A file that keeps nothing, only counts: a recorder that only feeds the live view
     (the MCAP writer asks where it is)."""
@@ -154,13 +164,16 @@ class FlightRecorder:
         frames: dict[str, str] | None = None,
         names: dict[str, str] | None = None,
         live: Any = None,
+        links: dict[str, str] | None = None,
     ):
         """`samples` maps extra keys to record to their message type name; `metadata`
         (for example the statechart's path, used by `fw replay`) is stored in the file;
         `foxglove`: also write Foxglove's well-known messages (framework/scene.py), a
         recorded key's in the frame `frames` names for it, named as `names` says (else
         by its key); `live`: a `framework.live_view.LiveView` served the same Foxglove
-        messages as they come (`path` None: nothing written, only served)."""
+        messages as they come (`path` None: nothing written, only served); `links`: per
+        recorded JointState key, the `module:function` giving the robot's links, drawn
+        as transforms."""
         from mcap.writer import CompressionType, Writer
 
         self.path = Path(path) if path is not None else None
@@ -189,6 +202,7 @@ class FlightRecorder:
         self._foxglove_schemas: dict[str, int] = {}
         names = dict(names or {})
         self._frames = {names.get(key, key): frame for key, frame in (frames or {}).items()}
+        self._links = {names.get(key, key): _hook(path) for key, path in (links or {}).items()}
         self.count = 0
         self._closed = False
         self._file.flush()
@@ -294,13 +308,17 @@ class FlightRecorder:
             )
             return
         when = getattr(value, "stamp", 0.0) or time.time()
+        drawn = [(self._scene.topic_for(type(value), key), converted)]
+        if key in self._links:
+            drawn.append(("/tf", self._scene.link_transforms(value, self._links[key])))
         with self._lock:
             if self._closed:
                 return
-            topic = self._scene.topic_for(type(value), key)
-            self._add(self._foxglove_channel(topic, converted), when, converted.data)
+            for topic, message in drawn:
+                self._add(self._foxglove_channel(topic, message), when, message.data)
         if self._live is not None:
-            self._live.publish(topic, converted, when)
+            for topic, message in drawn:
+                self._live.publish(topic, message, when)
 
     def _flush_loop(self) -> None:
         """Hand what was written to the operating system every `FLUSH_PERIOD`: a killed

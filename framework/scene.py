@@ -103,6 +103,31 @@ def frame_transforms(sample: Pose, key: str, parent: str = "") -> Converted:
     return _converted(FrameTransforms(transforms=[transform]))
 
 
+Link = tuple[str, str, tuple[float, float, float], tuple[float, float, float, float]]
+"""(parent, child, position, quaternion (w, x, y, z)) of one link's frame in its parent."""
+
+
+def link_transforms(
+    sample: JointState, links: Callable[[tuple[float, ...]], list[Link]]
+) -> Converted:
+    """A robot's links as transforms, each in the one before it, from its joints by
+    `links` (the robot's own kinematics, named by the topology: framework/ knows no
+    robot)."""
+    from foxglove.messages import FrameTransform, FrameTransforms, Quaternion, Vector3
+
+    transforms = [
+        FrameTransform(
+            timestamp=_stamp(sample.stamp),
+            parent_frame_id=parent,
+            child_frame_id=child,
+            translation=Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2])),
+            rotation=Quaternion(w=float(q[0]), x=float(q[1]), y=float(q[2]), z=float(q[3])),
+        )
+        for parent, child, p, q in links(tuple(sample.position))
+    ]
+    return _converted(FrameTransforms(transforms=transforms))
+
+
 def people(sample: Envelopes, key: str, parent: str = "") -> Converted:
     """Each person's capsules (segment a-b, radius) as a cylinder and two end spheres,
     one entity per recorded key, replaced whole at each sample."""

@@ -340,6 +340,7 @@ def play_scenario(
                 dict(topology.recorded),
                 frames=topology.recorded_frames,
                 names=topology.recorded_names,
+                links=topology.recorded_links,
             )
         deployment.run_chart()
         assert deployment.runner.finished.wait(scenario.timeout + 30), "scenario never finished"

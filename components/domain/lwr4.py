@@ -130,6 +130,32 @@ def dh_forward(q: np.ndarray, errors: ArmErrors = NOMINAL) -> np.ndarray:
     return out @ tool_offset(errors)
 
 
+def link_frames(q: object) -> list[tuple[str, str, np.ndarray]]:
+    """(parent, child, transform) of each link's frame in the one before it, base ->
+    link1 ... link7 -> tcp, for encoder readings `q` (nominal table): what a viewer
+    draws the arm with (a topology's `record:` entry, `links:`). Their product is
+    `dh_forward(q)`."""
+    frames = []
+    parent = "base"
+    for i, angle in enumerate(np.asarray(q, dtype=float)):
+        c, s = math.cos(angle), math.sin(angle)
+        rz = np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+        child = f"link{i + 1}"
+        frames.append((parent, child, rz @ link_offset(i)))
+        parent = child
+    frames.append((parent, "tcp", tool_offset()))
+    return frames
+
+
+def link_poses(q: object) -> list[tuple[str, str, tuple[float, ...], tuple[float, ...]]]:
+    """`link_frames` as (parent, child, position, quaternion (w, x, y, z)): the form a
+    topology's `record:` entry takes for drawing the arm (`links:`, framework/scene.py)."""
+    return [
+        (parent, child, tuple(float(v) for v in m[:3, 3]), _quat_wxyz(m[:3, :3]))
+        for parent, child, m in link_frames(q)
+    ]
+
+
 def _fmt(values: object) -> str:
     return " ".join(f"{float(v):.9g}" for v in values)  # type: ignore[attr-defined]
 

@@ -17,7 +17,7 @@ from typing import Any
 from framework import keys, schema
 from framework.activity import Activity, ActivityError
 from framework.bus import BusConfig
-from framework.classes import ClassPathError, add_import_paths, load_class
+from framework.classes import ClassPathError, add_import_paths, load_class, load_function
 from framework.durations import parse_duration
 from framework.errors import (
     Finding,
@@ -386,6 +386,20 @@ class _Loader:
         topo.recorded_names[key] = spec["from"]
         if spec.get("frame"):
             topo.recorded_frames[key] = spec["frame"]
+        if spec.get("links"):
+            if src_kind != "JointState":
+                self.error(
+                    "record-links",
+                    f"{spec['from']} carries {src_kind}, and links are drawn from joints",
+                    (*where, "links"),
+                    "name links on a JointState output",
+                )
+            if self.classes:
+                try:
+                    load_function(spec["links"])
+                except ClassPathError as exc:
+                    self.error("record-links", str(exc), (*where, "links"), "module:function")
+            topo.recorded_links[key] = spec["links"]
 
     def connection(
         self, topo: Topology, spec: dict[str, Any], where: tuple[Any, ...], timeout: float

@@ -176,6 +176,8 @@ class Topology:
     (`record:`; a thinned key where a rate is given)."""
     recorded_frames: dict[str, str] = field(default_factory=dict)
     """Key -> the frame a recorded Pose output is in (`record:`'s `frame:`)."""
+    recorded_links: dict[str, str] = field(default_factory=dict)
+    """Key -> `module:function` drawing a recorded JointState output's robot links."""
     recorded_names: dict[str, str] = field(default_factory=dict)
     """Key -> the output it records, as `component.port` (what a viewer names it)."""
     thinned: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)

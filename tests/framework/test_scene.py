@@ -4,6 +4,7 @@ carries), they say what fw's own messages said."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -139,3 +140,25 @@ def test_a_recording_holds_the_foxglove_messages_beside_fws_own(hub, tmp_path):
     assert {t.child_frame_id for t in tf} == {"test/tool"}
     topics = {topic for topic, _, _ in read_recording(path)}
     assert "/fw/log" not in topics and "/tf" not in topics and "/fw/components" in topics
+
+
+def test_the_arms_links_are_drawn_from_its_joints_by_its_own_kinematics():
+    """Each link in the one before it, base to TCP: composed, they put the TCP where the
+    robot's kinematics do (the hook a topology's `record:` names)."""
+    from components.domain import lwr4
+    from components.domain.geometry import quat_to_matrix
+
+    q = (0.3, -0.5, 0.2, 1.1, -0.4, 0.7, 0.1)
+    message = decoded(scene.link_transforms(JointState(1.0, q), lwr4.link_poses))
+    chain = [(t.parent_frame_id, t.child_frame_id) for t in message.transforms]
+    names = ["base", *(f"link{i}" for i in range(1, 8)), "tcp"]
+    assert chain == list(itertools.pairwise(names))
+    composed = np.eye(4)
+    for t in message.transforms:
+        step = np.eye(4)
+        step[:3, :3] = quat_to_matrix(
+            np.array([t.rotation.w, t.rotation.x, t.rotation.y, t.rotation.z])
+        )
+        step[:3, 3] = (t.translation.x, t.translation.y, t.translation.z)
+        composed = composed @ step
+    assert composed == pytest.approx(lwr4.dh_forward(np.array(q)), abs=1e-9)

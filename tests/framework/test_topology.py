@@ -135,6 +135,20 @@ def test_a_recorded_output_that_does_not_exist_is_located(write):
     assert "no output port 'outt'" in error.message and error.location.line > 0
 
 
+@pytest.mark.parametrize(
+    "entry, says",
+    [
+        ("{from: t1.out, links: components.domain.lwr4:link_poses}", "links are drawn from joints"),
+        ("{from: t1.out, links: nowhere.at_all:f}", "cannot import 'nowhere.at_all'"),
+    ],
+)
+def test_links_drawn_from_what_is_not_joints_or_not_a_function_are_located(write, entry, says):
+    write((REPO / "tests" / "data" / "toy" / "toy_chart.yaml").read_text(), "toy_chart.yaml")
+    found = findings(write, TOY.replace("prepare:", f"record:\n  - {entry}\nprepare:", 1))
+    errors = [f for f in found if f.code == "record-links" and says in f.message]
+    assert errors and errors[0].location.line > 0, [f.one_line() for f in found]
+
+
 def test_schema_errors_are_located_with_hints(write):
     found = findings(
         write,

@@ -3,6 +3,8 @@ scenario of the procedure: the simulated OR plays it and every expectation holds
 test the procedure, not the watches: their safety deadlines are stretched for a shared
 host (`SHARED_HOST_MARGIN`); test_seeg_faults.py proves the watches at the shipped ones."""
 
+import itertools
+
 import pytest
 
 from tests.conftest import (
@@ -67,12 +69,12 @@ def foxglove_shows_the_run(path):
             topics=["/tf", "/joint_states/robot.joints", "/people/people_detector.envelopes"]
         ):
             if channel.topic == "/tf":
-                (t,) = message.transforms
-                drawn[t.child_frame_id] = drawn.get(t.child_frame_id, 0) + 1
-                parents[t.child_frame_id] = t.parent_frame_id
-                if t.child_frame_id == "robot.tcp":
-                    when = (t.timestamp.seconds, t.timestamp.nanos)
-                    tcp[when] = (t.translation.x, t.translation.y, t.translation.z)
+                for t in message.transforms:
+                    drawn[t.child_frame_id] = drawn.get(t.child_frame_id, 0) + 1
+                    parents[t.child_frame_id] = t.parent_frame_id
+                    if t.child_frame_id == "robot.tcp":
+                        when = (t.timestamp.seconds, t.timestamp.nanos)
+                        tcp[when] = (t.translation.x, t.translation.y, t.translation.z)
             else:
                 drawn[channel.topic] = drawn.get(channel.topic, 0) + 1
                 if channel.topic.startswith("/joint_states/"):
@@ -86,7 +88,10 @@ def foxglove_shows_the_run(path):
         "vicra.cto": "vicra",
         "vicra.rto": "vicra",
     }
+    arm = ["base", *(f"link{i}" for i in range(1, 8)), "tcp"]
+    expected |= {child: parent for parent, child in itertools.pairwise(arm)}
     assert parents == expected
+    assert drawn["tcp"] == drawn["/joint_states/robot.joints"], "the arm drawn for every joints"
     recorded = {
         "robot.tcp": "robot/tcp",
         "patient.pose": "sim/patient",
