@@ -203,6 +203,7 @@ class FlightRecorder:
         names = dict(names or {})
         self._frames = {names.get(key, key): frame for key, frame in (frames or {}).items()}
         self._links = {names.get(key, key): _hook(path) for key, path in (links or {}).items()}
+        self._undrawable: set[str] = set()
         self.count = 0
         self._closed = False
         self._file.flush()
@@ -294,23 +295,21 @@ class FlightRecorder:
         if convert is None:
             return
         try:
-            converted = convert(value, key, self._frames.get(key, ""))
-        except (ValueError, TypeError, IndexError) as exc:  # a malformed sample: said once
-            self.write(
-                "/fw/refused",
-                "fw.Refusal",
-                {
-                    "component": "recorder",
-                    "port": key,
-                    "reason": f"not drawable: {exc}",
-                    "count": 1,
-                },
-            )
+            drawn = [
+                (
+                    self._scene.topic_for(type(value), key),
+                    convert(value, key, self._frames.get(key, "")),
+                )
+            ]
+            if key in self._links:
+                drawn.append(("/tf", self._scene.link_transforms(value, self._links[key])))
+        except Exception as exc:  # a sample it cannot draw: said once, the recording goes on
+            if key not in self._undrawable:
+                self._undrawable.add(key)
+                refusal = {"component": "recorder", "port": key, "count": 1}
+                self.write("/fw/refused", "fw.Refusal", {**refusal, "reason": f"not drawn: {exc}"})
             return
         when = getattr(value, "stamp", 0.0) or time.time()
-        drawn = [(self._scene.topic_for(type(value), key), converted)]
-        if key in self._links:
-            drawn.append(("/tf", self._scene.link_transforms(value, self._links[key])))
         with self._lock:
             if self._closed:
                 return

@@ -162,3 +162,31 @@ def test_the_arms_links_are_drawn_from_its_joints_by_its_own_kinematics():
         step[:3, 3] = (t.translation.x, t.translation.y, t.translation.z)
         composed = composed @ step
     assert composed == pytest.approx(lwr4.dh_forward(np.array(q)), abs=1e-9)
+
+
+def broken_links(q):
+    """A kinematics hook with a bug (for the spec below)."""
+    raise ValueError(f"{len(q)} joints, expected 9")
+
+
+def test_joints_a_hook_cannot_draw_are_said_once_and_the_recording_goes_on(hub, tmp_path):
+    """A bug in the topology's kinematics hook costs the drawing, never the recording:
+    fw's own samples are all kept, and the refusal is in the timeline once."""
+    from framework.ports import OutputPort
+    from framework.recorder import FlightRecorder, read_recording
+
+    path = tmp_path / "run.mcap"
+    recorder = FlightRecorder(
+        path, hub, {"test/joints": "JointState"}, links={"test/joints": f"{__name__}:broken_links"}
+    )
+    out: OutputPort[JointState] = OutputPort("joints", JointState)
+    out.bus = hub
+    out.connect("test/joints")
+    for i in range(5):
+        out.write(JointState(1.0 + i, (0.0,) * 7))
+    assert wait_until(lambda: recorder.count >= 7)  # 5 samples, 1 refusal and its line
+    recorder.close()
+    records = list(read_recording(path))
+    assert sum(topic == "/fw/samples/test/joints" for topic, _, _ in records) == 5
+    refusals = [data for topic, _, data in records if topic == "/fw/refused"]
+    assert len(refusals) == 1 and "7 joints, expected 9" in refusals[0]["reason"]
