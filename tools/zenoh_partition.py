@@ -2,12 +2,12 @@
 
 Plain Zenoh sessions, no fw component: the hub on a `control` namespace and five
 peers placed as topologies/seeg_hosts.yaml places fw's processes (the arm on the
-KRC's link), each connected as fw's deployer connects them (`framework.bus`:
-peer mode, gossip, each pair linked from both sides). Every peer declares a
-queryable, a liveliness token and an echo subscriber; the hub asks and pings each
-one every ~0.4 s. The control host is cut off for `--partition` seconds, then the
-tool reports, per run, when every peer answered both again after the heal
-(`--cut` another host).
+KRC's link), linked as fw's deployer links them (`framework.bus`; `--links` for
+other layouts). Every peer declares a queryable, a liveliness token and an echo
+subscriber, and pings every other peer directly; the hub asks and pings each one
+every ~0.4 s and hears from each which peers answer it. The control host is cut off
+for `--partition` seconds (`--cut` another host), then the tool reports, per run,
+when every peer answered the hub, echoed it and heard every other peer again.
 
 Written for issue 46: after a control-host partition fw's requests to some
 processes got "nothing on the bus takes it" for 10 s and more while their tokens
@@ -24,9 +24,9 @@ import json
 import statistics
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
+from typing import Any
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
@@ -62,9 +62,33 @@ def peer(name: str, address: dict[str, str]) -> None:
     bus = Bus(_config(name, address))
     bus.queryable(f"q/{name}", lambda query: query.reply(query.key_expr, b"1"))
     bus.token(f"alive/{name}")
-    echo = bus.session.declare_publisher(f"r/{name}")
-    bus.session.declare_subscriber(f"s/{name}", lambda s: echo.put(s.payload.to_bytes()))
-    threading.Event().wait()
+    advanced = address.get("advanced", False)  # fw's latest-value ports, or plain ones
+    echo = bus.publisher(f"r/{name}", cache=advanced)
+    bus.subscribe(f"s/{name}", lambda s: echo.put(s.payload.to_bytes()), history=advanced)
+    # and every other peer, directly: pinged, and its pings answered
+    others = [n for n in NAMES if n != name]
+    answers = {n: bus.publisher(f"pr/{n}/{name}", cache=advanced) for n in others}
+    pings = {n: bus.publisher(f"pp/{n}/{name}", cache=advanced) for n in others}
+    heard: dict[str, bytes] = {}
+
+    def answer(sample: Any) -> None:
+        answers[str(sample.key_expr).rsplit("/", 1)[1]].put(sample.payload.to_bytes())
+
+    bus.subscribe(f"pp/{name}/*", answer, history=advanced)
+    bus.subscribe(
+        f"pr/{name}/*",
+        lambda s: heard.__setitem__(str(s.key_expr).rsplit("/", 1)[1], s.payload.to_bytes()),
+        history=advanced,
+    )
+    status = bus.publisher(f"st/{name}", cache=advanced)
+    seq = 0
+    while True:
+        seq += 1
+        for n in others:
+            pings[n].put(str(seq).encode())
+        time.sleep(0.3)
+        fresh = {str(seq).encode(), str(seq - 1).encode()}
+        status.put(json.dumps([n for n in others if heard.get(n) in fresh]).encode())
 
 
 def hub(address: dict[str, str], seconds: float) -> None:
@@ -73,10 +97,21 @@ def hub(address: dict[str, str], seconds: float) -> None:
 
     bus = Bus(_config("hub", address), hub=True)
     echoed: dict[str, bytes] = {}
-    bus.session.declare_subscriber(
-        "r/*", lambda s: echoed.__setitem__(str(s.key_expr).rsplit("/", 1)[1], s.payload.to_bytes())
+    advanced = address.get("advanced", False)
+    bus.subscribe(
+        "r/*",
+        lambda s: echoed.__setitem__(str(s.key_expr).rsplit("/", 1)[1], s.payload.to_bytes()),
+        history=advanced,
     )
-    pings = {n: bus.session.declare_publisher(f"s/{n}") for n in NAMES}
+    pings = {n: bus.publisher(f"s/{n}", cache=advanced) for n in NAMES}
+    hears: dict[str, list[str]] = {}  # what each peer says it hears from the others
+    bus.subscribe(
+        "st/*",
+        lambda s: hears.__setitem__(
+            str(s.key_expr).rsplit("/", 1)[1], json.loads(bytes(s.payload.to_bytes()))
+        ),
+        history=advanced,
+    )
     start, n = time.monotonic(), 0
     while time.monotonic() - start < seconds:
         n += 1
@@ -90,23 +125,25 @@ def hub(address: dict[str, str], seconds: float) -> None:
         time.sleep(0.1)
         # the echo of this round's ping or of the last one's (it may still be on its way)
         fresh = {str(n).encode(), str(n - 1).encode()}
-        ok = [m for m in NAMES if answered[m] and echoed.get(m) in fresh]
+        apart = {m: sorted(set(NAMES) - {m} - set(hears.get(m, []))) for m in NAMES}
+        ok = [m for m in NAMES if answered[m] and echoed.get(m) in fresh and not apart[m]]
         deaf = [m for m in NAMES if echoed.get(m) not in fresh]
         mute = [m for m in NAMES if not answered[m]]
         line = {"t": round(time.monotonic() - start, 2), "ok": ok, "mute": mute, "deaf": deaf}
         line["linked"] = bus.peers()
+        line["apart"] = {m: a for m, a in apart.items() if a}
         print(json.dumps(line), flush=True)
 
 
 def one_run(
-    partition: float, after: float, links: str = "fw", cut: str = "control"
+    partition: float, after: float, links: str = "fw", cut: str = "control", advanced: bool = False
 ) -> float | None:
     """Seconds from the heal until every peer answered and echoed (None: not within
     `after`)."""
     from framework import netns
 
     hosts = netns.Hosts(prefix="zp-", bridge="zpbr0").up()
-    address = {"hub": hosts.address("control"), "links": links}
+    address: dict = {"hub": hosts.address("control"), "links": links, "advanced": advanced}
     address |= {n: hosts.address(HOST[n]) for n in NAMES}
     me = [sys.executable, __file__]
     peers = [
@@ -139,6 +176,7 @@ def one_run(
             print(
                 f"  at the end, queries unanswered: {', '.join(last['mute']) or 'none'}; "
                 f"pings not echoed: {', '.join(last['deaf']) or 'none'}; "
+                f"peers not hearing each other: {last.get('apart') or 'none'}; "
                 f"the hub linked to {last.get('linked', 0)} of {len(NAMES)}"
             )
             return None
@@ -165,6 +203,12 @@ def main(argv: list[str] | None = None) -> int:
         "peer links to the hub only, gossip makes the rest",
     )
     parser.add_argument("--cut", default="control", help="the host cut off (default control)")
+    parser.add_argument(
+        "--advanced",
+        action="store_true",
+        help="echo through fw's latest-value publishers and subscribers (zenoh.ext), as "
+        "its ports do, instead of plain ones",
+    )
     parser.add_argument("--peer", nargs=2, help=argparse.SUPPRESS)
     parser.add_argument("--hub", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -185,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
     times: list[float] = []
     lost = 0
     for i in range(args.runs):
-        back = one_run(args.partition, args.after, args.links, args.cut)
+        back = one_run(args.partition, args.after, args.links, args.cut, args.advanced)
         said = "not back" if back is None else f"{back:.2f} s"
         print(f"run {i + 1}/{args.runs}: every peer answers again {said} after the heal")
         if back is None:
@@ -193,7 +237,9 @@ def main(argv: list[str] | None = None) -> int:
         else:
             times.append(back)
     print(
-        f"eclipse-zenoh {version('eclipse-zenoh')}, links {args.links}, "
+        f"eclipse-zenoh {version('eclipse-zenoh')}, links {args.links}"
+        + (", advanced publishers" if args.advanced else "")
+        + ", "
         f"{args.cut} cut for {args.partition:g} s: "
         f"{len(times)} of {args.runs} runs back within {args.after:g} s"
         + (f" (median {statistics.median(times):.2f} s, max {max(times):.2f} s)" if times else "")
