@@ -298,15 +298,11 @@ def cmd_deploy(args: argparse.Namespace) -> int:
             from framework.recorder import FlightRecorder
 
             # the topology's `record:` outputs, and any --record-samples on top
-            samples = {**deployment.topology.recorded}
-            samples.update(item.split("=", 1) for item in args.record_samples)
-            recorder = FlightRecorder(
+            recorder = FlightRecorder.of_topology(
                 args.record,
                 deployment.hub,
-                samples,
-                frames=deployment.topology.recorded_frames,
-                names=deployment.topology.recorded_names,
-                links=deployment.topology.recorded_links,
+                deployment.topology,
+                dict(item.split("=", 1) for item in args.record_samples),
                 live=live,
                 metadata={
                     "topology": str(Path(args.topology).resolve()),

@@ -235,6 +235,27 @@ class FlightRecorder:
             name = names.get(key, key)
             self._listen(bus, key, kind, f"/fw/samples/{key}", "fw.Sample", _plain, name)
 
+    @classmethod
+    def of_topology(
+        cls,
+        path: str | Path | None,
+        bus: Bus,
+        topology: Any,
+        extra: dict[str, str] | None = None,
+        **options: Any,
+    ) -> FlightRecorder:
+        """A recorder of what `topology`'s `record:` names (its outputs' keys, frames,
+        names and links), with `extra` keys to record on top (`--record-samples`)."""
+        return cls(
+            path,
+            bus,
+            {**topology.recorded, **(extra or {})},
+            frames=topology.recorded_frames,
+            names=topology.recorded_names,
+            links=topology.recorded_links,
+            **options,
+        )
+
     def _channel(self, topic: str, schema: str) -> int:
         channel = self._channels.get(topic)
         if channel is None:

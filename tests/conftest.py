@@ -334,14 +334,7 @@ def play_scenario(
         if record is not None:
             from framework.recorder import FlightRecorder
 
-            recorder = FlightRecorder(
-                record,
-                deployment.hub,
-                dict(topology.recorded),
-                frames=topology.recorded_frames,
-                names=topology.recorded_names,
-                links=topology.recorded_links,
-            )
+            recorder = FlightRecorder.of_topology(record, deployment.hub, topology)
         deployment.run_chart()
         assert deployment.runner.finished.wait(scenario.timeout + 30), "scenario never finished"
     finally:
