@@ -12,9 +12,13 @@ network port, a namespace of its own on a point-to-point link to the robot's hos
 
 Faults (`Hosts.cut` / `Hosts.heal`): a partition takes a host's link down (every
 connection through it stalls, as a pulled cable; TCP keeps its state) and up again.
-Loss and delay use `tc netem` when the kernel has it (`Hosts.impair`); where it has not
-(a kernel built without sch_netem, as some VMs' are), `impair` raises `NetnsError`
-saying so.
+`Hosts.impair` makes a link lossy or slow. Loss is a random drop by nftables of every
+packet crossing the host's link, in both directions, each with the given probability
+(a bad cable or radio loses both ways), taken where each end receives it (the host's
+side and the bridge's), so no sender is told; it needs `nft` (Debian's `nftables`,
+which tools/install.sh installs) and the kernel's nf_tables. Delay and jitter are `tc netem`
+on what the host sends, where the kernel has sch_netem; where it has not (some VMs'
+kernels), `impair` raises `NetnsError` saying so (`netem_available()`).
 
 Needs root (CAP_NET_ADMIN) and `ip`; `available()` says why not, and tests skip with
 that reason.
@@ -22,13 +26,20 @@ that reason.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
+import signal
 import subprocess
+import sys
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from framework.errors import FwError
 
+LOSS_TABLE = "fw_loss"
+"""The nftables table (family inet, in a host's namespace) that drops a lossy link's
+packets."""
 BRIDGE_NET = "10.77.0"
 KRC_NET = "10.78.0"
 KRC = "krc"
@@ -66,6 +77,37 @@ def netem_available() -> bool:
         return run.returncode == 0
     finally:
         subprocess.run(["ip", "netns", "del", probe], capture_output=True)
+
+
+def loss_available() -> str:
+    """Empty if `Hosts.impair` can drop packets here (nftables); else why not."""
+    if shutil.which("nft") is None:
+        return "random loss needs nftables' `nft` command (Debian: apt install nftables)"
+    probe = f"fwloss{os.getpid()}"
+    subprocess.run(["ip", "netns", "add", probe], capture_output=True)
+    try:
+        run = _nft(probe, _loss_rules("lo", 0.5))
+        return "" if run.returncode == 0 else f"nftables refused a drop rule: {run.stderr.strip()}"
+    finally:
+        subprocess.run(["ip", "netns", "del", probe], capture_output=True)
+
+
+def _loss_rules(dev: str, loss: float) -> str:
+    """An nftables table dropping each packet `dev` receives with probability `loss` (in
+    steps of 1/10000). On ingress, as a lossy cable would: the sender sees nothing (a
+    drop on output would fail its send with EPERM)."""
+    drop = f"numgen random mod 10000 < {round(loss * 10000)} drop"
+    return (
+        f"table netdev {LOSS_TABLE}_{dev} {{\n"
+        f'  chain lossy {{ type filter hook ingress device "{dev}" priority 0; {drop}; }}\n'
+        "}\n"
+    )
+
+
+def _nft(ns: str | None, script: str) -> subprocess.CompletedProcess[str]:
+    """`nft -f -` in namespace `ns` (None: this machine's own)."""
+    where = ["ip", "netns", "exec", ns] if ns else []
+    return subprocess.run([*where, "nft", "-f", "-"], input=script, capture_output=True, text=True)
 
 
 def _ip(*args: str) -> None:
@@ -178,6 +220,49 @@ class Hosts:
         """`argv` run on `host` (inside its namespace)."""
         return ["ip", "netns", "exec", self.namespace(host), *argv]
 
+    def deploy(
+        self,
+        host: str,
+        topology: Path,
+        keys: Path,
+        cwd: Path,
+        environment: dict[str, str] | None = None,
+    ) -> subprocess.Popen[bytes]:
+        """Start `host`'s part of `topology` on it (`fw deploy --host`, headless, in a
+        session of its own so `end` stops every process it started); output discarded."""
+        variables = [f"{k}={v}" for k, v in (environment or {}).items()]
+        argv = [sys.executable, "-m", "framework.cli", "deploy", str(topology)]
+        argv += ["--keys", str(keys), "--headless", "--host", host]
+        return subprocess.Popen(
+            self.command(host, "env", *variables, *argv),
+            cwd=cwd,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+        )
+
+    def end(self, parts: list[subprocess.Popen[bytes]]) -> None:
+        """Stop hosts' parts started by `deploy` (SIGINT, as an operator's Ctrl-C; killed
+        after 20 s), then any process left in a host, so that nothing of one run
+        outlives it (the next run's ports and component names are the same)."""
+        for part in parts:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(part.pid, signal.SIGINT)
+        for part in parts:
+            try:
+                part.wait(20)
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(part.pid, signal.SIGKILL)
+                part.wait(5)
+        for host in (*self.names, KRC):
+            pids = subprocess.run(
+                ["ip", "netns", "pids", self.namespace(host)], capture_output=True, text=True
+            ).stdout.split()
+            for pid in pids:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(int(pid), signal.SIGKILL)
+
     def _link(self, host: str) -> tuple[str, str]:
         return self.namespace(host), "fri0" if host == KRC else "eth0"
 
@@ -187,7 +272,7 @@ class Hosts:
         _ip("-n", ns, "link", "set", dev, "down")
 
     def heal(self, host: str) -> None:
-        """End a partition of `host` (and any impairment of its link)."""
+        """End a partition of `host` and any impairment of its link."""
         ns, dev = self._link(host)
         _ip("-n", ns, "link", "set", dev, "up")
         self._route(host)
@@ -195,21 +280,48 @@ class Hosts:
             ["ip", "netns", "exec", ns, "tc", "qdisc", "del", "dev", dev, "root"],
             capture_output=True,
         )
+        if shutil.which("nft") is not None:
+            for where, point in self._ends(host):
+                prefix = ["ip", "netns", "exec", where] if where else []
+                subprocess.run(
+                    [*prefix, "nft", "delete", "table", "netdev", f"{LOSS_TABLE}_{point}"],
+                    capture_output=True,
+                )
 
     def impair(self, host: str, loss: float = 0.0, delay: float = 0.0, jitter: float = 0.0) -> None:
-        """Loss (0-1) and delay/jitter (s) on everything `host` sends (tc netem)."""
+        """Make `host`'s link lossy (each packet either way dropped with probability
+        `loss`, 0-1: nftables) and slow (`delay` and `jitter`, s, on what it sends: tc
+        netem), until `heal`. `NetnsError` says what this machine cannot do."""
+        if not 0.0 <= loss <= 1.0:
+            raise NetnsError(f"a loss is a share between 0 and 1, not {loss!r}")
         ns, dev = self._link(host)
-        argv = ["ip", "netns", "exec", ns, "tc", "qdisc", "replace", "dev", dev, "root", "netem"]
         if delay or jitter:
-            argv += ["delay", f"{delay * 1e3:g}ms", f"{jitter * 1e3:g}ms"]
+            argv = ["ip", "netns", "exec", ns, "tc", "qdisc", "replace", "dev", dev, "root"]
+            argv += ["netem", "delay", f"{delay * 1e3:g}ms", f"{jitter * 1e3:g}ms"]
+            run = subprocess.run(argv, capture_output=True, text=True)
+            if run.returncode != 0:
+                raise NetnsError(
+                    f"cannot delay {host}'s link: {run.stderr.strip()} (this kernel may lack "
+                    "sch_netem; partitions and loss still work)"
+                )
         if loss:
-            argv += ["loss", f"{loss * 100:g}%"]
-        run = subprocess.run(argv, capture_output=True, text=True)
-        if run.returncode != 0:
-            raise NetnsError(
-                f"cannot impair {host}'s link: {run.stderr.strip()} (this kernel may lack "
-                "sch_netem; partitions still work)"
-            )
+            why = "" if shutil.which("nft") else loss_available()  # says what is missing
+            for where, point in [] if why else self._ends(host):
+                run = _nft(where, _loss_rules(point, loss))
+                if run.returncode != 0:
+                    why = f"nftables refused the drop rule: {run.stderr.strip()}"
+                    break
+            if why:
+                self.heal(host)
+                raise NetnsError(f"cannot make {host}'s link lossy: {why}")
+
+    def _ends(self, host: str) -> list[tuple[str | None, str]]:
+        """Both ends of `host`'s link, as (namespace, device); None: this machine's own
+        namespace (the bridge's port)."""
+        if host == KRC:
+            return [(self.namespace(KRC), "fri0"), (self.namespace("robot"), "fri0")]
+        index = self.names.index(host)
+        return [(self.namespace(host), "eth0"), (None, self._veth(f"{index}b"))]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -8,7 +8,7 @@
 #                                                       harness (tools/bench; --test has it)
 # What it installs: the Debian packages a run needs when they are missing (graphviz
 # draws the console's live chart; with --test also chromium for the browser tests,
-# spin and gcc for `fw verify --spin`, and python3-venv where a virtual environment must be made), then fw itself
+# spin and gcc for `fw verify --spin`, nftables for lossy links, and python3-venv where a virtual environment must be made), then fw itself
 # (with --test its test extras) into: the active virtual environment; else ./.venv if
 # it exists; else, when this Python is the system's own ("externally managed", as on
 # Debian 12), a new ./.venv; else this Python.
@@ -52,6 +52,7 @@ if [ -n "$extras" ]; then
   command -v chromium >/dev/null 2>&1 || need+=(chromium)
   command -v spin >/dev/null 2>&1 || need+=(spin)   # fw verify --spin, the second checker
   command -v cc >/dev/null 2>&1 || need+=(gcc)      # SPIN's verifier; the tests' clock shim
+  command -v nft >/dev/null 2>&1 || need+=(nftables) # lossy links between hosts (framework/netns.py)
 fi
 fresh=""
 if [ "${CI:-}" = true ]; then fresh=1; fi

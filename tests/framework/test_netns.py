@@ -1,6 +1,7 @@
 """Spec: hosts as network namespaces of one machine (framework/netns.py): each host
 reaches the others over the bridge, the KRC only over its own link; a cut host is
-unreachable until healed; loss and delay need the kernel's netem, and say so."""
+unreachable until healed; a lossy link loses the share asked, both ways, until healed;
+delay needs the kernel's netem, and says so."""
 
 import subprocess
 import sys
@@ -81,10 +82,67 @@ def test_a_healed_host_reaches_the_krc_again(hosts, served, host):
     assert ask(hosts, "control", hosts.address(netns.KRC)) == "hi"
 
 
-def test_loss_and_delay_need_the_kernels_netem_and_say_so(hosts):
+UDP_SINK = (
+    "import socket, sys\n"
+    "s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.bind((sys.argv[1], 7998))\n"
+    "s.settimeout(1.0); print('up', flush=True); n = 0\n"
+    "try:\n    while True:\n        s.recv(64); n += 1\n"
+    "except TimeoutError:\n    print(n, flush=True)\n"
+)
+UDP_SOURCE = (
+    "import socket, sys, time\n"
+    "s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)\n"
+    "for i in range(int(sys.argv[2])):\n"
+    "    s.sendto(b'x', (sys.argv[1], 7998))\n"
+    "    if i % 50 == 0: time.sleep(0.001)\n"
+)
+
+
+def received(hosts, sender, receiver, count):
+    """How many of `count` datagrams `sender` sends reach `receiver`."""
+    address = hosts.address(receiver)
+    sink = subprocess.Popen(
+        hosts.command(receiver, sys.executable, "-c", UDP_SINK, address),
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    assert sink.stdout.readline().strip() == "up"
+    subprocess.run(
+        hosts.command(sender, sys.executable, "-c", UDP_SOURCE, address, str(count)), check=True
+    )
+    return int(sink.communicate(timeout=10)[0])
+
+
+LOSS_WHY = WHY or netns.loss_available()
+
+
+@pytest.mark.skipif(bool(LOSS_WHY), reason=LOSS_WHY)
+def test_a_lossy_link_loses_the_share_asked_both_ways_until_healed(hosts):
+    """30% loss on the robot's link: about 70 of 100 datagrams get through to it and
+    from it (2000 each way: the bounds are five standard deviations), all once healed.
+    Each end knows the other's MAC address first (a lost ARP exchange would hold back
+    every datagram for a second, which is not what is measured)."""
+    assert received(hosts, "control", "robot", 20) == received(hosts, "robot", "control", 20)
+    hosts.impair("robot", loss=0.3)
+    try:
+        into = received(hosts, "control", "robot", 2000)
+        out = received(hosts, "robot", "control", 2000)
+    finally:
+        hosts.heal("robot")
+    assert 1300 <= into <= 1500, into
+    assert 1300 <= out <= 1500, out
+    assert received(hosts, "control", "robot", 500) == 500, "healed: nothing lost"
+
+
+def test_an_impossible_loss_is_refused(hosts):
+    with pytest.raises(netns.NetnsError, match="between 0 and 1"):
+        hosts.impair("robot", loss=1.5)
+
+
+def test_delay_needs_the_kernels_netem_and_says_so(hosts):
     if netns.netem_available():
         hosts.impair("robot", delay=0.01)
         hosts.heal("robot")
         return
     with pytest.raises(netns.NetnsError, match="sch_netem"):
-        hosts.impair("robot", loss=0.3)
+        hosts.impair("robot", delay=0.1)

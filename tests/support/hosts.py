@@ -3,9 +3,6 @@
 
 from __future__ import annotations
 
-import contextlib
-import os
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -69,16 +66,7 @@ def run_on_hosts(
     deploy = [*FW, "deploy", str(topology), "--keys", str(keys), "--headless"]
     try:
         for host in (*[h for h in hosts.names if h != "control"], KRC):
-            variables = [f"{k}={v}" for k, v in (environment or {}).get(host, {}).items()]
-            others.append(
-                subprocess.Popen(
-                    hosts.command(host, "env", *variables, *deploy, "--host", host),
-                    cwd=cwd,
-                    stdout=subprocess.DEVNULL,
-                    stderr=subprocess.DEVNULL,
-                    start_new_session=True,
-                )
-            )
+            others.append(hosts.deploy(host, topology, keys, cwd, (environment or {}).get(host)))
         try:
             return subprocess.run(
                 hosts.command("control", *deploy, "--scenario", str(scenario)),
@@ -95,31 +83,10 @@ def run_on_hosts(
                 + _tail(exc.stderr)
             ) from None
     finally:
-        for proc in others:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(proc.pid, signal.SIGINT)
-        for proc in others:
-            try:
-                proc.wait(20)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait(5)
-        _empty(hosts)
+        hosts.end(others)
 
 
 def _tail(output: bytes | str | None, lines: int = 80) -> str:
     """The last `lines` lines of a timed-out run's output."""
     text = output.decode(errors="replace") if isinstance(output, bytes) else output or ""
     return "\n".join(text.splitlines()[-lines:])
-
-
-def _empty(hosts: Hosts) -> None:
-    """No process of this run outlives it in any host (the next run's hub port, FRI
-    port and component names are the same)."""
-    for host in (*hosts.names, KRC):
-        pids = subprocess.run(
-            ["ip", "netns", "pids", hosts.namespace(host)], capture_output=True, text=True
-        ).stdout.split()
-        for pid in pids:
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(int(pid), signal.SIGKILL)
