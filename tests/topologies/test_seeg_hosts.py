@@ -58,16 +58,19 @@ def test_the_hosts_are_namespaces_on_real_links(hosts):
     assert "fri0" in links and "10.78.0.1/30" in links, "and on the KRC's own link"
 
 
-# The other hosts' partitions are shipped beside it and run by hand (docs/hosts.md: the
-# control host's passes about half its runs, its e_STOP lost when said during the cut)
-@pytest.mark.parametrize("scenario", ["hosts/cameras_partition_release.yaml"])
+# The other hosts' partitions and lossy links are shipped beside them and run by hand
+# (docs/hosts.md: routes Zenoh does not always make again after a cut)
+@pytest.mark.parametrize(
+    "scenario", ["hosts/cameras_partition_release.yaml", "hosts/krc_loss.yaml"]
+)
 def test_a_host_cut_off_stops_the_robot_latched_until_release(
     hosts, keys, procedure, scenario, monkeypatch
 ):
-    """The camera PC cut off for 2 s while the arm approaches: the robot side stops by
-    itself and latches, the link heals, nothing moves until RELEASE, then the approach
-    resumes (the scenario says how). The nominal approach across the hosts is the clock
-    tests' first half."""
+    """The camera PC cut off for 2 s, or the KRC's FRI link losing 30% of its datagrams
+    for 5 s, while the arm approaches: the robot side stops by itself (the KRC by its
+    FRI quality) and latches, the link heals, nothing moves until RELEASE, then the
+    approach resumes (each scenario says how). The nominal approach across the hosts is
+    the clock tests' first half."""
     monkeypatch.setenv("FW_NETNS_PREFIX", hosts.prefix)
     run = run_on_hosts(hosts, procedure, keys, SCENARIOS / scenario, REPO)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
