@@ -209,6 +209,7 @@ class RobotInterface(Component):
         self._brake_reason = ""  # why this side last asked for the brakes (not latched)
         self.link = {"measurements": 0, "answered": 0, "skipped": 0, "refused": 0}
         self.latched = ""
+        self.latched_at: float | None = None  # wall time of the trip (None: not latched)
         self.mode = "position"
         self._arm = None
         self._stop: SafeStop | None = None
@@ -575,7 +576,7 @@ class RobotInterface(Component):
         return None if age is None else max(0.0, age)
 
     def _trip(self, reason: str, state: ArmState) -> None:
-        self.latched = reason
+        self.latched, self.latched_at = reason, time.time()
         if self.safety is not None:
             self.safety.trip(reason)
         self._brake_when_still = None
@@ -713,7 +714,7 @@ class RobotInterface(Component):
             why = self.safety.acknowledge()
             if why:
                 raise FwError(why)
-        self.latched = ""
+        self.latched, self.latched_at = "", None
         self._request("reset")
         return self._state_report()
 
@@ -791,6 +792,7 @@ class RobotInterface(Component):
         out = {
             "braked": state.braked,
             "latched": bool(self.latched),
+            "latched_at": self.latched_at,  # when the stop began (wall clock)
             "fault": bool(self.latched),
             "reason": self.latched or state.reason,
             "ready": not problems,  # every safety input healthy: RELEASE would be taken

@@ -174,6 +174,9 @@ class ArmController(Component):
         self.kinematics = Kinematics()
         self.latched = ""
         self.releases = 0
+        self.braked_at: float | None = None
+        """Wall time of the cycle the brakes last engaged (None while released): how a
+        run whose watcher was cut off from this host times the braking afterwards."""
         self.refused = ""
         self.cycle = 0
         self.served = 0
@@ -343,6 +346,8 @@ class ArmController(Component):
 
     def _send(self, quality: fri.Quality) -> None:
         arm = self.arm
+        if arm.braked != (self.braked_at is not None):
+            self.braked_at = time.time() if arm.braked else None
         q = tuple(arm.q.tolist())
         self._cmd_jnt_pos = q if arm.braked else arm.last_setpoint
         self.send_seq += 1
@@ -461,6 +466,7 @@ class ArmController(Component):
             "latched": bool(self.latched),
             "reason": self.latched or arm.reason,
             "releases": self.releases,
+            "braked_at": self.braked_at,
             "refused": self.refused,
             "mode": arm.mode,
             "cycle": self.cycle,

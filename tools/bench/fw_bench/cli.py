@@ -50,7 +50,8 @@ experiments:
   chaos       every process x {KILL, STOP 2 s, STOP 0.3 s} while moving: time to the
               first braking cycle and to standstill, motion before RELEASE; exit 1 if
               any case ends unbraked or moves (only when named; --quick: once each,
-              about 4 min; default 6 times each)
+              about 4 min; default 6 times each); with --hosts, every host of
+              seeg_hosts.yaml cut off or lossy instead (network namespaces, root)
 Timestamps: docs/bench.md. Figures (PNG) need matplotlib: pip install -e tools/bench.
 """
 
@@ -94,6 +95,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         "quick": args.quick,
         "repetitions": args.repetitions,
         "chaos_repetitions": args.chaos_repetitions,
+        "hosts": args.hosts,
         "suite": args.suite,
         "variant": args.variant,
         "bus": args.bus,
@@ -173,6 +175,13 @@ def add_commands(sub: Any) -> None:
         default=6,
         metavar="N",
         help="times each process x fault case runs in `chaos` (6: 108 faults, ~25 min)",
+    )
+    p.add_argument(
+        "--hosts",
+        action="store_true",
+        help="`chaos`: instead, every host of topologies/seeg_hosts.yaml (as network "
+        "namespaces of this machine; root) x {partition 2 s, 30%% loss, 100 ms delay "
+        "where the kernel has netem}, --chaos-repetitions times (~40 s a case)",
     )
     p.add_argument(
         "--suite",

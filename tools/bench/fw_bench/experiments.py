@@ -594,6 +594,8 @@ def run_chaos(quick: bool, context: dict[str, Any]) -> list[Row]:
     from fw_bench import chaos
 
     repetitions = 1 if quick else context.get("chaos_repetitions", 6)
+    if context.get("hosts"):
+        return _chaos_on_hosts(repetitions, context)
     cases = chaos.chaos(repetitions, _progress("chaos"))
     context.setdefault("series", {})["chaos"] = [
         {**c.__dict__, "name": c.name, "ok": c.ok} for c in cases
@@ -651,6 +653,62 @@ def run_chaos(quick: bool, context: dict[str, Any]) -> list[Row]:
             n=len(cases),
         )
     )
+    return rows
+
+
+def _chaos_on_hosts(repetitions: int, context: dict[str, Any]) -> list[Row]:
+    """`chaos --hosts` (fw_bench/hosts_chaos.py): every host cut off or made lossy
+    while moving. Fails the run (exit 1) if any case ends unbraked or moves before
+    RELEASE; a stop before the fault (a starved host) is counted, not timed."""
+    from fw_bench import hosts_chaos
+
+    cases, skipped = hosts_chaos.chaos_on_hosts(repetitions, _progress("chaos --hosts"))
+    context.setdefault("series", {})["chaos_hosts"] = [
+        {**c.__dict__, "name": c.name, "ok": c.ok} for c in cases
+    ]
+    bad = [c for c in cases if not c.ok]
+    if bad:
+        context["failed"] = [f"chaos --hosts: {c.process} {c.name}: {c.detail}" for c in bad]
+    rows = []
+    for name, _ in hosts_chaos.FAULTS:
+        times = [c.to_braking_ms for c in cases if c.name == name and c.to_braking_ms is not None]
+        if times:
+            s = stats(times)
+            rows += [
+                Row("chaos --hosts", f"{name} -> first braking cycle p50", s["p50"], n=len(times)),
+                Row("chaos --hosts", f"{name} -> first braking cycle p99", s["p99"], n=len(times)),
+            ]
+    for host in hosts_chaos.HOSTS:
+        for name, _ in hosts_chaos.FAULTS:
+            mine = [c for c in cases if c.process == host and c.name == name]
+            times = [c.to_braking_ms for c in mine if c.to_braking_ms is not None]
+            if times:
+                rows.append(
+                    Row("chaos --hosts", f"{host} {name}: to braking, max", max(times), n=len(mine))
+                )
+    early = sum(c.detail.startswith("tripped") for c in cases)
+    rows.append(
+        Row(
+            "chaos --hosts",
+            "cases stopped before the fault (not timed)",
+            early,
+            unit="",
+            n=len(cases),
+        )
+    )
+    rows.append(
+        Row(
+            "chaos --hosts",
+            "motions after a fault without RELEASE",
+            sum(c.moved_without_release for c in cases),
+            target=0.0,
+            unit="",
+            n=len(cases),
+        )
+    )
+    for why in skipped:  # said, and kept in summary.json
+        print(f"chaos --hosts: {why}", file=sys.stderr)
+    context["series"]["chaos_hosts_not_injected"] = skipped
     return rows
 
 

@@ -99,6 +99,11 @@ class SeegRun:
     _subscriptions: list[Any] = field(default_factory=list)
     secure: bool = True
     """The bus as fw deploy runs it (mutual TLS, access rules); False: plain TCP."""
+    hosts: tuple[Path, Path] | None = None
+    """(topology, keys) of a deployment on several hosts: this run is its control
+    host's part (in the control host's network namespace), the other hosts' parts run
+    their own `fw deploy --host`; the topology's bus, ports and keys are used as they
+    are (every host must agree on them)."""
 
     def start(self) -> SeegRun:
         """Deploy and wait until the robot waits for START (setup done)."""
@@ -106,22 +111,17 @@ class SeegRun:
         old = os.getcwd()
         os.chdir(home)  # the topology's and the properties' paths are relative to it
         try:
-            topology = load_topology(home / "topologies" / "seeg.yaml")
+            topology = load_topology(self.hosts[0] if self.hosts else home / "topologies/seeg.yaml")
         finally:
             os.chdir(old)
-        topology.bus = dataclasses.replace(
-            topology.bus,
-            namespace=f"fw_bench_{os.getpid()}",
-            hub_port=free_port(),
-            secure=self.secure,
-        )
-        port = free_udp_port()  # the FRI link of this deployment alone
-        topology.components["arm"].properties["fri_remote"] = f"127.0.0.1:{port}"
-        topology.components["robot"].properties["fri_listen"] = f"127.0.0.1:{port}"
-        link = str(self.workdir / "ttyVICRA")
-        topology.components["vicra_sim"].properties["link"] = link
-        topology.components["vicra"].properties["device"] = link
-        self.deployment = Deployment(topology, self.workdir, listeners=[self._states])
+        if self.hosts is not None:
+            self.deployment = Deployment(  # the control host's part (no --host)
+                topology, self.workdir, listeners=[self._states], keys=self.hosts[1]
+            )
+        else:
+            self.deployment = Deployment(
+                self._private(topology), self.workdir, listeners=[self._states]
+            )
         os.chdir(home)  # property paths are relative to the repository
         try:
             self.deployment.start(run_chart=False)
@@ -136,6 +136,22 @@ class SeegRun:
         finally:
             os.chdir(old)
         return self
+
+    def _private(self, topology: Any) -> Any:
+        """`topology` on a bus, FRI port and Vicra line of this run alone."""
+        topology.bus = dataclasses.replace(
+            topology.bus,
+            namespace=f"fw_bench_{os.getpid()}",
+            hub_port=free_port(),
+            secure=self.secure,
+        )
+        port = free_udp_port()  # the FRI link of this deployment alone
+        topology.components["arm"].properties["fri_remote"] = f"127.0.0.1:{port}"
+        topology.components["robot"].properties["fri_listen"] = f"127.0.0.1:{port}"
+        link = str(self.workdir / "ttyVICRA")
+        topology.components["vicra_sim"].properties["link"] = link
+        topology.components["vicra"].properties["device"] = link
+        return topology
 
     def _receiver(self, key: str, kind: type) -> Any:
         def receive(sample: Any) -> None:

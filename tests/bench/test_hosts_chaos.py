@@ -1,0 +1,92 @@
+"""Spec: how `fw bench chaos --hosts` judges a case (tools/bench/fw_bench/hosts_chaos.py)
+from what the robot interface and the simulated KRC report once the links are back:
+the first braking cycle is the first of the robot's stop and the KRC's brakes; a stop
+before the fault is counted, not timed; a release after the fault, an arm left
+released, or motion after the brakes engaged is a motion without RELEASE."""
+
+from dataclasses import dataclass
+
+import pytest
+
+from framework.messages import ArmState
+from fw_bench.chaos import Case
+from fw_bench.hosts_chaos import _judge, main
+
+FAULT = 1000.0
+STILL_Q = (0.0,) * 7
+
+
+@dataclass
+class Seen:
+    message: ArmState
+
+
+class Watched:
+    """The arm states the control host received (a run's `since`)."""
+
+    def __init__(self, states: list[ArmState]):
+        self.states = states
+
+    def since(self, t: float, key: str) -> list[Seen]:
+        assert key == "arm/measured"
+        return [Seen(m) for m in self.states if m.stamp >= t]
+
+
+def state(stamp: float, braked: bool, speed: float = 0.0) -> ArmState:
+    velocity = (speed,) + (0.0,) * 6
+    return ArmState(stamp, 0, 0, STILL_Q, velocity, STILL_Q, (), braked, braked, "")
+
+
+def judged(arm: dict, robot: dict, states=(), releases_before: int = 0) -> Case:
+    case = Case("robot", "LINK", 2.0, link="partition 2s")
+    _judge(case, Watched(list(states)), FAULT, {"releases": releases_before}, arm, robot)
+    return case
+
+
+def test_braking_begins_with_the_first_of_the_robots_stop_and_the_krcs_brakes():
+    case = judged(
+        {"braked": True, "braked_at": FAULT + 0.120, "releases": 1},
+        {"latched_at": FAULT + 0.080},
+    )
+    assert case.to_braking_ms == pytest.approx(80.0)
+    assert case.to_standstill_ms == pytest.approx(120.0)
+    assert case.ok and not case.moved_without_release
+
+
+def test_a_stop_before_the_fault_is_said_and_not_timed_but_still_judged():
+    case = judged(
+        {"braked": True, "braked_at": FAULT - 0.369, "releases": 1},
+        {"latched_at": FAULT - 0.370},
+    )
+    assert case.to_braking_ms is None and case.detail.startswith("tripped 370 ms before")
+    assert case.ok, "braked and still: safe, only not a measurement"
+
+
+def test_a_release_after_the_fault_is_a_motion_without_release():
+    case = judged(
+        {"braked": True, "braked_at": FAULT + 0.1, "releases": 2},
+        {"latched_at": FAULT + 0.1},
+    )
+    assert case.moved_without_release and not case.ok
+    assert "released after the fault" in case.detail
+
+
+def test_an_arm_left_released_is_not_ok():
+    case = judged({"braked": False, "braked_at": None, "releases": 1}, {"latched_at": None})
+    assert not case.ended_braked and case.moved_without_release and not case.ok
+
+
+def test_motion_seen_after_the_brakes_engaged_is_a_motion_without_release():
+    states = [
+        state(FAULT + 0.05, False, 0.1),
+        state(FAULT + 0.2, True),
+        state(FAULT + 0.3, True, 0.01),
+    ]
+    case = judged({"braked": True, "braked_at": FAULT + 0.15, "releases": 1}, {}, states)
+    assert case.moved_without_release and "moving 300 ms after the fault" in case.detail
+
+
+def test_an_unknown_host_or_fault_is_refused_with_the_choices(capsys):
+    with pytest.raises(SystemExit):
+        main(["--case", "moon", "partition 2s", "--topology", "t", "--keys", "k"])
+    assert "control, tracking, cameras, robot, krc" in capsys.readouterr().err

@@ -1,0 +1,238 @@
+"""`fw bench chaos --hosts`: every host of the SEEG deployment on several machines
+(topologies/seeg_hosts.yaml, built as network namespaces of this one:
+framework/netns.py) cut off or made lossy while the arm approaches the target at
+7.5 cm/s, on a fresh deployment each time.
+
+Each case starts every host's part (`fw deploy --host`), runs the control host's
+part in the control namespace (a child process: `python -m fw_bench.hosts_chaos
+--case ...`, printing its case as one JSON line), releases the arm for the approach,
+and injects the link fault 0.6 s into it. A watcher on the control host cannot time
+what happens behind a cut link, so the times come from the hosts that saw them: the
+robot interface's report says when its stop began (`latched_at`), the simulated KRC's
+when its brakes engaged (`braked_at`), both asked once the links are back (the
+namespaces share this machine's clock, so the stamps compare; on real machines they
+would need a synchronised clock, docs/hosts.md). From them:
+
+* **to braking**: from the fault to the first of the two;
+* **to standstill**: from the fault to the brakes being on;
+* **moved without RELEASE**: the KRC released its brakes after the fault (its count
+  of releases grew: no RELEASE is sent during a case), or ended released, or a state
+  it published after its brakes engaged moves faster than 1 mrad/s;
+* **tripped before the fault**: a stop that began before the fault (a starved host):
+  the case measured nothing and says so.
+
+Delay needs the kernel's netem (`framework.netns.netem_available`): where it is
+missing, the delay cases are not run, and the report says so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from fw_bench.chaos import STILL, Case
+from fw_bench.files import seeg_home
+
+HOSTS = ("control", "tracking", "cameras", "robot", "krc")
+FAULTS: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("partition 2s", {"partition": True, "hold": 2.0}),
+    ("loss 30% 5s", {"loss": 0.3, "hold": 5.0}),
+    ("delay 100ms 5s", {"delay": 0.1, "hold": 5.0}),
+)
+"""The link faults: name, `Fault` fields (framework/scenario/model.py)."""
+AFTER = 3.0
+"""s after the fault ends before the reports are asked (links come back in ~1-2 s)."""
+ASK_FOR = 30.0
+"""s to keep asking a component for its report after the fault (its route back)."""
+CASE_TIMEOUT = 240.0
+"""s a case may take in all (deploy, approach, fault, reports, shutdown)."""
+
+
+def chaos_on_hosts(repetitions: int, progress: Any = None) -> tuple[list[Case], list[str]]:
+    """Every host x link fault, `repetitions` times each, a line per case printed;
+    the cases, and the fault kinds this machine cannot inject (and why)."""
+    from framework import netns
+    from fw_bench.seeg_run import BenchError
+
+    why = netns.available()
+    if why:
+        raise BenchError(f"chaos --hosts needs the hosts as network namespaces: {why}")
+    skipped = []
+    faults = list(FAULTS)
+    if not netns.netem_available():
+        faults = [f for f in faults if "delay" not in f[1]]
+        skipped.append("delay: this kernel has no sch_netem (tc netem), not injected")
+    loss = netns.loss_available()
+    if loss:
+        faults = [f for f in faults if "loss" not in f[1]]
+        skipped.append(f"loss: {loss}, not injected")
+    home = seeg_home()
+    topology = home / "topologies" / "seeg_hosts.yaml"
+    folder = Path(tempfile.mkdtemp(prefix="fw-bench-hosts-"))
+    keys = folder / "keys"
+    made = subprocess.run(
+        [sys.executable, "-m", "framework.cli", "keys", str(topology), "-o", str(keys)],
+        capture_output=True,
+        text=True,
+        cwd=home,
+    )
+    if made.returncode != 0:
+        raise BenchError(f"fw keys failed: {made.stderr.strip()}")
+    hosts = netns.Hosts(prefix="fwb-", bridge="fwbbr0").up()
+    cases: list[Case] = []
+    total = repetitions * len(HOSTS) * len(faults)
+    try:
+        for _ in range(repetitions):
+            for host in HOSTS:
+                for name, fault in faults:
+                    case = run_case(hosts, topology, keys, host, name, fault)
+                    cases.append(case)
+                    print(case.line(), file=sys.stderr, flush=True)
+                    if progress is not None:
+                        progress(len(cases), total)
+    finally:
+        hosts.down()
+        shutil.rmtree(folder, ignore_errors=True)
+    return cases, skipped
+
+
+def run_case(
+    hosts: Any, topology: Path, keys: Path, host: str, name: str, fault: dict[str, Any]
+) -> Case:
+    """One fault on a fresh deployment across the hosts (module docstring)."""
+    from framework.netns import KRC
+
+    home = seeg_home()
+    parts = []
+    case = Case(host, "LINK", float(fault["hold"]), link=name)
+    try:
+        for other in (*[h for h in hosts.names if h != "control"], KRC):
+            parts.append(hosts.deploy(other, topology, keys, home))
+        argv = [sys.executable, "-m", "fw_bench.hosts_chaos", "--case", host, name]
+        argv += ["--topology", str(topology), "--keys", str(keys)]
+        try:
+            run = subprocess.run(
+                hosts.command("control", "env", f"FW_NETNS_PREFIX={hosts.prefix}", *argv),
+                capture_output=True,
+                text=True,
+                cwd=home,
+                timeout=CASE_TIMEOUT,
+            )
+        except subprocess.TimeoutExpired:
+            case.detail = f"the control host's run did not end in {CASE_TIMEOUT:g} s"
+            return case
+        lines = [line for line in run.stdout.splitlines() if line.startswith("{")]
+        if not lines:
+            tail = (run.stderr.strip().splitlines() or ["no output"])[-1]
+            case.detail = f"the control host's run failed: {tail[:160]}"
+            return case
+        return Case(**json.loads(lines[-1]))
+    finally:
+        hosts.end(parts)
+
+
+def _control_case(host: str, name: str, topology: Path, keys: Path) -> Case:
+    """The control host's side of a case (in its namespace): deploy its part, start
+    the approach, inject the fault, ask the robot and the KRC what they did."""
+    from framework.messages import ArmState
+    from framework.scenario.model import Fault
+    from fw_bench.seeg_run import SeegRun
+
+    spec = dict(FAULTS)[name]
+    case = Case(host, "LINK", float(spec["hold"]), link=name)
+    run = SeegRun(hosts=(topology, keys)).start()
+    try:
+        run.watch("arm/measured", ArmState)
+        before = _ask(run, "arm")
+        run.send("e_START")
+        run.wait_state("Moving_Fast", 30.0)
+        time.sleep(0.6)  # well into the approach: at speed
+        assert run.deployment is not None
+        fault = time.time()
+        run.deployment.inject_fault(Fault(link=host, **spec))
+        time.sleep(case.hold + AFTER)
+        arm, robot = _ask(run, "arm"), _ask(run, "robot")
+        _judge(case, run, fault, before, arm, robot)
+        case.chart = run.last_entered(
+            ("Fault", "Stopped", "No_Tracker", "Moving_Fast", "Moving_Slow", "Target_Reached")
+        )
+    finally:
+        run.stop()
+    return case
+
+
+def _ask(run: Any, component: str) -> dict[str, Any]:
+    """`component.report`, asked until answered (its route back after a fault)."""
+    until = time.monotonic() + ASK_FOR
+    while True:
+        try:
+            return run.call(f"{component}.report")
+        except Exception:  # unreachable for now: asked again until ASK_FOR
+            if time.monotonic() >= until:
+                raise
+            time.sleep(0.2)
+
+
+def _judge(
+    case: Case,
+    run: Any,
+    fault: float,
+    before: dict[str, Any],
+    arm: dict[str, Any],
+    robot: dict[str, Any],
+) -> None:
+    """The case's times and verdict from the two reports (module docstring)."""
+    case.notes.append(f"robot: {robot.get('reason', '')}"[:200])  # what stopped it
+    latched_at, braked_at = robot.get("latched_at"), arm.get("braked_at")
+    released = int(arm.get("releases", 0)) > int(before.get("releases", 0)) + 1
+    seen = [s.message for s in run.since(fault, "arm/measured")]
+    moving = [
+        m
+        for m in seen
+        if braked_at is not None
+        and m.stamp >= braked_at
+        and (not m.braked or max((abs(v) for v in m.velocity), default=0.0) > STILL)
+    ]
+    case.ended_braked = bool(arm.get("braked"))
+    case.moved_without_release = released or bool(moving) or not case.ended_braked
+    if moving:
+        case.detail = f"moving {(moving[0].stamp - fault) * 1e3:.0f} ms after the fault"
+    elif released:
+        case.detail = "released after the fault without RELEASE"
+    starts = [t for t in (latched_at, braked_at) if t is not None]
+    if starts and min(starts) < fault:  # a stop before the fault: no time to measure
+        case.detail = (
+            case.detail or f"tripped {(fault - min(starts)) * 1e3:.0f} ms before the fault"
+        )
+        return
+    if starts:
+        case.to_braking_ms = (min(starts) - fault) * 1e3
+    if braked_at is not None:
+        case.to_standstill_ms = (braked_at - fault) * 1e3
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m fw_bench.hosts_chaos --case HOST FAULT --topology T --keys K`: one
+    case's control-host side; prints the case as a JSON line."""
+    parser = argparse.ArgumentParser(prog="python -m fw_bench.hosts_chaos")
+    parser.add_argument("--case", nargs=2, metavar=("HOST", "FAULT"), required=True)
+    parser.add_argument("--topology", type=Path, required=True)
+    parser.add_argument("--keys", type=Path, required=True)
+    args = parser.parse_args(argv)
+    host, name = args.case
+    if host not in HOSTS or name not in dict(FAULTS):
+        parser.error(f"a host of {', '.join(HOSTS)} and a fault of {', '.join(dict(FAULTS))}")
+    case = _control_case(host, name, args.topology, args.keys)
+    print(json.dumps({k: v for k, v in case.__dict__.items()}), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
