@@ -47,12 +47,17 @@ def _config(name: str, address: dict[str, str]):
 
     hub = address["hub"]
     links = address.get("links", "fw")
+    extra: dict = {}
     if name == "hub":
         hub_links = tuple(endpoint(n) for n in NAMES if links == "both")
-        return BusConfig("zp", PORT, hub, peers=hub_links)
+        if address.get("routing") == "hub-router":
+            extra = {"mode": "router"}
+        return BusConfig("zp", PORT, hub, peers=hub_links, extra=extra)
     i = NAMES.index(name)
     before = tuple(endpoint(n) for n in NAMES[:i] if links != "gossip")
-    return BusConfig("zp", PORT, hub, listen=address[name], listen_port=PORT + 1 + i, peers=before)
+    return BusConfig(
+        "zp", PORT, hub, listen=address[name], listen_port=PORT + 1 + i, peers=before, extra=extra
+    )
 
 
 def peer(name: str, address: dict[str, str]) -> None:
@@ -136,7 +141,12 @@ def hub(address: dict[str, str], seconds: float) -> None:
 
 
 def one_run(
-    partition: float, after: float, links: str = "fw", cut: str = "control", advanced: bool = False
+    partition: float,
+    after: float,
+    links: str = "fw",
+    cut: str = "control",
+    advanced: bool = False,
+    routing: str = "peers",
 ) -> float | None:
     """Seconds from the heal until every peer answered and echoed (None: not within
     `after`)."""
@@ -144,6 +154,7 @@ def one_run(
 
     hosts = netns.Hosts(prefix="zp-", bridge="zpbr0").up()
     address: dict = {"hub": hosts.address("control"), "links": links, "advanced": advanced}
+    address["routing"] = routing
     address |= {n: hosts.address(HOST[n]) for n in NAMES}
     me = [sys.executable, __file__]
     peers = [
@@ -209,6 +220,15 @@ def main(argv: list[str] | None = None) -> int:
         help="echo through fw's latest-value publishers and subscribers (zenoh.ext), as "
         "its ports do, instead of plain ones",
     )
+    parser.add_argument(
+        "--routing",
+        choices=("peers", "hub-router"),
+        default="peers",
+        help="peers: every session a Zenoh peer (a sample reaches only the peers linked to "
+        "its publisher: since Zenoh 1.9 peers relay nothing); hub-router: the hub is a "
+        "Zenoh router, which relays between peers linked to it but not to each other "
+        "(failover brokering)",
+    )
     parser.add_argument("--peer", nargs=2, help=argparse.SUPPRESS)
     parser.add_argument("--hub", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -229,7 +249,9 @@ def main(argv: list[str] | None = None) -> int:
     times: list[float] = []
     lost = 0
     for i in range(args.runs):
-        back = one_run(args.partition, args.after, args.links, args.cut, args.advanced)
+        back = one_run(
+            args.partition, args.after, args.links, args.cut, args.advanced, args.routing
+        )
         said = "not back" if back is None else f"{back:.2f} s"
         print(f"run {i + 1}/{args.runs}: every peer answers again {said} after the heal")
         if back is None:
@@ -239,6 +261,7 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"eclipse-zenoh {version('eclipse-zenoh')}, links {args.links}"
         + (", advanced publishers" if args.advanced else "")
+        + f", routing {args.routing}"
         + ", "
         f"{args.cut} cut for {args.partition:g} s: "
         f"{len(times)} of {args.runs} runs back within {args.after:g} s"
