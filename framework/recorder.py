@@ -127,7 +127,7 @@ def _hook(path: str) -> Any:
     try:
         return load_function(path)
     except ClassPathError as exc:
-        raise RecorderError(f"cannot draw the robot's links: {exc}") from None
+        raise RecorderError(f"cannot draw a recorded output: {exc}") from None
 
 
 class _Discard:
@@ -165,6 +165,7 @@ class FlightRecorder:
         names: dict[str, str] | None = None,
         live: Any = None,
         links: dict[str, str] | None = None,
+        draws: dict[str, str] | None = None,
     ):
         """`samples` maps extra keys to record to their message type name; `metadata`
         (for example the statechart's path, used by `fw replay`) is stored in the file;
@@ -173,7 +174,8 @@ class FlightRecorder:
         by its key); `live`: a `framework.live_view.LiveView` served the same Foxglove
         messages as they come (`path` None: nothing written, only served); `links`: per
         recorded JointState key, the `module:function` giving the robot's links, drawn
-        as transforms."""
+        as transforms; `draws`: per recorded key, the `module:function` turning a
+        sample into `framework.scene.Shapes`."""
         from mcap.writer import CompressionType, Writer
 
         self.path = Path(path) if path is not None else None
@@ -203,6 +205,7 @@ class FlightRecorder:
         names = dict(names or {})
         self._frames = {names.get(key, key): frame for key, frame in (frames or {}).items()}
         self._links = {names.get(key, key): _hook(path) for key, path in (links or {}).items()}
+        self._draws = {names.get(key, key): _hook(path) for key, path in (draws or {}).items()}
         self._undrawable: set[str] = set()
         self.count = 0
         self._closed = False
@@ -245,14 +248,17 @@ class FlightRecorder:
         **options: Any,
     ) -> FlightRecorder:
         """A recorder of what `topology`'s `record:` names (its outputs' keys, frames,
-        names and links), with `extra` keys to record on top (`--record-samples`)."""
+        names, links and drawings), with `extra` keys to record on top
+        (`--record-samples`)."""
+        records = topology.records
         return cls(
             path,
             bus,
-            {**topology.recorded, **(extra or {})},
-            frames=topology.recorded_frames,
-            names=topology.recorded_names,
-            links=topology.recorded_links,
+            {**{key: r.kind for key, r in records.items()}, **(extra or {})},
+            frames={key: r.frame for key, r in records.items() if r.frame},
+            names={key: r.name for key, r in records.items()},
+            links={key: r.links for key, r in records.items() if r.links},
+            draws={key: r.draw for key, r in records.items() if r.draw},
             **options,
         )
 
@@ -311,19 +317,28 @@ class FlightRecorder:
         return channel
 
     def _sample(self, key: str, value: Any) -> None:
-        """A recorded sample Foxglove can draw, as its well-known message."""
-        convert = self._scene.CONVERTERS.get(type(value)) if self._scene else None
-        if convert is None:
+        """A recorded sample Foxglove can draw, as its well-known messages (its own
+        kind's, and what the topology's links and drawing functions make of it)."""
+        scene = self._scene
+        if scene is None:
+            return
+        convert = scene.CONVERTERS.get(type(value))
+        drawing = self._draws.get(key)
+        if convert is None and drawing is None:
             return
         try:
-            drawn = [
-                (
-                    self._scene.topic_for(type(value), key),
-                    convert(value, key, self._frames.get(key, "")),
+            drawn = []
+            if convert is not None:
+                drawn.append(
+                    (
+                        scene.topic_for(type(value), key),
+                        convert(value, key, self._frames.get(key, "")),
+                    )
                 )
-            ]
             if key in self._links:
-                drawn.append(("/tf", self._scene.link_transforms(value, self._links[key])))
+                drawn.append(("/tf", scene.link_transforms(value, self._links[key])))
+            if drawing is not None:
+                drawn += scene.shapes(getattr(value, "stamp", 0.0), key, drawing(value))
         except Exception as exc:  # a sample it cannot draw: said once, the recording goes on
             if key not in self._undrawable:
                 self._undrawable.add(key)

@@ -11,7 +11,11 @@ lengthens its crash detection, and none of them records.
 * a `Pose` sample -> `foxglove.FrameTransforms`: the pose's frame (or `world`) as the
   parent, the recorded key as the child (`certus/cto`: the tool the Certus sees);
 * an `Envelopes` sample -> `foxglove.SceneUpdate`: each person's capsule as a
-  cylinder between two spheres, in the robot's base frame.
+  cylinder between two spheres, in the robot's base frame;
+* any sample a topology's drawing function (`record:` `draw:`) turns into `Shapes`
+  (frames, capsules, spheres in plain numbers: the function needs no Foxglove) ->
+  `foxglove.FrameTransforms` on `/tf` and a `foxglove.SceneUpdate` on
+  `/scene/<key>`: a procedure's goals and critical area, a robot's link capsules.
 
 The frame a sample is in comes from the topology's `record:` entry (`frame:`) where
 the sample does not say it.
@@ -105,6 +109,22 @@ def frame_transforms(sample: Pose, key: str, parent: str = "") -> Converted:
 
 Link = tuple[str, str, tuple[float, float, float], tuple[float, float, float, float]]
 """(parent, child, position, quaternion (w, x, y, z)) of one link's frame in its parent."""
+Point = tuple[float, float, float]
+Rgba = tuple[float, float, float, float]
+
+
+@dataclass(frozen=True)
+class Shapes:
+    """What a topology's drawing function (`record:` `draw: module:function`) makes of
+    one sample, in plain numbers: frames (drawn as transforms, each in its parent),
+    and capsules (segment a-b, radius) and spheres (centre, radius) in `frame`, one
+    scene entity per recorded key, replaced whole at each sample."""
+
+    frames: tuple[Link, ...] = ()
+    capsules: tuple[tuple[Point, Point, float], ...] = ()
+    spheres: tuple[tuple[Point, float], ...] = ()
+    frame: str = BASE_FRAME
+    color: Rgba = (0.2, 0.6, 1.0, 0.4)
 
 
 def link_transforms(
@@ -131,52 +151,98 @@ def link_transforms(
 def people(sample: Envelopes, key: str, parent: str = "") -> Converted:
     """Each person's capsules (segment a-b, radius) as a cylinder and two end spheres,
     one entity per recorded key, replaced whole at each sample."""
+    from foxglove.messages import SceneUpdate
+
+    capsules = [
+        (tuple(sample.a[3 * i : 3 * i + 3]), tuple(sample.b[3 * i : 3 * i + 3]), radius)
+        for i, radius in enumerate(sample.radius)
+    ]
+    entity = _entity(sample.stamp, parent or BASE_FRAME, key, capsules, (), PEOPLE_COLOR)
+    return _converted(SceneUpdate(entities=[entity]))
+
+
+PEOPLE_COLOR: Rgba = (1.0, 0.5, 0.1, 0.6)
+
+
+def shapes(stamp: float, key: str, drawn: Shapes) -> list[tuple[str, Converted]]:
+    """A drawing function's `Shapes` as Foxglove messages: (topic, message) for its
+    frames (`/tf`) and its capsules and spheres (`/scene/<key>`), those it has."""
+    from foxglove.messages import FrameTransform, FrameTransforms, Quaternion, SceneUpdate, Vector3
+
+    out = []
+    if drawn.frames:
+        transforms = [
+            FrameTransform(
+                timestamp=_stamp(stamp),
+                parent_frame_id=parent,
+                child_frame_id=child,
+                translation=Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2])),
+                rotation=Quaternion(w=float(q[0]), x=float(q[1]), y=float(q[2]), z=float(q[3])),
+            )
+            for parent, child, p, q in drawn.frames
+        ]
+        out.append(("/tf", _converted(FrameTransforms(transforms=transforms))))
+    if drawn.capsules or drawn.spheres:
+        entity = _entity(stamp, drawn.frame, key, drawn.capsules, drawn.spheres, drawn.color)
+        out.append((f"/scene/{key}", _converted(SceneUpdate(entities=[entity]))))
+    return out
+
+
+def _entity(
+    stamp: float,
+    frame: str,
+    key: str,
+    capsules: Any,
+    spheres: Any,
+    rgba: Rgba,
+) -> Any:
+    """One scene entity: each capsule as a cylinder between two spheres, and spheres."""
     from foxglove.messages import (
         Color,
         CylinderPrimitive,
         Quaternion,
         SceneEntity,
-        SceneUpdate,
         SpherePrimitive,
         Vector3,
     )
     from foxglove.messages import Pose as FoxPose
 
-    orange = Color(r=1.0, g=0.5, b=0.1, a=0.6)
-    cylinders, spheres = [], []
-    for i, radius in enumerate(sample.radius):
-        a = sample.a[3 * i : 3 * i + 3]
-        b = sample.b[3 * i : 3 * i + 3]
-        for end in (a, b):
-            spheres.append(
-                SpherePrimitive(
-                    pose=FoxPose(position=Vector3(x=end[0], y=end[1], z=end[2])),
-                    size=Vector3(x=2 * radius, y=2 * radius, z=2 * radius),
-                    color=orange,
-                )
-            )
-        axis = [b[k] - a[k] for k in range(3)]
+    color = Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
+
+    def ball(centre: Any, radius: float) -> Any:
+        return SpherePrimitive(
+            pose=FoxPose(
+                position=Vector3(x=float(centre[0]), y=float(centre[1]), z=float(centre[2]))
+            ),
+            size=Vector3(x=2 * radius, y=2 * radius, z=2 * radius),
+            color=color,
+        )
+
+    cylinders, balls = [], [ball(c, float(r)) for c, r in spheres]
+    for a, b, radius in capsules:
+        radius = float(radius)
+        balls += [ball(a, radius), ball(b, radius)]
+        axis = [float(b[k]) - float(a[k]) for k in range(3)]
         length = math.sqrt(sum(v * v for v in axis))
         if length < 1e-9:
             continue
-        middle = Vector3(x=(a[0] + b[0]) / 2, y=(a[1] + b[1]) / 2, z=(a[2] + b[2]) / 2)
+        middle = Vector3(
+            x=(float(a[0]) + float(b[0])) / 2,
+            y=(float(a[1]) + float(b[1])) / 2,
+            z=(float(a[2]) + float(b[2])) / 2,
+        )
         cylinders.append(
             CylinderPrimitive(
                 pose=FoxPose(position=middle, orientation=_z_to(axis, length, Quaternion)),
                 size=Vector3(x=2 * radius, y=2 * radius, z=length),
                 bottom_scale=1.0,
                 top_scale=1.0,
-                color=orange,
+                color=color,
             )
         )
-    entity = SceneEntity(
-        timestamp=_stamp(sample.stamp),
-        frame_id=parent or BASE_FRAME,
-        id=key,
-        cylinders=cylinders,
-        spheres=spheres,
+    return SceneEntity(
+        timestamp=_stamp(stamp), frame_id=frame, id=key, cylinders=cylinders, spheres=balls
     )
-    return _converted(SceneUpdate(entities=[entity]))
 
 
 def _z_to(axis: list[float], length: float, quaternion: Any) -> Any:

@@ -566,5 +566,7 @@ class Navigator(Component):
             "patient_mm": [round(float(v) * 1e3, 3) for v in core.patient_offset],
             # where the patient's reference tool is (base frame, m): for the 3D view
             "patient": [round(float(v), 4) for v in core.base_from_patient[:3, 3]],
+            # the sphere around the target in which the approach slows (a 3D view's)
+            "critical_radius": self.procedure.critical_radius,
             "patient_speed_mm_s": round(core.patient_speed * 1e3, 3),
         }

@@ -39,6 +39,7 @@ from framework.topology.model import (
     ClassInfo,
     ComponentSpec,
     Configuration,
+    Recorded,
     Step,
     StepKind,
     Topology,
@@ -382,24 +383,23 @@ class _Loader:
         if rate is not None:  # the schema made it a positive number
             key = keys.thinned(key, float(rate))
             topo.thinned.setdefault(src.name, {}).setdefault(src_port, {})[key] = float(rate)
-        topo.recorded[key] = src_kind
-        topo.recorded_names[key] = spec["from"]
-        if spec.get("frame"):
-            topo.recorded_frames[key] = spec["frame"]
-        if spec.get("links"):
-            if src_kind != "JointState":
-                self.error(
-                    "record-links",
-                    f"{spec['from']} carries {src_kind}, and links are drawn from joints",
-                    (*where, "links"),
-                    "name links on a JointState output",
-                )
-            if self.classes:
+        links, draw = spec.get("links", ""), spec.get("draw", "")
+        if links and src_kind != "JointState":
+            self.error(
+                "record-links",
+                f"{spec['from']} carries {src_kind}, and links are drawn from joints",
+                (*where, "links"),
+                "name links on a JointState output",
+            )
+        for field_name, path in (("links", links), ("draw", draw)):
+            if path and self.classes:
                 try:
-                    load_function(spec["links"])
+                    load_function(path)
                 except ClassPathError as exc:
-                    self.error("record-links", str(exc), (*where, "links"), "module:function")
-            topo.recorded_links[key] = spec["links"]
+                    self.error(
+                        f"record-{field_name}", str(exc), (*where, field_name), "module:function"
+                    )
+        topo.records[key] = Recorded(src_kind, spec["from"], spec.get("frame", ""), links, draw)
 
     def connection(
         self, topo: Topology, spec: dict[str, Any], where: tuple[Any, ...], timeout: float

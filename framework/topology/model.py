@@ -73,6 +73,22 @@ class ComponentSpec:
         return self.outputs.get(port, keys.default_output(self.name, port))
 
 
+@dataclass(frozen=True)
+class Recorded:
+    """One `record:` entry: an output a flight recording keeps."""
+
+    kind: str
+    """Its message type name."""
+    name: str
+    """The output, as `component.port` (what a viewer names it)."""
+    frame: str = ""
+    """The frame a Pose output is in where its samples do not say (`frame:`)."""
+    links: str = ""
+    """`module:function` drawing a JointState output's robot links (`links:`)."""
+    draw: str = ""
+    """`module:function` turning each sample into `framework.scene.Shapes` (`draw:`)."""
+
+
 class StepKind(StrEnum):
     """What one configuration step does. The same word everywhere a step goes: the
     topology (`connect`, `disconnect`, `set`, `call`, `write` under `do:`; `pre:` and
@@ -171,15 +187,9 @@ class Topology:
     `import_paths:` (relative to it)."""
     console: ConsoleSpec = field(default_factory=ConsoleSpec)
     """What the operator console shows besides the generic parts (`console:`)."""
-    recorded: dict[str, str] = field(default_factory=dict)
-    """Key -> message type name of the output samples a flight recording keeps
-    (`record:`; a thinned key where a rate is given)."""
-    recorded_frames: dict[str, str] = field(default_factory=dict)
-    """Key -> the frame a recorded Pose output is in (`record:`'s `frame:`)."""
-    recorded_links: dict[str, str] = field(default_factory=dict)
-    """Key -> `module:function` drawing a recorded JointState output's robot links."""
-    recorded_names: dict[str, str] = field(default_factory=dict)
-    """Key -> the output it records, as `component.port` (what a viewer names it)."""
+    records: dict[str, Recorded] = field(default_factory=dict)
+    """Key (a thinned key where a rate is given) -> what a flight recording keeps of
+    that output and how Foxglove draws it (`record:`)."""
     thinned: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
     """component -> output port -> thinned key -> rate (Hz): the thinned streams its
     connections' `rate:` ask the writers for (framework/ports.py)."""

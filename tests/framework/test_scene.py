@@ -190,3 +190,66 @@ def test_joints_a_hook_cannot_draw_are_said_once_and_the_recording_goes_on(hub, 
     assert sum(topic == "/fw/samples/test/joints" for topic, _, _ in records) == 5
     refusals = [data for topic, _, data in records if topic == "/fw/refused"]
     assert len(refusals) == 1 and "7 joints, expected 9" in refusals[0]["reason"]
+
+
+def test_shapes_become_transforms_and_one_scene_entity_per_recorded_output():
+    """A drawing function's frames go to `/tf`, its capsules (a cylinder and two end
+    balls each) and spheres to `/scene/<key>`, in the frame it says."""
+    drawn = scene.Shapes(
+        frames=(("base", "goal/target", (0.1, 0.2, 0.3), (1.0, 0.0, 0.0, 0.0)),),
+        capsules=(((0.0, 0.0, 0.0), (0.0, 0.0, 0.5), 0.05),),
+        spheres=(((0.1, 0.2, 0.3), 0.04),),
+        frame="base",
+    )
+    out = dict(scene.shapes(2.5, "navigator.goals", drawn))
+    assert set(out) == {"/tf", "/scene/navigator.goals"}
+    (t,) = decoded(out["/tf"]).transforms
+    assert (t.parent_frame_id, t.child_frame_id) == ("base", "goal/target")
+    assert (t.translation.x, t.translation.y, t.translation.z) == pytest.approx((0.1, 0.2, 0.3))
+    (entity,) = decoded(out["/scene/navigator.goals"]).entities
+    assert entity.frame_id == "base" and entity.id == "navigator.goals"
+    (cylinder,) = entity.cylinders
+    assert cylinder.size.z == pytest.approx(0.5) and cylinder.size.x == pytest.approx(0.1)
+    centres = [(b.pose.position.x, b.pose.position.y, b.pose.position.z) for b in entity.spheres]
+    assert centres == pytest.approx([(0.1, 0.2, 0.3), (0, 0, 0), (0, 0, 0.5)])
+    assert [b.size.x for b in entity.spheres] == pytest.approx([0.08, 0.1, 0.1])
+    assert scene.shapes(2.5, "nothing", scene.Shapes()) == [], "nothing to draw: no message"
+
+
+def drawn_goals(sample):
+    """A drawing function for the spec below: a sphere where the payload says."""
+    return scene.Shapes(spheres=((tuple(sample.payload["at"]), 0.05),))
+
+
+def test_a_drawn_output_of_any_kind_is_in_the_recording_beside_its_samples(hub, tmp_path):
+    """`draw:` works on outputs Foxglove has no message for (an EventMessage): each
+    sample recorded as fw's, and drawn on `/scene/<its name>`."""
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    from framework.messages import EventMessage
+    from framework.ports import OutputPort
+    from framework.recorder import FlightRecorder
+
+    path = tmp_path / "run.mcap"
+    recorder = FlightRecorder(
+        path,
+        hub,
+        {"test/goals": "EventMessage"},
+        names={"test/goals": "navigator.goals"},
+        draws={"test/goals": f"{__name__}:drawn_goals"},
+    )
+    out: OutputPort[EventMessage] = OutputPort("goals", EventMessage)
+    out.bus = hub
+    out.connect("test/goals")
+    for i in range(3):
+        out.write(EventMessage(1.0 + i, "goals", "navigator", {"at": [0.1 * i, 0.0, 0.0]}))
+    assert wait_until(lambda: recorder.count >= 6)  # 3 samples, 3 drawings
+    recorder.close()
+    with path.open("rb") as handle:
+        reader = make_reader(handle, decoder_factories=[DecoderFactory()])
+        drawn = [
+            m.entities[0].spheres[0].pose.position.x
+            for _, _, _, m in reader.iter_decoded_messages(topics=["/scene/navigator.goals"])
+        ]
+    assert drawn == pytest.approx([0.0, 0.1, 0.2])

@@ -8,6 +8,7 @@ import pytest
 
 from framework.errors import FindingsError
 from framework.topology import check_topology, load_topology
+from framework.topology.model import Recorded
 from tests.conftest import REPO
 
 TOY = (REPO / "tests" / "data" / "toy" / "toy.yaml").read_text()
@@ -122,9 +123,10 @@ def test_a_recorded_output_is_thinned_at_its_writer_and_named_for_a_viewer(write
     write((REPO / "tests" / "data" / "toy" / "toy_chart.yaml").read_text(), "toy_chart.yaml")
     recorded = "record:\n  - {from: t1.out, rate: 10, frame: camera}\n  - {from: t2.out}\nprepare:"
     topology = load_topology(write(TOY.replace("prepare:", recorded, 1)))
-    assert topology.recorded == {"t1/out/at_10hz": "Scalar", "t2/out": "Scalar"}
-    assert topology.recorded_frames == {"t1/out/at_10hz": "camera"}
-    assert topology.recorded_names == {"t1/out/at_10hz": "t1.out", "t2/out": "t2.out"}
+    assert topology.records == {
+        "t1/out/at_10hz": Recorded("Scalar", "t1.out", frame="camera"),
+        "t2/out": Recorded("Scalar", "t2.out"),
+    }
     assert "t1/out/at_10hz" in process_keys(topology, "trackers")["put"]
 
 
@@ -140,12 +142,14 @@ def test_a_recorded_output_that_does_not_exist_is_located(write):
     [
         ("{from: t1.out, links: components.domain.lwr4:link_poses}", "links are drawn from joints"),
         ("{from: t1.out, links: nowhere.at_all:f}", "cannot import 'nowhere.at_all'"),
+        ("{from: t1.out, draw: nowhere.at_all:f}", "cannot import 'nowhere.at_all'"),
     ],
 )
 def test_links_drawn_from_what_is_not_joints_or_not_a_function_are_located(write, entry, says):
     write((REPO / "tests" / "data" / "toy" / "toy_chart.yaml").read_text(), "toy_chart.yaml")
     found = findings(write, TOY.replace("prepare:", f"record:\n  - {entry}\nprepare:", 1))
-    errors = [f for f in found if f.code == "record-links" and says in f.message]
+    code = "record-draw" if "draw:" in entry else "record-links"
+    errors = [f for f in found if f.code == code and says in f.message]
     assert errors and errors[0].location.line > 0, [f.one_line() for f in found]
 
 
