@@ -219,6 +219,32 @@ def test_a_latched_stop_opens_only_with_acknowledge_then_release(cell):
     assert cell.interp.call("report")["phase"] == "reached"
 
 
+def test_the_reports_say_when_the_stop_began_and_the_brakes_engaged_until_release(cell):
+    """For a watcher cut off while it happened (`fw bench chaos --hosts` asks once the
+    links are back): the robot's report says when its stop began, the KRC's when its
+    brakes engaged (wall clock); the operator's RELEASE clears both, in turn."""
+    cell.release()
+    cell.interp.call("go_to", goal="target")
+    cell.run(1.0)
+    assert cell.robot.call("report")["latched_at"] is None
+    assert cell.arm.call("report")["braked_at"] is None
+    began = time.time()
+    cell.robot.stop()  # its answers stop: the KRC brakes by itself, latched
+    cell.run(0.1)
+    assert cell.robot.start()  # and the robot side latches on the arm's own brakes
+    cell.run(0.5)
+    robot, arm = cell.robot.call("report"), cell.arm.call("report")
+    assert began <= arm["braked_at"] <= robot["latched_at"] <= time.time()
+    cell.robot.call("acknowledge")
+    cell.run(SERVED)
+    assert cell.robot.call("report")["latched_at"] is None
+    assert cell.arm.call("report")["braked_at"] == arm["braked_at"], "the brakes are still on"
+    cell.release()
+    cell.run(0.5)
+    arm = cell.arm.call("report")
+    assert not arm["braked"] and arm["braked_at"] is None
+
+
 def test_unknown_goals_and_bad_limits_are_refused_with_reasons(cell):
     with pytest.raises(FwError, match="unknown goal 'moon'"):
         cell.interp.call("go_to", goal="moon")
