@@ -163,3 +163,33 @@ def python_speed(repetitions: int = 3, additions: int = 10**7) -> float:
             total += i
         taken.append(time.thread_time() - began)
     return statistics.median(taken)
+
+
+def wake_round_trip(count: int = 20000) -> float:
+    """This host's cost of waking another process right now: the wall-clock
+    microseconds (mean over `count`) of a one-byte round trip between two processes
+    over a socket pair. The deployment's cost is mostly such wake-ups (every sample,
+    every FRI datagram), which a plain Python loop does not measure: the same code
+    measured 0.385 and 1.05 cores braked on two days whose Python loops ran 1.05 and
+    0.63 s (docs/bench.md)."""
+    import os
+    import socket
+
+    here, there = socket.socketpair()
+    child = os.fork()
+    if child == 0:  # pragma: no cover - the echoing child
+        try:
+            for _ in range(count):
+                there.recv(1)
+                there.send(b"x")
+        finally:
+            os._exit(0)
+    began = time.perf_counter()
+    for _ in range(count):
+        here.send(b"x")
+        here.recv(1)
+    took = time.perf_counter() - began
+    os.waitpid(child, 0)
+    here.close()
+    there.close()
+    return took / count * 1e6
