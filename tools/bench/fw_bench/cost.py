@@ -48,6 +48,26 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / TICK  # utime, stime (fields 14, 15)
 
 
+def switches(pid: int) -> int:
+    """Context switches of all a process's threads so far (voluntary: it slept and was
+    woken; involuntary: preempted): how often the host had to schedule it, a count no
+    host's speed changes (its cost per switch does: `fw_bench.baseline.wake_round_trip`)."""
+    total = 0
+    try:
+        tasks = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return 0
+    for task in tasks:
+        try:
+            with open(f"/proc/{pid}/task/{task}/status", encoding="ascii") as status:
+                for line in status:  # voluntary_ and nonvoluntary_ctxt_switches
+                    if "ctxt_switches:" in line:
+                        total += int(line.split(":", 1)[1])
+        except OSError:  # a thread that ended meanwhile
+            continue
+    return total
+
+
 @dataclass
 class Window:
     """One measured window."""
@@ -60,6 +80,7 @@ class Window:
     krc_loop: dict[str, Any] = field(default_factory=dict)  # the simulated KRC's
     fri: dict[str, Any] = field(default_factory=dict)  # link quality and counters
     zenoh_idle: float = 0.0  # cores a process holding only a Zenoh session took
+    wakeups: dict[str, float] = field(default_factory=dict)  # process -> switches per s
     interrupted: list[str] = field(default_factory=list)  # motions a stop cut short first
 
     @property
@@ -121,6 +142,7 @@ def measure(
     pids = processes(run)
     pids["zenoh_idle"] = _zenoh_idle(run)
     before = {name: cpu_seconds(pid) for name, pid in pids.items()}
+    switched = {name: switches(pid) for name, pid in pids.items()}
     first = run.call("arm.report")
     t0 = time.monotonic()
     while time.monotonic() - t0 < seconds:
@@ -129,6 +151,7 @@ def measure(
         time.sleep(0.05)
     elapsed = time.monotonic() - t0
     after = {name: cpu_seconds(pid) for name, pid in pids.items()}
+    wakeups = {name: (switches(pid) - switched[name]) / elapsed for name, pid in pids.items()}
     robot = run.call("robot.report", loop=True)
     last = run.call("arm.report", loop=True)
     if elapsed < MIN_WINDOW:
@@ -163,6 +186,8 @@ def measure(
         "interface_skipped": robot["fri"]["skipped"],
     }
     window.zenoh_idle = reference
+    wakeups.pop("zenoh_idle", None)
+    window.wakeups = wakeups
     return window
 
 
@@ -264,6 +289,7 @@ def summary(window: Window) -> dict[str, Any]:
         "total_cores": round(window.total, 4),
         "realtime": round(window.realtime, 4),
         "zenoh_idle_cores": round(window.zenoh_idle, 4),
+        "wakeups_per_s": {k: round(v) for k, v in sorted(window.wakeups.items())},
         "loop": window.loop,
         "krc_loop": window.krc_loop,
         "fri": window.fri,

@@ -139,6 +139,15 @@ def run_cost(quick: bool, context: dict[str, Any]) -> list[Row]:
         rows.append(
             Row(
                 "cost",
+                f"{what}{under}: wake-ups, all processes (context switches per s)",
+                sum(window.wakeups.values()),
+                unit="/s",
+                n=1,
+            )
+        )
+        rows.append(
+            Row(
+                "cost",
                 f"{what}{under}: total",
                 window.total,
                 target=0.30 if name == "idle" else 0.45,
