@@ -168,10 +168,9 @@ def python_speed(repetitions: int = 3, additions: int = 10**7) -> float:
 def wake_round_trip(count: int = 20000) -> float:
     """This host's cost of waking another process right now: the wall-clock
     microseconds (mean over `count`) of a one-byte round trip between two processes
-    over a socket pair. The deployment's cost is mostly such wake-ups (every sample,
-    every FRI datagram), which a plain Python loop does not measure: the same code
-    measured 0.385 and 1.05 cores braked on two days whose Python loops ran 1.05 and
-    0.63 s (docs/bench.md)."""
+    over a socket pair: the deployment wakes its threads ~10,000 times a second. A
+    baseline beside `python_speed` to tell runs apart; neither explains why the same
+    code measured 0.385 and 1.05 cores braked on two days (docs/bench.md)."""
     import os
     import socket
 
