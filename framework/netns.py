@@ -38,8 +38,8 @@ from pathlib import Path
 from framework.errors import FwError
 
 LOSS_TABLE = "fw_loss"
-"""The nftables table (family inet, in a host's namespace) that drops a lossy link's
-packets."""
+"""The prefix of the nftables tables (family netdev, `fw_loss_<device>`, one at each
+end of a lossy link) that drop its packets."""
 BRIDGE_NET = "10.77.0"
 KRC_NET = "10.78.0"
 KRC = "krc"
@@ -280,13 +280,9 @@ class Hosts:
             ["ip", "netns", "exec", ns, "tc", "qdisc", "del", "dev", dev, "root"],
             capture_output=True,
         )
-        if shutil.which("nft") is not None:
+        if shutil.which("nft") is not None:  # none there unless the link was lossy
             for where, point in self._ends(host):
-                prefix = ["ip", "netns", "exec", where] if where else []
-                subprocess.run(
-                    [*prefix, "nft", "delete", "table", "netdev", f"{LOSS_TABLE}_{point}"],
-                    capture_output=True,
-                )
+                _nft(where, f"delete table netdev {LOSS_TABLE}_{point}\n")
 
     def impair(self, host: str, loss: float = 0.0, delay: float = 0.0, jitter: float = 0.0) -> None:
         """Make `host`'s link lossy (each packet either way dropped with probability
