@@ -211,7 +211,7 @@ def test_shapes_become_transforms_and_one_scene_entity_per_recorded_output():
     (cylinder,) = entity.cylinders
     assert cylinder.size.z == pytest.approx(0.5) and cylinder.size.x == pytest.approx(0.1)
     centres = [(b.pose.position.x, b.pose.position.y, b.pose.position.z) for b in entity.spheres]
-    assert centres == pytest.approx([(0.1, 0.2, 0.3), (0, 0, 0), (0, 0, 0.5)])
+    assert np.array(centres) == pytest.approx(np.array([(0.1, 0.2, 0.3), (0, 0, 0), (0, 0, 0.5)]))
     assert [b.size.x for b in entity.spheres] == pytest.approx([0.08, 0.1, 0.1])
     assert scene.shapes(2.5, "nothing", scene.Shapes()) == [], "nothing to draw: no message"
 
