@@ -13,7 +13,9 @@ when its brakes engaged (`braked_at`), both asked once the links are back (the
 namespaces share this machine's clock, so the stamps compare; on real machines they
 would need a synchronised clock, docs/hosts.md). From them:
 
-* **to braking**: from the fault to the first of the two;
+* **to braking**: from the fault (when the command that made it, `ip` or `nft`,
+  returned: it takes ~5-10 ms, which timing from before it would have counted as
+  the robot's) to the first of the two;
 * **to standstill**: from the fault to the brakes being on;
 * **moved without RELEASE**: the KRC released its brakes after the fault (its count
   of releases grew: no RELEASE is sent during a case), or ended released, or a state
@@ -155,11 +157,13 @@ def _control_case(host: str, name: str, topology: Path, keys: Path) -> Case:
         run.wait_state("Moving_Fast", 30.0)
         time.sleep(0.6)  # well into the approach: at speed
         assert run.deployment is not None
-        fault = time.time()
+        asked = time.time()
         run.deployment.inject_fault(Fault(link=host, **spec))
+        fault = time.time()  # the link is cut (or lossy) once `ip` or `nft` returned
         time.sleep(case.hold + AFTER)
         arm, robot = _ask(run, "arm"), _ask(run, "robot")
         _judge(case, run, fault, before, arm, robot)
+        case.notes.append(f"the fault took {(fault - asked) * 1e3:.1f} ms to make")
         case.chart = run.last_entered(
             ("Fault", "Stopped", "No_Tracker", "Moving_Fast", "Moving_Slow", "Target_Reached")
         )
