@@ -214,6 +214,9 @@ class Hosts:
         links = [self._veth(f"{i}{end}") for i in range(len(self.names)) for end in "hb"]
         for link in [*links, self._veth("k0"), self._veth("k1"), self.bridge]:
             subprocess.run(["ip", "link", "del", link], capture_output=True)
+        if shutil.which("nft") is not None:  # a lossy link's tables at the bridge's ports
+            for i in range(len(self.names)):  # (a run that died before its heal)
+                _nft(None, f"delete table netdev {LOSS_TABLE}_{self._veth(f'{i}b')}\n")
         self.made.clear()
 
     def command(self, host: str, *argv: str) -> list[str]:
