@@ -96,6 +96,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         "repetitions": args.repetitions,
         "chaos_repetitions": args.chaos_repetitions,
         "hosts": args.hosts,
+        "host_faults": args.host_faults,
         "suite": args.suite,
         "variant": args.variant,
         "bus": args.bus,
@@ -182,6 +183,13 @@ def add_commands(sub: Any) -> None:
         help="`chaos`: instead, every host of topologies/seeg_hosts.yaml (as network "
         "namespaces of this machine; root) x {partition 2 s, 30%% loss, 100 ms delay "
         "where the kernel has netem}, --chaos-repetitions times (~40 s a case)",
+    )
+    p.add_argument(
+        "--host-faults",
+        nargs="+",
+        choices=("partition", "loss", "delay"),
+        metavar="KIND",
+        help="`chaos --hosts`: only these kinds of link fault (partition, loss, delay)",
     )
     p.add_argument(
         "--suite",

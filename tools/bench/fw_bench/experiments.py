@@ -677,7 +677,8 @@ def _chaos_on_hosts(repetitions: int, context: dict[str, Any]) -> list[Row]:
     RELEASE; a stop before the fault (a starved host) is counted, not timed."""
     from fw_bench import hosts_chaos
 
-    cases, skipped = hosts_chaos.chaos_on_hosts(repetitions, _progress("chaos --hosts"))
+    kinds = tuple(context.get("host_faults") or ())
+    cases, skipped = hosts_chaos.chaos_on_hosts(repetitions, _progress("chaos --hosts"), kinds)
     context.setdefault("series", {})["chaos_hosts"] = [
         {**c.__dict__, "name": c.name, "ok": c.ok} for c in cases
     ]

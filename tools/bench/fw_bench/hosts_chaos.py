@@ -57,9 +57,12 @@ CASE_TIMEOUT = 240.0
 """s a case may take in all (deploy, approach, fault, reports, shutdown)."""
 
 
-def chaos_on_hosts(repetitions: int, progress: Any = None) -> tuple[list[Case], list[str]]:
-    """Every host x link fault, `repetitions` times each, a line per case printed;
-    the cases, and the fault kinds this machine cannot inject (and why)."""
+def chaos_on_hosts(
+    repetitions: int, progress: Any = None, kinds: tuple[str, ...] = ()
+) -> tuple[list[Case], list[str]]:
+    """Every host x link fault (those of `kinds` only, if given: partition, loss,
+    delay), `repetitions` times each, a line per case printed; the cases, and the
+    fault kinds this machine cannot inject (and why)."""
     from framework import netns
     from fw_bench.seeg_run import BenchError
 
@@ -67,7 +70,7 @@ def chaos_on_hosts(repetitions: int, progress: Any = None) -> tuple[list[Case], 
     if why:
         raise BenchError(f"chaos --hosts needs the hosts as network namespaces: {why}")
     skipped = []
-    faults = list(FAULTS)
+    faults = [f for f in FAULTS if not kinds or f[0].split()[0] in kinds]
     if not netns.netem_available():
         faults = [f for f in faults if "delay" not in f[1]]
         skipped.append("delay: this kernel has no sch_netem (tc netem), not injected")
