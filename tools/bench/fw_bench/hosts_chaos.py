@@ -130,8 +130,11 @@ def run_case(
                 cwd=home,
                 timeout=CASE_TIMEOUT,
             )
-        except subprocess.TimeoutExpired:
+        except subprocess.TimeoutExpired as exc:  # what it said last, to find out why
+            said = exc.stderr.decode(errors="replace") if isinstance(exc.stderr, bytes) else ""
+            said = said or (exc.stderr if isinstance(exc.stderr, str) else "")
             case.detail = f"the control host's run did not end in {CASE_TIMEOUT:g} s"
+            case.notes += said.strip().splitlines()[-5:]
             return case
         lines = [line for line in run.stdout.splitlines() if line.startswith("{")]
         if not lines:
