@@ -131,8 +131,8 @@ def run_case(
                 timeout=CASE_TIMEOUT,
             )
         except subprocess.TimeoutExpired as exc:  # what it said last, to find out why
-            said = exc.stderr.decode(errors="replace") if isinstance(exc.stderr, bytes) else ""
-            said = said or (exc.stderr if isinstance(exc.stderr, str) else "")
+            said = exc.stderr or ""
+            said = said.decode(errors="replace") if isinstance(said, bytes) else said
             case.detail = f"the control host's run did not end in {CASE_TIMEOUT:g} s"
             case.notes += said.strip().splitlines()[-5:]
             return case
