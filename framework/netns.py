@@ -244,6 +244,18 @@ class Hosts:
             start_new_session=True,
         )
 
+    def deploy_others(
+        self,
+        topology: Path,
+        keys: Path,
+        cwd: Path,
+        environment: dict[str, dict[str, str]] | None = None,
+    ) -> list[subprocess.Popen[bytes]]:
+        """Start the part of every host but `control` (whose part the caller runs,
+        with its chart), the KRC's included; `environment`: variables by host."""
+        hosts = (*[h for h in self.names if h != "control"], KRC)
+        return [self.deploy(h, topology, keys, cwd, (environment or {}).get(h)) for h in hosts]
+
     def end(self, parts: list[subprocess.Popen[bytes]]) -> None:
         """Stop hosts' parts started by `deploy` (SIGINT, as an operator's Ctrl-C; killed
         after 20 s), then any process left in a host, so that nothing of one run

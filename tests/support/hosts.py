@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from framework.netns import KRC, Hosts
+from framework.netns import Hosts
 
 FW = [sys.executable, "-m", "framework.cli"]
 
@@ -65,8 +65,7 @@ def run_on_hosts(
     others = []
     deploy = [*FW, "deploy", str(topology), "--keys", str(keys), "--headless"]
     try:
-        for host in (*[h for h in hosts.names if h != "control"], KRC):
-            others.append(hosts.deploy(host, topology, keys, cwd, (environment or {}).get(host)))
+        others = hosts.deploy_others(topology, keys, cwd, environment)
         try:
             return subprocess.run(
                 hosts.command("control", *deploy, "--scenario", str(scenario)),

@@ -112,14 +112,11 @@ def run_case(
     hosts: Any, topology: Path, keys: Path, host: str, name: str, fault: dict[str, Any]
 ) -> Case:
     """One fault on a fresh deployment across the hosts (module docstring)."""
-    from framework.netns import KRC
-
     home = seeg_home()
     parts = []
     case = Case(host, "LINK", float(fault["hold"]), link=name)
     try:
-        for other in (*[h for h in hosts.names if h != "control"], KRC):
-            parts.append(hosts.deploy(other, topology, keys, home))
+        parts = hosts.deploy_others(topology, keys, home)
         argv = [sys.executable, "-m", "fw_bench.hosts_chaos", "--case", host, name]
         argv += ["--topology", str(topology), "--keys", str(keys)]
         try:
