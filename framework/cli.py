@@ -534,9 +534,9 @@ def build_parser(argv: Sequence[str] | None = ()) -> argparse.ArgumentParser:
     )
     p.set_defaults(func=cmd_new)
 
-    from framework import cli_deploy, cli_records, cli_session, cli_verify
+    from framework import cli_deploy, cli_records, cli_ros2, cli_session, cli_verify
 
-    for module in (cli_deploy, cli_session, cli_records, cli_verify):
+    for module in (cli_deploy, cli_session, cli_records, cli_verify, cli_ros2):
         module.add_commands(sub)
     wanted = _wanted(argv)
     if wanted in sub.choices:

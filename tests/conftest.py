@@ -468,6 +468,7 @@ SERIAL = (
     "tests/framework/test_realtime.py",
     "tests/framework/test_scenario_links.py",
     "tests/framework/test_container.py",
+    "tests/framework/ros2/test_bridge.py",
 )
 
 

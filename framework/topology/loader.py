@@ -29,6 +29,7 @@ from framework.errors import (
 )
 from framework.ports import ConnPolicy, PortError
 from framework.properties import PropertyError, load_property_file
+from framework.ros2 import section as ros2_section
 from framework.safety import DEFAULT_PROCESS_DEADLINE, SafetySpec, Watch
 from framework.topology.console import parse_console
 from framework.topology.model import (
@@ -725,6 +726,7 @@ def check_topology(
         return None, problems
     data = doc.data
     loader = _Loader(doc, classes, files)
+    loader.findings.extend(ros2_section.expand(doc))
     base = Path(doc.file).parent
 
     def folder(key: str) -> Path:
