@@ -98,7 +98,8 @@ class RosLink:
             raise
         except Exception as exc:  # zenoh raises its own error type
             raise RosLinkError(
-                f"cannot reach the ROS network's Zenoh router at {router} ({exc}); start it "
+                f"cannot reach the ROS network's Zenoh router at {router} "
+                f"({str(exc).split('  at ')[0].strip()}); start it "
                 "(`ros2 run rmw_zenoh_cpp rmw_zenohd`, or `fw ros2 router` where ROS is "
                 "not installed) or set `ros2: router:` in the topology"
             ) from None

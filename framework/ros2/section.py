@@ -56,7 +56,7 @@ def expand(doc: Document) -> list[Finding]:
     components = data.setdefault("components", {})
     processes = data.get("processes")
     if processes and process not in processes:
-        processes[process] = {}
+        processes[process] = {"on_loss": "restart"}  # a bridge holds no state of its own
         _alias(doc, ("processes", process), ("ros2",))
     connections = data.setdefault("connections", [])
 
