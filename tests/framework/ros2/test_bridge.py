@@ -4,6 +4,7 @@ it: fw's outputs arrive on their topics, ROS topics arrive on fw's bus, the brid
 appears in the ROS graph, and what a ROS node sends wrong is refused and counted,
 never passed on."""
 
+import contextlib
 import itertools
 import math
 import shutil
@@ -14,7 +15,6 @@ import zenoh
 
 from framework.bus import BusConfig, free_port
 from framework.deployer import Deployment
-from framework.errors import FwError
 from framework.messages import Pose
 from framework.remote import RemoteComponent
 from framework.ros2 import convert, rmw
@@ -157,15 +157,27 @@ def test_what_a_ros_node_sends_wrong_is_refused_counted_and_never_passed_on(ros)
     assert "not finite" in bridge.call("report")["last_refusal"]
 
 
-def test_without_the_ros_router_the_deployment_says_where_it_looked(tmp_path):
+def test_without_the_ros_router_fw_runs_and_the_bridge_says_it_is_not_linked(tmp_path):
+    """fw's own functions never wait on ROS: the deployment comes up, the bridge reports
+    its router unlinked and its process log says where it looked; a router that starts
+    later is linked by itself."""
     port = free_port()  # nothing listens there
     bus = BusConfig(namespace=f"t_ros2_none_{free_port()}", hub_port=free_port())
     deployment = Deployment(private_topology(toy_bridged(tmp_path, port), bus), tmp_path / "run")
-    with pytest.raises(FwError, match=f"ROS network's Zenoh router at tcp/127.0.0.1:{port}"):
+    deployment.start()
+    try:
+        report = RemoteComponent(deployment.hub, "ros2_out_fw_count").call("report")
+        assert report["router"] == f"tcp/127.0.0.1:{port}" and not report["router_connected"]
+        log = next(p for p in deployment.processes if p.name == "ros2").tail(20)
+        assert f"no ROS 2 router answers at tcp/127.0.0.1:{port}" in log, log
+        router = open_router(f"tcp/127.0.0.1:{port}")  # ROS starts after fw
         try:
-            deployment.start()
+            bridge = RemoteComponent(deployment.hub, "ros2_out_fw_count")
+            assert wait_until(lambda: bridge.call("report")["router_connected"], timeout=10)
         finally:
-            deployment.stop()
+            router.close()
+    finally:
+        deployment.stop()
 
 
 def test_joints_cross_both_ways_by_name_through_fws_bus(ros):
@@ -208,3 +220,31 @@ def test_joints_cross_both_ways_by_name_through_fws_bus(ros):
     message = echoed[-1]
     assert list(message.name) == ["a", "b", "c"]
     assert list(message.position) == [1.0, 2.0, 3.0]
+
+
+def listening_ports(pid: int) -> set[int]:
+    """The TCP ports process `pid` listens on (its socket inodes in /proc/net/tcp)."""
+    import os
+
+    inodes = set()
+    for fd in os.listdir(f"/proc/{pid}/fd"):
+        with contextlib.suppress(OSError):
+            target = os.readlink(f"/proc/{pid}/fd/{fd}")
+            if target.startswith("socket:["):
+                inodes.add(target[8:-1])
+    ports = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        with open(table) as rows:
+            for row in list(rows)[1:]:
+                fields = row.split()
+                if fields[3] == "0A" and fields[9] in inodes:  # LISTEN
+                    ports.add(int(fields[1].rsplit(":", 1)[1], 16))
+    return ports
+
+
+def test_the_bridge_listens_on_no_port_of_the_ros_network(ros):
+    """Its only listening port is the one every fw process has (fw's bus: mutual TLS);
+    the ROS side connects out, to the router and to the nodes it learns of there."""
+    _, deployment, _ = ros
+    counts = {p.name: len(listening_ports(p.popen.pid)) for p in deployment.processes}
+    assert counts["ros2"] == counts["trackers"] == 1, counts

@@ -1006,7 +1006,15 @@ def run_verify(quick: bool, context: dict[str, Any]) -> list[Row]:
     ]
 
 
-OPT_IN = ("chaos",)
+def run_ros2(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """The SEEG deployment seen from ROS 2 (fw_bench/ros2.py): /joint_states as a ROS
+    node receives it, and a ROS pose's way onto fw's bus beside the hops it is made of."""
+    from fw_bench import ros2
+
+    return ros2.run(quick, context)
+
+
+OPT_IN = ("chaos", "ros2")
 """Experiments run only when named (long and destructive: a deployment per case)."""
 
 EXPERIMENTS: dict[str, Callable[[bool, dict[str, Any]], list[Row]]] = {
@@ -1026,4 +1034,5 @@ EXPERIMENTS: dict[str, Callable[[bool, dict[str, Any]], list[Row]]] = {
     "people": run_people,
     "scale": run_scale,
     "chaos": run_chaos,
+    "ros2": run_ros2,
 }

@@ -99,6 +99,8 @@ class SeegRun:
     _subscriptions: list[Any] = field(default_factory=list)
     secure: bool = True
     """The bus as fw deploy runs it (mutual TLS, access rules); False: plain TCP."""
+    topology_file: Path | None = None
+    """Another topology than topologies/seeg.yaml (one that extends it: seeg_ros2)."""
     hosts: tuple[Path, Path] | None = None
     """(topology, keys) of a deployment on several hosts: this run is its control
     host's part (in the control host's network namespace), the other hosts' parts run
@@ -111,7 +113,8 @@ class SeegRun:
         old = os.getcwd()
         os.chdir(home)  # the topology's and the properties' paths are relative to it
         try:
-            topology = load_topology(self.hosts[0] if self.hosts else home / "topologies/seeg.yaml")
+            default = self.topology_file or home / "topologies/seeg.yaml"
+            topology = load_topology(self.hosts[0] if self.hosts else default)
         finally:
             os.chdir(old)
         if self.hosts is not None:
