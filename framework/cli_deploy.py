@@ -6,8 +6,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import secrets
 import shutil
 import signal
+import socket
 import sys
 import tempfile
 import time
@@ -214,6 +216,7 @@ def _answered(hub: Any, name: str, seen: dict[str, tuple[str, int]]) -> str:
 
 def cmd_deploy(args: argparse.Namespace) -> int:
     """Run a topology (see EPILOG_DEPLOY)."""
+    from framework.console import tls
     from framework.deployer import Deployment
     from framework.filekinds import check_file
     from framework.topology import load_topology
@@ -231,6 +234,10 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     # without a terminal (a service, nohup) is exactly one whose operator needs the page
     serve_console = not args.no_console and (args.console_port is not None or not args.headless)
     console_tls = _console_tls(args) if serve_console else (None, "")  # before anything starts
+    token = secrets.token_urlsafe(18)  # the run's login: the console's and the live view's
+    gate_tls = (None, "")
+    if args.foxglove is not None and not tls.is_loopback(args.foxglove_host):
+        gate_tls = _tls_for(args, args.foxglove_host, "the live view")
     workdir = Path(args.workdir) if args.workdir else Path(tempfile.mkdtemp(prefix="fw-"))
     listeners: list[Listener] = [] if interactive else [_Printer()]
     recorder = None
@@ -288,10 +295,27 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         if args.foxglove is not None:
             from framework.live_view import LiveView
 
-            live = LiveView(args.foxglove)
+            if gate_tls[0] is None:
+                live = LiveView(args.foxglove)
+                where = f"ws://127.0.0.1:{live.port}"
+            else:  # beyond loopback: behind TLS and the run's token (framework/live_gate.py)
+                from framework.live_gate import LiveGate
+
+                live = LiveView(0)
+                live.gate = LiveGate(
+                    args.foxglove_host, args.foxglove, live.port, token, gate_tls[0]
+                )
+                host = (
+                    socket.gethostname()
+                    if tls.is_wildcard(args.foxglove_host)
+                    else args.foxglove_host
+                )
+                where = f"wss://{host}:{live.gate.port}/?token={token}"
+                if gate_tls[1]:
+                    print(f"fw: {gate_tls[1]}", file=sys.stderr)
             print(
-                f"fw: Foxglove live view on ws://127.0.0.1:{live.port} (Foxglove: Open "
-                "connection, Foxglove WebSocket)",
+                f"fw: Foxglove live view on {where} (Foxglove: Open connection, Foxglove "
+                "WebSocket)",
                 file=sys.stderr,
             )
         if args.record or live is not None:
@@ -316,7 +340,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         if serve_console:
-            console = _start_console(args, deployment, topology, console_tls, workdir)
+            console = _start_console(args, deployment, topology, console_tls, workdir, token)
         end = started + args.duration if args.duration else None
         runner = deployment.runner
         seen: dict[str, tuple[str, int]] = {}
@@ -361,6 +385,7 @@ def _start_console(
     topology: Any,
     console_tls: tuple[Any, str],
     workdir: Path,
+    token: str,
 ) -> Any:
     """Serve the operator console (over TLS if `console_tls` has a context); its link
     goes to stderr (a service's log) and to `console.url` in the work folder, readable
@@ -373,7 +398,7 @@ def _start_console(
     chart = deployment.coordinator.chart if deployment.coordinator is not None else None
     model = ConsoleModel(deployment.hub, topology, chart).start()
     port = DEFAULT_PORT if args.console_port is None else args.console_port
-    server = ConsoleServer(model, args.console_host, port, tls=tls)
+    server = ConsoleServer(model, args.console_host, port, tls=tls, token=token)
     try:
         url = server.start()
     except FwError as exc:
@@ -401,6 +426,13 @@ def _start_console(
 def _console_tls(args: argparse.Namespace) -> tuple[Any, str]:
     """The console's TLS context (None on loopback without a certificate) and what to
     tell the operator about its certificate. Beyond loopback there is no plain HTTP."""
+    return _tls_for(args, args.console_host, "the console")
+
+
+def _tls_for(args: argparse.Namespace, host: str, what: str) -> tuple[Any, str]:
+    """The TLS context of a server of this run on `host` (the console, the live view's
+    gate): --console-cert's, else none on loopback, else a certificate made for the run
+    (its fingerprint in what to tell the operator)."""
     from framework.console import tls
 
     if bool(args.console_cert) != bool(args.console_key):
@@ -409,17 +441,17 @@ def _console_tls(args: argparse.Namespace) -> tuple[Any, str]:
         cert = Path(args.console_cert)
         context = tls.server_context(cert, Path(args.console_key))
         return context, f"console certificate {cert} (SHA-256 {tls.fingerprint(cert)})"
-    if tls.is_loopback(args.console_host):
+    if tls.is_loopback(host):
         return None, ""
     made = Path(tempfile.mkdtemp(prefix="fw-console-"))
     try:
-        cert, key = tls.self_signed(tls.names_for(args.console_host), made)
+        cert, key = tls.self_signed(tls.names_for(host), made)
         context = tls.server_context(cert, key)
         digest = tls.fingerprint(cert)
     finally:
         shutil.rmtree(made, ignore_errors=True)  # the key lives on in memory only
     return context, (
-        "the console's certificate was made for this run (no --console-cert): the browser "
+        f"{what}'s certificate was made for this run (no --console-cert): the browser "
         f"will warn; accept it only if it shows SHA-256 {digest}"
     )
 
@@ -477,8 +509,15 @@ def add_commands(sub: Any) -> None:
         type=int,
         const=8765,
         metavar="PORT",
-        help="serve Foxglove's live view on ws://127.0.0.1:PORT (default 8765; loopback "
-        "only: its server has no authentication)",
+        help="serve Foxglove's live view on PORT (default 8765) of --foxglove-host",
+    )
+    p.add_argument(
+        "--foxglove-host",
+        default="127.0.0.1",
+        metavar="ADDR",
+        help="where the live view listens (default 127.0.0.1: ws://, this machine only); "
+        "beyond it, wss:// with --console-cert's certificate (else one made for the run) "
+        "and only for URLs with this run's token, the console's",
     )
     p.add_argument(
         "--record-samples",

@@ -2,9 +2,10 @@
 the same messages a flight recording holds for Foxglove (framework/scene.py), served by
 Foxglove's SDK over its WebSocket protocol while the deployment runs.
 
-Served on loopback only: the SDK's server has no authentication, and nothing of fw
-listens beyond this machine without it (docs/security.md). Open it from Foxglove on
-the same machine (Open connection, `ws://127.0.0.1:PORT`), or through an SSH tunnel.
+The SDK's server is served on loopback only: it has no authentication, and nothing of
+fw listens beyond this machine without it (docs/security.md). Open it from Foxglove on
+the same machine (Open connection, `ws://127.0.0.1:PORT`); from another machine,
+`--foxglove-host` puts framework/live_gate.py in front of it (TLS and the run's token).
 Runs in the control process, never in a safety process.
 """
 
@@ -54,6 +55,8 @@ class LiveView:
             ) from None
         self._channels: dict[str, Any] = {}
         self._lock = threading.Lock()
+        self.gate: Any = None
+        """The `LiveGate` that serves it beyond loopback, if any (closed with it)."""
 
     @property
     def port(self) -> int:
@@ -75,4 +78,6 @@ class LiveView:
 
     def close(self) -> None:
         """Stop serving (clients are disconnected)."""
+        if self.gate is not None:
+            self.gate.close()
         self._server.stop()

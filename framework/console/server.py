@@ -76,11 +76,12 @@ class ConsoleServer:
         port: int = DEFAULT_PORT,
         timeout: float = TIMEOUT,
         tls: ssl.SSLContext | None = None,
+        token: str | None = None,
     ):
         self.model, self.host, self.port = model, host, port
         self.tls = tls
         """Served over TLS with this context (None: plain HTTP, for loopback only)."""
-        self.token = secrets.token_urlsafe(18)
+        self.token = token or secrets.token_urlsafe(18)
         """The run's login: in the URL fw deploy prints, then in a cookie."""
         self.rate = 5.0
         self._httpd: ThreadingHTTPServer | None = None
