@@ -15,6 +15,7 @@ SHIPPED = [
     "topologies/tracking.yaml",
     "topologies/people.yaml",
     "topologies/demo.yaml",
+    "topologies/seeg_ros2.yaml",
 ]
 
 
