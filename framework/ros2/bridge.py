@@ -9,8 +9,9 @@ one per bridged topic, in the bridge process.
   refused (`fw/refused/<component>`, kept by the flight recorder) with the reason.
 
 One class per fw message type, because a port's type is fixed where it is declared.
-rosbags (CDR) and the ROS session are loaded in `configure`, so only the bridge
-process maps them: the topology loader imports this module in every process.
+rosbags (CDR) is imported on first use and the ROS session opened in `configure`, so
+only the bridge process maps them: the topology loader imports this module in every
+process.
 """
 
 from __future__ import annotations
@@ -19,11 +20,12 @@ import threading
 import time
 from typing import Any, ClassVar
 
-from framework.component import Component, In, Out, operation
+from framework.component import Component, In, Out, State, operation
 from framework.messages import JointState, Pose, Scalar
 from framework.ports import ReadStatus
 from framework.properties import prop
-from framework.ros2.link import DEFAULT_ROUTER
+from framework.ros2 import convert, rmw
+from framework.ros2.link import DEFAULT_ROUTER, RosLink
 from framework.ros2.rmw import DEFAULT_QOS, SENSOR_QOS
 
 QOS = {"reliable": DEFAULT_QOS, "sensor": SENSOR_QOS}
@@ -59,16 +61,18 @@ class RosBridge(Component):
         self.last_refusal = ""
 
     def configure_hook(self) -> bool:
-        from framework.ros2 import convert, rmw
-        from framework.ros2.link import RosLink
-
         rmw.check_topic(self.topic)
         self._conversion = convert.conversion(self.ROS_TYPE)
         self._options = convert.Options(tuple(self.names), self.frame, self.stamp)
         self.type_hash = convert.type_hash(self.ROS_TYPE)
         self.key = rmw.topic_key(self.domain, self.topic, self.ROS_TYPE, self.type_hash)
         self._link = RosLink.acquire(self.router, self.domain, self.node, self.zenoh)
-        self._entity = self.declare()
+        try:
+            self._entity = self.declare()
+        except Exception:
+            self._link.release()
+            self._link = None
+            raise
         return True
 
     def declare(self) -> Any:
@@ -112,8 +116,6 @@ class _ToRos(RosBridge):
         )
 
     def update_hook(self) -> None:
-        from framework.ros2.convert import Refused, serialize
-
         while True:
             status, sample = self.sample.read()
             if status is not ReadStatus.NEW:
@@ -123,10 +125,10 @@ class _ToRos(RosBridge):
                 stamp = time.time()
             try:
                 message = self._conversion.to_ros(sample, stamp, self._options)
-            except Refused as exc:  # the sample has no ROS form (an unseen tool): not sent
+            except convert.Refused as exc:  # the sample has no ROS form (an unseen tool): not sent
                 self.last_refusal = str(exc)
                 continue
-            self._entity.put(serialize(message, self.ROS_TYPE), int(stamp * 1e9))
+            self._entity.put(convert.serialize(message, self.ROS_TYPE), int(stamp * 1e9))
             self.counts["bridged"] += 1
 
 
@@ -141,21 +143,17 @@ class _FromRos(RosBridge):
     def _on_ros(self, zsample: Any) -> None:
         """A message from ROS (a Zenoh thread): dropped unless running, refused unless it
         carries rmw_zenoh's attachment and passes the conversion's checks."""
-        from framework.component import State
-        from framework.ros2.convert import Refused, deserialize
-        from framework.ros2.rmw import Attachment, RmwError
-
         if self.state is not State.RUNNING:
             return
         arrival = time.time()
         with self._lock:
             try:
                 if zsample.attachment is None:
-                    raise Refused("no rmw_zenoh attachment (ROS nodes drop such samples too)")
-                Attachment.decode(zsample.attachment.to_bytes())
-                message = deserialize(zsample.payload.to_bytes(), self.ROS_TYPE)
+                    raise convert.Refused("no rmw_zenoh attachment (ROS nodes drop such samples)")
+                rmw.Attachment.decode(zsample.attachment.to_bytes())
+                message = convert.deserialize(zsample.payload.to_bytes(), self.ROS_TYPE)
                 value = self._conversion.from_ros(message, arrival, self._options)
-            except (Refused, RmwError) as exc:
+            except (convert.Refused, rmw.RmwError) as exc:
                 self._refused("sample", f"{self.topic}: {exc}")
                 return
             self.sample.write(value)

@@ -78,9 +78,8 @@ def serialize(message: Any, ros_type: str) -> bytes:
 
 
 def deserialize(data: bytes, ros_type: str) -> Any:
-    """The ROS message in CDR `data`; `Refused` for bytes that are not one."""
-    if len(data) < 4 or data[:2] not in (b"\x00\x01", b"\x00\x00"):
-        raise Refused(f"not CDR: {len(data)} bytes starting {data[:4].hex() or 'with nothing'}")
+    """The ROS message in CDR `data`; `Refused` for bytes that are not one (rosbags
+    checks the encapsulation header and every length)."""
     try:
         return typestore().deserialize_cdr(data, ros_type)
     except Exception as exc:  # rosbags raises whatever its reader met: all mean bad bytes

@@ -9,6 +9,7 @@ import itertools
 import math
 import shutil
 import time
+from typing import Any
 
 import pytest
 import zenoh
@@ -34,8 +35,11 @@ def toy_bridged(folder, router_port: int):
         "  publish:\n    - {from: t1.out, topic: /fw/count, type: std_msgs/msg/Float64}\n"
         "    - {from: ros2_in_ros_joints.sample, topic: /fw/joints, type: sensor_msgs/msg/JointState,"
         " names: [a, b, c]}\n"
+        "    - {from: ros2_in_ros_pose.sample, topic: /fw/pose, type: geometry_msgs/msg/PoseStamped}\n"
+        "    - {from: ros2_in_ros_number.sample, topic: /fw/number, type: std_msgs/msg/Float64}\n"
         "  subscribe:\n    - {topic: /ros/pose, type: geometry_msgs/msg/PoseStamped}\n"
         "    - {topic: /ros/joints, type: sensor_msgs/msg/JointState, names: [a, b, c]}\n"
+        "    - {topic: /ros/number, type: std_msgs/msg/Float64}\n"
     )
     return path
 
@@ -180,46 +184,77 @@ def test_without_the_ros_router_fw_runs_and_the_bridge_says_it_is_not_linked(tmp
         deployment.stop()
 
 
-def test_joints_cross_both_ways_by_name_through_fws_bus(ros):
-    """A ROS node's joints, in an order of its own, enter fw in fw's order and go back
-    out to ROS under fw's names (through the bridge process and fw's bus)."""
-    import numpy as np
+def echoed_by_fw(port: int, into: str, out: str, ros_type: str, message: dict) -> Any:
+    """Publish `message` on ROS topic `into` until fw, which reads it and publishes it
+    again on `out` (through the bridge process and fw's bus), sends it back; what came."""
     from zenoh_ros2_sdk import ROS2Publisher, ROS2Subscriber
 
-    port, _, _ = ros
     echoed: list = []
-    sub = ROS2Subscriber(
-        topic="/fw/joints",
-        msg_type="sensor_msgs/msg/JointState",
-        callback=echoed.append,
-        router_port=port,
-    )
-    pub = ROS2Publisher(
-        topic="/ros/joints", msg_type="sensor_msgs/msg/JointState", router_port=port
-    )
-    store = pub.session_mgr.store
+    sub = ROS2Subscriber(topic=out, msg_type=ros_type, callback=echoed.append, router_port=port)
+    pub = ROS2Publisher(topic=into, msg_type=ros_type, router_port=port)
     try:
 
         def send():
-            header = store.types["std_msgs/msg/Header"](
-                stamp=ros_time(store, time.time()), frame_id=""
-            )
-            pub.publish(
-                header=header,
-                name=["c", "a", "b"],
-                position=np.array([3.0, 1.0, 2.0]),
-                velocity=np.array([], dtype=float),
-                effort=np.array([], dtype=float),
-            )
+            pub.publish(**message)
             return bool(echoed)
 
-        assert wait_until(send, timeout=10, interval=0.1)
+        assert wait_until(send, timeout=10, interval=0.1), f"nothing came back on {out}"
     finally:
         pub.close()
         sub.close()
-    message = echoed[-1]
+    return echoed[-1]
+
+
+def sdk_store() -> Any:
+    """The SDK's own type store (its messages are built from the .msg files)."""
+    from zenoh_ros2_sdk.session import ZenohSession
+
+    return ZenohSession.get_instance().store
+
+
+def test_joints_cross_both_ways_by_name_through_fws_bus(ros):
+    """A ROS node's joints, in an order of its own, enter fw in fw's order and go back
+    out to ROS under fw's names."""
+    import numpy as np
+
+    port, _, _ = ros
+    store = sdk_store()
+    header = store.types["std_msgs/msg/Header"](stamp=ros_time(store, time.time()), frame_id="")
+    message = echoed_by_fw(
+        port,
+        "/ros/joints",
+        "/fw/joints",
+        "sensor_msgs/msg/JointState",
+        {
+            "header": header,
+            "name": ["c", "a", "b"],
+            "position": np.array([3.0, 1.0, 2.0]),
+            "velocity": np.array([], dtype=float),
+            "effort": np.array([], dtype=float),
+        },
+    )
     assert list(message.name) == ["a", "b", "c"]
     assert list(message.position) == [1.0, 2.0, 3.0]
+
+
+def test_a_pose_crosses_both_ways_with_its_stamp_and_frame(ros):
+    port, _, _ = ros
+    store = sdk_store()
+    stamp = time.time() - 0.25
+    sent = pose_stamped(store, (0.5, -0.25, 2.0), (0.0, 0.6, 0.0, 0.8), stamp=stamp, frame="cam")
+    message = echoed_by_fw(port, "/ros/pose", "/fw/pose", POSE, sent)
+    p, q = message.pose.position, message.pose.orientation
+    assert (p.x, p.y, p.z) == (0.5, -0.25, 2.0)
+    assert (q.x, q.y, q.z, q.w) == pytest.approx((0.0, 0.6, 0.0, 0.8), abs=1e-12)
+    assert message.header.frame_id == "cam"
+    back = message.header.stamp.sec + message.header.stamp.nanosec * 1e-9
+    assert back == pytest.approx(stamp, abs=1e-6), "the header's stamp, not the arrival's"
+
+
+def test_a_float64_crosses_both_ways(ros):
+    port, _, _ = ros
+    message = echoed_by_fw(port, "/ros/number", "/fw/number", "std_msgs/msg/Float64", {"data": 2.5})
+    assert message.data == 2.5
 
 
 def listening_ports(pid: int) -> set[int]:

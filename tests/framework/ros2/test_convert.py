@@ -28,6 +28,7 @@ stamps = st.floats(1e9, 2e9, allow_nan=False)
 
 
 NO_OPTIONS = Options()
+POSE = "geometry_msgs/msg/PoseStamped"
 
 
 def across(sample, ros_type, options=NO_OPTIONS, arrival=None):
@@ -102,7 +103,7 @@ def test_an_unseen_tool_is_not_sent_and_a_received_pose_must_be_a_rotation():
         c.to_ros(Pose(valid=False), 1.0, Options())
     message = c.to_ros(Pose((0, 0, 0), (1, 0, 0, 0), 1.0, valid=True), 1.0, Options())
     message.pose.orientation.w = 0.5
-    with pytest.raises(Refused, match="not a rotation"):
+    with pytest.raises(Refused, match=r"not a rotation \(\|q\| = 0.5\)"):
         c.from_ros(message, 2.0, Options())
     message.pose.orientation.w = 1.0
     message.pose.position.x = math.inf
@@ -143,7 +144,9 @@ def test_any_bytes_are_a_message_or_refused(data):
 
 
 def test_a_type_fw_does_not_bridge_is_named_with_the_ones_it_does():
-    with pytest.raises(Exception, match="bridges: sensor_msgs/msg/JointState"):
+    with pytest.raises(
+        Exception, match=r"'nav_msgs/msg/Odometry'.*bridges: sensor_msgs/msg/JointState"
+    ):
         conversion("nav_msgs/msg/Odometry")
 
 
@@ -157,3 +160,30 @@ def test_a_float64_is_stamped_on_arrival():
     message.data = math.nan
     with pytest.raises(Refused):
         c.from_ros(message, now, Options())
+
+
+@pytest.mark.parametrize(
+    "data",
+    [
+        b"",
+        b"\x00\x01",
+        b"\x01\x00\x00\x00" + bytes(8),
+        b"\x00\x01\x00\x00",
+        b"\x00\x01\x00\x00\x01",
+    ],
+)
+def test_bytes_that_are_not_cdr_of_the_type_are_refused(data):
+    with pytest.raises(Refused, match="not"):
+        deserialize(data, "geometry_msgs/msg/PoseStamped")
+
+
+def test_joints_whose_columns_disagree_in_length_are_refused():
+    c = conversion("sensor_msgs/msg/JointState")
+    message = c.to_ros(JointState(5.0, (1.0, 2.0), (0.1, 0.2)), 5.0, Options())
+    message.velocity = message.velocity[:1]
+    with pytest.raises(Refused, match="1 velocity values for 2 positions"):
+        c.from_ros(message, 6.0, Options())
+    message = c.to_ros(JointState(5.0, (1.0, 2.0)), 5.0, Options())
+    message.name = ["only_one"]
+    with pytest.raises(Refused, match="1 names for 2 positions"):
+        c.from_ros(message, 6.0, Options())

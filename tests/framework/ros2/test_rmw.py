@@ -109,3 +109,8 @@ def test_the_sdk_reads_our_attachment():
     ours = Attachment(42, 123, b"\x01" * 16)
     theirs = SdkAttachment.from_bytes(ours.encode())
     assert (theirs.sequence_id, theirs.timestamp_ns, theirs.gid) == (42, 123, b"\x01" * 16)
+
+
+def test_a_gid_of_another_size_is_not_sent():
+    with pytest.raises(RmwError, match="a GID is 16 bytes, not 8"):
+        Attachment(1, 2, bytes(8)).encode()

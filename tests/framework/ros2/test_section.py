@@ -94,3 +94,34 @@ def test_two_entries_that_would_share_a_component_name_are_told_apart(tmp_path):
     (finding,) = [f for f in errors(path) if f.code == "ros2-name"]
     assert "ros2_out_a_b" in finding.message and "name:" in finding.hint
     assert finding.location.line == len((TOY / "toy.yaml").read_text().splitlines()) + 4
+
+
+def test_loading_a_bridged_topology_maps_no_rosbags():
+    """Every process loads the whole topology, the bridge classes with it; only the
+    bridge's process may map rosbags (each library mapped lengthens crash detection)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; from framework.topology import load_topology; "
+        "load_topology('topologies/seeg_ros2.yaml'); "
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('rosbags', 'ruamel')))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True
+    )
+    assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_the_bridge_may_publish_on_fws_bus_only_what_it_reads_from_ros(tmp_path):
+    """The access rules every session enforces (framework/access.py) let the bridge's
+    process put data only on its subscribed topics' keys: whatever a ROS node sends,
+    it cannot pose as the robot, a tracker or the chart."""
+    from framework.access import process_keys
+
+    seeg = load_topology(REPO / "topologies" / "seeg_ros2.yaml")
+    assert [k for k in process_keys(seeg, "ros2")["put"] if not k.startswith("fw/")] == []
+    toy = load_topology(toy_with(tmp_path, SECTION))
+    assert [k for k in process_keys(toy, "ros2")["put"] if not k.startswith("fw/")] == [
+        "ros2/ros/pose"
+    ]
