@@ -204,6 +204,9 @@ def run(quick: bool, context: dict[str, Any]) -> list[Row]:
                     latencies.append(arrivals[float(k)] - sent)
             pub.close()
             pose_sub.undeclare()
+            from framework.remote import RemoteComponent
+
+            work = RemoteComponent(hub, "ros2_in_bench_pose").call("report")
             ros_hops = ros_to_ros_hop(port, count)
             fw_hops = zenoh_hop(count, secure=context.get("bus", "mtls") == "mtls")
         finally:
@@ -261,6 +264,13 @@ def run(quick: bool, context: dict[str, Any]) -> list[Row]:
             target=ros_hop["p50"] + fw_hop["p50"],
         ),
         Row("ros2", "ROS pose -> fw's bus p99", lat["p99"], n=len(latencies)),
+        Row(
+            "ros2",
+            "the bridge's work per pose p50 (checks, conversion, sending)",
+            work["work_p50_us"],
+            unit="us",
+        ),
+        Row("ros2", "the bridge's work per pose p99", work["work_p99_us"], unit="us"),
         Row("ros2", "ROS node -> ROS node of another process p50", ros_hop["p50"], n=len(ros_hops)),
         Row("ros2", "fw's hop between two processes p50", fw_hop["p50"], n=len(fw_hops)),
     ]
