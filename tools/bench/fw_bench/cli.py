@@ -52,6 +52,9 @@ experiments:
               any case ends unbraked or moves (only when named; --quick: once each,
               about 4 min; default 6 times each); with --hosts, every host of
               seeg_hosts.yaml cut off or lossy instead (network namespaces, root)
+  hosts       SEEG on five hosts (network namespaces, root) beside one: hop per link,
+              sensor swap and collision across hosts, bytes and packets per link
+              (only when named)
   ros2        seeg_ros2.yaml seen by an rmw_zenoh peer (zenoh-ros2-sdk) through a
               router: /joint_states rate and content, a ROS pose's way onto fw's bus
               (only when named)

@@ -1014,7 +1014,14 @@ def run_ros2(quick: bool, context: dict[str, Any]) -> list[Row]:
     return ros2.run(quick, context)
 
 
-OPT_IN = ("chaos", "ros2")
+def run_hosts(quick: bool, context: dict[str, Any]) -> list[Row]:
+    """The network's figures on five hosts beside one (fw_bench/hosts_figures.py)."""
+    from fw_bench import hosts_figures
+
+    return hosts_figures.run(quick, context)
+
+
+OPT_IN = ("chaos", "ros2", "hosts")
 """Experiments run only when named (long and destructive: a deployment per case)."""
 
 EXPERIMENTS: dict[str, Callable[[bool, dict[str, Any]], list[Row]]] = {
@@ -1035,4 +1042,5 @@ EXPERIMENTS: dict[str, Callable[[bool, dict[str, Any]], list[Row]]] = {
     "scale": run_scale,
     "chaos": run_chaos,
     "ros2": run_ros2,
+    "hosts": run_hosts,
 }
