@@ -419,16 +419,18 @@ class FlightRecorder:
         self.write("/fw/config/switched", "fw.ConfigAck", data, report.stamp)
 
     def close(self) -> None:
-        """Stop listening and finish the file (summary and index)."""
+        """Stop listening and finish the file (summary and index); closing again does
+        nothing."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
         for port in self._ports:
             port.close()
         for sub in self._subs:
             sub.undeclare()
         self._stop.set()
         with self._lock:
-            if self._closed:
-                return
-            self._closed = True
             self._writer.finish()
             self._file.close()
 

@@ -284,3 +284,17 @@ def test_log_shows_lifecycle_lines_only_for_changes_or_what_was_said(hub, tmp_pa
         "component  vicra: PreOperational -> Stopped",
         "component  vicra: still Stopped (configure refused: no device)",
     ]
+
+
+def test_a_recording_closed_twice_stays_whole(hub, tmp_path):
+    """Whoever closes a flight recorder last (its owner, a shutdown path) finds nothing
+    to do: no error, and the file reads back."""
+    from framework.recorder import FlightRecorder, read_recording
+
+    recorder = FlightRecorder(tmp_path / "run.mcap", hub)
+    recorder.write(
+        "/fw/components", "fw.ComponentState", {"component": "c", "old": "a", "new": "b"}
+    )
+    recorder.close()
+    recorder.close()
+    assert [topic for topic, _, _ in read_recording(tmp_path / "run.mcap")] == ["/fw/components"]

@@ -66,6 +66,9 @@ class Case:
     link: str = ""
     """An FRI link fault's name (`LINK_FAULTS`; process `fri`, signal `LINK`)."""
     must_brake: bool = True
+    recording_gaps: dict[str, int] = field(default_factory=dict)
+    """chaos --hosts: per channel of the control host's flight recording, how many of the
+    chart's records, requests and answers written are missing from it."""
 
     @property
     def name(self) -> str:

@@ -685,6 +685,12 @@ def _chaos_on_hosts(repetitions: int, context: dict[str, Any]) -> list[Row]:
     bad = [c for c in cases if not c.ok]
     if bad:
         context["failed"] = [f"chaos --hosts: {c.process} {c.name}: {c.detail}" for c in bad]
+    for c in cases:
+        if any(c.recording_gaps.values()):
+            context.setdefault("failed", []).append(
+                f"chaos --hosts: {c.process} {c.name}: missing from the recording: "
+                f"{c.recording_gaps}"
+            )
     rows = []
     for name, _ in hosts_chaos.FAULTS:
         times = [c.to_braking_ms for c in cases if c.name == name and c.to_braking_ms is not None]
@@ -702,6 +708,18 @@ def _chaos_on_hosts(repetitions: int, context: dict[str, Any]) -> list[Row]:
                 rows.append(
                     Row("chaos --hosts", f"{host} {name}: to braking, max", max(times), n=len(mine))
                 )
+    recorded = [c for c in cases if c.recording_gaps]
+    if recorded:
+        rows.append(
+            Row(
+                "chaos --hosts",
+                "chart records, requests and answers missing from the control host's recording",
+                float(sum(sum(c.recording_gaps.values()) for c in recorded)),
+                target=0.0,
+                unit="",
+                n=len(recorded),
+            )
+        )
     early = sum(c.detail.startswith("tripped") for c in cases)
     rows.append(
         Row(

@@ -21,7 +21,11 @@ would need a synchronised clock, docs/hosts.md). From them:
   of releases grew: no RELEASE is sent during a case), or ended released, or a state
   it published after its brakes engaged moves faster than 1 mrad/s;
 * **tripped before the fault**: a stop that began before the fault (a starved host):
-  the case measured nothing and says so.
+  the case measured nothing and says so;
+* **missing from the recording**: the control host records the run as `fw deploy
+  --record` does; the chart's records (events, transitions, configurations), its
+  configuration requests and the Configurator's answers that were written but are not
+  in the recording (all are written on the control host, so a cut link must lose none).
 
 Delay needs the kernel's netem (`framework.netns.netem_available`): where it is
 missing, the delay cases are not run, and the report says so.
@@ -152,7 +156,8 @@ def _control_case(host: str, name: str, topology: Path, keys: Path) -> Case:
 
     spec = dict(FAULTS)[name]
     case = Case(host, "LINK", float(spec["hold"]), link=name)
-    run = SeegRun(hosts=(topology, keys)).start()
+    recording = Path(tempfile.mkdtemp(prefix="fw-bench-case-")) / "control.mcap"
+    run = SeegRun(hosts=(topology, keys), record=recording).start()
     try:
         run.watch("arm/measured", ArmState)
         before = _ask(run, "arm")
@@ -170,8 +175,10 @@ def _control_case(host: str, name: str, topology: Path, keys: Path) -> Case:
         case.chart = run.last_entered(
             ("Fault", "Stopped", "No_Tracker", "Moving_Fast", "Moving_Slow", "Target_Reached")
         )
+        case.recording_gaps = run.recording_gaps()
     finally:
         run.stop()
+        shutil.rmtree(recording.parent, ignore_errors=True)
     return case
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import bisect
 import dataclasses
 import os
+import sys
 import tempfile
 import threading
 import time
@@ -99,6 +100,10 @@ class SeegRun:
     _subscriptions: list[Any] = field(default_factory=list)
     secure: bool = True
     """The bus as fw deploy runs it (mutual TLS, access rules); False: plain TCP."""
+    record: Path | None = None
+    """A flight recording of the run (made as `fw deploy --record` makes it, from before
+    the chart starts): `recording_gaps` compares it with what was published."""
+    recorder: Any = None
     topology_file: Path | None = None
     """Another topology than topologies/seeg.yaml (one that extends it: seeg_ros2)."""
     hosts: tuple[Path, Path] | None = None
@@ -134,11 +139,38 @@ class SeegRun:
                 self._subscriptions.append(
                     hub.subscribe(key, self._receiver(key, kind), history=False)
                 )
+            if self.record is not None:
+                from framework.recorder import FlightRecorder
+
+                self.recorder = FlightRecorder.of_topology(
+                    self.record, hub, self.deployment.topology
+                )
             self.deployment.run_chart()
             self.wait_state("Wait_Start", 60.0)
         finally:
             os.chdir(old)
         return self
+
+    def recording_gaps(self) -> dict[str, int]:
+        """Close the recording, then per channel how many of the chart's records (its
+        status: events, transitions, configurations), its configuration requests and the
+        Configurator's answers written so far are not in it (0 each: nothing lost)."""
+        from framework.recorder import read_recording
+
+        assert self.deployment is not None and self.recorder is not None
+        coordinator, configurator = self.deployment.coordinator, self.deployment.configurator
+        written = {
+            "/fw/chart": coordinator.status.stats.written if coordinator else 0,
+            "/fw/config/request": coordinator.requests.stats.written if coordinator else 0,
+            "/fw/config/ack": configurator.acks.stats.written if configurator else 0,
+        }
+        time.sleep(0.5)  # the last ones on their way
+        self.recorder.close()
+        recorded = dict.fromkeys(written, 0)
+        for topic, _, _ in read_recording(self.record):
+            if topic in recorded:
+                recorded[topic] += 1
+        return {topic: max(0, written[topic] - recorded[topic]) for topic in written}
 
     def _private(self, topology: Any) -> Any:
         """`topology` on a bus, FRI port and Vicra line of this run alone."""
@@ -180,6 +212,11 @@ class SeegRun:
 
     def stop(self) -> None:
         """Shut the deployment down (always call it; `with` does)."""
+        if self.recorder is not None:
+            try:
+                self.recorder.close()
+            except Exception as exc:  # the deployment must stop whatever its recording did
+                print(f"the recording did not close: {exc}", file=sys.stderr)
         for sub in self._subscriptions:
             sub.undeclare()
         self._subscriptions.clear()
