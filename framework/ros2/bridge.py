@@ -71,7 +71,7 @@ class RosBridge(Component):
         self._link = RosLink.acquire(self.router, self.domain, self.node, self.zenoh)
         try:
             self._entity = self.declare()
-        except Exception:
+        except Exception:  # released, then raised on: configure says why it failed
             self._link.release()
             self._link = None
             raise

@@ -81,18 +81,19 @@ def expand(doc: Document) -> list[Finding]:
         _alias(doc, ("connections", len(connections)), where)
         connections.append(connection)
 
+    def spec(entry: dict[str, Any], cls: type, **more: Any) -> dict[str, Any]:
+        return {
+            "class": f"{cls.__module__}:{cls.__name__}",
+            "process": process,
+            "properties": {**common, **_options(entry)},
+            "initial": "running",
+            **more,
+        }
+
     for i, entry in enumerate(section.get("publish") or []):
         where = ("ros2", "publish", i)
         name = entry.get("name") or component_name("out", entry["topic"])
-        cls = TO_ROS[entry["type"]]
-        spec = {
-            "class": f"{cls.__module__}:{cls.__name__}",
-            "process": process,
-            "activity": {"event": ["sample"]},
-            "properties": {**common, **_options(entry)},
-            "initial": "running",
-        }
-        if add(where, name, spec):
+        if add(where, name, spec(entry, TO_ROS[entry["type"]], activity={"event": ["sample"]})):
             connection = {"port": f"{name}.sample", "from": entry["from"]}
             if "rate" in entry:
                 connection["rate"] = entry["rate"]
@@ -100,15 +101,8 @@ def expand(doc: Document) -> list[Finding]:
     for i, entry in enumerate(section.get("subscribe") or []):
         where = ("ros2", "subscribe", i)
         name = entry.get("name") or component_name("in", entry["topic"])
-        cls = FROM_ROS[entry["type"]]
-        spec = {
-            "class": f"{cls.__module__}:{cls.__name__}",
-            "process": process,
-            "properties": {**common, **_options(entry)},
-            "outputs": {"sample": output_key(entry["topic"])},
-            "initial": "running",
-        }
-        if add(where, name, spec):
+        outputs = {"sample": output_key(entry["topic"])}
+        if add(where, name, spec(entry, FROM_ROS[entry["type"]], outputs=outputs)):
             targets = entry.get("to") or []
             for port in [targets] if isinstance(targets, str) else targets:
                 connect(where, {"port": port, "from": f"{name}.sample"})
