@@ -12,7 +12,8 @@ EPILOG = """examples:
   fw ros2 router --listen tcp/127.0.0.1:7500
 
 A ROS 2 machine with rmw_zenoh runs its own router (ros2 run rmw_zenoh_cpp rmw_zenohd);
-fw's bridge connects to it as a client (the topology's ros2: router:)."""
+fw's bridge connects to it (the topology's ros2: router:) and, through it, to each ROS
+node, listening on no port itself. docs/ros2.md."""
 
 
 def add_commands(sub: Any) -> None:

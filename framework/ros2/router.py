@@ -34,9 +34,9 @@ def open_router(listen: str = DEFAULT_ROUTER) -> Any:
     try:
         return zenoh.open(config)
     except Exception as exc:  # zenoh raises its own error type
-        raise RosLinkError(
-            f"cannot listen on {listen} ({exc}): is a router already there?"
-        ) from None
+        reason = str(exc).split(" at /")[0].strip()
+        taken = " (is a router already there?)" if "in use" in reason.lower() else ""
+        raise RosLinkError(f"cannot listen on {listen}: {reason}{taken}") from None
 
 
 def run_router(listen: str = DEFAULT_ROUTER) -> int:
