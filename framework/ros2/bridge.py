@@ -19,6 +19,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 from framework.component import Component, In, Out, State, operation
@@ -37,6 +38,9 @@ class RosBridge(Component):
     """What both directions share: the ROS topic, its type, the link and the counts."""
 
     ROS_TYPE: ClassVar[str] = ""
+    declare: Callable[[], Any]
+    """Declare this entry's publisher or subscription on the ROS session (each direction
+    defines it; called by `configure`)."""
 
     topic = prop(str, "", required=True, doc="the absolute ROS 2 topic name (/joint_states)")
     domain = prop(int, 0, min=0, max=232, doc="the ROS domain id (ROS_DOMAIN_ID)")
@@ -77,10 +81,6 @@ class RosBridge(Component):
             raise
         return True
 
-    def declare(self) -> Any:
-        """Declare this entry's publisher or subscription on the ROS session."""
-        raise NotImplementedError
-
     def cleanup_hook(self) -> None:
         if self._entity is not None:
             self._entity.close()
@@ -112,10 +112,11 @@ class RosBridge(Component):
 
 
 def _work_us(work: deque[float]) -> dict[str, float]:
-    ordered = sorted(work)
-    if not ordered:
-        return {"work_p50_us": 0.0, "work_p99_us": 0.0}
-    at = lambda q: 1e6 * ordered[min(len(ordered) - 1, int(q * len(ordered)))]  # noqa: E731
+    ordered = sorted(work) or [0.0]
+
+    def at(q: float) -> float:
+        return 1e6 * ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
     return {"work_p50_us": at(0.5), "work_p99_us": at(0.99)}
 
 

@@ -35,11 +35,11 @@ from framework.errors import FwError
 from framework.ros2.rmw import CDR_ENCODING, GID_SIZE, Attachment, EntityKind, Node
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
+"""Where rmw_zenoh's router listens by default (`ros2 run rmw_zenoh_cpp rmw_zenohd`)."""
 ROUTER_WAIT = 2.0
 """How long configuring a bridge waits for the router before it says none answers (it
 goes on: the router may start after fw, and fw's own functions never wait on ROS)."""
 log = logging.getLogger("fw.ros2")
-"""Where rmw_zenoh's router listens by default (`ros2 run rmw_zenoh_cpp rmw_zenohd`)."""
 
 
 class RosLinkError(FwError):
@@ -114,7 +114,7 @@ class RosLink:
         except Exception as exc:  # zenoh raises its own error type
             raise RosLinkError(
                 f"cannot open a session for the ROS network at {router} "
-                f"({str(exc).split('  at ')[0].strip()})"
+                f"({str(exc).split(' at /')[0].strip()})"
             ) from None
         self.router = router
         deadline = time.monotonic() + ROUTER_WAIT
