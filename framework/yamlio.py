@@ -115,15 +115,25 @@ class Document:
     origins: dict[PathKey, str] = field(default_factory=dict)
     """The file a value came from where it is not `file` (a document that extends
     another: framework/topology/loader.py's `extends:`)."""
+    written: dict[PathKey, PathKey] = field(default_factory=dict)
+    """Values the loader wrote out of another (a topology's `ros2:` entries as components
+    and connections): their path -> the path of what the user wrote, which findings
+    name."""
 
     def location(self, path: Iterable[str | int]) -> Location:
-        """Location of `path`, or of its nearest ancestor that has one."""
+        """Location of `path`, or of its nearest ancestor that has one; the path said is
+        the user's where the value was written out of another."""
         key = tuple(path)
         probe = key
         while probe and probe not in self.marks:
             probe = probe[:-1]
         line, column = self.marks.get(probe, (1, 1))
-        return Location(self.origins.get(probe, self.file), line, column, format_path(key))
+        said = key
+        for depth in range(len(key), 0, -1):
+            if key[:depth] in self.written:
+                said = self.written[key[:depth]]
+                break
+        return Location(self.origins.get(probe, self.file), line, column, format_path(said))
 
     def origin(self, path: Iterable[str | int]) -> str:
         """The file the value at `path` (or its nearest ancestor with a place) was

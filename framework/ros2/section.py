@@ -115,7 +115,8 @@ def _options(entry: dict[str, Any]) -> dict[str, Any]:
 
 
 def _alias(doc: Document, path: tuple[Any, ...], where: tuple[Any, ...]) -> None:
-    """Give the written-out value at `path` the place of the entry it came from."""
+    """Give the written-out value at `path` the place and the path of the entry it
+    came from."""
     probe = where
     while probe and probe not in doc.marks:
         probe = probe[:-1]
@@ -123,3 +124,4 @@ def _alias(doc: Document, path: tuple[Any, ...], where: tuple[Any, ...]) -> None
         doc.marks[path] = doc.marks[probe]
         if probe in doc.origins:
             doc.origins[path] = doc.origins[probe]
+    doc.written[path] = where

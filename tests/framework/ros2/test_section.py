@@ -71,6 +71,8 @@ def test_a_wrong_output_or_type_is_found_at_the_entry_that_says_it(tmp_path):
     assert ("type-mismatch", 4) in found, "a Scalar output is not a JointState"
     assert ("type-mismatch", 6) in found, "a Float64 topic cannot feed a Pose input"
     assert all(f.location.file == str(path) for f in errors(path))
+    said = {f.code: f.location.path for f in errors(path) if f.location.line - base == 6}
+    assert said == {"type-mismatch": "ros2.subscribe[0]"}, "the path the user wrote"
 
 
 def test_a_bad_topic_or_an_unbridged_type_is_a_schema_error_with_its_line(tmp_path):
