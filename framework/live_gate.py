@@ -15,12 +15,12 @@ live view, never in a safety process.
 from __future__ import annotations
 
 import contextlib
-import hmac
 import socket
 import ssl
 import threading
 import urllib.parse
 
+from framework.console.server import carries_token, query_tokens
 from framework.errors import FwError
 
 TIMEOUT = 5.0
@@ -117,9 +117,7 @@ class LiveGate:
         parts = line.split(" ")
         if len(parts) != 3 or parts[0] != "GET":
             return False
-        query = urllib.parse.urlsplit(parts[1]).query
-        given = urllib.parse.parse_qs(query).get("token", [])
-        return any(hmac.compare_digest(g.encode(), self.token.encode()) for g in given)
+        return carries_token(query_tokens(urllib.parse.urlsplit(parts[1]).query), self.token)
 
     def close(self) -> None:
         """Stop accepting (connections being served end with their viewer)."""

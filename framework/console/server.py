@@ -66,6 +66,17 @@ class CommandError(FwError):
     """A command refused before it reached the chart (bad event or payload)."""
 
 
+def query_tokens(query: str) -> list[str]:
+    """The `token=` values of a URL's query."""
+    return urllib.parse.parse_qs(query).get("token", [])
+
+
+def carries_token(given: list[str], token: str) -> bool:
+    """Is the run's `token` among what a request `given`? Compared in constant time (a
+    guess cannot learn a prefix from how fast it is refused)."""
+    return any(hmac.compare_digest(g.encode(), token.encode()) for g in given)
+
+
 class ConsoleServer:
     """Serves the console of one deployment (see the module docstring)."""
 
@@ -134,8 +145,7 @@ class ConsoleServer:
         bearer = headers.get("Authorization") or ""
         if bearer.startswith("Bearer "):
             given.append(bearer[len("Bearer ") :])
-        given += urllib.parse.parse_qs(query).get("token", [])
-        return any(hmac.compare_digest(g.encode(), self.token.encode()) for g in given)
+        return carries_token([*given, *query_tokens(query)], self.token)
 
     def start(self) -> str:
         """Serve in a background thread; returns the URL."""

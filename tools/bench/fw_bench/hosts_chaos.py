@@ -85,15 +85,7 @@ def chaos_on_hosts(
     home = seeg_home()
     topology = home / "topologies" / "seeg_hosts.yaml"
     folder = Path(tempfile.mkdtemp(prefix="fw-bench-hosts-"))
-    keys = folder / "keys"
-    made = subprocess.run(
-        [sys.executable, "-m", "framework.cli", "keys", str(topology), "-o", str(keys)],
-        capture_output=True,
-        text=True,
-        cwd=home,
-    )
-    if made.returncode != 0:
-        raise BenchError(f"fw keys failed: {made.stderr.strip()}")
+    keys = make_keys(topology, folder)
     hosts = netns.Hosts(prefix="fwb-", bridge="fwbbr0").up()
     cases: list[Case] = []
     total = repetitions * len(HOSTS) * len(faults)
@@ -110,6 +102,22 @@ def chaos_on_hosts(
         hosts.down()
         shutil.rmtree(folder, ignore_errors=True)
     return cases, skipped
+
+
+def make_keys(topology: Path, folder: Path) -> Path:
+    """The keystore every host's part of `topology` uses (`fw keys`), in `folder`."""
+    from fw_bench.seeg_run import BenchError
+
+    keys = folder / "keys"
+    made = subprocess.run(
+        [sys.executable, "-m", "framework.cli", "keys", str(topology), "-o", str(keys)],
+        capture_output=True,
+        text=True,
+        cwd=seeg_home(),
+    )
+    if made.returncode != 0:
+        raise BenchError(f"fw keys failed: {made.stderr.strip()}")
+    return keys
 
 
 def run_case(

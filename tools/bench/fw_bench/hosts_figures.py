@@ -32,26 +32,12 @@ from pathlib import Path
 from typing import Any
 
 from fw_bench.files import seeg_home
+from fw_bench.hosts_chaos import make_keys
 from fw_bench.report import Row, stats
 
 LINKED = ("tracking", "cameras", "robot")
 """The hosts on the bridge beside the control host."""
 COUNTERS = ("rx_bytes", "tx_bytes", "rx_packets", "tx_packets")
-
-
-def _keys(topology: Path, folder: Path) -> Path:
-    from fw_bench.seeg_run import BenchError
-
-    keys = folder / "keys"
-    made = subprocess.run(
-        [sys.executable, "-m", "framework.cli", "keys", str(topology), "-o", str(keys)],
-        capture_output=True,
-        text=True,
-        cwd=seeg_home(),
-    )
-    if made.returncode != 0:
-        raise BenchError(f"fw keys failed: {made.stderr.strip()}")
-    return keys
 
 
 def link_hop(hosts: Any, near: str, far: str, address: str, count: int) -> list[float]:
@@ -222,7 +208,7 @@ def run(quick: bool, context: dict[str, Any]) -> list[Row]:
     parts: list[Any] = []
     rows: list[Row] = []
     try:
-        keys = _keys(topology, folder)
+        keys = make_keys(topology, folder)
         for host in LINKED:
             hops = [
                 h * 1e3
