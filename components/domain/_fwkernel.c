@@ -489,7 +489,89 @@ fail_s:
     return NULL;
 }
 
+/* seven floats from a tuple or list of numbers (ints and floats, as Python's
+ * `isinstance(v, float | int)`): 0, 1 if it is not 7 finite numbers, -1 on a Python error */
+static int seven(PyObject *obj, double out[N])
+{
+    PyObject *fast = PySequence_Fast(obj, "expected a sequence of 7 numbers");
+    if (fast == NULL)
+        return -1;
+    int bad = PySequence_Fast_GET_SIZE(fast) != N;
+    PyObject **items = PySequence_Fast_ITEMS(fast);
+    for (int i = 0; !bad && i < N; i++) {
+        PyObject *v = items[i];
+        if (PyFloat_Check(v))
+            out[i] = PyFloat_AS_DOUBLE(v);
+        else if (PyLong_Check(v)) {
+            out[i] = PyLong_AsDouble(v);
+            if (out[i] == -1.0 && PyErr_Occurred()) { /* beyond a float: not finite */
+                PyErr_Clear();
+                bad = 1;
+            }
+        } else
+            bad = 1;
+        if (!bad && !isfinite(out[i]))
+            bad = 1;
+    }
+    Py_DECREF(fast);
+    return bad;
+}
+
+/* servo_aim(values, reference, limit, aim, bound, reach, feed_forward, ctrl) -> joint
+ * The simulated arm's setpoint guard and servo target (components/sim/arm.py,
+ * SimulatedArm.command): -2 if `values` is not 7 finite numbers; else the first joint
+ * of the largest |v - r| / (limit reach + 1e-6) above 1 (a step no arm can follow; ctrl
+ * untouched), or -1 with ctrl[j] = clamp(v + aim + (v - r) feed_forward, +-bound), in
+ * the same order of operations as the Python it replaces. */
+static PyObject *py_servo_aim(PyObject *self, PyObject *args)
+{
+    PyObject *vo, *ro, *lo, *ao, *bo, *co;
+    double reach, feed_forward;
+    if (!PyArg_ParseTuple(args, "OOOOOddO", &vo, &ro, &lo, &ao, &bo, &reach, &feed_forward, &co))
+        return NULL;
+    double v[N], r[N], limit[N], aim[N], bound[N];
+    int bad = seven(vo, v);
+    if (bad < 0)
+        return NULL;
+    if (bad)
+        return PyLong_FromLong(-2);
+    PyObject *rest[4] = {ro, lo, ao, bo};
+    double *into[4] = {r, limit, aim, bound};
+    for (int k = 0; k < 4; k++) {
+        int wrong = seven(rest[k], into[k]);
+        if (wrong < 0)
+            return NULL;
+        if (wrong) {
+            PyErr_SetString(PyExc_ValueError, "servo_aim: reference, limits, aim and bounds need 7 finite numbers");
+            return NULL;
+        }
+    }
+    Py_buffer cb;
+    if (get_buffer(co, &cb, N, 1, "ctrl") < 0)
+        return NULL;
+    double worst = 1.0, target[N];
+    int joint = -1;
+    for (int j = 0; j < N; j++) {
+        double delta = v[j] - r[j];
+        double ratio = fabs(delta) / (limit[j] * reach + 1e-6);
+        if (ratio > worst) {
+            worst = ratio;
+            joint = j;
+        }
+        double t = v[j] + aim[j] + delta * feed_forward;
+        target[j] = t < -bound[j] ? -bound[j] : (t > bound[j] ? bound[j] : t);
+    }
+    if (joint < 0)
+        memcpy(cb.buf, target, sizeof target);
+    PyBuffer_Release(&cb);
+    return PyLong_FromLong(joint);
+}
+
 static PyMethodDef methods[] = {
+    {"servo_aim", py_servo_aim, METH_VARARGS,
+     "servo_aim(values, reference, limit, aim, bound, reach, feed_forward, ctrl) -> joint: "
+     "the simulated arm's setpoint guard and servo targets (-2: not 7 finite numbers; "
+     "-1: ctrl written; else the joint of the step no arm can follow)."},
     {"path_pose", py_path_pose, METH_VARARGS,
      "path_pose(start, delta_p, delta_r, u, offset, out): the pose u of the way along the "
      "straight path, steering offset added."},

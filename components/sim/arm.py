@@ -27,11 +27,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
 
 from components.domain import lwr4
+from components.domain.ik import _fwkernel
 from components.sim.scene import Scene
 
 MODES = {"position": (2500.0, 120.0), "impedance": (300.0, 21.0)}
@@ -40,6 +42,14 @@ FEED_FORWARD = {"position": True, "impedance": False}
 """Whether the mode's servo is given the commanded velocity (position control tracks a
 moving command; joint impedance control only pulls toward the commanded position)."""
 _LIMITS = tuple(float(v) for v in lwr4.POSITION_LIMIT)
+
+
+def _finite(value: float) -> bool:
+    """A finite number (an int beyond any float is not)."""
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
 
 
 @dataclass
@@ -74,6 +84,7 @@ class SimulatedArm:
             self.data.qpos[:7] = np.asarray(q0, dtype=float) + self._offset - self._twist()
             self.data.ctrl[:7] = self.data.qpos[:7]
             mujoco.mj_forward(self.model, self.data)
+        self._sense()
         self.tcp_site = self.model.site("tcp").id
         self.watchdog_cycles = watchdog_cycles
         self.velocity_limit = np.array(lwr4.VELOCITY_LIMIT)
@@ -88,6 +99,7 @@ class SimulatedArm:
         self._last_setpoint = tuple(float(v) for v in q0)
         self._held = self.data.qpos[:7].copy()  # link angles the brakes hold
         self._at_rest = False  # braked and stepped once since: nothing left to simulate
+        self._reference_guard = False  # True: `_command` in Python, not the kernel's
 
     @property
     def commanded(self) -> bool:
@@ -101,13 +113,30 @@ class SimulatedArm:
 
     @property
     def q(self) -> np.ndarray:
-        """Measured joint positions (rad): the encoders, on the motors' side."""
-        return self.data.qpos[:7] + self._twist() - self._offset
+        """Measured joint positions (rad): the encoders, on the motors' side (read-only:
+        what the last physics step left; a new array after each)."""
+        return self._q
+
+    @property
+    def q_values(self) -> tuple[float, ...]:
+        """`q` as plain floats (what a measurement datagram carries)."""
+        return self._q_values
 
     def _twist(self) -> np.ndarray:
         """How far each motor is ahead of its link: the gear's twist under the torque
         it carries (the servo's and the gravity compensation's)."""
         return (self.data.actuator_force[:7] + self.data.qfrc_gravcomp[:7]) * self._compliance
+
+    def _sense(self) -> None:
+        """Read the encoders and what the servos aim by, once per physics step (every
+        reading of a cycle reads these: the state changes only in a step)."""
+        twist = self._twist()
+        q = self.data.qpos[:7] + twist - self._offset
+        q.flags.writeable = False
+        self._q = q
+        self._q_values = tuple(q.tolist())
+        self._aim = (self._offset - twist).tolist()  # link angle = setpoint + this
+        self._torque = tuple(self.data.actuator_force[:7].tolist())
 
     @property
     def last_setpoint(self) -> tuple[float, ...]:
@@ -122,7 +151,12 @@ class SimulatedArm:
     @property
     def torque(self) -> np.ndarray:
         """Actuator torques (N m)."""
-        return self.data.actuator_force[:7].copy()
+        return np.array(self._torque)
+
+    @property
+    def torque_values(self) -> tuple[float, ...]:
+        """`torque` as plain floats (what a measurement datagram carries)."""
+        return self._torque
 
     def tcp(self) -> np.ndarray:
         """Where the TCP truly is, in the base frame (4x4): what a tracker sees, not
@@ -156,25 +190,70 @@ class SimulatedArm:
             self.braked, self.reason = False, ""
             self._at_rest = False
             self.data.ctrl[:7] = self.data.qpos[:7]
-            self._last_setpoint = tuple(self.q.tolist())
+            self._last_setpoint = self._q_values
             self._since_setpoint = 0
             self._commanded = False
 
     def command(self, setpoint: np.ndarray | tuple[float, ...]) -> bool:
-        """A joint position setpoint for the next cycles; False if refused (and braked)."""
+        """A joint position setpoint for the next cycles; False if refused (and braked).
+        The guard and the servo targets run in the compiled kernel where it was built
+        (`servo_aim`, the same arithmetic as `_command`, which a spec holds it to)."""
         if self.braked:
             return False
+        if _fwkernel is None or self._reference_guard:
+            return self._command(setpoint)
+        values = setpoint.tolist() if isinstance(setpoint, np.ndarray) else setpoint
+        elapsed = self.dt * (self._since_setpoint + 1)
+        reference = self._last_setpoint if self._commanded else self._q_values
+        if FEED_FORWARD[self.mode] and self._commanded:
+            kp, kv = MODES[self.mode]
+            feed_forward = kv / kp / elapsed
+        else:
+            feed_forward = 0.0
+        joint = _fwkernel.servo_aim(
+            values,
+            reference,
+            self._velocity_limit,
+            self._aim,
+            _LIMITS,
+            1.5 * elapsed,
+            feed_forward,
+            self.data.ctrl[:7],
+        )
+        if joint == -2:
+            self.brake("setpoint is not 7 finite joint values")
+            return False
+        if joint >= 0:
+            self._jumped(values, reference, joint, elapsed)
+            return False
+        self._last_setpoint = tuple(values)
+        self._since_setpoint = 0
+        self._fresh = True
+        self._commanded = True
+        return True
+
+    def _jumped(
+        self, values: Any, reference: tuple[float, ...], joint: int, elapsed: float
+    ) -> None:
+        step = abs(values[joint] - reference[joint])
+        self.brake(
+            f"setpoint jump on {lwr4.JOINTS[joint]}: {math.degrees(step):.2f} deg "
+            f"in {elapsed * 1e3:.0f} ms"
+        )
+
+    def _command(self, setpoint: np.ndarray | tuple[float, ...]) -> bool:
+        """`command` in plain Python: the reference of the kernel's `servo_aim`."""
         values = setpoint.tolist() if isinstance(setpoint, np.ndarray) else list(setpoint)
         if (
             len(values) != 7
             or not all(isinstance(v, float | int) for v in values)
-            or not all(map(math.isfinite, values))
+            or not all(map(_finite, values))
         ):
             self.brake("setpoint is not 7 finite joint values")
             return False
         elapsed = self.dt * (self._since_setpoint + 1)  # cycles since the previous setpoint
         # the first setpoint after release is checked against the measured joints
-        reference = self._last_setpoint if self._commanded else self.q.tolist()
+        reference = self._last_setpoint if self._commanded else self._q_values
         # in position mode, PD toward the setpoint with its velocity as reference:
         # ctrl = q* + (kv/kp) qd* turns MuJoCo's kp (ctrl - q) - kv qd into
         # kp (q* - q) + kv (qd* - qd), no lag; in impedance mode the damping acts on
@@ -187,7 +266,7 @@ class SimulatedArm:
         # seven joints in one pass of plain floats: numpy's per-call cost on 7-element
         # arrays was most of the simulated KRC's cycle
         reach = 1.5 * elapsed
-        aim = (self._offset - self._twist()).tolist()  # link angle = setpoint + this
+        aim = self._aim  # link angle = setpoint + this
         target = [0.0] * 7
         worst, joint = 1.0, -1
         for j, (v, r, limit, a, bound) in enumerate(
@@ -200,11 +279,7 @@ class SimulatedArm:
             t = v + a + delta * feed_forward
             target[j] = -bound if t < -bound else bound if t > bound else t
         if joint >= 0:
-            step = abs(values[joint] - reference[joint])
-            self.brake(
-                f"setpoint jump on {lwr4.JOINTS[joint]}: {math.degrees(step):.2f} deg "
-                f"in {elapsed * 1e3:.0f} ms"
-            )
+            self._jumped(values, reference, joint, elapsed)
             return False
         self.data.ctrl[:7] = target
         self._last_setpoint = tuple(values)
@@ -234,6 +309,7 @@ class SimulatedArm:
             self.data.qpos[:7] = self._held
             self.data.qvel[:7] = 0.0
             self._at_rest = True
+        self._sense()
 
     def status(self) -> ArmStatus:
         """Brakes, why, mode and time."""

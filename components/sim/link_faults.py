@@ -84,6 +84,11 @@ class LinkFaults:
         """When an answer that arrives `now` reaches the KRC."""
         return now + self.delay if now < self.until else now
 
+    def impairs_answers(self, now: float) -> bool:
+        """Whether an answer arriving `now` may be delayed or lost (else it reaches the
+        KRC at once, as it arrived)."""
+        return now < self.until and (self.delay > 0.0 or self.drop_every > 0)
+
     def lost(self, now: float) -> bool:
         """Whether the answer that just reached the KRC was lost on the way."""
         if not self.drop_every or now >= self.until:
