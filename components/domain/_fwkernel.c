@@ -15,6 +15,7 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <math.h>
+#include <stdint.h>
 #include <string.h>
 
 #define N 7
@@ -567,7 +568,303 @@ static PyObject *py_servo_aim(PyObject *self, PyObject *args)
     return PyLong_FromLong(joint);
 }
 
+/* steer_step(wanted[6], offset[6], budget, radius) -> size: the interpolator's steering
+ * correction (components/robot/interpolator.py, InterpolatorCore._correct): error =
+ * wanted - offset, its size max(|e_t|, |e_r| radius); offset moves by error min(1,
+ * budget / size) in place (nothing if size is 0). Returns the size before the move. */
+static PyObject *py_steer_step(PyObject *self, PyObject *args)
+{
+    PyObject *wo, *oo;
+    double budget, radius;
+    if (!PyArg_ParseTuple(args, "OOdd", &wo, &oo, &budget, &radius))
+        return NULL;
+    Py_buffer wb, ob;
+    if (get_buffer(wo, &wb, 6, 0, "wanted") < 0)
+        return NULL;
+    if (get_buffer(oo, &ob, 6, 1, "offset") < 0) {
+        PyBuffer_Release(&wb);
+        return NULL;
+    }
+    const double *w = wb.buf;
+    double *o = ob.buf, e[6];
+    for (int i = 0; i < 6; i++)
+        e[i] = w[i] - o[i];
+    double t = sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]);
+    double r = sqrt(e[3] * e[3] + e[4] * e[4] + e[5] * e[5]) * radius;
+    double size = t > r ? t : r;
+    if (size > 0.0) {
+        double share = budget / size;
+        if (share > 1.0)
+            share = 1.0;
+        for (int i = 0; i < 6; i++)
+            o[i] = o[i] + e[i] * share;
+    }
+    PyBuffer_Release(&ob);
+    PyBuffer_Release(&wb);
+    return PyFloat_FromDouble(size);
+}
+
+/* -- FRI 1.x datagrams (components/domain/fri.py is the reference: same fields, same
+ * float32 rounding through Python's own PyFloat_Pack4/Unpack4) -------------------- */
+#define FRI_MSR_SIZE 916
+#define FRI_MSR_ID 0x2006
+#define FRI_CMD_SIZE 376
+#define FRI_CMD_ID 0x1005
+
+static unsigned rd16(const unsigned char *p) { return (unsigned)p[0] | ((unsigned)p[1] << 8); }
+static long rd32(const unsigned char *p)
+{
+    unsigned long u = (unsigned long)p[0] | ((unsigned long)p[1] << 8) |
+                      ((unsigned long)p[2] << 16) | ((unsigned long)p[3] << 24);
+    return (long)(int)(unsigned)u; /* int32 */
+}
+static unsigned long rdu32(const unsigned char *p)
+{
+    return (unsigned long)p[0] | ((unsigned long)p[1] << 8) | ((unsigned long)p[2] << 16) |
+           ((unsigned long)p[3] << 24);
+}
+static void wr16(unsigned char *p, unsigned v)
+{
+    p[0] = v & 0xFF;
+    p[1] = (v >> 8) & 0xFF;
+}
+static void wr32(unsigned char *p, unsigned long v)
+{
+    for (int i = 0; i < 4; i++)
+        p[i] = (v >> (8 * i)) & 0xFF;
+}
+
+static PyObject *floats7(const unsigned char *p)
+{
+    PyObject *t = PyTuple_New(N);
+    if (t == NULL)
+        return NULL;
+    for (int i = 0; i < N; i++) {
+        double v = PyFloat_Unpack4((const char *)p + 4 * i, 1);
+        if (v == -1.0 && PyErr_Occurred()) {
+            Py_DECREF(t);
+            return NULL;
+        }
+        PyObject *f = PyFloat_FromDouble(v);
+        if (f == NULL) {
+            Py_DECREF(t);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(t, i, f);
+    }
+    return t;
+}
+
+static double f32(const unsigned char *p) { return PyFloat_Unpack4((const char *)p, 1); }
+
+/* fri_measurement(datagram) -> the fields of fri.Measurement in its order, or None if
+ * it is no measurement (size, declared size or id): the caller asks the reference why */
+static PyObject *py_fri_measurement(PyObject *self, PyObject *arg)
+{
+    Py_buffer b;
+    if (PyObject_GetBuffer(arg, &b, PyBUF_SIMPLE) < 0)
+        return NULL;
+    const unsigned char *d = b.buf;
+    if (b.len != FRI_MSR_SIZE || rd16(d + 4) != FRI_MSR_SIZE || rd16(d + 6) != FRI_MSR_ID) {
+        PyBuffer_Release(&b);
+        Py_RETURN_NONE;
+    }
+    PyObject *pos = floats7(d + 216), *cmd = floats7(d + 292), *off = floats7(d + 320),
+             *trq = floats7(d + 444);
+    PyObject *out = NULL;
+    if (pos && cmd && off && trq && !PyErr_Occurred())
+        out = Py_BuildValue("(IIdIIddddkINNNNlllNN)", rd16(d), rd16(d + 2), f32(d + 140),
+                            rd16(d + 144), rd16(d + 146), f32(d + 160), f32(d + 164),
+                            f32(d + 168), f32(d + 172), rdu32(d + 176), rd16(d + 182), pos,
+                            cmd, off, trq, rd32(d + 72), rd32(d + 76), rd32(d + 80),
+                            PyBool_FromLong(d[136] & 1), PyBool_FromLong(d[136] & 2));
+    if (out == NULL) {
+        Py_XDECREF(pos);
+        Py_XDECREF(cmd);
+        Py_XDECREF(off);
+        Py_XDECREF(trq);
+    }
+    PyBuffer_Release(&b);
+    return out;
+}
+
+/* fri_command(datagram) -> the fields of fri.Command in its order, or None if it is no
+ * command (the caller asks the reference why) */
+static PyObject *py_fri_command(PyObject *self, PyObject *arg)
+{
+    Py_buffer b;
+    if (PyObject_GetBuffer(arg, &b, PyBUF_SIMPLE) < 0)
+        return NULL;
+    const unsigned char *d = b.buf;
+    if (b.len != FRI_CMD_SIZE || rd16(d + 4) != FRI_CMD_SIZE || rd16(d + 6) != FRI_CMD_ID) {
+        PyBuffer_Release(&b);
+        Py_RETURN_NONE;
+    }
+    PyObject *pos = floats7(d + 144);
+    PyObject *out = pos == NULL ? NULL
+                                : Py_BuildValue("(IIkNll)", rd16(d), rd16(d + 2), rdu32(d + 140),
+                                                pos, rd32(d + 72), rd32(d + 76));
+    PyBuffer_Release(&b);
+    return out;
+}
+
+/* fri_encode_command(send_seq, refl_seq, jnt_pos, request_number, request, flags) -> bytes:
+ * fri.encode_command's datagram (every other byte zero) */
+static PyObject *py_fri_encode_command(PyObject *self, PyObject *args)
+{
+    unsigned long long send_seq, refl_seq, flags;
+    long long number, request;
+    PyObject *jo;
+    if (!PyArg_ParseTuple(args, "KKOLLK", &send_seq, &refl_seq, &jo, &number, &request, &flags))
+        return NULL;
+    if (number < INT32_MIN || number > INT32_MAX || request < INT32_MIN || request > INT32_MAX ||
+        flags > 0xFFFFFFFFULL) {
+        PyErr_SetString(PyExc_OverflowError, "fri_encode_command: a field beyond its width");
+        return NULL;
+    }
+    PyObject *fast = PySequence_Fast(jo, "jnt_pos: a sequence of 7 numbers");
+    if (fast == NULL)
+        return NULL;
+    if (PySequence_Fast_GET_SIZE(fast) != N) {
+        Py_DECREF(fast);
+        PyErr_SetString(PyExc_ValueError, "jnt_pos: 7 numbers");
+        return NULL;
+    }
+    PyObject *out = PyBytes_FromStringAndSize(NULL, FRI_CMD_SIZE);
+    if (out == NULL) {
+        Py_DECREF(fast);
+        return NULL;
+    }
+    unsigned char *d = (unsigned char *)PyBytes_AS_STRING(out);
+    memset(d, 0, FRI_CMD_SIZE);
+    wr16(d, (unsigned)(send_seq & 0xFFFF));
+    wr16(d + 2, (unsigned)(refl_seq & 0xFFFF));
+    wr16(d + 4, FRI_CMD_SIZE);
+    wr16(d + 6, FRI_CMD_ID);
+    wr32(d + 72, (unsigned long)(unsigned)(int)number);
+    wr32(d + 76, (unsigned long)(unsigned)(int)request);
+    wr32(d + 140, (unsigned long)flags);
+    PyObject **items = PySequence_Fast_ITEMS(fast);
+    for (int i = 0; i < N; i++) {
+        double v = PyFloat_AsDouble(items[i]);
+        if ((v == -1.0 && PyErr_Occurred()) || PyFloat_Pack4(v, (char *)d + 144 + 4 * i, 1) < 0) {
+            Py_DECREF(fast);
+            Py_DECREF(out);
+            return NULL;
+        }
+    }
+    Py_DECREF(fast);
+    return out;
+}
+
+static int pack_floats(PyObject *seq, unsigned char *at, int count, const char *name)
+{
+    PyObject *fast = PySequence_Fast(seq, name);
+    if (fast == NULL)
+        return -1;
+    if (PySequence_Fast_GET_SIZE(fast) != count) {
+        Py_DECREF(fast);
+        PyErr_Format(PyExc_ValueError, "%s: %d numbers", name, count);
+        return -1;
+    }
+    PyObject **items = PySequence_Fast_ITEMS(fast);
+    for (int i = 0; i < count; i++) {
+        double v = PyFloat_AsDouble(items[i]);
+        if ((v == -1.0 && PyErr_Occurred()) || PyFloat_Pack4(v, (char *)at + 4 * i, 1) < 0) {
+            Py_DECREF(fast);
+            return -1;
+        }
+    }
+    Py_DECREF(fast);
+    return 0;
+}
+
+static int pack_f32(double v, unsigned char *at) { return PyFloat_Pack4(v, (char *)at, 1); }
+
+static int fits(long long v, long long lo, long long hi, const char *name)
+{
+    if (v < lo || v > hi) {
+        PyErr_Format(PyExc_OverflowError, "fri_encode_measurement: %s beyond its width", name);
+        return 0;
+    }
+    return 1;
+}
+
+/* fri_encode_measurement(send_seq, refl_seq, timestamp, state, quality, stats, control,
+ *   msr_jnt_pos, cmd_jnt_pos, cmd_jnt_pos_fri_offset|None, msr_jnt_trq|None, served,
+ *   reason, cycle, braked, latched, sample_time) -> bytes: fri.encode_measurement's */
+static PyObject *py_fri_encode_measurement(PyObject *self, PyObject *args)
+{
+    unsigned long long send_seq, refl_seq;
+    double timestamp, sample_time;
+    long long state, quality, control, served, reason, cycle;
+    int braked, latched;
+    PyObject *stats, *msr, *cmd, *off, *trq;
+    if (!PyArg_ParseTuple(args, "KKdLLOLOOOOLLLppd", &send_seq, &refl_seq, &timestamp, &state,
+                          &quality, &stats, &control, &msr, &cmd, &off, &trq, &served, &reason,
+                          &cycle, &braked, &latched, &sample_time))
+        return NULL;
+    double rate, latency, jitter, miss_rate;
+    long long misses;
+    if (!PyArg_ParseTuple(stats, "ddddL;stats: answerRate, latency, jitter, missRate, missCounter",
+                          &rate, &latency, &jitter, &miss_rate, &misses))
+        return NULL;
+    if (!fits(state, 0, 0xFFFF, "state") || !fits(quality, 0, 0xFFFF, "quality") ||
+        !fits(control, 0, 0xFFFF, "control") || !fits(misses, 0, 0xFFFFFFFFLL, "missCounter") ||
+        !fits(served, INT32_MIN, INT32_MAX, "served") || !fits(reason, INT32_MIN, INT32_MAX, "reason"))
+        return NULL;
+    PyObject *out = PyBytes_FromStringAndSize(NULL, FRI_MSR_SIZE);
+    if (out == NULL)
+        return NULL;
+    unsigned char *d = (unsigned char *)PyBytes_AS_STRING(out);
+    memset(d, 0, FRI_MSR_SIZE);
+    wr16(d, (unsigned)(send_seq & 0xFFFF));
+    wr16(d + 2, (unsigned)(refl_seq & 0xFFFF));
+    wr16(d + 4, FRI_MSR_SIZE);
+    wr16(d + 6, FRI_MSR_ID);
+    wr32(d + 72, (unsigned long)(unsigned)(int)served);
+    wr32(d + 76, (unsigned long)(unsigned)(int)reason);
+    wr32(d + 80, (unsigned long)(cycle & 0x7FFFFFFF));
+    wr16(d + 136, (braked ? 1 : 0) | (latched ? 2 : 0));
+    wr16(d + 144, (unsigned)state);
+    wr16(d + 146, (unsigned)quality);
+    wr32(d + 176, (unsigned long)misses);
+    wr16(d + 180, braked ? 0 : 1); /* power: the drives are on while released */
+    wr16(d + 182, (unsigned)control);
+    if (pack_f32(timestamp, d + 140) < 0 || pack_f32(sample_time, d + 148) < 0 ||
+        pack_f32(sample_time, d + 152) < 0 || pack_f32(rate, d + 160) < 0 ||
+        pack_f32(latency, d + 164) < 0 || pack_f32(jitter, d + 168) < 0 ||
+        pack_f32(miss_rate, d + 172) < 0)
+        goto fail;
+    for (int i = 0; i < N; i++)
+        if (pack_f32(30.0, d + 188 + 4 * i) < 0) /* temperatures */
+            goto fail;
+    if (pack_floats(msr, d + 216, N, "msr_jnt_pos") < 0 || pack_floats(cmd, d + 292, N, "cmd_jnt_pos") < 0)
+        goto fail;
+    if (off != Py_None && pack_floats(off, d + 320, N, "cmd_jnt_pos_fri_offset") < 0)
+        goto fail;
+    if (trq != Py_None && pack_floats(trq, d + 444, N, "msr_jnt_trq") < 0)
+        goto fail;
+    return out;
+fail:
+    Py_DECREF(out);
+    return NULL;
+}
+
 static PyMethodDef methods[] = {
+    {"fri_encode_measurement", py_fri_encode_measurement, METH_VARARGS,
+     "fri_encode_measurement(send_seq, refl_seq, timestamp, state, quality, stats, control, "
+     "msr_jnt_pos, cmd_jnt_pos, cmd_jnt_pos_fri_offset, msr_jnt_trq, served, reason, cycle, "
+     "braked, latched, sample_time) -> bytes."},
+    {"fri_measurement", py_fri_measurement, METH_O,
+     "fri_measurement(datagram) -> fri.Measurement's fields, or None for no measurement."},
+    {"fri_command", py_fri_command, METH_O,
+     "fri_command(datagram) -> fri.Command's fields, or None for no command."},
+    {"fri_encode_command", py_fri_encode_command, METH_VARARGS,
+     "fri_encode_command(send_seq, refl_seq, jnt_pos, request_number, request, flags) -> bytes."},
+    {"steer_step", py_steer_step, METH_VARARGS,
+     "steer_step(wanted, offset, budget, radius) -> size: the steering correction's step, "
+     "offset moved in place."},
     {"servo_aim", py_servo_aim, METH_VARARGS,
      "servo_aim(values, reference, limit, aim, bound, reach, feed_forward, ctrl) -> joint: "
      "the simulated arm's setpoint guard and servo targets (-2: not 7 finite numbers; "

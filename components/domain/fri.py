@@ -50,8 +50,13 @@ from __future__ import annotations
 
 import struct
 from collections import deque
-from dataclasses import dataclass
 from enum import IntEnum
+from typing import NamedTuple
+
+try:  # the compiled kernel (components/domain/_fwkernel.c), built by `pip install`
+    from components.domain import _fwkernel
+except ImportError:  # no C compiler where fw was installed: the struct reference below
+    _fwkernel = None
 
 MSR_ID = 0x2006
 CMD_ID = 0x1005
@@ -177,9 +182,9 @@ def reason_code(reason: str) -> int:
     return 2 if reason else 0
 
 
-@dataclass(frozen=True, slots=True)
-class Measurement:
-    """A KRC measurement, decoded: what fw uses of `tFriMsrData`."""
+class Measurement(NamedTuple):
+    """A KRC measurement, decoded: what fw uses of `tFriMsrData` (a tuple: immutable,
+    and made at once from the kernel's fields)."""
 
     send_seq: int
     refl_seq: int
@@ -210,9 +215,8 @@ class Measurement:
         )
 
 
-@dataclass(frozen=True, slots=True)
-class Command:
-    """A PC command, decoded: what fw uses of `tFriCmdData`."""
+class Command(NamedTuple):
+    """A PC command, decoded: what fw uses of `tFriCmdData` (a tuple, as `Measurement`)."""
 
     send_seq: int
     refl_seq: int
@@ -266,7 +270,46 @@ def encode_measurement(
     sample_time: float = 0.001,
 ) -> bytes:
     """A measurement datagram (the KRC's side). `stats`: answerRate, latency, jitter,
-    missRate, missCounter over the last 100 packets."""
+    missRate, missCounter over the last 100 packets. In the kernel where it was built
+    (`encode_measurement_reference` is what a spec holds it to)."""
+    if _fwkernel is not None:
+        return _fwkernel.fri_encode_measurement(
+            send_seq, refl_seq, timestamp, state, quality, stats, control, msr_jnt_pos,
+            cmd_jnt_pos,
+            None if cmd_jnt_pos_fri_offset is _ZERO7 else cmd_jnt_pos_fri_offset,
+            None if msr_jnt_trq is _ZERO7 else msr_jnt_trq,
+            served, reason, cycle, braked, latched, sample_time,
+        )  # fmt: skip
+    return encode_measurement_reference(
+        send_seq, refl_seq, timestamp=timestamp, state=state, quality=quality, stats=stats,
+        control=control, msr_jnt_pos=msr_jnt_pos, cmd_jnt_pos=cmd_jnt_pos,
+        cmd_jnt_pos_fri_offset=cmd_jnt_pos_fri_offset, msr_jnt_trq=msr_jnt_trq,
+        served=served, reason=reason, cycle=cycle, braked=braked, latched=latched,
+        sample_time=sample_time,
+    )  # fmt: skip
+
+
+def encode_measurement_reference(
+    send_seq: int,
+    refl_seq: int,
+    *,
+    timestamp: float,
+    state: int,
+    quality: int,
+    stats: tuple[float, float, float, float, int] = (1.0, 0.0, 0.0, 0.0, 0),
+    control: int = Control.POSITION,
+    msr_jnt_pos: tuple[float, ...] = _ZERO7,
+    cmd_jnt_pos: tuple[float, ...] = _ZERO7,
+    cmd_jnt_pos_fri_offset: tuple[float, ...] = _ZERO7,
+    msr_jnt_trq: tuple[float, ...] = _ZERO7,
+    served: int = 0,
+    reason: int = 0,
+    cycle: int = 0,
+    braked: bool = True,
+    latched: bool = False,
+    sample_time: float = 0.001,
+) -> bytes:
+    """`encode_measurement` with Python's struct."""
     out = bytearray(_MSR_TEMPLATE)
     _U16x2.pack_into(out, 0, send_seq & 0xFFFF, refl_seq & 0xFFFF)
     _MSR_KRL.pack_into(out, 72, served, reason, cycle & 0x7FFFFFFF)
@@ -298,7 +341,18 @@ def _check(datagram: bytes, size: int, datagram_id: int, what: str) -> None:
 
 
 def decode_measurement(datagram: bytes) -> Measurement:
-    """A measurement datagram, decoded; `DatagramError` if it is not one."""
+    """A measurement datagram, decoded; `DatagramError` if it is not one. The kernel
+    decodes where it was built (`decode_measurement_reference` is what a spec holds it
+    to, and says why a datagram is none)."""
+    if _fwkernel is not None:
+        fields = _fwkernel.fri_measurement(datagram)
+        if fields is not None:
+            return tuple.__new__(Measurement, fields)
+    return decode_measurement_reference(datagram)
+
+
+def decode_measurement_reference(datagram: bytes) -> Measurement:
+    """`decode_measurement` with Python's struct."""
     _check(datagram, MSR_SIZE, MSR_ID, "measurement")
     send_seq, refl_seq = _U16x2.unpack_from(datagram, 0)
     served, reason, cycle = _MSR_KRL.unpack_from(datagram, 72)
@@ -339,7 +393,27 @@ def encode_command(
     request_number: int = 0,
     request: int = Request.NONE,
 ) -> bytes:
-    """A command datagram (the PC's side) answering measurement `refl_seq`."""
+    """A command datagram (the PC's side) answering measurement `refl_seq` (in the
+    kernel where it was built; `encode_command_reference` is what a spec holds it to)."""
+    if _fwkernel is not None:
+        return _fwkernel.fri_encode_command(
+            send_seq, refl_seq, jnt_pos, request_number, request, flags
+        )
+    return encode_command_reference(
+        send_seq, refl_seq, jnt_pos, flags=flags, request_number=request_number, request=request
+    )
+
+
+def encode_command_reference(
+    send_seq: int,
+    refl_seq: int,
+    jnt_pos: tuple[float, ...],
+    *,
+    flags: int = CMD_JNTPOS,
+    request_number: int = 0,
+    request: int = Request.NONE,
+) -> bytes:
+    """`encode_command` with Python's struct."""
     out = bytearray(_CMD_TEMPLATE)
     _U16x2.pack_into(out, 0, send_seq & 0xFFFF, refl_seq & 0xFFFF)
     _CMD_KRL.pack_into(out, 72, request_number, request)
@@ -349,7 +423,17 @@ def encode_command(
 
 
 def decode_command(datagram: bytes) -> Command:
-    """A command datagram, decoded; `DatagramError` if it is not one."""
+    """A command datagram, decoded; `DatagramError` if it is not one (in the kernel where
+    it was built; `decode_command_reference` is what a spec holds it to)."""
+    if _fwkernel is not None:
+        fields = _fwkernel.fri_command(datagram)
+        if fields is not None:
+            return tuple.__new__(Command, fields)
+    return decode_command_reference(datagram)
+
+
+def decode_command_reference(datagram: bytes) -> Command:
+    """`decode_command` with Python's struct."""
     _check(datagram, CMD_SIZE, CMD_ID, "command")
     send_seq, refl_seq = _U16x2.unpack_from(datagram, 0)
     number, request = _CMD_KRL.unpack_from(datagram, 72)

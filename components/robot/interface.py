@@ -401,7 +401,7 @@ class RobotInterface(Component):
         datagram = fri.encode_command(
             self.link["answered"] + 1,
             measurement.send_seq,
-            tuple(self._answer.tolist()),
+            self._answer.tolist(),
             request_number=number,
             request=request,
         )

@@ -305,17 +305,28 @@ class InterpolatorCore:
         return self._correction_size(self._wanted - self.offset) > self.STEER_RESOLUTION
 
     def _correct(self, path_step: float) -> None:
-        """Move the offset toward the wanted correction with the speed left this cycle."""
-        error = self._wanted - self.offset
-        size = self._correction_size(error)
+        """Move the offset toward the wanted correction with the speed left this cycle
+        (in the compiled kernel where it was built: `steer_step`, the arithmetic of
+        `_correct_reference`, which a spec holds it to)."""
         budget = max(0.0, self._allowed() * self.dt - path_step)
-        if size > 0.0:
-            self.offset = self.offset + error * min(1.0, budget / size)
+        if _fwkernel is None:
+            size = self._correct_reference(budget)
+        else:
+            size = _fwkernel.steer_step(self._wanted, self.offset, budget, self.ROTATION_RADIUS)
         slowed = size > self.STEER_DEADBAND and self.phase is Phase.MOVING
         if slowed != self._slowed:
             self._slowed = slowed
             if self.phase is Phase.MOVING and not self._held:
                 self._in.max_velocity = [self._cruise()]
+
+    def _correct_reference(self, budget: float) -> float:
+        """The offset's step toward the wanted correction within `budget` (m) in numpy;
+        the correction's size before it."""
+        error = self._wanted - self.offset
+        size = self._correction_size(error)
+        if size > 0.0:
+            self.offset = self.offset + error * min(1.0, budget / size)
+        return size
 
     def _offset_pose(self, path: np.ndarray) -> np.ndarray:
         if not self.offset.any():

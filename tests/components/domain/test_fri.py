@@ -1,7 +1,6 @@
 """Spec: FRI 1.x datagrams byte for byte (KUKA's friComm.h, Rev 1.17), the KRC's rating
 of the PC's answers, and fw's KRL convention for requests and reasons."""
 
-import dataclasses
 import re
 import struct
 
@@ -306,9 +305,9 @@ def test_a_decoded_datagram_cannot_be_changed_by_whoever_reads_it():
         fri.encode_measurement(1, 0, timestamp=0.0, state=1, quality=3, braked=True)
     )
     command = fri.decode_command(fri.encode_command(1, 1, (0.0,) * 7))
-    with pytest.raises(dataclasses.FrozenInstanceError):
+    with pytest.raises(AttributeError):
         measurement.braked = False
-    with pytest.raises(dataclasses.FrozenInstanceError):
+    with pytest.raises(AttributeError):
         command.request = fri.Request.RELEASE
 
 

@@ -1,18 +1,19 @@
-"""The compiled kernel (components/domain/_fwkernel.c) computes what the numpy and
-Pinocchio references compute: the TCP pose with its Jacobian, one IK step, the path's pose
-and the least capsule distance. The robot's 1 kHz cycle runs the kernel; the
+"""The compiled kernel (components/domain/_fwkernel.c) computes what the numpy, Pinocchio
+and struct references compute: the TCP pose with its Jacobian, one IK step, the path's
+pose, the steering step, the least capsule distance and FRI's datagrams. The robot's 1 kHz cycle runs the kernel; the
 references are what the rest of fw (and these specs) trust."""
 
 from __future__ import annotations
 
 import math
+import struct
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from components.domain import distance, ik, lwr4
+from components.domain import distance, fri, ik, lwr4
 from components.robot.interpolator import InterpolatorCore
 
 pytestmark = pytest.mark.skipif(
@@ -90,6 +91,32 @@ def test_the_path_pose_is_the_reference_pose_with_the_steering_offset(u, move, t
     assert np.allclose(core._path_pose(s), core._offset_pose(core._pose_at(s)), atol=1e-12)
 
 
+@settings(max_examples=200, deadline=None)
+@given(
+    st.tuples(*[st.floats(-0.02, 0.02)] * 6),
+    st.tuples(*[st.floats(-0.02, 0.02)] * 6),
+    st.floats(0.0, 2e-4),
+    st.booleans(),
+)
+def test_the_steering_step_is_the_references(wanted, offset, budget, reached):
+    """The kernel's step of the steering correction moves the offset as numpy does, by
+    the budget toward the wanted correction or all the way, and sees the same size."""
+    cores = [
+        InterpolatorCore(
+            np.array(lwr4.HOME), velocity=0.05, acceleration=0.25, brake_acceleration=2.0, ik=IK
+        )
+        for _ in range(2)
+    ]
+    for core in cores:
+        core._wanted = np.array(wanted)
+        core.offset = np.array(wanted if reached else offset)
+    size = kernel.steer_step(cores[0]._wanted, cores[0].offset, budget, core.ROTATION_RADIUS)
+    assert size == pytest.approx(cores[1]._correct_reference(budget), rel=1e-15, abs=1e-18)
+    assert np.allclose(cores[0].offset, cores[1].offset, rtol=1e-15, atol=1e-18)
+    if reached:
+        assert size == 0.0 and np.array_equal(cores[0].offset, np.array(wanted))
+
+
 capsules = st.integers(0, 6).flatmap(
     lambda n: st.tuples(
         st.lists(point, min_size=n, max_size=n),
@@ -133,3 +160,131 @@ def test_the_kernel_refuses_arrays_of_the_wrong_shape_with_a_message():
     arm = KIN.capsules(np.array(lwr4.HOME))
     with pytest.raises(ValueError, match="capsules"):
         kernel.capsule_min(arm.a, arm.b, arm.radius[:2], arm.a, arm.b, arm.radius)
+
+
+def _same(a, b) -> bool:
+    """Equal field for field, NaN equal to NaN (a datagram may carry any bits)."""
+    if isinstance(a, tuple):
+        return isinstance(b, tuple) and len(a) == len(b) and all(map(_same, a, b))
+    if isinstance(a, float) and math.isnan(a):
+        return isinstance(b, float) and math.isnan(b)
+    return type(a) is type(b) and a == b
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.binary(min_size=fri.MSR_SIZE, max_size=fri.MSR_SIZE), st.sampled_from(["ok", "id", "size"])
+)
+def test_the_kernel_decodes_any_measurement_as_the_reference(raw, header):
+    """Any 916 bytes with a measurement's header (every bit pattern of every field: NaNs,
+    negative counters, wrapped ints) decode to the reference's fields; a wrong id or
+    declared size is no measurement for either."""
+    size, datagram_id = fri.MSR_SIZE, fri.MSR_ID
+    if header == "id":
+        datagram_id = fri.CMD_ID
+    if header == "size":
+        size = fri.CMD_SIZE
+    datagram = raw[:4] + struct.pack("<HH", size, datagram_id) + raw[8:]
+    fields = kernel.fri_measurement(datagram)
+    if header != "ok":
+        assert fields is None
+        with pytest.raises(fri.DatagramError):
+            fri.decode_measurement(datagram)
+        return
+    assert _same(fields, tuple(fri.decode_measurement_reference(datagram)))
+    assert _same(tuple(fri.decode_measurement(datagram)), fields)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(min_size=fri.CMD_SIZE, max_size=fri.CMD_SIZE), st.integers(0, 2048))
+def test_the_kernel_decodes_any_command_as_the_reference_and_refuses_other_sizes(raw, length):
+    datagram = raw[:4] + struct.pack("<HH", fri.CMD_SIZE, fri.CMD_ID) + raw[8:]
+    assert _same(kernel.fri_command(datagram), tuple(fri.decode_command_reference(datagram)))
+    other = (datagram * 6)[:length]
+    if length != fri.CMD_SIZE:
+        assert kernel.fri_command(other) is None
+        with pytest.raises(fri.DatagramError):
+            fri.decode_command(other)
+
+
+floats32 = st.floats(allow_nan=False, width=32) | st.floats(-1e6, 1e6)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.integers(-(2**20), 2**20),
+    st.integers(-(2**20), 2**20),
+    st.tuples(*[floats32] * 7),
+    st.integers(-(2**31), 2**31 - 1),
+    st.integers(-(2**31), 2**31 - 1),
+    st.sampled_from([fri.CMD_JNTPOS, 0, 0x31, 2**32 - 1]),
+)
+def test_the_kernel_encodes_a_command_byte_for_byte_as_the_reference(
+    send, refl, jnt_pos, number, request, flags
+):
+    args = (send, refl, jnt_pos)
+    options = {"flags": flags, "request_number": number, "request": request}
+    assert fri.encode_command(*args, **options) == fri.encode_command_reference(*args, **options)
+
+
+@pytest.mark.parametrize(
+    "bad", [{"request_number": 2**31}, {"request": -(2**31) - 1}, {"flags": 2**32}]
+)
+def test_a_command_field_beyond_its_width_is_refused_by_both(bad):
+    options = {"request_number": 1, "request": 0, "flags": fri.CMD_JNTPOS, **bad}
+    with pytest.raises((OverflowError, struct.error)):
+        fri.encode_command(1, 1, (0.0,) * 7, **options)
+    with pytest.raises((OverflowError, struct.error)):
+        fri.encode_command_reference(1, 1, (0.0,) * 7, **options)
+
+
+def test_a_joint_beyond_a_float32_is_refused_by_both():
+    with pytest.raises(OverflowError):
+        fri.encode_command(1, 1, (1e39,) + (0.0,) * 6)
+    with pytest.raises((OverflowError, struct.error)):
+        fri.encode_command_reference(1, 1, (1e39,) + (0.0,) * 6)
+
+
+@st.composite
+def measurement_fields(draw):
+    seven = st.tuples(*[floats32] * 7)
+    return {
+        "send_seq": draw(st.integers(0, 2**20)),
+        "refl_seq": draw(st.integers(0, 2**20)),
+        "timestamp": draw(floats32),
+        "state": draw(st.integers(0, 2)),
+        "quality": draw(st.integers(0, 3)),
+        "stats": draw(st.tuples(floats32, floats32, floats32, floats32, st.integers(0, 2**32 - 1))),
+        "control": draw(st.sampled_from(list(fri.Control))),
+        "msr_jnt_pos": draw(seven),
+        "cmd_jnt_pos": draw(seven),
+        "cmd_jnt_pos_fri_offset": draw(st.none() | seven) or fri._ZERO7,
+        "msr_jnt_trq": draw(st.none() | seven) or fri._ZERO7,
+        "served": draw(st.integers(-(2**31), 2**31 - 1)),
+        "reason": draw(st.integers(0, len(fri.REASONS))),
+        "cycle": draw(st.integers(0, 2**40)),
+        "braked": draw(st.booleans()),
+        "latched": draw(st.booleans()),
+        "sample_time": draw(st.sampled_from([0.001, 0.01, 0.04])),
+    }
+
+
+@settings(max_examples=300, deadline=None)
+@given(measurement_fields())
+def test_the_kernel_encodes_a_measurement_byte_for_byte_as_the_reference(fields):
+    send, refl = fields.pop("send_seq"), fields.pop("refl_seq")
+    assert fri.encode_measurement(send, refl, **fields) == fri.encode_measurement_reference(
+        send, refl, **fields
+    )
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [{"state": 2**16}, {"quality": -1}, {"served": 2**31}, {"stats": (1.0, 0.0, 0.0, 0.0, -1)}],
+)
+def test_a_measurement_field_beyond_its_width_is_refused_by_both(bad):
+    fields = {"timestamp": 0.0, "state": 1, "quality": 3, **bad}
+    with pytest.raises((OverflowError, struct.error)):
+        fri.encode_measurement(1, 0, **fields)
+    with pytest.raises((OverflowError, struct.error)):
+        fri.encode_measurement_reference(1, 0, **fields)
