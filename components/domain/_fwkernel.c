@@ -851,7 +851,115 @@ fail:
     return NULL;
 }
 
+/* seven numbers of a float64 array or of a sequence of numbers, NaNs and infinities as
+ * they are: 0, 1 if it is not seven numbers, -1 on a Python error */
+static int numbers7(PyObject *obj, double out[N])
+{
+    if (PyObject_CheckBuffer(obj)) {
+        Py_buffer view;
+        if (PyObject_GetBuffer(obj, &view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
+            return -1;
+        int ok = view.itemsize == 8 && view.format && strcmp(view.format, "d") == 0 &&
+                 view.len == N * 8;
+        if (ok)
+            memcpy(out, view.buf, N * sizeof(double));
+        PyBuffer_Release(&view);
+        if (ok)
+            return 0;
+    }
+    PyObject *fast = PySequence_Fast(obj, "expected a sequence of 7 numbers");
+    if (fast == NULL)
+        return -1;
+    int bad = PySequence_Fast_GET_SIZE(fast) != N;
+    PyObject **items = PySequence_Fast_ITEMS(fast);
+    for (int i = 0; !bad && i < N; i++) {
+        out[i] = PyFloat_AsDouble(items[i]);
+        if (out[i] == -1.0 && PyErr_Occurred()) {
+            Py_DECREF(fast);
+            return -1;
+        }
+    }
+    Py_DECREF(fast);
+    return bad;
+}
+
+/* max_abs_diff(a, b) -> max |a_i - b_i| over 7 joints, as Python's max() over them
+ * takes it (the first, then any larger: a NaN first stays, a NaN later is skipped) */
+static PyObject *py_max_abs_diff(PyObject *self, PyObject *args)
+{
+    PyObject *ao, *bo;
+    if (!PyArg_ParseTuple(args, "OO", &ao, &bo))
+        return NULL;
+    double a[N], b[N];
+    int bad = numbers7(ao, a);
+    if (bad == 0)
+        bad = numbers7(bo, b);
+    if (bad < 0)
+        return NULL;
+    if (bad) {
+        PyErr_SetString(PyExc_ValueError, "max_abs_diff: two sequences of 7 numbers");
+        return NULL;
+    }
+    double worst = fabs(a[0] - b[0]);
+    for (int i = 1; i < N; i++) {
+        double d = fabs(a[i] - b[i]);
+        if (d > worst)
+            worst = d;
+    }
+    return PyFloat_FromDouble(worst);
+}
+
+/* setpoint_check(values, limits, reference, max_step, cycles) -> (code, joint, worst): the
+ * robot interface's setpoint plausibility (components/robot/interface.py,
+ * RobotInterface._implausible_reference): code 1 if `values` is not 7 finite numbers,
+ * 2 with the first joint beyond |limit|, else 0 with the joint of the largest step
+ * ratio |v - r| / (max_step cycles) (of equal ratios the last; a NaN ratio never) */
+static PyObject *py_setpoint_check(PyObject *self, PyObject *args)
+{
+    PyObject *vo, *lo, *ro, *so;
+    long cycles;
+    if (!PyArg_ParseTuple(args, "OOOOl", &vo, &lo, &ro, &so, &cycles))
+        return NULL;
+    double v[N], limit[N], r[N], step[N];
+    int bad = numbers7(vo, v);
+    if (bad < 0)
+        return NULL;
+    for (int i = 0; !bad && i < N; i++)
+        bad = !isfinite(v[i]);
+    if (bad)
+        return Py_BuildValue("(iid)", 1, 0, -1.0);
+    PyObject *rest[3] = {lo, ro, so};
+    double *into[3] = {limit, r, step};
+    for (int k = 0; k < 3; k++) {
+        int wrong = numbers7(rest[k], into[k]);
+        if (wrong < 0)
+            return NULL;
+        if (wrong) {
+            PyErr_SetString(PyExc_ValueError, "setpoint_check: limits, reference and steps need 7 numbers");
+            return NULL;
+        }
+    }
+    for (int j = 0; j < N; j++)
+        if (fabs(v[j]) > limit[j])
+            return Py_BuildValue("(iid)", 2, j, -1.0);
+    double worst = -1.0;
+    int joint = 0;
+    for (int k = 0; k < N; k++) {
+        double ratio = fabs(v[k] - r[k]) / (step[k] * (double)cycles);
+        if (ratio >= worst) {
+            worst = ratio;
+            joint = k;
+        }
+    }
+    return Py_BuildValue("(iid)", 0, joint, worst);
+}
+
 static PyMethodDef methods[] = {
+    {"max_abs_diff", py_max_abs_diff, METH_VARARGS,
+     "max_abs_diff(a, b) -> the largest |a_i - b_i| of 7, as Python's max() takes it."},
+    {"setpoint_check", py_setpoint_check, METH_VARARGS,
+     "setpoint_check(values, limits, reference, max_step, cycles) -> (code, joint, worst): "
+     "1 not 7 finite, 2 a joint beyond its limit, 0 and the largest step ratio."},
     {"fri_encode_measurement", py_fri_encode_measurement, METH_VARARGS,
      "fri_encode_measurement(send_seq, refl_seq, timestamp, state, quality, stats, control, "
      "msr_jnt_pos, cmd_jnt_pos, cmd_jnt_pos_fri_offset, msr_jnt_trq, served, reason, cycle, "

@@ -10,10 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-try:  # the compiled kernel (components/domain/_fwkernel.c), built by `pip install`
-    from components.domain import _fwkernel
-except ImportError:  # pragma: no cover - a source tree nobody built: numpy does it all
-    _fwkernel = None
+from components.domain.kernel import _fwkernel
 
 EPS = 1e-12
 PARALLEL = 1e-14

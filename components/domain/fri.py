@@ -53,10 +53,7 @@ from collections import deque
 from enum import IntEnum
 from typing import NamedTuple
 
-try:  # the compiled kernel (components/domain/_fwkernel.c), built by `pip install`
-    from components.domain import _fwkernel
-except ImportError:  # no C compiler where fw was installed: the struct reference below
-    _fwkernel = None
+from components.domain.kernel import _fwkernel
 
 MSR_ID = 0x2006
 CMD_ID = 0x1005

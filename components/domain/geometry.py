@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from components.domain.kernel import _fwkernel
 from framework.messages import Pose
 
 
@@ -45,6 +46,23 @@ def norm(v: Any) -> float:
     """
     a = np.asarray(v, dtype=float).ravel()
     return math.sqrt(float(a @ a))
+
+
+def joint_gap(a: Any, b: Any) -> float:
+    """The largest |a_i - b_i| of two vectors of 7 joints (tuples, lists or float64
+    arrays; Python's max over them: a NaN first stays, a later one is skipped); in the
+    compiled kernel where it was built (`max_abs_diff`)."""
+    if _fwkernel is not None:
+        return _fwkernel.max_abs_diff(a, b)
+    return joint_gap_reference(a, b)
+
+
+def joint_gap_reference(a: Any, b: Any) -> float:
+    """`joint_gap` in plain Python."""
+    x, y = list(a), list(b)
+    if len(x) != 7 or len(y) != 7:
+        raise ValueError("max_abs_diff: two sequences of 7 numbers")
+    return max(abs(float(u) - float(v)) for u, v in zip(x, y, strict=True))
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:

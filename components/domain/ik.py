@@ -14,12 +14,8 @@ import pinocchio as pin
 from scipy.linalg import lapack
 
 from components.domain.geometry import norm
+from components.domain.kernel import _fwkernel
 from components.domain.lwr4 import HOME, Kinematics
-
-try:  # the compiled kernel (components/domain/_fwkernel.c), built by `pip install`
-    from components.domain import _fwkernel
-except ImportError:  # no C compiler where fw was installed: the numpy reference
-    _fwkernel = None
 
 COMPILED = _fwkernel is not None
 """True when the IK step runs in the compiled kernel (else in numpy, ~5x slower)."""

@@ -57,6 +57,7 @@ import numpy as np
 
 from components.domain import fri
 from components.domain.geometry import matrix_to_quat
+from components.domain.ik import _fwkernel
 from components.domain.lwr4 import POSITION_LIMIT, VELOCITY_LIMIT, Kinematics
 from components.domain.separation import CLEAR, SeparationMonitor, SsmParams, Verdict
 from components.robot.safe_stop import SafeStop
@@ -596,7 +597,30 @@ class RobotInterface(Component):
         """Why a setpoint must not reach the arm ("" if it may): not 7 finite joints,
         beyond a joint's limit, or a step from the last command faster than the joint's
         rated velocity (with the cycles since then, and a margin). The first setpoint of
-        a motion is measured from where the arm stands."""
+        a motion is measured from where the arm stands. The arithmetic runs in the
+        compiled kernel where it was built (`setpoint_check`); `_implausible_reference`
+        is the same in Python, which a spec holds it to."""
+        if _fwkernel is None or q.shape != (7,):
+            return self._implausible_reference(q, state)
+        if self._commanding and self._sent:
+            reference, cycles = self._sent[-1], self._since_setpoint + 1
+        else:
+            reference, cycles = state.position, FIRST_STEP_CYCLES
+        code, j, worst = _fwkernel.setpoint_check(q, POSITION_LIMIT, reference, MAX_STEP, cycles)
+        if code == 1:
+            return f"not 7 finite joint positions: {q.tolist()!r:.80}"
+        if code == 2:
+            return f"A{j + 1} at {math.degrees(q[j]):.1f} deg is beyond its limit"
+        self.peak_step = max(self.peak_step, worst)
+        if worst > STEP_MARGIN:
+            return (
+                f"A{j + 1} would move {math.degrees(abs(q[j] - reference[j])):.2f} deg in "
+                f"{cycles} cycle(s), {worst:.1f}x its rated velocity"
+            )
+        return ""
+
+    def _implausible_reference(self, q: np.ndarray, state: ArmState) -> str:
+        """`_implausible` in plain Python floats."""
         values = q.tolist() if q.ndim == 1 else []
         if len(values) != 7 or not all(math.isfinite(v) for v in values):
             return f"not 7 finite joint positions: {q.tolist()!r:.80}"

@@ -47,7 +47,7 @@ import numpy as np
 import pinocchio as pin
 from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig
 
-from components.domain.geometry import norm, pose_from_list
+from components.domain.geometry import joint_gap, norm, pose_from_list
 from components.domain.ik import DifferentialIK, _fwkernel
 from components.robot.interface import tcp_message
 from framework.component import Component, In, Out, operation
@@ -508,7 +508,7 @@ class CartesianInterpolator(Component):
             status, goals = self.goals.read()
             if status is ReadStatus.NEW:
                 self._navigate(core, goals.payload)
-            lag = max(abs(a - b) for a, b in zip(core.q.tolist(), measured.position, strict=True))
+            lag = joint_gap(core.q, measured.position)
             if core.moving and core.phase is not Phase.STOPPING and lag > self.max_lag:
                 # the arm does not follow (brakes, contact): stop commanding a motion
                 # nobody executes; the STOP returns the command to where the arm stands

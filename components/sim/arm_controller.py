@@ -67,7 +67,7 @@ from collections import deque
 from typing import Any
 
 from components.domain import fri
-from components.domain.geometry import matrix_to_quat
+from components.domain.geometry import joint_gap, matrix_to_quat
 from components.domain.lwr4 import HOME, LWR4_ERRORS, NOMINAL, Kinematics
 from components.sim.arm import MODES, SimulatedArm
 from components.sim.link_faults import LinkFaults
@@ -337,7 +337,7 @@ class ArmController(Component):
         monitor-mode echo rule."""
         arm = self.arm
         if arm.braked:
-            apart = max(abs(a - b) for a, b in zip(command.jnt_pos, self._cmd_jnt_pos, strict=True))
+            apart = joint_gap(command.jnt_pos, self._cmd_jnt_pos)
             self._echo_ok = apart <= ECHO_TOLERANCE
             if not self._echo_ok:
                 self.counts["echo"] += 1

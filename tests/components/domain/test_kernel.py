@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from components.domain import distance, fri, ik, lwr4
+from components.domain import distance, fri, geometry, ik, lwr4
 from components.robot.interpolator import InterpolatorCore
 
 pytestmark = pytest.mark.skipif(
@@ -288,3 +288,21 @@ def test_a_measurement_field_beyond_its_width_is_refused_by_both(bad):
         fri.encode_measurement(1, 0, **fields)
     with pytest.raises((OverflowError, struct.error)):
         fri.encode_measurement_reference(1, 0, **fields)
+
+
+gap_value = st.floats(-4.0, 4.0) | st.sampled_from([math.nan, math.inf, -math.inf])
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.tuples(*[gap_value] * 7), st.tuples(*[gap_value] * 7), st.booleans())
+def test_the_largest_joint_gap_is_pythons_max_nans_included(a, b, as_array):
+    """The kernel's largest |a_i - b_i| is what Python's max() takes over the joints, a
+    NaN first kept and a later one skipped, from tuples or float64 arrays alike."""
+    first = np.array(a) if as_array else a
+    assert _same(geometry.joint_gap(first, b), geometry.joint_gap_reference(a, b))
+
+
+def test_a_joint_gap_of_other_lengths_is_refused_by_both():
+    for ask in (geometry.joint_gap, geometry.joint_gap_reference):
+        with pytest.raises(ValueError):
+            ask((0.0,) * 6, (0.0,) * 7)

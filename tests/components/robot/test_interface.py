@@ -7,10 +7,13 @@ operator's RELEASE) opens it."""
 import math
 import socket
 import time
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from components.domain import fri
 from components.domain.lwr4 import Kinematics
@@ -28,7 +31,7 @@ from framework.bus import free_udp_port
 from framework.clock import SimulatedClock
 from framework.container import Container
 from framework.errors import FwError
-from framework.messages import EventMessage, JointState, Pose
+from framework.messages import ArmState, EventMessage, JointState, Pose
 from framework.ports import ReadStatus
 from tests.conftest import drained, reader_port, writer_port
 
@@ -1555,3 +1558,34 @@ def test_the_report_gives_the_krcs_time_and_the_joints_to_their_precision(arm):
     report = arm.report()
     assert report["time"] == 1.234
     assert report["q"] == [round(float(np.float32(v)), 5) for v in arm.q]
+
+
+joint_value = st.floats(-3.2, 3.2) | st.sampled_from([math.nan, math.inf, -math.inf])
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.lists(joint_value, min_size=0, max_size=9),
+    st.tuples(*[st.floats(-2.0, 2.0)] * 7),
+    st.tuples(*[st.floats(-0.01, 0.01)] * 7),
+    st.booleans(),
+    st.integers(0, 30),
+)
+def test_the_kernels_setpoint_plausibility_is_the_pythons(
+    values, position, nudge, commanding, idle
+):
+    """The compiled check refuses what the Python one refuses, with the same words, and
+    sees the same largest step (a setpoint near, far, beyond a limit, not finite, or of
+    another length; measured from the last command or, first of a motion, the arm)."""
+    interfaces = [RobotInterface("robot") for _ in range(2)]
+    last = np.asarray(position) + np.asarray(nudge)
+    q = np.asarray(values, dtype=float)
+    if len(values) == 7 and all(map(math.isfinite, values)):
+        q = last + (q - last) * 0.002  # mostly plausible steps, some past the margin
+    for robot in interfaces:
+        robot._commanding, robot._since_setpoint, robot.peak_step = commanding, idle, 0.0
+        robot._sent = deque([last.copy()], maxlen=2) if commanding else deque(maxlen=2)
+    state = ArmState(0.0, 1, 0, position, (0.0,) * 7, (0.0,) * 7)
+    said = interfaces[0]._implausible(q, state)
+    assert said == interfaces[1]._implausible_reference(q, state)
+    assert interfaces[0].peak_step == interfaces[1].peak_step
