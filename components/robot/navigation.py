@@ -165,14 +165,22 @@ class NavigatorCore:
             del self._times[:cut], self._joints[:cut]
 
     def joints_at(self, stamp: float) -> np.ndarray | None:
-        """The joint state nearest in time to `stamp` (None before the first)."""
+        """The joint state at `stamp` (None before the first): between the two measured
+        around it, linearly (the robot's joints come at 100 Hz: a tracker's sample falls
+        between two, and the nearer of them would be up to 5 ms, 0.4 mm at 7.5 cm/s,
+        off); before the first or after the last, that one."""
         times = self._times
         if not times:
             return None
-        k = min(bisect.bisect_left(times, stamp), len(times) - 1)
-        if k > 0 and stamp - times[k - 1] < times[k] - stamp:
-            k -= 1
-        return self._joints[k]
+        k = bisect.bisect_left(times, stamp)
+        if k == 0:
+            return self._joints[0]
+        if k == len(times):
+            return self._joints[-1]
+        before, after = times[k - 1], times[k]
+        u = (stamp - before) / (after - before)
+        a = self._joints[k - 1]
+        return a + (self._joints[k] - a) * u
 
     def offer(
         self,

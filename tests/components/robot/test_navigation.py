@@ -621,3 +621,18 @@ def test_samples_from_a_host_whose_clock_is_not_measured_yet_steer_nothing(hub):
         assert rig.sample()["tracker"] == "certus"
     finally:
         rig.close()
+
+
+def test_a_samples_joints_are_those_between_the_two_measured_around_its_stamp():
+    """The robot's joints come at 100 Hz: a tracker's sample 3 ms after one is paired
+    with the joints 3/10 of the way to the next, not with the nearer of the two (0.2 mm
+    off at 7.5 cm/s); before the first and after the last, with that one."""
+    nav = NavigatorCore(TRACKERS, REGISTRATION)
+    assert nav.joints_at(1.0) is None
+    first, second = np.zeros(7), np.arange(7) * 0.01
+    nav.joints(1.000, first)
+    nav.joints(1.010, second)
+    assert np.allclose(nav.joints_at(1.003), 0.3 * second)
+    assert np.array_equal(nav.joints_at(1.010), second)
+    assert np.array_equal(nav.joints_at(0.5), first)
+    assert np.array_equal(nav.joints_at(1.5), second)
