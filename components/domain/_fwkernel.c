@@ -13,7 +13,14 @@
  * `tool` in joint 7's frame: T_i = T_{i-1} P_i Rz(q_i), TCP = T_7 F.
  */
 #define PY_SSIZE_T_CLEAN
+#define _GNU_SOURCE
 #include <Python.h>
+#include <arpa/inet.h>
+#include <errno.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <sys/socket.h>
+#include <time.h>
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
@@ -954,7 +961,110 @@ static PyObject *py_setpoint_check(PyObject *self, PyObject *args)
     return Py_BuildValue("(iid)", 0, joint, worst);
 }
 
+/* -- FRI's socket: what arrived, read in one call ------------------------------------ */
+#define FRI_BATCH 64 /* datagrams read per call at most: a flood is read over cycles */
+
+/* one datagram (non-blocking): 1 and *item = (bytes, kernel arrival s, (host, port)), 0
+ * when nothing waits, -1 on an error (set) */
+static int fri_recv_one(int fd, PyObject **item)
+{
+    unsigned char buf[2048];
+    char control[CMSG_SPACE(sizeof(struct timespec)) + 64];
+    struct sockaddr_in from;
+    struct iovec iov = {buf, sizeof buf};
+    struct msghdr msg;
+    memset(&msg, 0, sizeof msg);
+    msg.msg_name = &from;
+    msg.msg_namelen = sizeof from;
+    msg.msg_iov = &iov;
+    msg.msg_iovlen = 1;
+    msg.msg_control = control;
+    msg.msg_controllen = sizeof control;
+    /* non-blocking: the interpreter lock is kept (giving it up and taking it back is a
+     * chance for another thread to keep a real-time loop waiting) */
+    ssize_t n = recvmsg(fd, &msg, MSG_DONTWAIT);
+    if (n < 0) {
+        if (errno == EAGAIN || errno == EWOULDBLOCK)
+            return 0;
+        PyErr_SetFromErrno(PyExc_OSError);
+        return -1;
+    }
+    double stamp = -1.0;
+    for (struct cmsghdr *c = CMSG_FIRSTHDR(&msg); c != NULL; c = CMSG_NXTHDR(&msg, c))
+        if (c->cmsg_level == SOL_SOCKET && c->cmsg_type == SO_TIMESTAMPNS) {
+            struct timespec ts;
+            memcpy(&ts, CMSG_DATA(c), sizeof ts);
+            stamp = (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
+        }
+    if (stamp < 0.0) { /* no kernel stamp (not asked for): now, as Python's time.time() */
+        struct timespec now;
+        clock_gettime(CLOCK_REALTIME, &now);
+        stamp = (double)now.tv_sec + (double)now.tv_nsec * 1e-9;
+    }
+    char host[INET_ADDRSTRLEN] = "";
+    if (from.sin_family == AF_INET)
+        inet_ntop(AF_INET, &from.sin_addr, host, sizeof host);
+    /* a datagram longer than the buffer is truncated, as Python's recvmsg(2048) has it */
+    *item = Py_BuildValue("(y#d(si))", buf, (Py_ssize_t)(n > (ssize_t)sizeof buf ? (ssize_t)sizeof buf : n),
+                          stamp, host, (int)ntohs(from.sin_port));
+    return *item == NULL ? -1 : 1;
+}
+
+/* fri_receive(fd, timeout) -> [(datagram, arrival, (host, port)), ...]: every datagram
+ * queued on the UDP socket `fd` (at most FRI_BATCH), oldest first, with the kernel's
+ * arrival time (SO_TIMESTAMPNS, wall clock); if none is queued, it waits for one at most
+ * `timeout` s (once) and reads what came. The FRI loops' read, without an exception per
+ * empty queue. */
+static PyObject *py_fri_receive(PyObject *self, PyObject *args)
+{
+    int fd;
+    double timeout;
+    if (!PyArg_ParseTuple(args, "id", &fd, &timeout))
+        return NULL;
+    PyObject *out = PyList_New(0);
+    if (out == NULL)
+        return NULL;
+    for (int waited = 0;;) {
+        PyObject *item = NULL;
+        int got = fri_recv_one(fd, &item);
+        if (got < 0)
+            goto fail;
+        if (got) {
+            int appended = PyList_Append(out, item);
+            Py_DECREF(item);
+            if (appended < 0)
+                goto fail;
+            if (PyList_GET_SIZE(out) >= FRI_BATCH)
+                break;
+            continue;
+        }
+        if (PyList_GET_SIZE(out) > 0 || waited || timeout <= 0.0)
+            break;
+        struct pollfd pfd = {fd, POLLIN, 0};
+        struct timespec wait;
+        wait.tv_sec = (time_t)timeout;
+        wait.tv_nsec = (long)((timeout - (double)wait.tv_sec) * 1e9);
+        int ready;
+        Py_BEGIN_ALLOW_THREADS ready = ppoll(&pfd, 1, &wait, NULL);
+        Py_END_ALLOW_THREADS if (ready < 0 && errno != EINTR)
+        {
+            PyErr_SetFromErrno(PyExc_OSError);
+            goto fail;
+        }
+        if (ready <= 0)
+            break;
+        waited = 1;
+    }
+    return out;
+fail:
+    Py_DECREF(out);
+    return NULL;
+}
+
 static PyMethodDef methods[] = {
+    {"fri_receive", py_fri_receive, METH_VARARGS,
+     "fri_receive(fd, timeout) -> [(datagram, arrival, (host, port))]: what waits on the "
+     "socket, or what comes within timeout if nothing does."},
     {"max_abs_diff", py_max_abs_diff, METH_VARARGS,
      "max_abs_diff(a, b) -> the largest |a_i - b_i| of 7, as Python's max() takes it."},
     {"setpoint_check", py_setpoint_check, METH_VARARGS,

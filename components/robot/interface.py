@@ -69,6 +69,8 @@ from framework.ports import ReadStatus
 from framework.properties import prop
 
 _NO_LOCK = contextlib.nullcontext()
+FRI_BATCH = 64
+"""Datagrams the kernel's `fri_receive` reads per call at most (then it is asked again)."""
 
 CYCLE = 0.001  # s: the controller's cycle
 POSITION_LIMIT_RAD = np.array(POSITION_LIMIT)
@@ -269,6 +271,28 @@ class RobotInterface(Component):
         sock = self._socket
         if sock is None:
             return False
+        if _fwkernel is None:
+            return self._read_reference(sock, timeout)
+        taken = None
+        try:
+            fd = sock.fileno()
+            batch = _fwkernel.fri_receive(fd, timeout)  # waits only if nothing is queued
+            while batch:
+                for data, received, sender in batch:
+                    began = time.perf_counter()
+                    found = self._judge(data, received, sender)
+                    self.stage("receive", time.perf_counter() - began)
+                    if found is not None:
+                        if taken is not None:
+                            self.link["skipped"] += 1
+                        taken = found
+                batch = _fwkernel.fri_receive(fd, 0.0) if len(batch) == FRI_BATCH else []
+        except OSError:  # the socket was closed (stopping)
+            return False
+        return self._took(taken)
+
+    def _read_reference(self, sock: socket.socket, timeout: float) -> bool:
+        """`read_hook` with Python's socket module (where the kernel was not built)."""
         taken = None
         try:
             while True:
@@ -290,6 +314,10 @@ class RobotInterface(Component):
                     taken = found
         except OSError:  # the socket was closed (stopping)
             return False
+        return self._took(taken)
+
+    def _took(self, taken: tuple[fri.Measurement, float] | None) -> bool:
+        """The cycle's measurement, if one was taken."""
         if taken is None:
             return False
         measurement, self._received = taken
@@ -301,6 +329,17 @@ class RobotInterface(Component):
 
     def _take(
         self, data: bytes, ancillary: list[Any], sender: tuple[str, int]
+    ) -> tuple[fri.Measurement, float] | None:
+        """`_judge` of a datagram as Python's socket module reads it."""
+        received = time.time()
+        for level, kind, value in ancillary:
+            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS:
+                seconds, nanoseconds = _TIMESTAMP.unpack(value[: _TIMESTAMP.size])
+                received = seconds + nanoseconds * 1e-9
+        return self._judge(data, received, sender)
+
+    def _judge(
+        self, data: bytes, received: float, sender: tuple[str, int]
     ) -> tuple[fri.Measurement, float] | None:
         """One datagram: a measurement of the KRC's, newer than the last, with its
         arrival time in the kernel; None (refused and counted) for anything else."""
@@ -318,11 +357,6 @@ class RobotInterface(Component):
             )
         self._last_seq = measurement.send_seq
         self._krc_address = expected or sender  # the first valid datagram's sender
-        received = time.time()
-        for level, kind, value in ancillary:
-            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS:
-                seconds, nanoseconds = _TIMESTAMP.unpack(value[: _TIMESTAMP.size])
-                received = seconds + nanoseconds * 1e-9
         return measurement, received
 
     def _refused(self, reason: str) -> None:

@@ -68,6 +68,7 @@ from typing import Any
 
 from components.domain import fri
 from components.domain.geometry import joint_gap, matrix_to_quat
+from components.domain.kernel import _fwkernel
 from components.domain.lwr4 import HOME, LWR4_ERRORS, NOMINAL, Kinematics
 from components.sim.arm import MODES, SimulatedArm
 from components.sim.link_faults import LinkFaults
@@ -280,7 +281,41 @@ class ArmController(Component):
 
     def _answer_direct(self, sock: socket.socket, wait: float) -> fri.Command | None:
         """`_answer` while the link loses and delays nothing: each datagram is judged as
-        it is read (what `_due` does with one due at once), no clock asked."""
+        it is read (what `_due` does with one due at once), no clock asked; with the
+        kernel, what is queued is read in one call and what follows the answer waits in
+        the inbox for the next cycle, as it would have in the socket."""
+        if _fwkernel is None:
+            return self._answer_reference(sock, wait)
+        expected, remote = self.send_seq & 0xFFFF, self.remote
+        counts = self.counts
+        fd, left = sock.fileno(), wait
+        deadline = time.monotonic() + wait if wait > 0.0 else 0.0
+        while True:
+            batch = _fwkernel.fri_receive(fd, left)  # waits only if nothing is queued
+            for index, (data, _, sender) in enumerate(batch):
+                if sender != remote:
+                    counts["refused"] += 1
+                    continue
+                try:
+                    command = fri.decode_command(data)
+                except fri.DatagramError:
+                    counts["refused"] += 1
+                    continue
+                if command.refl_seq != expected:
+                    counts["late"] += 1  # an answer to an older measurement
+                    continue
+                if index + 1 < len(batch):
+                    now = self.clock.now()
+                    self._inbox.extend((now, d, who) for d, _, who in batch[index + 1 :])
+                return command
+            if not batch or wait <= 0.0:
+                return None
+            left = deadline - time.monotonic()  # only refused or late ones came: wait on
+            if left <= 0.0:
+                return None
+
+    def _answer_reference(self, sock: socket.socket, wait: float) -> fri.Command | None:
+        """`_answer_direct` with Python's socket module."""
         deadline = 0.0
         expected, remote = self.send_seq & 0xFFFF, self.remote
         counts = self.counts

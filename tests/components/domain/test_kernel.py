@@ -6,7 +6,9 @@ references are what the rest of fw (and these specs) trust."""
 from __future__ import annotations
 
 import math
+import socket
 import struct
+import time
 
 import numpy as np
 import pytest
@@ -306,3 +308,57 @@ def test_a_joint_gap_of_other_lengths_is_refused_by_both():
     for ask in (geometry.joint_gap, geometry.joint_gap_reference):
         with pytest.raises(ValueError):
             ask((0.0,) * 6, (0.0,) * 7)
+
+
+def _udp_pair():
+    sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sender.bind(("127.0.0.1", 0))
+    receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    receiver.bind(("127.0.0.1", 0))
+    receiver.setsockopt(socket.SOL_SOCKET, 35, 1)  # SO_TIMESTAMPNS
+    receiver.setblocking(False)
+    return sender, receiver
+
+
+def test_the_kernels_fri_read_takes_what_pythons_recvmsg_takes():
+    """Every queued datagram, oldest first, as Python's recvmsg(2048) reads it (an
+    oversized one truncated to 2048 bytes), with its sender and the kernel's arrival
+    time; nothing queued and no wait: an empty list."""
+    sender, receiver = _udp_pair()
+    try:
+        datagrams = [b"", b"x" * 916, b"y" * 4096, bytes(range(256))]
+        assert kernel.fri_receive(receiver.fileno(), 0.0) == []
+        for round_ in ("kernel", "python"):
+            before = time.time()
+            for d in datagrams:
+                sender.sendto(d, receiver.getsockname())
+            time.sleep(0.05)
+            if round_ == "kernel":
+                read = kernel.fri_receive(receiver.fileno(), 0.0)
+            else:
+                read = []
+                for _ in datagrams:
+                    data, ancillary, _, who = receiver.recvmsg(2048, 64)
+                    seconds, nanoseconds = struct.unpack("ll", ancillary[0][2][:16])
+                    read.append((data, seconds + nanoseconds * 1e-9, who))
+            assert [r[0] for r in read] == [d[:2048] for d in datagrams]
+            assert all(r[2] == sender.getsockname() for r in read)
+            assert all(before - 0.01 <= r[1] <= time.time() for r in read)
+    finally:
+        sender.close()
+        receiver.close()
+
+
+def test_the_kernels_fri_read_waits_for_a_datagram_only_when_none_is_queued():
+    sender, receiver = _udp_pair()
+    try:
+        began = time.monotonic()
+        assert kernel.fri_receive(receiver.fileno(), 0.05) == []
+        assert time.monotonic() - began >= 0.045  # it waited (about) the timeout, not more
+        sender.sendto(b"late", receiver.getsockname())
+        assert [r[0] for r in kernel.fri_receive(receiver.fileno(), 5.0)] == [b"late"]
+        with pytest.raises(OSError):
+            kernel.fri_receive(-1, 0.0)
+    finally:
+        sender.close()
+        receiver.close()
