@@ -323,7 +323,7 @@ class RealTimeExecutor:
                     began = time.perf_counter()
                     component.update()
                     updated = time.perf_counter()
-                    stats.stage(f"update {component.name}", updated - began)
+                    stats.stage(component.update_stage, updated - began)
                     _follow(self._followers, component, stats)
                     followed = time.perf_counter()
                     component.write_cycle()
@@ -387,7 +387,7 @@ def _follow(
         began = time.perf_counter() if stats is not None else 0.0
         follower.update()
         if stats is not None:
-            stats.stage(f"update {follower.name}", time.perf_counter() - began)
+            stats.stage(follower.update_stage, time.perf_counter() - began)
         updated += 1 + _follow(followers, follower, stats)
     return updated
 

@@ -224,6 +224,8 @@ class Component:
         if not name.isidentifier():
             raise FwError(f"component name {name!r} must be an identifier (letters, digits, _)")
         self.name = name
+        self.update_stage = f"update {name}"
+        """The name of this component's update among a paced loop's stages (`fw bench cost`)."""
         self._state = State.INIT
         self.last_error = ""
         self._listeners: list[Callable[[StateChange], None]] = []

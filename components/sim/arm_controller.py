@@ -184,6 +184,7 @@ class ArmController(Component):
         self.send_seq = 0
         self._sent_at = 0.0
         self._on_time = True
+        self._dropped = False  # this cycle's answer came and the link lost it
         self._real_time: bool | None = None  # whether the interface's loop keeps real time
         self.counts = {"answered": 0, "missed": 0, "late": 0, "refused": 0, "echo": 0}
         self._last_status = -math.inf
@@ -218,13 +219,17 @@ class ArmController(Component):
     # -- the cycle -----------------------------------------------------------------------
     def update_hook(self) -> None:
         arm = self.arm
+        self._dropped = False
         answer = self._answer()
         if self._real_time is None:  # asked once, in the loop's own thread
             self._real_time = self._keeps_real_time()
-        waits = self._on_time or not self._real_time
+        # an answer the link lost (`impair`) came and is gone: waiting for it would only
+        # make the next cycle late, and its answer missed too (every second answer lost
+        # then made every answer count as missed, and the arm brake within 10 ms)
+        waits = (self._on_time or not self._real_time) and not self._dropped
         if answer is None and self.lockstep_ms > 0 and waits and self.send_seq:
             answer = self._answer(self.lockstep_ms / 1000.0)
-        self._on_time = answer is not None
+        self._on_time = answer is not None or self._dropped  # a lost one says nothing of the PC
         quality = self.meter.cycle(answer is not None, time.monotonic() - self._sent_at)
         if answer is not None:
             self.counts["answered"] += 1
@@ -268,7 +273,7 @@ class ArmController(Component):
         deadline = time.monotonic() + wait
         while True:
             found = self._due()
-            if found is not None:
+            if found is not None or self._dropped:  # the link lost this cycle's: no more
                 return found
             try:
                 data, sender = sock.recvfrom(2048)
@@ -363,6 +368,7 @@ class ArmController(Component):
                 self.counts["late"] += 1  # an answer to an older measurement
                 continue
             if self.faults.lost(now):
+                self._dropped = True
                 continue
             return command
         return None

@@ -19,7 +19,7 @@ from components.robot.interface import RobotInterface
 from components.robot.interpolator import CartesianInterpolator
 from components.robot.navigation import Navigator
 from components.sim.arm_controller import ArmController
-from framework.activity import Activity, SteppedExecutor
+from framework.activity import Activity, SteppedExecutor, next_deadline
 from framework.bus import Bus, free_udp_port
 from framework.clock import SimulatedClock
 from framework.clock_offset import Exchange
@@ -1210,3 +1210,49 @@ def test_a_released_arm_not_yet_commanded_stops_on_envelopes_of_unknown_age(hub)
         stops_on_envelopes_of_unknown_age(cell, room)
     finally:
         cell.close()
+
+
+def paced(arm: ArmController, cycles: int) -> None:
+    """`cycles` updates of the KRC on the 1 ms grid its real-time loop keeps: an update
+    that ended late is followed by the next at once (framework.activity.next_deadline)."""
+    deadline = time.monotonic()
+    for _ in range(cycles):
+        arm.update_hook()
+        deadline, _ = next_deadline(deadline, time.monotonic(), 0.001)
+        wait = deadline - time.monotonic()
+        if wait > 0.0:
+            time.sleep(wait)
+
+
+def test_an_answer_the_link_lost_is_not_waited_for_and_the_next_one_is(hub):
+    """The simulated KRC's wait for a late answer (`lockstep_ms`) is for a PC that runs
+    late, not for the network's losses: an answer the link lost is not waited for, and
+    the next is waited for as before. With every second answer lost, the misses are the
+    lost answers and no more (waiting for a lost one made the next cycle late and its
+    answer a miss too: every answer counted as missed, and the arm braked)."""
+    from framework.clock import MonotonicClock
+
+    port = free_udp_port()
+    container = Container("krc", hub, SteppedExecutor(SimulatedClock()))
+    arm = container.add(
+        ArmController("arm"),
+        Activity.periodic(1000),
+        properties={"fri_remote": f"127.0.0.1:{port}", "lockstep_ms": 100.0},
+    )
+    interface = LateInterface(port, delay=0.0)
+    try:
+        assert arm.configure() and arm.start(), arm.last_error
+        arm.clock = MonotonicClock()
+        arm._real_time = True  # a host with real-time priority: waits only while on time
+        arm.update_hook()
+        paced(arm, 20)  # the link PERFECT first
+        arm.call("impair", drop_every=2, seconds=60.0)
+        first = arm.call("report")["fri"]
+        paced(arm, 40)
+        report = arm.call("report")["fri"]
+    finally:
+        interface.close()
+        container.shutdown()
+    assert report["dropped"] - first["dropped"] == 20
+    assert report["missed"] - first["missed"] == 20
+    assert report["quality"] == "PERFECT"
