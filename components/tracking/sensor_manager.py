@@ -78,9 +78,10 @@ STATUS_PERIOD = 0.5  # s between tracking statuses when nothing changes (a chang
 STALE_MARGIN = 0.001
 """Event-driven, the Sensor Manager looks again this long after a staleness deadline (s):
 a sample exactly at the limit is not stale yet."""
-POSE_GAP_LIMIT = 0.02
+POSE_GAP_LIMIT = 0.03
 """s: the widest pause in the robot's poses a sample's check may fall in. The poses come
-at 200 Hz (5 ms; 20 ms: three missing); in a wider one (the robot's side was starved)
+at 100 Hz (10 ms; 30 ms: two missing; the pose between two is interpolated, 56 um off
+over 30 ms at the procedure's 0.5 m/s^2); in a wider one (the robot's side was starved)
 where the tool was is not known (the 100 ms pauses seen are 7.5 mm at the approach's
 7.5 cm/s, more while it accelerates): a tracker's sample there is not checked (its
 sensor keeps its last verdict; `unchecked` counts them)."""

@@ -486,7 +486,7 @@ def test_a_sample_older_than_every_robot_pose_names_the_oldest_as_the_nearest():
 
 
 def test_poses_as_far_apart_as_the_limit_still_place_the_tool():
-    """Two poses exactly `POSE_GAP_LIMIT` apart (20 ms, the 200 Hz stream missing three)
+    """Two poses exactly `POSE_GAP_LIMIT` apart (30 ms, the 100 Hz stream missing two)
     still say where the tool was between them."""
     rig, core = single_certus()
     core.set_kinematics(ee_path(0.0), stamp=0.0)
