@@ -853,7 +853,7 @@ class SensorManager(Component):
     ee_pose = In(
         Pose,
         doc="end-effector in the robot base frame, from joints (optional); every pose is "
-        "kept (320 ms of them): each tracker sample is checked against the pose of its time",
+        "kept (64 of them): each tracker sample is checked against the pose of its time",
         policy={"type": "buffer", "size": 64},
     )
     robot_pose = Out(

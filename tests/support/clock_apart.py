@@ -6,6 +6,7 @@ clock, sleeps and timed waits run true."""
 from __future__ import annotations
 
 import hashlib
+import os
 import shutil
 import subprocess
 import tempfile
@@ -26,7 +27,9 @@ def library() -> Path | None:
     digest = hashlib.sha256(SOURCE.read_bytes()).hexdigest()[:12]
     built = Path(tempfile.gettempdir()) / f"fw-clock-apart-{digest}.so"
     if not built.exists():
-        partial = built.with_suffix(".tmp")
+        # a name of this process's own: the suite's two workers collect at once, and one
+        # renaming a shared partial file under the other failed its collection
+        partial = built.with_suffix(f".{os.getpid()}.tmp")
         subprocess.run(
             [compiler, "-shared", "-fPIC", "-O2", "-o", str(partial), str(SOURCE), "-ldl"],
             check=True,
