@@ -1061,7 +1061,60 @@ fail:
     return NULL;
 }
 
+static PyObject *tuple7(const double *v)
+{
+    PyObject *t = PyTuple_New(N);
+    if (t == NULL)
+        return NULL;
+    for (int i = 0; i < N; i++) {
+        PyObject *f = PyFloat_FromDouble(v[i]);
+        if (f == NULL) {
+            Py_DECREF(t);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(t, i, f);
+    }
+    return t;
+}
+
+/* arm_sense(qpos[7], force[7], gravcomp[7], compliance[7], offset[7]) -> (q, aim, torque):
+ * the simulated arm's encoders q = qpos + twist - offset and servo aim = offset - twist,
+ * twist = (force + gravcomp) compliance, and its torques (components/sim/arm.py,
+ * SimulatedArm._sense_reference: the same operations in the same order), as tuples */
+static PyObject *py_arm_sense(PyObject *self, PyObject *args)
+{
+    PyObject *obj[5];
+    if (!PyArg_ParseTuple(args, "OOOOO", &obj[0], &obj[1], &obj[2], &obj[3], &obj[4]))
+        return NULL;
+    static const char *names[5] = {"qpos", "force", "gravcomp", "compliance", "offset"};
+    Py_buffer b[5];
+    int got = 0;
+    for (; got < 5; got++)
+        if (get_buffer(obj[got], &b[got], N, 0, names[got]) < 0)
+            break;
+    if (got < 5) {
+        for (int i = 0; i < got; i++)
+            PyBuffer_Release(&b[i]);
+        return NULL;
+    }
+    const double *qpos = b[0].buf, *force = b[1].buf, *grav = b[2].buf, *comp = b[3].buf,
+                 *off = b[4].buf;
+    double q[N], aim[N], torque[N];
+    for (int i = 0; i < N; i++) {
+        double twist = (force[i] + grav[i]) * comp[i];
+        q[i] = qpos[i] + twist - off[i];
+        aim[i] = off[i] - twist;
+        torque[i] = force[i];
+    }
+    for (int i = 0; i < 5; i++)
+        PyBuffer_Release(&b[i]);
+    return Py_BuildValue("(NNN)", tuple7(q), tuple7(aim), tuple7(torque));
+}
+
 static PyMethodDef methods[] = {
+    {"arm_sense", py_arm_sense, METH_VARARGS,
+     "arm_sense(qpos, force, gravcomp, compliance, offset) -> (q, aim, torque): the simulated "
+     "arm's encoders, servo aim and torques."},
     {"fri_receive", py_fri_receive, METH_VARARGS,
      "fri_receive(fd, timeout) -> [(datagram, arrival, (host, port))]: what waits on the "
      "socket, or what comes within timeout if nothing does."},

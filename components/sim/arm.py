@@ -80,6 +80,7 @@ class SimulatedArm:
         self._offset = np.array(errors.joint_offset, dtype=float)
         stiffness = errors.joint_stiffness
         self._compliance = np.zeros(7) if stiffness is None else 1.0 / np.array(stiffness)
+        self._reference_guard = False  # True: `_command` and `_sense` in Python, not the kernel
         for _ in range(3):  # the links settle where the encoders read q0, servos idle
             self.data.qpos[:7] = np.asarray(q0, dtype=float) + self._offset - self._twist()
             self.data.ctrl[:7] = self.data.qpos[:7]
@@ -99,7 +100,6 @@ class SimulatedArm:
         self._last_setpoint = tuple(float(v) for v in q0)
         self._held = self.data.qpos[:7].copy()  # link angles the brakes hold
         self._at_rest = False  # braked and stepped once since: nothing left to simulate
-        self._reference_guard = False  # True: `_command` in Python, not the kernel's
 
     @property
     def commanded(self) -> bool:
@@ -115,6 +115,10 @@ class SimulatedArm:
     def q(self) -> np.ndarray:
         """Measured joint positions (rad): the encoders, on the motors' side (read-only:
         what the last physics step left; a new array after each)."""
+        if self._q is None:
+            q = np.array(self._q_values)
+            q.flags.writeable = False
+            self._q = q
         return self._q
 
     @property
@@ -129,7 +133,22 @@ class SimulatedArm:
 
     def _sense(self) -> None:
         """Read the encoders and what the servos aim by, once per physics step (every
-        reading of a cycle reads these: the state changes only in a step)."""
+        reading of a cycle reads these: the state changes only in a step); in the
+        compiled kernel where it was built (`arm_sense`: `_sense_reference`'s operations,
+        which a spec holds it to)."""
+        if _fwkernel is None or self._reference_guard:
+            self._sense_reference()
+            return
+        data = self.data
+        self._q_values, aim, self._torque = _fwkernel.arm_sense(
+            data.qpos[:7], data.actuator_force[:7], data.qfrc_gravcomp[:7],
+            self._compliance, self._offset,
+        )  # fmt: skip
+        self._aim = list(aim)
+        self._q = None  # made from `_q_values` when someone reads `q`
+
+    def _sense_reference(self) -> None:
+        """`_sense` in numpy."""
         twist = self._twist()
         q = self.data.qpos[:7] + twist - self._offset
         q.flags.writeable = False

@@ -95,7 +95,8 @@ def _setpoint(arm, spec):
 def test_the_kernels_setpoint_guard_is_the_pythons(mode, plan):
     """The compiled guard and servo targets (`servo_aim`) take and refuse the setpoints
     the Python `_command` does, with the same reason and the same servo targets to the
-    bit, whether the arm was just released or is being commanded, in either mode."""
+    bit, whether the arm was just released or is being commanded, in either mode; and
+    the encoders the kernel reads after each step (`arm_sense`) are numpy's, to the bit."""
     compiled, reference = SimulatedArm(mode=mode), SimulatedArm(mode=mode)
     reference._reference_guard = True
     for arm in (compiled, reference):
@@ -110,3 +111,5 @@ def test_the_kernels_setpoint_guard_is_the_pythons(mode, plan):
             compiled.step()
             reference.step()
         assert compiled.q.tobytes() == reference.q.tobytes()
+        assert compiled.torque_values == reference.torque_values
+        assert compiled._aim == reference._aim
