@@ -115,7 +115,11 @@ SAFETY_CORE: dict[str, list[str]] = {
         REFERENCE,
     ],
     "components/tracking/frame_clock.py": ["tests/components/tracking/test_frame_clock.py"],
-    "components/domain/fri.py": ["tests/components/domain/test_fri.py"],
+    "components/domain/fri.py": [
+        "tests/components/domain/test_fri.py",
+        # holds the compiled kernel's datagrams to the module's struct references
+        "tests/components/domain/test_kernel.py",
+    ],
 }
 """The modules that keep the robot safe, each with its own fast tests."""
 
