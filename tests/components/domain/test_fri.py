@@ -5,7 +5,7 @@ import re
 import struct
 
 import pytest
-from hypothesis import example, given
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from components.domain import fri
@@ -428,3 +428,59 @@ def test_the_statistics_are_those_of_the_window_whatever_came_before(cycles, win
         assert jitter == max(latencies) - min(latencies)
     else:
         assert (mean, jitter) == (0.0, 0.0)
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    st.integers(0, 2**16 - 1),
+    st.integers(0, 2**16 - 1),
+    st.tuples(*[st.floats(-3.0, 3.0, width=32)] * 7),
+    st.tuples(*[st.floats(-100.0, 100.0, width=32)] * 7),
+    st.integers(0, 2**31 - 1),
+    st.integers(0, 8),
+    st.booleans(),
+    st.sampled_from([0.001, 0.01]),
+)
+def test_without_the_kernel_every_field_travels_both_ways(
+    send, refl, joints, torques, served, reason, braked, sample_time
+):
+    """Where the kernel was not built, the references encode and decode every field fw
+    uses, measurement and command alike (the kernel spec holds the two paths equal)."""
+    module = fri
+
+    kernel, module._fwkernel = module._fwkernel, None
+    try:
+        datagram = fri.encode_measurement(
+            send, refl, timestamp=1.5, state=fri.State.CMD, quality=fri.Quality.OK,
+            stats=(0.5, 0.25, 0.125, 0.5, 7), control=fri.Control.JNT_IMP,
+            msr_jnt_pos=joints, cmd_jnt_pos=joints[::-1], cmd_jnt_pos_fri_offset=torques,
+            msr_jnt_trq=torques[::-1], served=served, reason=reason, cycle=served + 3,
+            braked=braked, latched=not braked, sample_time=sample_time,
+        )  # fmt: skip
+        m = fri.decode_measurement(datagram)
+        command = fri.decode_command(
+            fri.encode_command(
+                send, refl, joints, flags=0x31, request_number=served, request=reason
+            )
+        )
+    finally:
+        module._fwkernel = kernel
+    assert (m.send_seq, m.refl_seq, m.timestamp, m.state, m.quality) == (send, refl, 1.5, 2, 2)
+    assert (m.answer_rate, m.latency, m.jitter, m.miss_rate, m.miss_counter) == (
+        0.5,
+        0.25,
+        0.125,
+        0.5,
+        7,
+    )
+    assert (m.control, m.msr_jnt_pos, m.cmd_jnt_pos) == (fri.Control.JNT_IMP, joints, joints[::-1])
+    assert (m.cmd_jnt_pos_fri_offset, m.msr_jnt_trq) == (torques, torques[::-1])
+    assert (m.served, m.reason, m.cycle, m.braked, m.latched) == (
+        served,
+        reason,
+        served + 3,
+        braked,
+        not braked,
+    )
+    assert datagram[148:156] == struct.pack("<ff", sample_time, sample_time)
+    assert tuple(command) == (send, refl, 0x31, joints, served, reason)
