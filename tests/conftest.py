@@ -260,7 +260,8 @@ def with_deadlines_stretched(topology, margin: float):
     and reply timeout (a `timeout` property: the NDI driver's; `krc_timeout`: the FRI
     interface's wait for the KRC), and every tracker's
     staleness limit (`stale_periods` of a `sensors_file`, in a copy) x `margin` (a
-    timeout no further than its property allows)."""
+    timeout no further than its property allows); the simulated KRC waits for every
+    answer (`lockstep: always`), as it does on a host without real-time priority."""
     import dataclasses
 
     if margin == 1.0:
@@ -284,6 +285,8 @@ def with_deadlines_stretched(topology, margin: float):
             if declared is not None:
                 seconds = component.properties.get(name, declared.default) * margin
                 component.properties[name] = min(seconds, declared.max or seconds)
+        if "lockstep" in component.info.properties:  # the simulated KRC waits for every
+            component.properties["lockstep"] = "always"  # answer: slows down, not brakes
         sensors = component.properties.get("sensors_file")
         if sensors:
             component.properties["sensors_file"] = _staleness_stretched(sensors, margin)
