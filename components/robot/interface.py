@@ -267,13 +267,16 @@ class RobotInterface(Component):
         """Wait (at most `timeout` s) for the KRC's next measurement and take it: the
         newest valid one if several queued up (the ones skipped are counted, only the
         newest is answered). A datagram from another sender, of the wrong size or id,
-        or out of sequence is refused and counted. Runs in the loop's thread."""
+        or out of sequence is refused and counted, and the wait goes on to its end: a
+        flood of them neither ends a cycle's wait nor lengthens it. Runs in the loop's
+        thread."""
         sock = self._socket
         if sock is None:
             return False
         if _fwkernel is None:
             return self._read_reference(sock, timeout)
         taken = None
+        deadline = time.monotonic() + timeout
         try:
             fd = sock.fileno()
             batch = _fwkernel.fri_receive(fd, timeout)  # waits only if nothing is queued
@@ -286,7 +289,13 @@ class RobotInterface(Component):
                         if taken is not None:
                             self.link["skipped"] += 1
                         taken = found
-                batch = _fwkernel.fri_receive(fd, 0.0) if len(batch) == FRI_BATCH else []
+                if len(batch) == FRI_BATCH:
+                    batch = _fwkernel.fri_receive(fd, 0.0)  # more may be queued
+                elif taken is None and timeout > 0.0:  # only refused ones: wait on
+                    left = deadline - time.monotonic()
+                    batch = _fwkernel.fri_receive(fd, left) if left > 0.0 else []
+                else:
+                    batch = []
         except OSError:  # the socket was closed (stopping)
             return False
         return self._took(taken)
@@ -294,16 +303,17 @@ class RobotInterface(Component):
     def _read_reference(self, sock: socket.socket, timeout: float) -> bool:
         """`read_hook` with Python's socket module (where the kernel was not built)."""
         taken = None
+        deadline = time.monotonic() + timeout
         try:
             while True:
                 try:
                     data, ancillary, _, sender = sock.recvmsg(2048, 64)
                 except BlockingIOError:
-                    if taken is not None or timeout <= 0:
+                    left = deadline - time.monotonic()
+                    if taken is not None or left <= 0.0:
                         break
-                    if not select.select([sock], [], [], timeout)[0]:
+                    if not select.select([sock], [], [], left)[0]:
                         break
-                    timeout = 0.0
                     continue
                 began = time.perf_counter()
                 found = self._take(data, ancillary, sender)

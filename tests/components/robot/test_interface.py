@@ -183,8 +183,14 @@ class Arm:
         self.krc.close()
 
 
-@pytest.fixture
-def arm(hub):
+@pytest.fixture(params=["kernel", "python"])
+def arm(hub, request, monkeypatch):
+    """The interface with fw's compiled kernel, and again with its Python references
+    (where the kernel is not built): every spec holds for both paths."""
+    if request.param == "python":
+        from components.robot import interface
+
+        monkeypatch.setattr(interface, "_fwkernel", None)
     arm = Arm(hub)
     yield arm
     arm.close()
@@ -1589,3 +1595,53 @@ def test_the_kernels_setpoint_plausibility_is_the_pythons(
     said = interfaces[0]._implausible(q, state)
     assert said == interfaces[1]._implausible_reference(q, state)
     assert interfaces[0].peak_step == interfaces[1].peak_step
+
+
+def test_a_refused_datagram_neither_ends_nor_lengthens_the_wait_for_a_measurement(arm):
+    """A datagram the interface refuses (garbage, a forger's) does not end the cycle's
+    wait: the KRC's measurement that follows within it is taken; with only refused
+    ones, the wait ends at its end and nothing is taken."""
+    import threading
+
+    arm.cycle()
+    arm.krc.sendto(b"\x00" * 17, ("127.0.0.1", arm.port))
+    later = threading.Timer(0.2, arm.measure)
+    later.start()
+    try:
+        took = arm.robot.read_hook(10.0)
+    finally:
+        later.join()
+    link = arm.robot.link
+    assert took and link["refused"] == 1 and link["measurements"] == 2
+    arm.krc.sendto(b"\x00" * 17, ("127.0.0.1", arm.port))
+    assert not arm.robot.read_hook(0.2)
+    assert link["refused"] == 2 and link["measurements"] == 2
+
+
+class _UnsentSocket(socket.socket):
+    """The interface's own socket whose every send fails, as one to a network gone
+    unreachable does (ENETUNREACH): the network's fault, injected at the edge."""
+
+    def sendto(self, *args):
+        import errno
+
+        raise OSError(errno.ENETUNREACH, "Network is unreachable")
+
+
+def test_an_answer_that_could_not_be_sent_is_said_and_not_counted_as_answered(arm):
+    import os
+
+    arm.cycle()
+    answered = arm.robot.link["answered"]
+    own = arm.robot._socket
+    failing = _UnsentSocket(fileno=os.dup(own.fileno()))
+    arm.robot._socket = failing
+    try:
+        arm.cycle()
+    finally:
+        arm.robot._socket = own
+        failing.close()
+    assert arm.robot.link["answered"] == answered
+    assert "cannot answer the KRC: Network is unreachable" in said(arm)
+    arm.cycle()  # the network back: answered as ever
+    assert arm.robot.link["answered"] == answered + 1
