@@ -286,6 +286,8 @@ class RealTimeExecutor:
                     time.sleep(wait)
             else:
                 self._stop.wait(wait)
+        if stats is not None:
+            self.realtime.leave()
 
     def _event(self, component: Component, activity: Activity) -> None:
         wake = self._wake[component.name]
@@ -342,6 +344,7 @@ class RealTimeExecutor:
                 self.realtime.between_cycles(stats, slack=not cycled)
         finally:
             engine.stop()
+            self.realtime.leave()
 
     def stop(self, timeout: float = 2.0) -> None:
         """Stop every thread and wait for them."""

@@ -53,21 +53,29 @@ terminal closing. The default action of the last two would kill fw before it sto
 the robot side and closes the flight recording."""
 
 
-def stop_on_signals() -> dict[int, Any]:
+def stop_on_signals() -> None:
     """Turn each of `STOP_SIGNALS` into KeyboardInterrupt, once: the first starts the
-    shutdown, later ones are ignored so that nothing cuts the shutdown short. SIGINT
+    shutdown, later ones, and any once a shutdown has begun by itself (a run's
+    `--duration` or scenario over), are ignored so that nothing cuts it short. SIGINT
     counts even when fw was started with it ignored (a shell's background job): a
-    Ctrl-C or `kill -INT` sent to fw itself means stop. The handlers it replaced, for
-    `signal.signal` to put back once the shutdown is over."""
+    Ctrl-C or `kill -INT` sent to fw itself means stop. They stay ignored until fw
+    exits: a signal after the shutdown would otherwise kill fw while it prints the
+    scenario's report, and give a clean stop the exit status of a killed process."""
 
     def stop(signum: int, frame: Any) -> None:
-        for name in STOP_SIGNALS:
-            signal.signal(getattr(signal, name), signal.SIG_IGN)
+        ignore_stop_signals()
         raise KeyboardInterrupt
 
-    return {
-        getattr(signal, name): signal.signal(getattr(signal, name), stop) for name in STOP_SIGNALS
-    }
+    for name in STOP_SIGNALS:
+        signal.signal(getattr(signal, name), stop)
+
+
+def ignore_stop_signals() -> None:
+    """From here on, `STOP_SIGNALS` change nothing: the shutdown has begun (a signal's
+    KeyboardInterrupt raised inside it left the control's threads running and fw
+    waiting for them forever, the robot side's processes never stopped)."""
+    for name in STOP_SIGNALS:
+        signal.signal(getattr(signal, name), signal.SIG_IGN)
 
 
 class _Printer(Listener):
@@ -289,7 +297,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     started = time.monotonic()
-    previous = stop_on_signals()
+    stop_on_signals()
     try:
         deployment.start(run_chart=False)
         if args.foxglove is not None:
@@ -356,9 +364,11 @@ def cmd_deploy(args: argparse.Namespace) -> int:
                 )
                 sys.stdout.flush()
             time.sleep(0.5 if end is None else min(0.5, max(0.0, end - time.monotonic())))
+        print("fw: the run is over: shutting down (robot side first)...", file=sys.stderr)
     except KeyboardInterrupt:
         print("\nfw: shutting down (robot side first)...", file=sys.stderr)
     finally:
+        ignore_stop_signals()  # a signal now would cut the shutdown short
         if console is not None:
             console.stop()
             console.model.stop()
@@ -371,8 +381,6 @@ def cmd_deploy(args: argparse.Namespace) -> int:
             live.close()
         if not args.workdir and not args.keep_logs:
             shutil.rmtree(workdir, ignore_errors=True)
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
     print("fw: stopped", file=sys.stderr)
     if deployment.runner is not None:
         return scenario_report(deployment.runner)

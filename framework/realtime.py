@@ -145,6 +145,8 @@ class RealTimePolicy:
         self.manage_gc = manage_gc
         self.granted: bool | None = None
         """Whether the host gives real-time priority (None: no loop asked yet)."""
+        self._collecting = 0  # the loops that took the collector over and still run
+        self._lock = threading.Lock()
 
     def enter(self, name: str, priority: int | None = None, fifo: bool = True) -> str:
         """In the loop's own thread, before its first cycle: ask for SCHED_FIFO (at
@@ -155,6 +157,8 @@ class RealTimePolicy:
         priority = self.priority if priority is None else priority
         sys.setswitchinterval(SWITCH_INTERVAL)
         if self.manage_gc:
+            with self._lock:
+                self._collecting += 1
             gc.collect()
             gc.freeze()  # what exists now is never scanned again
             gc.disable()  # the loop collects between its cycles
@@ -185,6 +189,22 @@ class RealTimePolicy:
         self.granted = True
         locked = _lock_memory()
         return f"SCHED_FIFO {priority}" + ("" if locked else " (memory not locked)")
+
+    def leave(self) -> None:
+        """In the loop's thread, after its last cycle: once no loop of the process runs,
+        the collector is Python's again and what was frozen may be collected (at exit, a
+        frozen extension object is never freed: nanobind's modules, ruckig's, then report
+        it as a leak in the process's log)."""
+        if not self.manage_gc:
+            return
+        with self._lock:
+            if self._collecting == 0:
+                return
+            self._collecting -= 1
+            if self._collecting:
+                return
+        gc.unfreeze()
+        gc.enable()
 
     def between_cycles(self, stats: LoopStats, slack: bool = False) -> None:
         """After a cycle's write, in the loop's thread: collect the young generations

@@ -6,6 +6,7 @@ import re
 import signal
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -427,3 +428,29 @@ def test_without_a_terminal_a_taken_console_port_leaves_the_deployment_running(t
         done.stderr
     )
     assert "the deployment runs on without it" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_a_stop_signal_during_the_shutdown_at_a_runs_end_changes_nothing(topology):
+    """A run that ends by itself (its `--duration`, its scenario) shuts down in order,
+    and a Ctrl-C or a service manager's stop that comes meanwhile is ignored, as one
+    during a Ctrl-C's shutdown is: it used to cut the shutdown short, leaving fw
+    waiting forever for threads nobody stopped and the robot side's processes running."""
+    deploy = deploy_in_background(topology, "--duration", "4")
+    err = []
+    try:
+        for line in deploy.stderr:  # until the run's own end begins
+            err.append(line)
+            if "the run is over" in line:
+                break
+        for _ in range(500):  # a signal every 20 ms until fw has stopped (10 s at most)
+            if deploy.poll() is not None:
+                break
+            deploy.send_signal(signal.SIGTERM)
+            time.sleep(0.02)
+        _, rest = interrupt(deploy, sig=signal.SIGTERM)
+    finally:
+        if deploy.poll() is None:
+            deploy.kill()
+    err.append(rest or "")
+    text = "".join(err)
+    assert deploy.returncode == 0 and "fw: stopped" in text, text[-2000:]

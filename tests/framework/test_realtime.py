@@ -75,3 +75,26 @@ def test_a_loop_not_asking_for_real_time_is_said_so_and_given_none():
     said, policy_after = enter_in_a_thread(policy, fifo=True)
     assert policy_after == os.SCHED_OTHER and "real-time not asked for" in said
     assert policy.granted is False
+
+
+def test_the_collector_is_pythons_again_once_the_last_loop_of_the_process_has_left():
+    """A loop freezes what exists and turns automatic collection off; once no loop of
+    the process runs, both are undone (a frozen extension object is never freed at
+    exit, and nanobind's modules then report leaks in the process's log)."""
+    script = (
+        "import gc\n"
+        "from framework.realtime import RealTimePolicy\n"
+        "policy = RealTimePolicy(enabled=False)\n"
+        "policy.enter('a'); policy.enter('b')\n"
+        "states = [(gc.isenabled(), gc.get_freeze_count() > 0)]\n"
+        "policy.leave(); states.append((gc.isenabled(), gc.get_freeze_count() > 0))\n"
+        "policy.leave(); states.append((gc.isenabled(), gc.get_freeze_count() > 0))\n"
+        "policy.leave(); states.append((gc.isenabled(), gc.get_freeze_count() > 0))\n"
+        "print(states)\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=60, cwd=REPO
+    )
+    assert done.returncode == 0, done.stderr
+    # both loops in: frozen, off; one left: still; both left: Python's; a stray leave: no change
+    assert done.stdout.strip() == str([(False, True), (False, True), (True, False), (True, False)])
