@@ -195,10 +195,8 @@ class RealTimePolicy:
         the collector is Python's again and what was frozen may be collected (at exit, a
         frozen extension object is never freed: nanobind's modules, ruckig's, then report
         it as a leak in the process's log)."""
-        if not self.manage_gc:
-            return
         with self._lock:
-            if self._collecting == 0:
+            if self._collecting == 0:  # no loop took the collector (or none is left)
                 return
             self._collecting -= 1
             if self._collecting:
