@@ -41,6 +41,16 @@ def enter_in_a_thread(policy: RealTimePolicy, fifo: bool) -> tuple[str, int]:
     return str(out["said"]), int(out["policy"])  # type: ignore[call-overload]
 
 
+def in_a_process_of_its_own(script: str) -> str:
+    """What `script` prints, run by a Python of its own (the scheduling, the memory lock
+    and the collector are the process's: a test must not leave them to the next)."""
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=60, cwd=REPO
+    )
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
 def test_a_simulated_devices_loop_keeps_sched_other_and_learns_what_the_host_gives():
     policy = RealTimePolicy(manage_gc=False)
     said, policy_after = enter_in_a_thread(policy, fifo=False)
@@ -63,11 +73,8 @@ def test_a_device_loop_takes_sched_fifo_where_the_host_gives_it():
         "t = threading.Thread(target=loop); t.start(); t.join()\n"
         "print(out['fifo'], policy.granted, out['said'])\n"
     )
-    done = subprocess.run(
-        [sys.executable, "-c", script], capture_output=True, text=True, timeout=60, cwd=REPO
-    )
-    assert done.returncode == 0, done.stderr
-    assert done.stdout.startswith(f"True True SCHED_FIFO {PRIORITY - 1}")
+    out = in_a_process_of_its_own(script)
+    assert out.startswith(f"True True SCHED_FIFO {PRIORITY - 1}")
 
 
 def test_a_loop_not_asking_for_real_time_is_said_so_and_given_none():
@@ -93,9 +100,6 @@ def test_the_collector_is_pythons_again_once_the_last_loop_of_the_process_has_le
         "policy.leave(); states.append((gc.isenabled(), gc.get_freeze_count() > 0))\n"
         "print(states)\n"
     )
-    done = subprocess.run(
-        [sys.executable, "-c", script], capture_output=True, text=True, timeout=60, cwd=REPO
-    )
-    assert done.returncode == 0, done.stderr
+    out = in_a_process_of_its_own(script)
     # both loops in: frozen, off; one left: still; both left: Python's; a stray leave: no change
-    assert done.stdout.strip() == str([(False, True), (False, True), (True, False), (True, False)])
+    assert out.strip() == str([(False, True), (False, True), (True, False), (True, False)])
