@@ -77,7 +77,11 @@ class LiveGate:
         try:
             conn.settimeout(self.timeout)
             if self.tls is not None:
-                conn = self.tls.wrap_socket(conn, server_side=True)
+                # The handshake runs here, not in wrap_socket: wrap_socket closes the
+                # connection before its error reaches us, so the peer could see the
+                # close before the refusal was counted.
+                conn = self.tls.wrap_socket(conn, server_side=True, do_handshake_on_connect=False)
+                conn.do_handshake()
             head = self._head(conn)
             if head is None or not self._authorized(head):
                 self.refused += 1

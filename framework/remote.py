@@ -24,6 +24,11 @@ ROUTE_RETRY = 0.05
 """s between two asks of a component that is alive but that the bus has no route to yet."""
 
 
+ALIVE_WAIT = 0.5
+"""s at most for the liveliness check. Zenoh answers it from the session's own table
+(0.1 ms here, whether or not the token exists), so this bounds only a starved host."""
+
+
 class RemoteError(FwError):
     """A remote request failed; `kind` is the remote error class name."""
 
@@ -67,7 +72,7 @@ class RemoteComponent:
             # The bus knew nobody to ask. Unless the component is alive (a route not
             # made yet after a link came back, eclipse-zenoh/zenoh#588, #2517), say so.
             wait = deadline - time.time() - ROUTE_RETRY
-            if wait <= ROUTE_RETRY or not self._alive(min(wait, ROUTE_RETRY)):
+            if wait <= ROUTE_RETRY or not self._alive(min(wait, ALIVE_WAIT)):
                 raise RemoteError(
                     f"no answer from component {self.name!r} to {what}: nothing on the bus "
                     "takes it (is its process running? may this session ask it?)",

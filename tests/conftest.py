@@ -118,10 +118,12 @@ def hub(bus_config):
 
 @pytest.fixture
 def peer(bus_config, hub):
-    """A second session joining the hub, as another process would."""
+    """A second session joining the hub, as another process would (linked to it before
+    the test starts: on a busy host the link can take longer than a test's first step)."""
     from framework.bus import Bus
 
     bus = Bus(bus_config)
+    assert bus.wait_for_peers(1, timeout=10.0), "the peer session never linked to the hub"
     yield bus
     bus.close()
 

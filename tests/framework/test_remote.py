@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 
 import pytest
 
@@ -24,6 +25,16 @@ def answer(peer, component: str):
     return peer.queryable(keys.control_request(component, "state"), reply)
 
 
+def seen_alive(hub, component: str, timeout: float = 10.0) -> bool:
+    """Wait until `hub` sees `component`'s liveliness token (tokens travel asynchronously)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if hub.alive(keys.alive(component), timeout=1.0):
+            return True
+        time.sleep(0.01)
+    return False
+
+
 def test_a_component_nobody_hosts_is_said_so_without_waiting_out_the_timeout(hub):
     with pytest.raises(RemoteError, match="nothing on the bus takes it"):
         RemoteComponent(hub, "nobody").request("state", timeout=30.0)
@@ -33,6 +44,7 @@ def test_a_component_alive_whose_requests_have_no_route_yet_is_asked_again(hub, 
     """Its liveliness token is on the bus first, its queryable 0.3 s later: the request
     (5 s to answer) gets the answer instead of "nothing on the bus takes it"."""
     token = peer.token(keys.alive("late"))
+    assert seen_alive(hub, "late"), "the hub never saw the token (the spec's premise)"
     declared = []
     timer = threading.Timer(0.3, lambda: declared.append(answer(peer, "late")))
     timer.start()
