@@ -15,7 +15,7 @@ value (the deployer's -15 for safety processes). Either way `LoopStats.schedulin
 says what the loop got, for `fw deploy`'s screen and `fw bench cost`.
 
 Only the loop's thread runs at real-time priority, never its process's other threads
-(the bus's, the heartbeat's): with all of them at SCHED_FIFO 70 (tried, to spare the
+(the bus's; its process beats from the loop, below): with all of them at SCHED_FIFO 70 (tried, to spare the
 loop a priority inversion through the GIL) the bus threads of the robot and KRC
 processes starved the rest of the deployment, and the Sensor Manager's heartbeat
 missed its 100 ms deadline on a quiet 2-core host. The GIL: a thread of the same

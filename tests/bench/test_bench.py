@@ -24,7 +24,7 @@ def test_quick_bench_runs_every_experiment_and_writes_report_summary_and_figures
     stopped = [
         b["stopped_on"] for runs in deployed["bumps"].values() for b in runs if b["stopped_on"]
     ]
-    assert rows[("navigation", "deployed bumps: tracker swaps")]["n"] == 8, (
+    assert rows[("navigation", "deployed bumps: tracker swaps")]["n"] == 4, (
         f"a bump stopped the procedure: {stopped}"
     )
     # what it costs: every process's cores, braked and moving, and the arm loop's pace

@@ -876,7 +876,7 @@ def run_bumps(quick: bool, context: dict[str, Any]) -> list[Row]:
     a real fault's detection."""
     from fw_bench import bumps
 
-    count = 4 if quick else 60
+    count = 2 if quick else 60  # quick: one bump out and back per tracker
     result = bumps.deployed(_seeg(context), count, _progress("navigation: deployed bumps"))
     context.setdefault("series", {}).setdefault("navigation", {})["deployed_bumps"] = result
     rows = []
