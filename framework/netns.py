@@ -18,7 +18,16 @@ packet crossing the host's link, in both directions, each with the given probabi
 side and the bridge's), so no sender is told; it needs `nft` (Debian's `nftables`,
 which tools/install.sh installs) and the kernel's nf_tables. Delay and jitter are `tc netem`
 on what the host sends, where the kernel has sch_netem; where it has not (some VMs'
-kernels), `impair` raises `NetnsError` saying so (`netem_available()`).
+kernels), the host's link is swapped for the fault's time for a wire of two TAP devices
+and a process that carries each frame after its delay (framework/netns_delay.py; not
+for the KRC's link, whose delay `arm.impair` makes at FRI's level).
+
+The bridge and its ports live in the namespace `up` ran in (the machine's own).
+`up` names it `<prefix>machine` (`ip netns attach`), so a fault injected from inside
+a host (the control host's `fw deploy --scenario`) still reaches the bridge's side of
+a link: from there, until 2026-12-02, the drop rule at a link's bridge end was made in
+the control host's namespace, on a device it does not have (nf_tables takes such a
+hook and waits for the device), and a lossy link lost only what the host received.
 
 Needs root (CAP_NET_ADMIN) and `ip`; `available()` says why not, and tests skip with
 that reason.
@@ -27,6 +36,7 @@ that reason.
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import shutil
 import signal
@@ -64,8 +74,10 @@ def available() -> str:
     return ""
 
 
+@functools.cache
 def netem_available() -> bool:
-    """Does the kernel have the netem queueing discipline (loss, delay)?"""
+    """Does the kernel have the netem queueing discipline (loss, delay)? (Asked once
+    per process: a fault made in the middle of a run must not wait for a probe.)"""
     probe = f"fwnetem{os.getpid()}"
     subprocess.run(["ip", "netns", "add", probe], capture_output=True)
     try:
@@ -127,6 +139,13 @@ class Hosts:
     """Also the KRC's namespace, linked to `robot` only."""
     bridge: str = "fwbr0"
     made: list[str] = field(default_factory=list)
+    _wires: dict[str, subprocess.Popen[str]] = field(default_factory=dict)
+    """Hosts whose link is swapped for a delaying wire, and its process."""
+
+    @property
+    def machine(self) -> str:
+        """The name `up` gives the namespace of the bridge (the machine's own)."""
+        return f"{self.prefix}machine"
 
     def namespace(self, host: str) -> str:
         """The namespace of `host`."""
@@ -146,6 +165,7 @@ class Hosts:
     def up(self) -> Hosts:
         """Build every namespace, the bridge and the links (replacing leftovers)."""
         self.down()
+        _ip("netns", "attach", self.machine, str(os.getpid()))
         _ip("link", "add", self.bridge, "type", "bridge")
         _ip("link", "set", self.bridge, "up")
         for index, host in enumerate(self.names):
@@ -211,12 +231,16 @@ class Hosts:
             subprocess.run(["ip", "netns", "del", self.namespace(host)], capture_output=True)
         # a namespace's links go with it, but the kernel frees them later: an `up` right
         # after would find their names taken
-        links = [self._veth(f"{i}{end}") for i in range(len(self.names)) for end in "hb"]
+        links = [self._veth(f"{i}{end}") for i in range(len(self.names)) for end in "hbwd"]
         for link in [*links, self._veth("k0"), self._veth("k1"), self.bridge]:
             subprocess.run(["ip", "link", "del", link], capture_output=True)
+        for wire in self._wires.values():
+            _end_wire(wire)
+        self._wires.clear()
         if shutil.which("nft") is not None:  # a lossy link's tables at the bridge's ports
             for i in range(len(self.names)):  # (a run that died before its heal)
                 _nft(None, f"delete table netdev {LOSS_TABLE}_{self._veth(f'{i}b')}\n")
+        subprocess.run(["ip", "netns", "del", self.machine], capture_output=True)
         self.made.clear()
 
     def command(self, host: str, *argv: str) -> list[str]:
@@ -279,6 +303,9 @@ class Hosts:
                     os.kill(int(pid), signal.SIGKILL)
 
     def _link(self, host: str) -> tuple[str, str]:
+        """`host`'s namespace and the device its traffic crosses now."""
+        if host in self._wires:
+            return self.namespace(host), WIRE_DEVICE
         return self.namespace(host), "fri0" if host == KRC else "eth0"
 
     def cut(self, host: str) -> None:
@@ -288,6 +315,7 @@ class Hosts:
 
     def heal(self, host: str) -> None:
         """End a partition of `host` and any impairment of its link."""
+        self._unwire(host)
         ns, dev = self._link(host)
         _ip("-n", ns, "link", "set", dev, "up")
         self._route(host)
@@ -306,6 +334,14 @@ class Hosts:
         if not 0.0 <= loss <= 1.0:
             raise NetnsError(f"a loss is a share between 0 and 1, not {loss!r}")
         ns, dev = self._link(host)
+        if (delay or jitter) and not netem_available():
+            if host == KRC:
+                raise NetnsError(
+                    "cannot delay the KRC's link without the kernel's sch_netem (FRI's own "
+                    "delay is arm.impair's); partitions and loss still work"
+                )
+            self._wire(host, delay, jitter, loss)
+            return
         if delay or jitter:
             argv = ["ip", "netns", "exec", ns, "tc", "qdisc", "replace", "dev", dev, "root"]
             argv += ["netem", "delay", f"{delay * 1e3:g}ms", f"{jitter * 1e3:g}ms"]
@@ -332,7 +368,125 @@ class Hosts:
         if host == KRC:
             return [(self.namespace(KRC), "fri0"), (self.namespace("robot"), "fri0")]
         index = self.names.index(host)
-        return [(self.namespace(host), "eth0"), (None, self._veth(f"{index}b"))]
+        return [(self.namespace(host), "eth0"), (self._at_machine(), self._veth(f"{index}b"))]
+
+    def _at_machine(self) -> str | None:
+        """Where the bridge is: its namespace's name, None for hosts built before
+        `up` named it (then this process must run in that namespace)."""
+        return self.machine if Path("/run/netns", self.machine).exists() else None
+
+    def _wire(self, host: str, delay: float, jitter: float, loss: float) -> None:
+        """Swap `host`'s link for a delaying wire (framework/netns_delay.py) until
+        `heal`: both TAPs are made in the bridge's namespace, the host's is moved into
+        the host with eth0's MAC and address (peers' ARP entries stay right, TCP
+        connections go on), then eth0 goes down."""
+        machine = self._at_machine()
+        if machine is None:
+            raise NetnsError(
+                f"cannot delay {host}'s link: its hosts were built before fw named "
+                "the bridge's namespace (build them again: python -m framework.netns up)"
+            )
+        ns, index = self.namespace(host), self.names.index(host)
+        near, far = self._veth(f"{index}w"), self._veth(f"{index}d")
+        argv = ["ip", "netns", "exec", machine, sys.executable, "-m", "framework.netns_delay"]
+        wire = subprocess.Popen(
+            [*argv, near, far, repr(delay), repr(jitter), repr(loss)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+        )
+        if (wire.stdout.readline() if wire.stdout else "").strip() != "ready":
+            _end_wire(wire)
+            raise NetnsError(
+                f"cannot delay {host}'s link: its wire did not start: "
+                f"{(wire.stderr.read() if wire.stderr else '').strip()[-300:]}"
+            )
+        self._wires[host] = wire
+        try:
+            mac = _mac(ns, "eth0")
+            address = f"{self.address(host)}/24"
+            # the bridge its own link is a port of (a fault's Hosts knows only the prefix)
+            bridge = _master(machine, self._veth(f"{index}b"))
+            _batch(machine, [f"link set {far} master {bridge}", f"link set {far} up"])
+            _batch(machine, [f"link set {near} netns {ns}"])
+            _batch(
+                ns, [f"link set {near} name {WIRE_DEVICE}", f"link set {WIRE_DEVICE} address {mac}"]
+            )
+            # the swap itself, in one `ip`: the host is without a link for well under 1 ms
+            _batch(
+                ns,
+                [
+                    "link set eth0 down",
+                    f"addr del {address} dev eth0",
+                    f"addr add {address} dev {WIRE_DEVICE}",
+                    f"link set {WIRE_DEVICE} up",
+                ],
+            )
+            self._route(host)
+        except NetnsError:
+            self._unwire(host)
+            raise
+
+    def _unwire(self, host: str) -> None:
+        """Give `host` its own link back (the wire's TAPs go with its process)."""
+        wire = self._wires.pop(host, None)
+        if wire is None:
+            return
+        _end_wire(wire)
+        ns = self.namespace(host)
+        subprocess.run(["ip", "-n", ns, "link", "del", WIRE_DEVICE], capture_output=True)
+        subprocess.run(
+            ["ip", "-n", ns, "addr", "add", f"{self.address(host)}/24", "dev", "eth0"],
+            capture_output=True,  # already there if the swap failed before moving it
+        )
+
+
+WIRE_DEVICE = "dly0"
+"""The name of a delaying wire's TAP inside its host."""
+
+
+def _mac(ns: str, device: str) -> str:
+    """`device`'s MAC address in namespace `ns`."""
+    run = subprocess.run(
+        ["ip", "-n", ns, "-o", "link", "show", device], capture_output=True, text=True
+    )
+    words = run.stdout.split()
+    if run.returncode != 0 or "link/ether" not in words:
+        raise NetnsError(f"no MAC address for {device} in {ns}: {run.stderr.strip()}")
+    return words[words.index("link/ether") + 1]
+
+
+def _batch(ns: str, commands: list[str]) -> None:
+    """`ip` commands run in namespace `ns` by one `ip -batch` (in order, fast)."""
+    run = subprocess.run(
+        ["ip", "-n", ns, "-batch", "-"],
+        input="\n".join(commands) + "\n",
+        capture_output=True,
+        text=True,
+    )
+    if run.returncode != 0:
+        raise NetnsError(
+            f"ip -n {ns}: {'; '.join(commands)}: {run.stderr.strip() or run.returncode}"
+        )
+
+
+def _master(ns: str, device: str) -> str:
+    """The bridge `device` (in namespace `ns`) is a port of."""
+    run = subprocess.run(
+        ["ip", "-n", ns, "-o", "link", "show", device], capture_output=True, text=True
+    )
+    words = run.stdout.split()
+    if run.returncode != 0 or "master" not in words:
+        raise NetnsError(f"{device} is in no bridge in {ns}: {run.stderr.strip()}")
+    return words[words.index("master") + 1]
+
+
+def _end_wire(wire: subprocess.Popen[str]) -> None:
+    """Stop a wire's process (its TAPs vanish with it)."""
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(wire.pid, signal.SIGKILL)
+    wire.wait(5)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -66,6 +66,9 @@ class Case:
     link: str = ""
     """An FRI link fault's name (`LINK_FAULTS`; process `fri`, signal `LINK`)."""
     must_brake: bool = True
+    may_go_on: bool = False
+    """A fault that may or may not stop the robot (a link's delay: whether the inputs it
+    slows pass their deadlines depends on the traffic): never stopped is fine too."""
     recording_gaps: dict[str, int] = field(default_factory=dict)
     """chaos --hosts: per channel of the control host's flight recording, how many of the
     chart's records, requests and answers written are missing from it."""
@@ -80,9 +83,12 @@ class Case:
     @property
     def ok(self) -> bool:
         """Braked at the end, and no motion after the brakes without a RELEASE; for a
-        fault that must not brake (garbage), never braked nor latched."""
+        fault that must not brake (garbage), never braked nor latched; for one that may
+        go on (`may_go_on`), either of those."""
         if not self.must_brake:
             return self.to_braking_ms is None and not self.ended_braked
+        if self.may_go_on and self.to_braking_ms is None and not self.ended_braked:
+            return not self.moved_without_release  # never stopped: it carried on
         return self.ended_braked and not self.moved_without_release
 
     def line(self) -> str:

@@ -188,7 +188,8 @@ def add_commands(sub: Any) -> None:
         action="store_true",
         help="`chaos`: instead, every host of topologies/seeg_hosts.yaml (as network "
         "namespaces of this machine; root) x {partition 2 s, 30%% loss, 100 ms delay "
-        "where the kernel has netem}, --chaos-repetitions times (~40 s a case)",
+        "(netem, else fw's wire: framework/netns_delay.py)}, --chaos-repetitions times "
+        "(~40 s a case)",
     )
     p.add_argument(
         "--host-faults",
