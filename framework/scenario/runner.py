@@ -156,6 +156,16 @@ class ScenarioRunner(Listener):
                 self._changed.wait(min(left, 0.05))
         return True
 
+    def _where(self) -> str:
+        """Where the chart stood, for a run that gave up waiting: its innermost active
+        states and the last event it took (a configuration's answer among them)."""
+        with self._changed:
+            active = sorted(self.active)
+            last = self.events[-1][1] if self.events else ""
+        leaves = [a for a in active if not any(b.startswith(a + ".") for b in active)]
+        where = f"the chart was in {', '.join(leaves)}" if leaves else "the chart never started"
+        return where + (f"; its last event: {last}" if last else "; it took no event")
+
     def failed_for_good(self) -> str:
         """Why the run can no longer pass, or "": a `never_state` entered or a
         `never_event` come. The run then ends at once instead of waiting out its steps'
@@ -172,7 +182,9 @@ class ScenarioRunner(Listener):
         try:
             if not self._wait(lambda: self._zero is not None):
                 self.outcomes.append(
-                    Verdict(False, f"start state {self.scenario.start} never entered")
+                    Verdict(
+                        False, f"start state {self.scenario.start} never entered", self._where()
+                    )
                 )
                 return
             previous: ScenarioStep | None = None

@@ -136,3 +136,36 @@ def test_a_run_that_can_no_longer_pass_ends_at_once_and_says_why(tmp_path):
         "not played: event e_STOP came at"
     )
     assert "FRI" in failed["never event e_STOP"]
+
+
+def test_a_start_state_never_entered_says_where_the_chart_stood(tmp_path):
+    """A deployment whose chart never reached the scenario's start state (a CI run: a
+    setup that never finished) is reported with the chart's innermost active states and
+    the last event it took, so the log says which configuration it waited for."""
+    from types import SimpleNamespace
+
+    from framework.statechart.events import Event
+
+    path = tmp_path / "stuck.yaml"
+    path.write_text(
+        textwrap.dedent(
+            """
+            scenario: stuck
+            start: System_OK
+            timeout: 0.3s
+            steps:
+              - {at: 0s, send: e_START}
+            """
+        )
+    )
+    runner = ScenarioRunner(load_scenario(path), send=lambda *_: None, call=lambda *_: None)
+    for state in ("System_Setup", "System_Setup.Start_Components"):
+        runner.on_entry(SimpleNamespace(path=state))
+    runner.on_event(Event("config.done", {"tag": "setup_tracking"}))
+    runner.start()
+    assert runner.finished.wait(10)
+    runner.stop()
+    failed = {v.what: v.detail for v in runner.report() if not v.ok}
+    assert failed["start state System_OK never entered"] == (
+        "the chart was in System_Setup.Start_Components; its last event: config.done"
+    )
