@@ -136,8 +136,10 @@ def foxglove_shows_the_run(path):
         (count,) = [n for topic, n in frames.items() if topic.startswith(f"/fw/samples/{key}/")]
         assert drawn.get(name) == count > 10, f"{name}: {drawn.get(name)} drawn of {count}"
     paired = sorted(set(joints) & set(tcp))
-    # each thinned stream keeps the first sample of its period: many share a cycle
-    assert len(paired) >= 20, f"only {len(paired)} TCP transforms with joints of their cycle"
+    # each thinned stream keeps the first sample of its period, so some share a cycle;
+    # how many depends on the host's timing (17 and 30+ seen in two suite runs): each
+    # one is checked exactly below, a handful is enough to catch wrong kinematics
+    assert len(paired) >= 5, f"only {len(paired)} TCP transforms with joints of their cycle"
     for when in paired:
         forward = lwr4.dh_forward(np.array(joints[when]))[:3, 3]
         assert forward == pytest.approx(np.array(tcp[when]), abs=1e-9), when
