@@ -404,10 +404,10 @@ class Hosts:
             )
         self._wires[host] = wire
         try:
-            mac = _mac(ns, "eth0")
+            mac = _link_field(ns, "eth0", "link/ether", "no MAC address")
             address = f"{self.address(host)}/24"
             # the bridge its own link is a port of (a fault's Hosts knows only the prefix)
-            bridge = _master(machine, self._veth(f"{index}b"))
+            bridge = _link_field(machine, self._veth(f"{index}b"), "master", "in no bridge")
             _batch(machine, [f"link set {far} master {bridge}", f"link set {far} up"])
             _batch(machine, [f"link set {near} netns {ns}"])
             _batch(
@@ -446,15 +446,16 @@ WIRE_DEVICE = "dly0"
 """The name of a delaying wire's TAP inside its host."""
 
 
-def _mac(ns: str, device: str) -> str:
-    """`device`'s MAC address in namespace `ns`."""
+def _link_field(ns: str, device: str, word: str, missing: str) -> str:
+    """The value after `word` in `ip -o link show device` in namespace `ns` (its MAC
+    after `link/ether`, its bridge after `master`); `NetnsError` with `missing` if none."""
     run = subprocess.run(
         ["ip", "-n", ns, "-o", "link", "show", device], capture_output=True, text=True
     )
     words = run.stdout.split()
-    if run.returncode != 0 or "link/ether" not in words:
-        raise NetnsError(f"no MAC address for {device} in {ns}: {run.stderr.strip()}")
-    return words[words.index("link/ether") + 1]
+    if run.returncode != 0 or word not in words:
+        raise NetnsError(f"{device} in {ns}: {missing} {run.stderr.strip()}".rstrip())
+    return words[words.index(word) + 1]
 
 
 def _batch(ns: str, commands: list[str]) -> None:
@@ -469,17 +470,6 @@ def _batch(ns: str, commands: list[str]) -> None:
         raise NetnsError(
             f"ip -n {ns}: {'; '.join(commands)}: {run.stderr.strip() or run.returncode}"
         )
-
-
-def _master(ns: str, device: str) -> str:
-    """The bridge `device` (in namespace `ns`) is a port of."""
-    run = subprocess.run(
-        ["ip", "-n", ns, "-o", "link", "show", device], capture_output=True, text=True
-    )
-    words = run.stdout.split()
-    if run.returncode != 0 or "master" not in words:
-        raise NetnsError(f"{device} is in no bridge in {ns}: {run.stderr.strip()}")
-    return words[words.index("master") + 1]
 
 
 def _end_wire(wire: subprocess.Popen[str]) -> None:

@@ -99,19 +99,25 @@ UDP_SOURCE = (
 )
 
 
-def received(hosts, sender, receiver, count):
-    """How many of `count` datagrams `sender` sends reach `receiver`."""
+def sent_and_sunk(hosts, sender, receiver, count, source, sink_script, timeout):
+    """What `sink_script` on `receiver` prints once `source` on `sender` has sent it
+    `count` datagrams."""
     address = hosts.address(receiver)
     sink = subprocess.Popen(
-        hosts.command(receiver, sys.executable, "-c", UDP_SINK, address),
+        hosts.command(receiver, sys.executable, "-c", sink_script, address),
         stdout=subprocess.PIPE,
         text=True,
     )
     assert sink.stdout.readline().strip() == "up"
     subprocess.run(
-        hosts.command(sender, sys.executable, "-c", UDP_SOURCE, address, str(count)), check=True
+        hosts.command(sender, sys.executable, "-c", source, address, str(count)), check=True
     )
-    return int(sink.communicate(timeout=10)[0])
+    return sink.communicate(timeout=timeout)[0]
+
+
+def received(hosts, sender, receiver, count):
+    """How many of `count` datagrams `sender` sends reach `receiver`."""
+    return int(sent_and_sunk(hosts, sender, receiver, count, UDP_SOURCE, UDP_SINK, 10))
 
 
 LOSS_WHY = WHY or netns.loss_available()
@@ -180,18 +186,8 @@ def one_way(hosts, sender, receiver, count):
     this machine's monotonic clock)."""
     import ast
 
-    address = hosts.address(receiver)
-    sink = subprocess.Popen(
-        hosts.command(receiver, sys.executable, "-c", UDP_STAMPED_SINK, address),
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    assert sink.stdout.readline().strip() == "up"
-    subprocess.run(
-        hosts.command(sender, sys.executable, "-c", UDP_STAMPED_SOURCE, address, str(count)),
-        check=True,
-    )
-    return ast.literal_eval(sink.communicate(timeout=20)[0])
+    said = sent_and_sunk(hosts, sender, receiver, count, UDP_STAMPED_SOURCE, UDP_STAMPED_SINK, 20)
+    return ast.literal_eval(said)
 
 
 def test_a_slow_link_holds_what_the_host_sends_for_the_delay_in_order_until_healed(hosts):
