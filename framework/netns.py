@@ -227,6 +227,9 @@ class Hosts:
 
     def down(self) -> None:
         """Remove the namespaces (their processes' links go with them) and the bridge."""
+        for wire in self._wires.values():  # first: their TAPs are in the namespaces
+            _end_wire(wire)
+        self._wires.clear()
         for host in [*self.names, KRC]:
             subprocess.run(["ip", "netns", "del", self.namespace(host)], capture_output=True)
         # a namespace's links go with it, but the kernel frees them later: an `up` right
@@ -234,9 +237,6 @@ class Hosts:
         links = [self._veth(f"{i}{end}") for i in range(len(self.names)) for end in "hbwd"]
         for link in [*links, self._veth("k0"), self._veth("k1"), self.bridge]:
             subprocess.run(["ip", "link", "del", link], capture_output=True)
-        for wire in self._wires.values():
-            _end_wire(wire)
-        self._wires.clear()
         if shutil.which("nft") is not None:  # a lossy link's tables at the bridge's ports
             for i in range(len(self.names)):  # (a run that died before its heal)
                 _nft(None, f"delete table netdev {LOSS_TABLE}_{self._veth(f'{i}b')}\n")

@@ -21,13 +21,18 @@ drop of each frame either way. What the host receives is not delayed.
 
 Run by `Hosts.impair` as `python -m framework.netns_delay HOSTTAP BRIDGETAP DELAY
 JITTER LOSS`: it creates both TAPs, prints `ready` and carries frames until killed
-(`Hosts.heal`). Its death takes both TAPs with it: the host is then cut off, which
+(`Hosts.heal`). It runs at SCHED_FIFO `PRIORITY` where the host allows it (netem
+delays in the kernel's softirq, ahead of every program): as an ordinary process on a
+busy 2-core machine it waits for a core behind the deployment, and a LAN's 0.2 ms
+would come out as milliseconds. Where the host does not allow it, it says so on
+stderr and carries frames at its ordinary priority. Its death takes both TAPs with it: the host is then cut off, which
 is a partition, and the robot side brakes on what it stops hearing.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import heapq
 import os
@@ -42,6 +47,14 @@ _TUNSETIFF = 0x400454CA
 _IFF_TAP, _IFF_NO_PI = 0x0002, 0x1000
 FRAME = 65536
 """Bytes read at most per frame (a TAP gives one frame per read)."""
+DOWN_WAIT = 0.001
+"""s to wait after a TAP gave an error instead of a frame (its device down)."""
+GONE = (errno.EBADFD, errno.ENODEV, errno.ENXIO)
+"""What a TAP's read says once its device is gone: the wire has nothing left to carry."""
+PRIORITY = 70
+"""SCHED_FIFO priority of the wire: above the bus's threads and the heartbeats (1),
+below the device loops (framework/realtime.py, 80), whose cycles a network does not
+take on a real machine."""
 
 
 def open_tap(name: str) -> int:
@@ -101,30 +114,43 @@ class Wire:
 
 
 def carry(host: int, bridge: int, wire: Wire) -> None:
-    """Carry frames until killed: host -> (delayed) -> bridge, bridge -> host."""
+    """Carry frames until killed or a TAP is gone: host -> (delayed) -> bridge,
+    bridge -> host."""
     while True:
         wait = wire.next_in()
         ready, _, _ = select.select([host, bridge], [], [], wait)
+        failed = False
         if host in ready:
-            for frame in _drain(host):
+            frames, failed = _drain(host)
+            for frame in frames:
                 wire.send(frame)
         if bridge in ready:
-            for frame in _drain(bridge):
+            frames, down = _drain(bridge)
+            failed = failed or down
+            for frame in frames:
                 if not wire.lost():
                     _write(host, frame)
         for frame in wire.due():
             _write(bridge, frame)
+        if failed:
+            # a TAP that is readable yet gives an error would make this loop spin, at
+            # real-time priority a core taken from every program: wait a little
+            time.sleep(DOWN_WAIT)
 
 
-def _drain(fd: int) -> list[bytes]:
+def _drain(fd: int) -> tuple[list[bytes], bool]:
+    """The frames queued on `fd`, and whether reading it failed (other than finding
+    none). A TAP whose device is gone (its namespace deleted) ends the wire."""
     frames = []
     while True:
         try:
             frames.append(os.read(fd, FRAME))
         except BlockingIOError:
-            return frames
-        except OSError:  # the device went down for a moment (a link set down): no frame
-            return frames
+            return frames, False
+        except OSError as exc:  # the device went down for a moment (a link set down)
+            if exc.errno in GONE:
+                raise SystemExit(0) from None
+            return frames, True
 
 
 def _write(fd: int, frame: bytes) -> None:
@@ -140,6 +166,14 @@ def main(argv: list[str]) -> int:
     host_name, bridge_name = argv[0], argv[1]
     delay, jitter, loss = (float(v) for v in argv[2:])
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(PRIORITY))
+    except OSError as exc:  # PermissionError among them
+        print(
+            f"netns_delay: no SCHED_FIFO {PRIORITY} ({exc.strerror}): the delay will be "
+            "longer on a busy machine",
+            file=sys.stderr,
+        )
     host, bridge = open_tap(host_name), open_tap(bridge_name)
     print("ready", flush=True)
     with contextlib.suppress(KeyboardInterrupt):

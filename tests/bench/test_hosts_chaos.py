@@ -1,7 +1,8 @@
 """Spec: how `fw bench chaos --hosts` judges a case (tools/bench/fw_bench/hosts_chaos.py)
 from what the robot interface and the simulated KRC report once the links are back:
 the first braking cycle is the first of the robot's stop and the KRC's brakes; a stop
-before the fault is counted, not timed; a release after the fault, an arm left
+before the fault is counted, not timed; how far past the deadline that tripped the
+first braking cycle came is read from the robot's reason; a release after the fault, an arm left
 released, or motion after the brakes engaged is a motion without RELEASE."""
 
 from dataclasses import dataclass
@@ -10,7 +11,7 @@ import pytest
 
 from framework.messages import ArmState
 from fw_bench.chaos import Case
-from fw_bench.hosts_chaos import _judge, main
+from fw_bench.hosts_chaos import _judge, beyond_deadline, main
 
 FAULT = 1000.0
 STILL_Q = (0.0,) * 7
@@ -90,3 +91,26 @@ def test_an_unknown_host_or_fault_is_refused_with_the_choices(capsys):
     with pytest.raises(SystemExit):
         main(["--case", "moon", "partition 2s", "--topology", "t", "--keys", "k"])
     assert "control, tracking, cameras, robot, krc" in capsys.readouterr().err
+
+
+def timed(to_braking_ms, reason):
+    case = Case("control", "LINK", 2.0, link="partition 2s", to_braking_ms=to_braking_ms)
+    case.notes = [reason, "the fault took 8.2 ms to make"] if reason else []
+    return case
+
+
+@pytest.mark.parametrize(
+    ("to_braking", "reason", "beyond"),
+    [
+        (404.8, "robot: process control: no data for 401 ms (deadline 400 ms)", 4.8),
+        (92.3, "robot: process trackers: no data for 101 ms (deadline 100 ms)", -7.7),
+        (9.6, "robot: the KRC is silent: no measurement for 62 ms (timeout 50 ms)", -40.4),
+        (70.0, "robot: ", None),  # a robot that said no deadline
+        (None, "robot: process control: no data for 401 ms (deadline 400 ms)", None),
+    ],
+)
+def test_a_stop_is_judged_against_the_deadline_of_the_input_that_tripped(
+    to_braking, reason, beyond
+):
+    got = beyond_deadline(timed(to_braking, reason))
+    assert got == (None if beyond is None else pytest.approx(beyond))

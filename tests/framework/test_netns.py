@@ -4,12 +4,14 @@ unreachable until healed; a lossy link loses the share asked, both ways, until h
 whichever namespace the fault is made from; a slow link holds what its host sends for
 the delay, in order (netem, or fw's wire where the kernel lacks netem)."""
 
+import os
 import subprocess
 import sys
 
 import pytest
 
 from framework import netns
+from tests.framework.test_realtime import fifo_allowed
 
 WHY = netns.available()
 pytestmark = pytest.mark.skipif(bool(WHY), reason=f"no hosts as namespaces here: {WHY}")
@@ -190,7 +192,7 @@ def one_way(hosts, sender, receiver, count):
     return ast.literal_eval(said)
 
 
-def test_a_slow_link_holds_what_the_host_sends_for_the_delay_in_order_until_healed(hosts):
+def test_a_slow_link_holds_what_the_host_sends_for_the_delay_in_order_until_healed(hosts, served):
     """80 ms delay and 20 ms jitter on the robot's link (netem where the kernel has it,
     else the wire of framework/netns_delay.py): every datagram the robot sends arrives,
     in the order sent, no sooner than 60 ms after it left; healed, the link is the
@@ -199,8 +201,13 @@ def test_a_slow_link_holds_what_the_host_sends_for_the_delay_in_order_until_heal
     hosts.impair("robot", delay=0.08, jitter=0.02)
     try:
         slow = one_way(hosts, "robot", "control", 100)
+        wire = hosts._wires.get("robot")
+        policy = None if wire is None else os.sched_getscheduler(wire.pid)
     finally:
         hosts.heal("robot")
+    if wire is not None and fifo_allowed():
+        # a wire waiting for a core behind the deployment would be a longer delay
+        assert policy == os.SCHED_FIFO, "the wire carries frames at real-time priority"
     assert [k for k, _ in slow] == list(range(100)), "none lost, none reordered"
     assert min(t for _, t in slow) >= 0.06, "never sooner than the delay less the jitter"
     links = subprocess.run(

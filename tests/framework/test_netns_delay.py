@@ -1,13 +1,19 @@
 """Spec: the delaying wire of framework/netns_delay.py on a simulated clock: a frame the
 host sends leaves after its delay, never more than the jitter off it and never before
 the one sent before it; a lossy wire loses about the share asked; with no delay a
-frame is due at once. (Over real TAP devices: tests/framework/test_netns.py.)"""
+frame is due at once; a TAP that gives an error says so (the wire waits instead of
+spinning) and one whose device is gone ends the wire. (Over real TAP devices:
+tests/framework/test_netns.py.)"""
 
+import errno
+import os
 import random
 
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from framework import netns_delay
 from framework.netns_delay import Wire
 
 
@@ -79,3 +85,24 @@ def test_without_delay_a_frame_is_due_at_once_and_none_waits_after():
     wire.send(b"a")
     assert wire.next_in() == 0.0
     assert wire.due() == [b"a"] and wire.next_in() is None
+
+
+def failing_read(code):
+    def read(fd, size):
+        raise OSError(code, os.strerror(code))
+
+    return read
+
+
+def test_a_tap_whose_device_is_down_is_a_failed_read_not_a_frame(monkeypatch):
+    monkeypatch.setattr(netns_delay.os, "read", failing_read(errno.EIO))
+    assert netns_delay._drain(3) == ([], True)
+    monkeypatch.setattr(netns_delay.os, "read", failing_read(errno.EAGAIN))
+    assert netns_delay._drain(3) == ([], False), "nothing queued is not a failure"
+
+
+@pytest.mark.parametrize("code", netns_delay.GONE)
+def test_a_tap_whose_device_is_gone_ends_the_wire(monkeypatch, code):
+    monkeypatch.setattr(netns_delay.os, "read", failing_read(code))
+    with pytest.raises(SystemExit):
+        netns_delay._drain(3)

@@ -52,9 +52,9 @@ experiments:
               any case ends unbraked or moves (only when named; --quick: once each,
               about 4 min; default 6 times each); with --hosts, every host of
               seeg_hosts.yaml cut off or lossy instead (network namespaces, root)
-  hosts       SEEG on five hosts (network namespaces, root) beside one: hop per link,
-              sensor swap and collision across hosts, bytes and packets per link
-              (only when named)
+  hosts       SEEG on five hosts (network namespaces, root) beside one: hop per link
+              bare and with a LAN's delay (--lan-delay), sensor swap and collision
+              across hosts with it, bytes and packets per link (only when named)
   ros2        seeg_ros2.yaml seen by an rmw_zenoh peer (zenoh-ros2-sdk) through a
               router: /joint_states rate and content, a ROS pose's way onto fw's bus
               (only when named)
@@ -102,6 +102,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         "repetitions": args.repetitions,
         "chaos_repetitions": args.chaos_repetitions,
         "hosts": args.hosts,
+        "lan_delay": args.lan_delay / 1e3,
         "host_faults": args.host_faults,
         "suite": args.suite,
         "variant": args.variant,
@@ -190,6 +191,14 @@ def add_commands(sub: Any) -> None:
         "namespaces of this machine; root) x {partition 2 s, 30%% loss, 100 ms delay "
         "(netem, else fw's wire: framework/netns_delay.py)}, --chaos-repetitions times "
         "(~40 s a case)",
+    )
+    p.add_argument(
+        "--lan-delay",
+        type=float,
+        default=0.2,
+        metavar="MS",
+        help="`hosts`: delay on what each host on the bridge sends, as a LAN's (ms; 0: "
+        "bare links; netem, else fw's wire)",
     )
     p.add_argument(
         "--host-faults",

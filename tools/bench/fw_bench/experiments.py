@@ -700,6 +700,35 @@ def _chaos_on_hosts(repetitions: int, context: dict[str, Any]) -> list[Row]:
                 Row("chaos --hosts", f"{name} -> first braking cycle p50", s["p50"], n=len(times)),
                 Row("chaos --hosts", f"{name} -> first braking cycle p99", s["p99"], n=len(times)),
             ]
+    partitions = [c for c in cases if c.name.startswith("partition")]
+    beyond = [b for b in map(hosts_chaos.beyond_deadline, partitions) if b is not None]
+    if beyond:
+        s = stats(beyond)
+        rows += [  # the issue's target: p99 <= the watch deadline + 2 ms, >= 50 partitions
+            Row(
+                "chaos --hosts",
+                "partition -> first braking cycle, beyond the deadline that tripped, p99",
+                s["p99"],
+                target=2.0,
+                n=len(beyond),
+            ),
+            Row(
+                "chaos --hosts",
+                "partition -> first braking cycle, beyond the deadline that tripped, max",
+                max(beyond),
+                n=len(beyond),
+            ),
+        ]
+    unjudged = [c for c in cases if c.detail.startswith("the control host's run")]
+    rows.append(
+        Row(
+            "chaos --hosts",
+            "cases without a verdict (setup failed, a report unanswered: in summary.json)",
+            len(unjudged),
+            unit="",
+            n=len(cases),
+        )
+    )
     for host in hosts_chaos.HOSTS:
         for name, _ in hosts_chaos.FAULTS:
             mine = [c for c in cases if c.process == host and c.name == name]
@@ -730,14 +759,15 @@ def _chaos_on_hosts(repetitions: int, context: dict[str, Any]) -> list[Row]:
             n=len(cases),
         )
     )
+    judged = [c for c in cases if not c.detail.startswith("the control host's run")]
     rows.append(
         Row(
             "chaos --hosts",
-            "motions after a fault without RELEASE",
-            sum(c.moved_without_release for c in cases),
+            "motions after a fault without RELEASE (of the cases judged)",
+            sum(c.moved_without_release for c in judged),
             target=0.0,
             unit="",
-            n=len(cases),
+            n=len(judged),
         )
     )
     for why in skipped:  # said, and kept in summary.json
@@ -1036,7 +1066,7 @@ def run_hosts(quick: bool, context: dict[str, Any]) -> list[Row]:
     """The network's figures on five hosts beside one (fw_bench/hosts_figures.py)."""
     from fw_bench import hosts_figures
 
-    return hosts_figures.run(quick, context)
+    return hosts_figures.run(quick, context, context.get("lan_delay", hosts_figures.LAN))
 
 
 OPT_IN = ("chaos", "ros2", "hosts")

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -197,6 +198,22 @@ def _control_case(host: str, name: str, topology: Path, keys: Path) -> Case:
         run.stop()
         shutil.rmtree(recording.parent, ignore_errors=True)
     return case
+
+
+_DEADLINE = re.compile(r"\((?:deadline|timeout) (\d+(?:\.\d+)?) ms\)")
+
+
+def beyond_deadline(case: Case) -> float | None:
+    """How long after the deadline of the input whose silence stopped the arm the first
+    braking cycle came (ms; negative: before it, as when the KRC brakes by itself
+    first); None if the case was not timed or its robot said no deadline. The deadline
+    counts from that input's last sample, which came before the fault: a stop later
+    than the deadline after the fault is the robot side's own lateness."""
+    reason = next((n for n in case.notes if n.startswith("robot: ")), "")
+    found = _DEADLINE.search(reason)
+    if case.to_braking_ms is None or found is None:
+        return None
+    return case.to_braking_ms - float(found.group(1))
 
 
 def _ask(run: Any, component: str) -> dict[str, Any]:

@@ -14,9 +14,12 @@ framework/netns.py), beside the same run's figures on one host.
   bridge, and of the FRI link at the KRC's end (FRI's datagrams and the KRC process's
   bus traffic, routed through the robot's host), as each host sends and receives.
 
-What it does not do: add the LAN's 0.2 ms each way. That needs the kernel's netem,
-which this machine lacks (`framework.netns.netem_available`): the figures are for
-links with no delay of their own, and the report says so.
+* **a LAN's delay** (`lan`, 0.2 ms by default): the hops are timed on the bare links,
+  then every host on the bridge is given that delay on what it sends (the kernel's
+  netem where it has it, else fw's wire: framework/netns_delay.py), the hops are timed
+  again (what the delay added, measured, is a row), and the deployment's experiments
+  and counters run with it. The KRC's link keeps no delay of its own without netem
+  (its FRI traffic's delay is `arm.impair`'s), and the report says so.
 """
 
 from __future__ import annotations
@@ -38,6 +41,8 @@ from fw_bench.report import Row, stats
 LINKED = ("tracking", "cameras", "robot")
 """The hosts on the bridge beside the control host."""
 COUNTERS = ("rx_bytes", "tx_bytes", "rx_packets", "tx_packets")
+LAN = 0.0002
+"""s each way: a LAN's delay on what each host sends (the issue's 0.2 ms)."""
 
 
 def link_hop(hosts: Any, near: str, far: str, address: str, count: int) -> list[float]:
@@ -125,7 +130,9 @@ def _counters(hosts: Any) -> dict[str, dict[str, int]]:
     FRI link at the KRC's end."""
     out: dict[str, dict[str, int]] = {}
     for index, host in enumerate(hosts.names):
-        base = Path("/sys/class/net") / hosts._veth(f"{index}b") / "statistics"
+        # a host whose link is a delaying wire sends through the wire's TAP at the bridge
+        end = "d" if host in hosts._wires else "b"
+        base = Path("/sys/class/net") / hosts._veth(f"{index}{end}") / "statistics"
         read = {c: int((base / c).read_text()) for c in COUNTERS}
         out[host] = {
             "sent_bytes": read["rx_bytes"],
@@ -181,8 +188,43 @@ def _series(swap: list[Any], collision: list[Any], seconds: float) -> dict[str, 
     }
 
 
-def run(quick: bool, context: dict[str, Any]) -> list[Row]:
-    """One host, then five (module docstring)."""
+def _hops(hosts: Any, count: int, label: str) -> tuple[list[Row], dict[str, float]]:
+    """The hop between the control host and each other (and robot <-> KRC): rows, and
+    each link's p50 (ms)."""
+    rows: list[Row] = []
+    medians: dict[str, float] = {}
+    pairs = [(h, "control", h, hosts.address("control")) for h in LINKED]
+    pairs.append(("krc", "robot", "krc", hosts.krc_link_address))
+    for link, near, far, address in pairs:
+        hops = [h * 1e3 for h in link_hop(hosts, near, far, address, count)]
+        if not hops:
+            continue
+        s = stats(hops)
+        name = f"hop {near} <-> {far}" + (" (FRI link)" if far == "krc" else "")
+        medians[link] = s["p50"]
+        rows.append(Row("hosts", f"{name} p50{label}", s["p50"], n=len(hops)))
+        if far != "krc":
+            rows.append(Row("hosts", f"{name} p99{label}", s["p99"], n=len(hops)))
+    return rows, medians
+
+
+def delay_every_link(hosts: Any, lan: float) -> list[str]:
+    """Give every host on the bridge `lan` s of delay on what it sends (netem, else fw's
+    wire); the hosts whose link could not be delayed, each with why."""
+    from framework.netns import NetnsError
+
+    refused = []
+    for host in ("control", *LINKED):
+        try:
+            hosts.impair(host, delay=lan)
+        except NetnsError as exc:
+            refused.append(f"{host}: {exc}")
+    return refused
+
+
+def run(quick: bool, context: dict[str, Any], lan: float = LAN) -> list[Row]:
+    """One host, then five (module docstring); `lan`: s of delay on what each host
+    on the bridge sends (0: bare links)."""
     from framework import netns
     from fw_bench import latency
     from fw_bench.seeg_run import BenchError, SeegRun
@@ -209,21 +251,24 @@ def run(quick: bool, context: dict[str, Any]) -> list[Row]:
     rows: list[Row] = []
     try:
         keys = make_keys(topology, folder)
-        for host in LINKED:
-            hops = [
-                h * 1e3
-                for h in link_hop(hosts, "control", host, hosts.address("control"), hop_count)
-            ]
-            if hops:
-                s = stats(hops)
-                rows += [
-                    Row("hosts", f"hop control <-> {host} p50", s["p50"], n=len(hops)),
-                    Row("hosts", f"hop control <-> {host} p99", s["p99"], n=len(hops)),
-                ]
-        hops = [h * 1e3 for h in link_hop(hosts, "robot", "krc", hosts.krc_link_address, hop_count)]
-        if hops:
-            s = stats(hops)
-            rows += [Row("hosts", "hop robot <-> krc (FRI link) p50", s["p50"], n=len(hops))]
+        bare, bare_p50 = _hops(hosts, hop_count, ", bare link")
+        rows += bare
+        if lan > 0:
+            refused = delay_every_link(hosts, lan)
+            if refused:
+                raise BenchError("cannot add the LAN's delay: " + "; ".join(refused))
+            slow, slow_p50 = _hops(hosts, hop_count, f", {lan * 1e3:g} ms LAN")
+            rows += slow
+            for link in LINKED:
+                if link in bare_p50 and link in slow_p50:
+                    rows.append(
+                        Row(
+                            "hosts",
+                            f"delay the LAN added, control <-> {link} (asked {lan * 1e3:g} ms)",
+                            slow_p50[link] - bare_p50[link],
+                            n=hop_count,
+                        )
+                    )
         parts = hosts.deploy_others(topology, keys, home)
         argv = [sys.executable, "-m", "fw_bench.hosts_figures", "--control", str(topology)]
         argv += [str(keys), str(trials)]
@@ -292,9 +337,14 @@ def run(quick: bool, context: dict[str, Any]) -> list[Row]:
             Row("hosts", f"{link} receives", rate["received_packets"], unit="packets/s"),
         ]
     context.setdefault("series", {})["hosts"] = {"one": one, "five": many}
-    if not netns.netem_available():
-        context.setdefault("notes", []).append(
-            "hosts: no 0.2 ms LAN delay added (this kernel has no sch_netem): links without delay"
+    notes = context.setdefault("notes", [])
+    if lan <= 0:
+        notes.append("hosts: no LAN delay added: links without delay of their own")
+    elif not netns.netem_available():
+        notes.append(
+            f"hosts: the {lan * 1e3:g} ms LAN delay is fw's wire (no sch_netem here: "
+            "framework/netns_delay.py), on every host on the bridge; the KRC's FRI link "
+            "has none"
         )
     return rows
 
