@@ -64,6 +64,12 @@ class Sample:
     received: float
 
 
+ABORTED = "Setup_Aborted"
+"""SEEG's final state for a setup that failed (statecharts/seeg.yaml)."""
+ABORTING = ("config.failed", "component.lost")
+"""The events that take SEEG's chart there, whose payload says why (asked in this order)."""
+
+
 class _States(Listener):
     def __init__(self) -> None:
         self.entered: list[tuple[str, float]] = []
@@ -248,7 +254,9 @@ class SeegRun:
             return len(self._states.entered)
 
     def wait_state(self, name: str, timeout: float, since: int | None = None) -> float:
-        """Wait until state `name` is entered (after `since`); returns when it was."""
+        """Wait until state `name` is entered (after `since`); returns when it was. A
+        setup that aborted (the chart's final `Setup_Aborted`) can never get there: it
+        is an error at once, with the chart's reason, instead of a wait to `timeout`."""
         deadline = time.monotonic() + timeout
         with self._states.changed:
             while True:
@@ -256,11 +264,22 @@ class SeegRun:
                 for state, at in self._states.entered[start:]:
                     if state == name:
                         return at
+                    if state == ABORTED:
+                        raise BenchError(f"state {name} never reached: {self._aborted()}")
                 left = deadline - time.monotonic()
                 if left <= 0:
                     now = [s for s, _ in self._states.entered[-5:]]
                     raise BenchError(f"state {name} not reached in {timeout:g} s (last: {now})")
                 self._states.changed.wait(left)
+
+    def _aborted(self) -> str:
+        """Why the setup aborted, from the event the chart took to abort it."""
+        for event in ABORTING:
+            payload = self._states.payloads.get(event)
+            if isinstance(payload, dict):
+                said = ", ".join(f"{k}: {v}" for k, v in payload.items())
+                return f"the setup aborted on {event} ({said})"
+        return "the setup aborted"
 
     def entered_after(self, name: str, t: float) -> float | None:
         """When state `name` was first entered at or after time `t` (None: not yet)."""
