@@ -308,6 +308,12 @@ class Hosts:
             return self.namespace(host), WIRE_DEVICE
         return self.namespace(host), "fri0" if host == KRC else "eth0"
 
+    def bridge_port(self, host: str) -> str:
+        """The device in the bridge's namespace that `host`'s traffic crosses now (its
+        veth's end, or its delaying wire's TAP): what it receives, the host sent."""
+        index = self.names.index(host)
+        return self._veth(f"{index}{'d' if host in self._wires else 'b'}")
+
     def cut(self, host: str) -> None:
         """Partition `host`: its link goes down (the KRC's: its FRI link)."""
         ns, dev = self._link(host)

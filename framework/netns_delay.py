@@ -25,8 +25,9 @@ JITTER LOSS`: it creates both TAPs, prints `ready` and carries frames until kill
 delays in the kernel's softirq, ahead of every program): as an ordinary process on a
 busy 2-core machine it waits for a core behind the deployment, and a LAN's 0.2 ms
 would come out as milliseconds. Where the host does not allow it, it says so on
-stderr and carries frames at its ordinary priority. Its death takes both TAPs with it: the host is then cut off, which
-is a partition, and the robot side brakes on what it stops hearing.
+stderr and carries frames at its ordinary priority. Its death takes both TAPs with
+it: the host is then cut off, which is a partition, and the robot side brakes on what
+it stops hearing.
 """
 
 from __future__ import annotations
@@ -125,8 +126,8 @@ def carry(host: int, bridge: int, wire: Wire) -> None:
             for frame in frames:
                 wire.send(frame)
         if bridge in ready:
-            frames, down = _drain(bridge)
-            failed = failed or down
+            frames, bridge_failed = _drain(bridge)
+            failed |= bridge_failed
             for frame in frames:
                 if not wire.lost():
                     _write(host, frame)

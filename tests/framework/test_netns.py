@@ -203,8 +203,11 @@ def test_a_slow_link_holds_what_the_host_sends_for_the_delay_in_order_until_heal
         slow = one_way(hosts, "robot", "control", 100)
         wire = hosts._wires.get("robot")
         policy = None if wire is None else os.sched_getscheduler(wire.pid)
+        port = hosts.bridge_port("robot")  # what the robot sends crosses it at the bridge
+        assert os.path.exists(f"/sys/class/net/{port}/statistics/rx_packets")
     finally:
         hosts.heal("robot")
+    assert hosts.bridge_port("robot") != port or wire is None, "healed: its own veth again"
     if wire is not None and fifo_allowed():
         # a wire waiting for a core behind the deployment would be a longer delay
         assert policy == os.SCHED_FIFO, "the wire carries frames at real-time priority"

@@ -152,13 +152,13 @@ def run_case(
         except subprocess.TimeoutExpired as exc:  # what it said last, to find out why
             said = exc.stderr or ""
             said = said.decode(errors="replace") if isinstance(said, bytes) else said
-            case.detail = f"the control host's run did not end in {CASE_TIMEOUT:g} s"
+            case.detail = f"{NO_VERDICT} did not end in {CASE_TIMEOUT:g} s"
             case.notes += said.strip().splitlines()[-5:]
             return case
         lines = [line for line in run.stdout.splitlines() if line.startswith("{")]
         if not lines:
             tail = (run.stderr.strip().splitlines() or ["no output"])[-1]
-            case.detail = f"the control host's run failed: {tail[:160]}"
+            case.detail = f"{NO_VERDICT} failed: {tail[:160]}"
             return case
         return Case(**json.loads(lines[-1]))
     finally:
@@ -198,6 +198,16 @@ def _control_case(host: str, name: str, topology: Path, keys: Path) -> Case:
         run.stop()
         shutil.rmtree(recording.parent, ignore_errors=True)
     return case
+
+
+NO_VERDICT = "the control host's run"
+"""How the detail of a case the control host's run never judged begins (it did not
+end, or failed before its reports): nothing is known of its times or its motion."""
+
+
+def judged(case: Case) -> bool:
+    """Whether the case's control host's run judged it (times, motion, recording)."""
+    return not case.detail.startswith(NO_VERDICT)
 
 
 _DEADLINE = re.compile(r"\((?:deadline|timeout) (\d+(?:\.\d+)?) ms\)")

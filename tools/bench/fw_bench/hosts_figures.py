@@ -129,10 +129,8 @@ def _counters(hosts: Any) -> dict[str, dict[str, int]]:
     link at the bridge (what the bridge's port receives, the host sent), and the KRC's
     FRI link at the KRC's end."""
     out: dict[str, dict[str, int]] = {}
-    for index, host in enumerate(hosts.names):
-        # a host whose link is a delaying wire sends through the wire's TAP at the bridge
-        end = "d" if host in hosts._wires else "b"
-        base = Path("/sys/class/net") / hosts._veth(f"{index}{end}") / "statistics"
+    for host in hosts.names:
+        base = Path("/sys/class/net") / hosts.bridge_port(host) / "statistics"
         read = {c: int((base / c).read_text()) for c in COUNTERS}
         out[host] = {
             "sent_bytes": read["rx_bytes"],
