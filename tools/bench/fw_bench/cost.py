@@ -82,6 +82,7 @@ class Window:
     zenoh_idle: float = 0.0  # cores a process holding only a Zenoh session took
     wakeups: dict[str, float] = field(default_factory=dict)  # process -> switches per s
     interrupted: list[str] = field(default_factory=list)  # motions a stop cut short first
+    safety: dict[str, Any] = field(default_factory=dict)  # the monitor's report at the end
 
     @property
     def total(self) -> float:
@@ -185,6 +186,7 @@ def measure(
         "interface_refused": robot["fri"]["refused"],
         "interface_skipped": robot["fri"]["skipped"],
     }
+    window.safety = robot.get("safety") or {}
     window.zenoh_idle = reference
     wakeups.pop("zenoh_idle", None)
     window.wakeups = wakeups
@@ -207,6 +209,21 @@ def _zenoh_idle(run: SeegRun) -> int:
         assert _ZENOH[0].stdout is not None
         _ZENOH[0].stdout.readline()  # ready: its session is open
     return _ZENOH[0].pid
+
+
+def tightest_watch(safety: dict[str, Any]) -> tuple[str, float, float] | None:
+    """The watch whose longest silence since the monitor armed came nearest its
+    deadline: (name, longest silence ms, deadline ms), from the robot's `report`
+    ("safety"); None without watches. A healthy deployment's margin: a silence past
+    the deadline is a false trip."""
+    watches = [
+        (name, float(w["worst_ms"]), float(w["deadline_ms"]))
+        for name, w in (safety.get("watches") or {}).items()
+        if w.get("deadline_ms")
+    ]
+    if not watches:
+        return None
+    return max(watches, key=lambda w: w[1] / w[2])
 
 
 def cycle_intervals(states: list[ArmState]) -> list[float]:
@@ -294,6 +311,10 @@ def summary(window: Window) -> dict[str, Any]:
         "krc_loop": window.krc_loop,
         "fri": window.fri,
         "interrupted": window.interrupted,
+        "safety": {
+            "trips": window.safety.get("trips"),
+            "watches": window.safety.get("watches", {}),
+        },
         "cycle_ms": {
             "p50": round(float(np.percentile(cycles, 50)), 4),
             "p99": round(float(np.percentile(cycles, 99)), 4),

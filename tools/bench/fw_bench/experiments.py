@@ -212,6 +212,7 @@ def run_cost(quick: bool, context: dict[str, Any]) -> list[Row]:
                     n=1,
                 )
             )
+        rows.extend(_margin_rows(f"{what}{under}", window.safety))
         cycles = window.cycle_ms
         if not cycles:  # no interval was measured: no figure, and no target said met
             continue
@@ -224,6 +225,40 @@ def run_cost(quick: bool, context: dict[str, Any]) -> list[Row]:
                 s["p99"],
                 target=1.5,
                 n=len(cycles),
+            )
+        )
+    return rows
+
+
+def _margin_rows(what: str, safety: dict[str, Any]) -> list[Row]:
+    """The safety monitor's trips and its tightest watch, since it armed (the deployment
+    is healthy throughout `cost`: every trip is a false one, and the longest silence a
+    healthy producer showed is the margin its deadline leaves)."""
+    from fw_bench import cost
+
+    if not safety:
+        return []
+    rows = [
+        Row(
+            "cost",
+            f"{what}: safety trips since the monitor armed (a healthy run: false trips)",
+            float(safety.get("trips") or 0),
+            target=0.0,
+            unit="",
+            n=1,
+        )
+    ]
+    tight = cost.tightest_watch(safety)
+    if tight is not None:
+        name, worst, deadline = tight
+        rows.append(
+            Row(
+                "cost",
+                f"{what}: longest silence since the monitor armed, of the watch nearest "
+                f"its deadline ({name}; every watch in summary.json)",
+                worst,
+                target=deadline,
+                n=1,
             )
         )
     return rows
