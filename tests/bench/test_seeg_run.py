@@ -43,3 +43,18 @@ def test_a_state_not_reached_in_time_names_the_last_states(tmp_path):
     chart_went(run, "System_Setup", "Setup_Tracking")
     with pytest.raises(BenchError, match="Setup_Tracking"):
         run.wait_state("Wait_Start", 0.05)
+
+
+def test_a_start_that_fails_shuts_down_what_it_had_started(tmp_path):
+    stopped = []
+
+    class NeverReady(SeegRun):
+        def _start(self):
+            self.deployment = SimpleNamespace(stop=lambda: stopped.append(True))
+            raise BenchError("state Wait_Start not reached in 60 s")
+
+    run = NeverReady(workdir=tmp_path)
+    with pytest.raises(BenchError, match="Wait_Start"):
+        run.start()
+    # `with SeegRun() as run` never calls stop when start raised: start must
+    assert stopped == [True] and run.deployment is None

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from framework.messages import ArmState, EventMessage
+from fw_bench.seeg_run import BenchError
 
 PROCESSES = ("vicra_device", "trackers", "cameras", "arm", "robot", "supervision")
 FAULTS = (("KILL", 0.0), ("STOP", 2.0), ("STOP", 0.3))
@@ -106,6 +107,15 @@ class Case:
         )
 
 
+class SetupFailed(BenchError):
+    """A case's fresh deployment never began its approach: no fault was injected, so
+    no result of the case; tried again (`SETUP_TRIES`) and counted apart."""
+
+
+SETUP_TRIES = 3
+"""Fresh deployments a case may take to begin its approach."""
+
+
 def run_case(process: str, signal_name: str, hold: float, link: tuple | None = None) -> Case:
     """Deploy, start the approach, inject the fault (a signal to `process`, or the FRI
     link fault `link` of `LINK_FAULTS`), watch, shut down."""
@@ -114,12 +124,17 @@ def run_case(process: str, signal_name: str, hold: float, link: tuple | None = N
     case = Case(process, signal_name, hold)
     if link is not None:
         case.link, case.must_brake = link[0], link[2]
-    run = SeegRun().start()
+    run = SeegRun()
     try:
-        run.watch("arm/measured", ArmState)
-        run.watch("robot/status", EventMessage)
-        run.send("e_START")
-        run.wait_state("Moving_Fast", 30.0)
+        try:
+            run.start()
+            run.watch("arm/measured", ArmState)
+            run.watch("robot/status", EventMessage)
+            run.send("e_START")
+            run.wait_state("Moving_Fast", 30.0)
+        except BenchError as exc:
+            tracking = run.last_payload("e_NOTRACKER")
+            raise SetupFailed(f"{exc}{f'; e_NOTRACKER: {tracking}' if tracking else ''}") from exc
         time.sleep(0.6)  # well into the approach: at speed
         deployment = run.deployment
         assert deployment is not None
@@ -138,7 +153,14 @@ def run_case(process: str, signal_name: str, hold: float, link: tuple | None = N
         os.kill(popen.pid, getattr(signal, f"SIG{signal_name}"))
         if signal_name == "STOP":
             time.sleep(hold)
-            os.kill(popen.pid, signal.SIGCONT)
+            if popen.poll() is None:
+                os.kill(popen.pid, signal.SIGCONT)
+            else:  # a hung process does not exit by itself: said, and judged as it is
+                case.detail = f"{process} gone before SIGCONT"
+                case.notes.append(
+                    f"{process} was gone before SIGCONT (exit {popen.returncode}): "
+                    f"{', '.join(deployment.watch.incidents[-3:]) if deployment.watch else ''}"
+                )
         time.sleep(AFTER)
         _judge(case, run, fault)
         case.chart = run.last_entered(
@@ -185,10 +207,12 @@ def _judge(case: Case, run: Any, fault: float) -> None:
         case.detail = "no arm state after the fault"
 
 
-def chaos(repetitions: int, progress: Any = None) -> list[Case]:
+def chaos(repetitions: int, progress: Any = None) -> tuple[list[Case], list[str]]:
     """Every process x fault kind and every FRI link fault, `repetitions` times each,
-    one line per case printed."""
-    cases = []
+    one line per case printed; and why each setup that never began its approach
+    failed (the case was run again on a fresh deployment, at most `SETUP_TRIES`)."""
+    cases: list[Case] = []
+    setups: list[str] = []
     total = repetitions * (len(PROCESSES) * len(FAULTS) + len(LINK_FAULTS))
     plan: list[tuple[str, str, float, tuple | None]] = [
         (process, signal_name, hold, None) for process in PROCESSES for signal_name, hold in FAULTS
@@ -196,9 +220,17 @@ def chaos(repetitions: int, progress: Any = None) -> list[Case]:
     plan += [("fri", "LINK", 0.0, link) for link in LINK_FAULTS]
     for _ in range(repetitions):
         for process, signal_name, hold, link in plan:
-            case = run_case(process, signal_name, hold, link)
+            for attempt in range(1, SETUP_TRIES + 1):
+                try:
+                    case = run_case(process, signal_name, hold, link)
+                    break
+                except SetupFailed as exc:
+                    setups.append(f"{process} {signal_name}: {exc}")
+                    print(f"setup failed ({attempt} of {SETUP_TRIES}): {exc}", file=sys.stderr)
+                    if attempt == SETUP_TRIES:
+                        raise
             cases.append(case)
             print(case.line(), file=sys.stderr, flush=True)
             if progress is not None:
                 progress(len(cases), total)
-    return cases
+    return cases, setups

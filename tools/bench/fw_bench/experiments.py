@@ -646,10 +646,11 @@ def run_chaos(quick: bool, context: dict[str, Any]) -> list[Row]:
     repetitions = 1 if quick else context.get("chaos_repetitions", 6)
     if context.get("hosts"):
         return _chaos_on_hosts(repetitions, context)
-    cases = chaos.chaos(repetitions, _progress("chaos"))
+    cases, setups = chaos.chaos(repetitions, _progress("chaos"))
     context.setdefault("series", {})["chaos"] = [
         {**c.__dict__, "name": c.name, "ok": c.ok} for c in cases
     ]
+    context["series"]["chaos_setups_failed"] = setups
     bad = [c for c in cases if not c.ok]
     if bad:
         context["failed"] = [
@@ -682,6 +683,16 @@ def run_chaos(quick: bool, context: dict[str, Any]) -> list[Row]:
         times = [c.to_braking_ms for c in mine if c.to_braking_ms is not None]
         if times:
             rows.append(Row("chaos", f"{process} {name}: to braking, max", max(times), n=len(mine)))
+    rows.append(
+        Row(
+            "chaos",
+            "fresh deployments that never began the approach (no fault injected; run "
+            "again; why in summary.json)",
+            float(len(setups)),
+            unit="",
+            n=len(cases) + len(setups),
+        )
+    )
     moved = sum(c.moved_without_release for c in cases)
     rows.append(
         Row(

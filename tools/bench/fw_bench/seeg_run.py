@@ -119,7 +119,16 @@ class SeegRun:
     are (every host must agree on them)."""
 
     def start(self) -> SeegRun:
-        """Deploy and wait until the robot waits for START (setup done)."""
+        """Deploy and wait until the robot waits for START (setup done). A start that
+        fails shuts down what it had started before it raises (`with` calls `stop` only
+        after a start that returned)."""
+        try:
+            return self._start()
+        except BaseException:
+            self.stop()
+            raise
+
+    def _start(self) -> SeegRun:
         home = seeg_home()
         old = os.getcwd()
         os.chdir(home)  # the topology's and the properties' paths are relative to it
