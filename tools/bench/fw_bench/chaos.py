@@ -213,11 +213,11 @@ def chaos(repetitions: int, progress: Any = None) -> tuple[list[Case], list[str]
     failed (the case was run again on a fresh deployment, at most `SETUP_TRIES`)."""
     cases: list[Case] = []
     setups: list[str] = []
-    total = repetitions * (len(PROCESSES) * len(FAULTS) + len(LINK_FAULTS))
     plan: list[tuple[str, str, float, tuple | None]] = [
         (process, signal_name, hold, None) for process in PROCESSES for signal_name, hold in FAULTS
     ]
     plan += [("fri", "LINK", 0.0, link) for link in LINK_FAULTS]
+    total = repetitions * len(plan)
     for _ in range(repetitions):
         for process, signal_name, hold, link in plan:
             for attempt in range(1, SETUP_TRIES + 1):
