@@ -187,6 +187,39 @@ def decoded_into(into: list, kind):
     return on
 
 
+def kernel_stamps_arrivals(timeout: float = 5.0) -> bool:
+    """Wait until the kernel stamps UDP datagrams as they arrive (SO_TIMESTAMPNS).
+
+    Linux turns its receive timestamps on for the whole host lazily, in deferred work
+    queued when the first socket asks for them (net_enable_timestamp); a datagram that
+    arrives before that work has run is stamped when it is read instead ("Race occurred
+    between timestamp enabling and packet receiving", include/net/sock.h). On a busy
+    host the work can lag a socket's configure by more than a test's setup, so a spec
+    about arrival times waits for it first. False if it never came within `timeout`."""
+    import socket as _socket
+    import struct as _struct
+    import time as _time
+
+    receiver = _socket.socket(_socket.AF_INET, _socket.SOCK_DGRAM)
+    sender = _socket.socket(_socket.AF_INET, _socket.SOCK_DGRAM)
+    try:
+        receiver.bind(("127.0.0.1", 0))
+        receiver.setsockopt(_socket.SOL_SOCKET, getattr(_socket, "SO_TIMESTAMPNS", 35), 1)
+        end = _time.monotonic() + timeout
+        while _time.monotonic() < end:
+            sent = _time.time()
+            sender.sendto(b"?", receiver.getsockname())
+            _time.sleep(0.02)
+            _, ancillary, _, _ = receiver.recvmsg(16, 64)
+            seconds, nanoseconds = _struct.unpack("ll", ancillary[0][2][:16])
+            if seconds + nanoseconds * 1e-9 < sent + 0.01:  # stamped on arrival, not read
+                return True
+        return False
+    finally:
+        sender.close()
+        receiver.close()
+
+
 def wait_until(predicate, timeout: float = 5.0, interval: float = 0.005) -> bool:
     """Poll `predicate` until it holds or `timeout` passes (for asynchronous delivery;
     this bounds a wait, it does not assert on speed)."""

@@ -186,6 +186,8 @@ class RobotInterface(Component):
         self._close()
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
+            # the kernel turns arrival stamps on in deferred work: a datagram that comes
+            # before it has run is stamped when read (only the first, long before motion)
             sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
             sock.bind(listen)
         except OSError as exc:
