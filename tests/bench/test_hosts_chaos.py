@@ -3,15 +3,19 @@ from what the robot interface and the simulated KRC report once the links are ba
 the first braking cycle is the first of the robot's stop and the KRC's brakes; a stop
 before the fault is counted, not timed; how far past the deadline that tripped the
 first braking cycle came is read from the robot's reason; a release after the fault, an arm left
-released, or motion after the brakes engaged is a motion without RELEASE."""
+released, or motion after the brakes engaged is a motion without RELEASE; a control host's
+run whose deployment never began its approach is a failed setup, run again as `chaos`
+runs one."""
 
+import json
+import sys
 from dataclasses import dataclass
 
 import pytest
 
 from framework.messages import ArmState
-from fw_bench.chaos import Case
-from fw_bench.hosts_chaos import _judge, beyond_deadline, main
+from fw_bench.chaos import Case, SetupFailed
+from fw_bench.hosts_chaos import SETUP_FAILED, _judge, beyond_deadline, main, run_case
 
 FAULT = 1000.0
 STILL_Q = (0.0,) * 7
@@ -114,3 +118,37 @@ def test_a_stop_is_judged_against_the_deadline_of_the_input_that_tripped(
 ):
     got = beyond_deadline(timed(to_braking, reason))
     assert got == (None if beyond is None else pytest.approx(beyond))
+
+
+class Hosts:
+    """Namespaces whose control host's run only prints `said` (a real child process)."""
+
+    prefix = "fwt-"
+
+    def __init__(self, said: dict):
+        self.said, self.ended = said, []
+
+    def deploy_others(self, topology, keys, home):
+        return ["the other hosts' parts"]
+
+    def command(self, host, *argv):
+        return [sys.executable, "-c", f"print({json.dumps(json.dumps(self.said))})"]
+
+    def end(self, parts):
+        self.ended.append(parts)
+
+
+def test_a_control_run_that_never_began_its_approach_is_a_failed_setup(tmp_path):
+    why = "state Moving_Fast not reached in 30 s; e_NOTRACKER: {'why': 'vicra: stale'}"
+    hosts = Hosts({SETUP_FAILED: why})
+    with pytest.raises(SetupFailed, match="e_NOTRACKER"):
+        run_case(hosts, tmp_path / "t.yaml", tmp_path / "k", "robot", "partition 2s", {"hold": 2})
+    assert hosts.ended == [["the other hosts' parts"]]  # their parts stopped all the same
+
+
+def test_a_control_runs_case_is_read_from_its_last_line(tmp_path):
+    hosts = Hosts(Case("robot", "LINK", 2.0, link="partition 2s", to_braking_ms=41.0).__dict__)
+    case = run_case(
+        hosts, tmp_path / "t.yaml", tmp_path / "k", "robot", "partition 2s", {"hold": 2}
+    )
+    assert case.process == "robot" and case.to_braking_ms == 41.0

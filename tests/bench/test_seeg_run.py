@@ -58,3 +58,36 @@ def test_a_start_that_fails_shuts_down_what_it_had_started(tmp_path):
         run.start()
     # `with SeegRun() as run` never calls stop when start raised: start must
     assert stopped == [True] and run.deployment is None
+
+
+class Asked(SeegRun):
+    """A run whose deployment answers the Supervisor's report from a script."""
+
+    def __init__(self, bests, health=None, **kw):
+        super().__init__(**kw)
+        self.bests, self.health, self.asked = list(bests), health or {}, []
+
+    def call(self, ref, **args):
+        self.asked.append(ref)
+        if ref == "supervisor.report":
+            return {"best": self.bests.pop(0) if len(self.bests) > 1 else self.bests[0]}
+        assert ref == "sensor_manager.current"
+        return {"best": None, "health": self.health}
+
+
+def test_a_run_starts_only_once_the_supervisor_would_name_a_tracker(tmp_path):
+    """START before a tracker is trusted is answered e_NOTRACKER and brakes until
+    RELEASE: the run asks until the Supervisor has one, as an operator waits for it."""
+    run = Asked([None, None, "certus"], workdir=tmp_path)
+    assert run.wait_tracker(5.0) == "certus"
+    assert run.asked == ["supervisor.report"] * 3
+
+
+def test_no_tracker_trusted_in_time_is_an_error_saying_what_each_lacks(tmp_path):
+    health = {
+        "certus": {"ok": True, "cause": ""},
+        "vicra": {"ok": False, "cause": "missing tool"},
+    }
+    run = Asked([None], health=health, workdir=tmp_path)
+    with pytest.raises(BenchError, match=r"certus: healthy, not trusted yet; vicra: missing tool"):
+        run.wait_tracker(0.05)

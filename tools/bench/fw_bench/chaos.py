@@ -27,10 +27,12 @@ say so rather than invent a braking time.
 
 from __future__ import annotations
 
+import functools
 import os
 import signal
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -114,6 +116,23 @@ class SetupFailed(BenchError):
 
 SETUP_TRIES = 3
 """Fresh deployments a case may take to begin its approach."""
+
+
+def set_up_and_run(label: str, attempt: Callable[[], Case], setups: list[str]) -> Case:
+    """`attempt()` (one case on a fresh deployment) until its setup succeeds, at most
+    `SETUP_TRIES` times; why each failed setup failed is appended to `setups` (as
+    "label: why") and said on stderr. The last failure is raised: a case that never
+    sets up ends the run with its reason. `chaos` and `chaos --hosts` both run their
+    cases through this."""
+    for tried in range(1, SETUP_TRIES + 1):
+        try:
+            return attempt()
+        except SetupFailed as exc:
+            setups.append(f"{label}: {exc}")
+            print(f"setup failed ({tried} of {SETUP_TRIES}): {exc}", file=sys.stderr)
+            if tried == SETUP_TRIES:
+                raise
+    raise AssertionError("unreachable: SETUP_TRIES >= 1")
 
 
 def run_case(process: str, signal_name: str, hold: float, link: tuple | None = None) -> Case:
@@ -220,15 +239,11 @@ def chaos(repetitions: int, progress: Any = None) -> tuple[list[Case], list[str]
     total = repetitions * len(plan)
     for _ in range(repetitions):
         for process, signal_name, hold, link in plan:
-            for attempt in range(1, SETUP_TRIES + 1):
-                try:
-                    case = run_case(process, signal_name, hold, link)
-                    break
-                except SetupFailed as exc:
-                    setups.append(f"{process} {signal_name}: {exc}")
-                    print(f"setup failed ({attempt} of {SETUP_TRIES}): {exc}", file=sys.stderr)
-                    if attempt == SETUP_TRIES:
-                        raise
+            case = set_up_and_run(
+                f"{process} {signal_name}",
+                functools.partial(run_case, process, signal_name, hold, link),
+                setups,
+            )
             cases.append(case)
             print(case.line(), file=sys.stderr, flush=True)
             if progress is not None:

@@ -683,16 +683,7 @@ def run_chaos(quick: bool, context: dict[str, Any]) -> list[Row]:
         times = [c.to_braking_ms for c in mine if c.to_braking_ms is not None]
         if times:
             rows.append(Row("chaos", f"{process} {name}: to braking, max", max(times), n=len(mine)))
-    rows.append(
-        Row(
-            "chaos",
-            "fresh deployments that never began the approach (no fault injected; run "
-            "again; why in summary.json)",
-            float(len(setups)),
-            unit="",
-            n=len(cases) + len(setups),
-        )
-    )
+    rows.append(_setups_row("chaos", setups, len(cases)))
     moved = sum(c.moved_without_release for c in cases)
     rows.append(
         Row(
@@ -717,6 +708,18 @@ def run_chaos(quick: bool, context: dict[str, Any]) -> list[Row]:
     return rows
 
 
+def _setups_row(experiment: str, setups: list[str], cases: int) -> Row:
+    """The count of a chaos run's fresh deployments that never began the approach."""
+    return Row(
+        experiment,
+        "fresh deployments that never began the approach (no fault injected; run "
+        "again; why in summary.json)",
+        float(len(setups)),
+        unit="",
+        n=cases + len(setups),
+    )
+
+
 def _chaos_on_hosts(repetitions: int, context: dict[str, Any]) -> list[Row]:
     """`chaos --hosts` (fw_bench/hosts_chaos.py): every host cut off or made lossy
     while moving. Fails the run (exit 1) if any case ends unbraked or moves before
@@ -724,10 +727,13 @@ def _chaos_on_hosts(repetitions: int, context: dict[str, Any]) -> list[Row]:
     from fw_bench import hosts_chaos
 
     kinds = tuple(context.get("host_faults") or ())
-    cases, skipped = hosts_chaos.chaos_on_hosts(repetitions, _progress("chaos --hosts"), kinds)
+    cases, skipped, setups = hosts_chaos.chaos_on_hosts(
+        repetitions, _progress("chaos --hosts"), kinds
+    )
     context.setdefault("series", {})["chaos_hosts"] = [
         {**c.__dict__, "name": c.name, "ok": c.ok} for c in cases
     ]
+    context["series"]["chaos_hosts_setups_failed"] = setups
     bad = [c for c in cases if not c.ok]
     if bad:
         context["failed"] = [f"chaos --hosts: {c.process} {c.name}: {c.detail}" for c in bad]
@@ -766,15 +772,17 @@ def _chaos_on_hosts(repetitions: int, context: dict[str, Any]) -> list[Row]:
             ),
         ]
     judged = [c for c in cases if hosts_chaos.judged(c)]
-    rows.append(
+    rows += [
+        _setups_row("chaos --hosts", setups, len(cases)),
         Row(
             "chaos --hosts",
-            "cases without a verdict (setup failed, a report unanswered: in summary.json)",
+            "cases without a verdict (the control host's run did not end, a report "
+            "unanswered: in summary.json)",
             len(cases) - len(judged),
             unit="",
             n=len(cases),
-        )
-    )
+        ),
+    ]
     for host in hosts_chaos.HOSTS:
         for name, _ in hosts_chaos.FAULTS:
             mine = [c for c in cases if c.process == host and c.name == name]

@@ -5,7 +5,8 @@ framework/netns.py) cut off or made lossy while the arm approaches the target at
 
 Each case starts every host's part (`fw deploy --host`), runs the control host's
 part in the control namespace (a child process: `python -m fw_bench.hosts_chaos
---case ...`, printing its case as one JSON line), releases the arm for the approach,
+--case ...`, printing its case as one JSON line; a deployment that never began its approach is
+run again, at most three times, as `fw bench chaos` does), releases the arm for the approach,
 and injects the link fault 0.6 s into it. A watcher on the control host cannot time
 what happens behind a cut link, so the times come from the hosts that saw them: the
 robot interface's report says when its stop began (`latched_at`), the simulated KRC's
@@ -38,6 +39,7 @@ and the report says so.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import re
 import shutil
@@ -48,7 +50,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from fw_bench.chaos import STILL, Case
+from fw_bench.chaos import STILL, Case, SetupFailed, set_up_and_run
 from fw_bench.files import seeg_home
 
 HOSTS = ("control", "tracking", "cameras", "robot", "krc")
@@ -68,10 +70,11 @@ CASE_TIMEOUT = 240.0
 
 def chaos_on_hosts(
     repetitions: int, progress: Any = None, kinds: tuple[str, ...] = ()
-) -> tuple[list[Case], list[str]]:
+) -> tuple[list[Case], list[str], list[str]]:
     """Every host x link fault (those of `kinds` only, if given: partition, loss,
-    delay), `repetitions` times each, a line per case printed; the cases, and the
-    fault kinds this machine cannot inject (and why)."""
+    delay), `repetitions` times each, a line per case printed; the cases, the fault
+    kinds this machine cannot inject (and why), and why each setup that never began
+    its approach failed (the case was run again on fresh parts, as `chaos` does)."""
     from framework import netns
     from fw_bench.seeg_run import BenchError
 
@@ -79,6 +82,7 @@ def chaos_on_hosts(
     if why:
         raise BenchError(f"chaos --hosts needs the hosts as network namespaces: {why}")
     skipped = []
+    setups: list[str] = []
     faults = [f for f in FAULTS if not kinds or f[0].split()[0] in kinds]
     loss = netns.loss_available()
     if loss:
@@ -103,7 +107,11 @@ def chaos_on_hosts(
     try:
         for _ in range(repetitions):
             for host, name, fault in plan:
-                case = run_case(hosts, topology, keys, host, name, fault)
+                case = set_up_and_run(
+                    f"{host} {name}",
+                    functools.partial(run_case, hosts, topology, keys, host, name, fault),
+                    setups,
+                )
                 cases.append(case)
                 print(case.line(), file=sys.stderr, flush=True)
                 if progress is not None:
@@ -111,7 +119,7 @@ def chaos_on_hosts(
     finally:
         hosts.down()
         shutil.rmtree(folder, ignore_errors=True)
-    return cases, skipped
+    return cases, skipped, setups
 
 
 def make_keys(topology: Path, folder: Path) -> Path:
@@ -160,7 +168,10 @@ def run_case(
             tail = (run.stderr.strip().splitlines() or ["no output"])[-1]
             case.detail = f"{NO_VERDICT} failed: {tail[:160]}"
             return case
-        return Case(**json.loads(lines[-1]))
+        said = json.loads(lines[-1])
+        if SETUP_FAILED in said:
+            raise SetupFailed(said[SETUP_FAILED])
+        return Case(**said)
     finally:
         hosts.end(parts)
 
@@ -170,17 +181,22 @@ def _control_case(host: str, name: str, topology: Path, keys: Path) -> Case:
     the approach, inject the fault, ask the robot and the KRC what they did."""
     from framework.messages import ArmState
     from framework.scenario.model import Fault
-    from fw_bench.seeg_run import SeegRun
+    from fw_bench.seeg_run import BenchError, SeegRun
 
     spec = dict(FAULTS)[name]
     case = Case(host, "LINK", float(spec["hold"]), link=name, may_go_on="delay" in spec)
     recording = Path(tempfile.mkdtemp(prefix="fw-bench-case-")) / "control.mcap"
-    run = SeegRun(hosts=(topology, keys), record=recording).start()
+    run = SeegRun(hosts=(topology, keys), record=recording)
     try:
-        run.watch("arm/measured", ArmState)
-        before = _ask(run, "arm")
-        run.send("e_START")
-        run.wait_state("Moving_Fast", 30.0)
+        try:
+            run.start()
+            run.watch("arm/measured", ArmState)
+            before = _ask(run, "arm")
+            run.send("e_START")
+            run.wait_state("Moving_Fast", 30.0)
+        except BenchError as exc:
+            tracking = run.last_payload("e_NOTRACKER")
+            raise SetupFailed(f"{exc}{f'; e_NOTRACKER: {tracking}' if tracking else ''}") from exc
         time.sleep(0.6)  # well into the approach: at speed
         assert run.deployment is not None
         asked = time.time()
@@ -199,6 +215,10 @@ def _control_case(host: str, name: str, topology: Path, keys: Path) -> Case:
         shutil.rmtree(recording.parent, ignore_errors=True)
     return case
 
+
+SETUP_FAILED = "setup_failed"
+"""The key of the line the control host's run prints for a case whose deployment never
+began its approach (no fault injected): the case is run again (`set_up_and_run`)."""
 
 NO_VERDICT = "the control host's run"
 """How the detail of a case the control host's run never judged begins (it did not
@@ -291,7 +311,11 @@ def main(argv: list[str] | None = None) -> int:
     host, name = args.case
     if host not in HOSTS or name not in dict(FAULTS):
         parser.error(f"a host of {', '.join(HOSTS)} and a fault of {', '.join(dict(FAULTS))}")
-    case = _control_case(host, name, args.topology, args.keys)
+    try:
+        case = _control_case(host, name, args.topology, args.keys)
+    except SetupFailed as exc:  # the parent runs the case again on fresh parts
+        print(json.dumps({SETUP_FAILED: str(exc)}), flush=True)
+        return 0
     print(json.dumps({k: v for k, v in case.__dict__.items()}), flush=True)
     return 0
 

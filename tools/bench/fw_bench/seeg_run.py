@@ -51,6 +51,13 @@ WATCHED: dict[str, type] = {
 }
 
 
+TRACKER_WAIT = 10.0
+"""Seconds after Wait_Start a run waits for a trusted tracker (the Certus and the
+Vicra are trusted within ~0.1 s on a quiet host)."""
+TRACKER_POLL = 0.02
+"""Seconds between two questions to the Supervisor while waiting for a tracker."""
+
+
 class BenchError(FwError):
     """An experiment could not run (the deployment did not reach a state in time)."""
 
@@ -162,9 +169,33 @@ class SeegRun:
                 )
             self.deployment.run_chart()
             self.wait_state("Wait_Start", 60.0)
+            self.wait_tracker(TRACKER_WAIT)
         finally:
             os.chdir(old)
         return self
+
+    def wait_tracker(self, timeout: float) -> str:
+        """Wait until the Supervisor has a trusted tracker to name, as an operator waits
+        for the console to show one before START; returns its name. Setup ends as the
+        trackers' first frames arrive, and each must pass its hysteresis before it is
+        trusted: a START sent in between is answered e_NOTRACKER and the chart brakes
+        until RELEASE (thesis 3.3.4), which is right for the procedure and no run of
+        a benchmark. Not trusted in `timeout`: an error with what each tracker lacks."""
+        deadline = time.monotonic() + timeout
+        while True:
+            report = self.call("supervisor.report")
+            if report.get("best"):
+                return str(report["best"])
+            if time.monotonic() >= deadline:
+                health = self.call("sensor_manager.current").get("health", {})
+                lacks = "; ".join(
+                    f"{name}: {h.get('cause') or 'healthy, not trusted yet'}"
+                    for name, h in sorted(health.items())
+                )
+                raise BenchError(
+                    f"no tracker trusted {timeout:g} s after Wait_Start ({lacks or 'no sensor'})"
+                )
+            time.sleep(TRACKER_POLL)
 
     def recording_gaps(self) -> dict[str, int]:
         """Close the recording, then per channel how many of the chart's records (its
