@@ -387,10 +387,15 @@ class RobotInterface(Component):
         if state.braked:
             self._commanding = False
             self._sent.clear()
+        latched = self.latched
         self._guard(state)
         guarded = time.perf_counter()
         self._separation(state)
         separated = time.perf_counter()
+        if self.latched and not latched:
+            # a stop decided in this cycle: its first command answers the measurement
+            # now, before the publishing and the components that run after this one
+            self.write_hook()
         if self._brake_when_still is not None:
             self._brake_once_still(state)
         self._publish(state)
@@ -408,7 +413,6 @@ class RobotInterface(Component):
         self._measurement = None
         if self._stop is not None:
             self._send(self._stop.step())
-            self._reacted()
             if self._stop.done:
                 self._stop = None
                 self._request("brake", reason=self.latched, latch=True)
@@ -422,7 +426,6 @@ class RobotInterface(Component):
                     self._trip(f"setpoint refused: {wrong}", state)
                     if self._stop is not None:  # its first command goes out now
                         self._send(self._stop.step())
-                        self._reacted()
                 else:
                     self._send(q)
                     self._since_setpoint = 0
@@ -431,6 +434,8 @@ class RobotInterface(Component):
         if state.braked or not self._commanding:  # hold: the measurement's own answer
             self._answer = np.asarray(measurement.monitor_answer)
         self._answer_krc(measurement)
+        if self._check_started:  # a protective stop's first command is on its way
+            self._reacted()
 
     def _answer_krc(self, measurement: fri.Measurement) -> None:
         """Send the command answering `measurement`, with the request in flight: each
@@ -587,8 +592,9 @@ class RobotInterface(Component):
         self._send_cap(verdict.tcp_cap)
 
     def _reacted(self) -> None:
-        """After the first stop command of a protective stop: how long the separation
-        check that decided it took, and from its verdict to that command (`fw bench
+        """Once the first answer of a protective stop is sent (its first stop command,
+        or the brake request when the arm was not commanded): how long the separation
+        check that decided it took, and from its verdict to that datagram (`fw bench
         ssm`)."""
         started, self._check_started = self._check_started, 0.0
         if started:
@@ -637,7 +643,6 @@ class RobotInterface(Component):
             self._stop = SafeStop(last, velocity, np.full(7, self.stop_deceleration), CYCLE)
         else:
             self._request("brake", reason=reason, latch=True)
-            self._reacted()
 
     def _implausible(self, q: np.ndarray, state: ArmState) -> str:
         """Why a setpoint must not reach the arm ("" if it may): not 7 finite joints,

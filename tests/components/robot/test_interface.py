@@ -672,6 +672,19 @@ def test_a_protective_stop_under_way_when_the_controller_falls_silent_brakes_at_
     assert arm.names()[requests:] == ["brake"] and arm.requests[-1].payload["latch"] is True
 
 
+def test_a_protective_stop_under_way_when_the_controller_brakes_by_itself_answers_its_echo(arm):
+    """Braked by the KRC in the middle of the interface's stop, the arm is in monitor
+    mode: FRI demands the echo of its commanded position, not the stop's next step."""
+    last = moving(arm)
+    arm.cycle(last + step(5.0))  # trips: the interface starts decelerating the arm
+    assert arm.report()["stopping"]
+    stepping = np.array(arm.answers[-1].jnt_pos)
+    arm.braked = True
+    arm.cycle()
+    assert not np.allclose(stepping, arm.q), "the stop's steps are not the echo"
+    assert np.allclose(arm.answers[-1].jnt_pos, arm.q)
+
+
 def test_an_interface_that_starts_beside_an_arm_its_controller_latched_latches_too(arm):
     arm.cycle(latched=True, reason=fri.REASONS[3], served=7)  # requests of a previous run
     assert arm.report()["reason"] == f"the arm braked by itself: {fri.REASONS[3]}"

@@ -570,6 +570,43 @@ def age_at_the_stop_of_a_far_person_gone_silent(hub) -> int:
         cell.close()
 
 
+@pytest.mark.parametrize("cause", ["a person", "a silent interpolator"])
+def test_a_stops_first_command_answers_its_cycle_before_the_components_after_the_robot(
+    hub, cause
+):
+    """The cycle that decides a stop (here a protective stop, or the guard's trip on
+    a planner fallen silent) answers the KRC with the stop's first command at once, not
+    after the interface's publishing and the interpolator's update (up to 0.25 ms on
+    the deployment, `fw bench ssm`): when the interpolator runs in that cycle, the
+    cycle's measurement is already answered."""
+    cell, room = moving(hub)
+    try:
+        seen = []
+        update, silent = cell.interp.update_hook, []
+
+        def watched():
+            link = cell.robot.link
+            seen.append((bool(cell.robot.latched), link["answered"] == link["measurements"]))
+            if not silent:
+                update()
+
+        cell.interp.update_hook = watched
+        cell.run(0.05)
+        assert seen and not any(answered for _, answered in seen), "a moving cycle: after it"
+        if cause == "a person":
+            room.person(0.0)
+        else:
+            silent.append(True)  # it runs, and writes no setpoint
+        cell.run(0.02)
+        assert cell.robot.latched.startswith(
+            "protective stop" if cause == "a person" else "no setpoint for"
+        )
+        first = next(k for k, (latched, _) in enumerate(seen) if latched)
+        assert seen[first] == (True, True)
+    finally:
+        cell.close()
+
+
 def test_a_far_person_whose_envelope_grows_old_is_checked_again_in_time(hub, peer, monkeypatch):
     """Everyone far, the separation is checked again only when the envelope's age could
     have brought someone under the protective distance: a person a metre away, then a

@@ -559,6 +559,9 @@ def protective_stops(run: SeegRun, trials: int, progress: Any = None) -> list[Tr
         return str(message.payload.get("reason", "")).startswith("protective stop")
 
     def trial() -> Trial:
+        # the last trial's walker may live on as a track for some frames after leaving:
+        # a RELEASE then resumes into a protective stop of the old trial's person
+        _nobody_near(run)
         keep_moving(run, goal)
         time.sleep(0.3)
         before = run.call("robot.report")
