@@ -571,9 +571,7 @@ def age_at_the_stop_of_a_far_person_gone_silent(hub) -> int:
 
 
 @pytest.mark.parametrize("cause", ["a person", "a silent interpolator"])
-def test_a_stops_first_command_answers_its_cycle_before_the_components_after_the_robot(
-    hub, cause
-):
+def test_a_stops_first_command_answers_its_cycle_before_the_components_after_the_robot(hub, cause):
     """The cycle that decides a stop (here a protective stop, or the guard's trip on
     a planner fallen silent) answers the KRC with the stop's first command at once, not
     after the interface's publishing and the interpolator's update (up to 0.25 ms on
