@@ -811,7 +811,9 @@ def test_a_far_person_becomes_too_close_as_the_silence_grows_past_its_arrival_ti
         expected = SsmParams().protective_distance(speed, age / 1000) * 100
         assert protective == pytest.approx(expected, abs=0.25), "the distance of that age, speed"
         assert separation == pytest.approx(report["closest"] * 100, abs=0.1), "the least seen"
-        assert 100 < separation < protective and 500 < age < 2000
+        # said to 0.1 cm, while the distance grows 0.16 cm a cycle at 1.6 m/s: the
+        # cycle that trips may say the two equal
+        assert 100 < separation <= protective and 500 < age < 2000
         timing = report["protective_stop"]  # what `fw bench ssm` reads of it
         assert timing["check_ms"] >= 0.0 and timing["detected_to_command_ms"] >= 0.0
         assert timing["envelopes_taken"] > 0.0 and timing["stamp"] >= timing["envelopes_taken"]
