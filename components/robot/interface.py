@@ -406,7 +406,10 @@ class RobotInterface(Component):
     def write_hook(self) -> None:
         """Answer the cycle's measurement: the protective stop's next step, the
         interpolator's setpoint of this very cycle (once found plausible), the hold
-        position, or in monitor mode what FRI demands; with the next request."""
+        position, or in monitor mode what FRI demands; with the next request. Runs in
+        the loop's thread at the end of its cycle, or from `update_hook` already in a
+        cycle that decided a stop (its first command must not wait); once per
+        measurement either way."""
         measurement, state = self._measurement, self._arm
         if measurement is None or state is None:
             return
