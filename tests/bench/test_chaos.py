@@ -38,3 +38,19 @@ def test_a_case_that_never_sets_up_ends_the_run_with_its_reason(monkeypatch):
     with pytest.raises(SetupFailed, match="no answer in 2 s"):
         chaos.chaos(1)
     assert len(calls) == SETUP_TRIES
+
+
+def test_a_failed_setup_says_what_each_tracker_lacked_when_the_chart_had_none():
+    class Run:
+        def __init__(self, payload):
+            self.payload = payload
+
+        def last_payload(self, event):
+            assert event == "e_NOTRACKER"
+            return self.payload
+
+    why = chaos.BenchError("state Moving_Fast not reached in 30 s")
+    assert str(chaos.setup_failed(Run(None), why)) == "state Moving_Fast not reached in 30 s"
+    said = chaos.setup_failed(Run({"why": "certus: healthy, not trusted again yet"}), why)
+    assert isinstance(said, SetupFailed)
+    assert str(said).endswith("; e_NOTRACKER: {'why': 'certus: healthy, not trusted again yet'}")

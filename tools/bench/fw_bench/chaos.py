@@ -118,6 +118,13 @@ SETUP_TRIES = 3
 """Fresh deployments a case may take to begin its approach."""
 
 
+def setup_failed(run: Any, exc: BenchError) -> SetupFailed:
+    """A case's setup that ended in `exc` before any fault, with the chart's e_NOTRACKER
+    (what each tracker lacked) if it went to No_Tracker instead of moving."""
+    tracking = run.last_payload("e_NOTRACKER")
+    return SetupFailed(f"{exc}{f'; e_NOTRACKER: {tracking}' if tracking else ''}")
+
+
 def set_up_and_run(label: str, attempt: Callable[[], Case], setups: list[str]) -> Case:
     """`attempt()` (one case on a fresh deployment) until its setup succeeds, at most
     `SETUP_TRIES` times; why each failed setup failed is appended to `setups` (as
@@ -152,8 +159,7 @@ def run_case(process: str, signal_name: str, hold: float, link: tuple | None = N
             run.send("e_START")
             run.wait_state("Moving_Fast", 30.0)
         except BenchError as exc:
-            tracking = run.last_payload("e_NOTRACKER")
-            raise SetupFailed(f"{exc}{f'; e_NOTRACKER: {tracking}' if tracking else ''}") from exc
+            raise setup_failed(run, exc) from exc
         time.sleep(0.6)  # well into the approach: at speed
         deployment = run.deployment
         assert deployment is not None

@@ -50,7 +50,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from fw_bench.chaos import STILL, Case, SetupFailed, set_up_and_run
+from fw_bench.chaos import STILL, Case, SetupFailed, set_up_and_run, setup_failed
 from fw_bench.files import seeg_home
 
 HOSTS = ("control", "tracking", "cameras", "robot", "krc")
@@ -195,8 +195,7 @@ def _control_case(host: str, name: str, topology: Path, keys: Path) -> Case:
             run.send("e_START")
             run.wait_state("Moving_Fast", 30.0)
         except BenchError as exc:
-            tracking = run.last_payload("e_NOTRACKER")
-            raise SetupFailed(f"{exc}{f'; e_NOTRACKER: {tracking}' if tracking else ''}") from exc
+            raise setup_failed(run, exc) from exc
         time.sleep(0.6)  # well into the approach: at speed
         assert run.deployment is not None
         asked = time.time()
