@@ -60,9 +60,16 @@ def test_hands_on_is_refused_while_a_part_is_held(bus_config, tmp_path):
         answer = coordinator.offer("e_MODE", {"mode": "hands_on"})
         assert not answer["accepted"] and "e_MODE is not taken in" in answer["reason"]
         assert RemoteComponent(deployment.hub, "gripper").call("report")["holding"]
-        assert wait_until(lambda: leaves() == ["Wait_Part"], timeout=30), leaves()
-        assert coordinator.offer("e_MODE", {"mode": "hands_on"})["accepted"]
+        # Wait_Part lasts one feeder tick (20 ms) per part: an operator's button pressed
+        # until it is taken lands there (a poll of the chart's state first, then the
+        # offer, missed it three times over and met Batch_Done)
+        assert wait_until(
+            lambda: coordinator.offer("e_MODE", {"mode": "hands_on"})["accepted"],
+            timeout=30,
+            interval=0.002,
+        ), leaves()
         assert wait_until(lambda: leaves() == ["Hands_On"], timeout=10)
+        assert not RemoteComponent(deployment.hub, "gripper").call("report")["holding"]
     finally:
         deployment.stop()
 
