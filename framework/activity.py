@@ -316,6 +316,9 @@ class RealTimeExecutor:
         stats = self.loops[component.name] = LoopStats(self.realtime.enter(component.name))
         engine.loop = stats
         engine.thread_id = threading.get_ident()
+        chain = [component, *_chain(self._followers, component)]
+        for member in chain:  # their samples for other processes go out after the command
+            member.defer_outputs()
         silent_since = time.monotonic()
         wait = min(activity.idle, 0.005)  # queued operations wait at most this long
         try:
@@ -332,6 +335,9 @@ class RealTimeExecutor:
                     done = time.perf_counter()
                     stats.stage("send", done - followed)
                     stats.cycle(done - began)
+                    for member in chain:
+                        member.after_cycle()
+                    stats.after_cycle(time.perf_counter() - done)
                     silent_since = time.monotonic()
                 elif time.monotonic() - silent_since >= activity.idle:
                     component.idle()
@@ -339,6 +345,8 @@ class RealTimeExecutor:
                 elif component.state is not State.RUNNING:
                     self._stop.wait(wait)  # nothing to read from: do not spin
                 engine.run_pending()
+                for member in chain:  # what the operations just run wrote
+                    member.flush_outputs()
                 for call in self.between_cycles:
                     call()
                 self.realtime.between_cycles(stats, slack=not cycled)
@@ -365,6 +373,16 @@ def _named(target: Callable[[Component, Activity], None]) -> Callable[..., None]
         target(component, activity)
 
     return run
+
+
+def _chain(followers: dict[str, list[Component]], master: Component) -> list[Component]:
+    """The components that run after `master`, and theirs in turn, in the order they
+    update (`_follow`)."""
+    chain: list[Component] = []
+    for follower in followers.get(master.name, ()):
+        chain.append(follower)
+        chain.extend(_chain(followers, follower))
+    return chain
 
 
 def _add_follower(followers: dict[str, list[Component]], master: str, component: Component) -> None:
@@ -458,7 +476,11 @@ class SteppedExecutor:
                     began = time.perf_counter()
                     updates += self._update(component)
                     component.write_cycle()
-                    component.loop_stats.cycle(time.perf_counter() - began)
+                    done = time.perf_counter()
+                    component.loop_stats.cycle(done - began)
+                    for member in (component, *_chain(self._followers, component)):
+                        member.after_cycle()
+                    component.loop_stats.after_cycle(time.perf_counter() - done)
                     cycled += 1
             if not ready and not cycled:
                 break

@@ -204,6 +204,10 @@ class Component:
     """An event-driven component's next idle tick comes at most this long after its last
     update (s; None: the activity's `idle`): a component that knows when its inputs fall
     due (a tracker's staleness deadline) wakes then, not on a fixed beat."""
+    after_cycles = False
+    """True once a paced loop ran this component's `after_cycle` (it is the paced one or
+    runs after it): a hook may then leave to `after_cycle_hook` what needs no answer
+    within the cycle, and must take it in `update_hook` otherwise."""
     realtime = False
     """A periodic component that is a device's own clock (the simulated KRC) runs a
     device loop: its cycles timed, the collector kept out of them, and real-time
@@ -641,6 +645,45 @@ class Component:
             except Exception as exc:  # a device write's error of any kind: Exception
                 self.exception(f"write_hook raised {type(exc).__name__}: {exc}")
 
+    def after_cycle(self) -> None:
+        """A paced loop's time after a cycle's command went out (this component is the
+        paced one or runs after it): `after_cycle_hook` while Running, then what its
+        ports deferred is sent (`defer_outputs`). Work here delays no answer to the
+        device, only the next cycle if it overran the time before it (`fw bench cost`
+        times it apart from the cycles)."""
+        self.after_cycles = True
+        with self._lifecycle_lock:
+            if self._state is State.RUNNING:
+                try:
+                    self.after_cycle_hook()
+                except Exception as exc:  # a hook's error of any kind: Exception (made safe)
+                    self.exception(f"after_cycle_hook raised {type(exc).__name__}: {exc}")
+        self.flush_outputs()
+
+    def defer_outputs(self) -> None:
+        """Send this component's samples to other processes at `flush_outputs`, not
+        inside each write (framework/ports.py: `OutputPort.defer`); its heartbeat too.
+        Called by a paced loop, before its first cycle, for the components it runs."""
+        for port in self._output_ports():
+            port.defer()
+
+    def flush_outputs(self) -> None:
+        """Send what this component's ports deferred (in the loop's thread). A sample
+        that cannot be encoded is the component's error, as in the write that made it:
+        it goes to Exception."""
+        for port in self._output_ports():
+            if port._deferred:
+                try:
+                    port.flush()
+                except Exception as exc:  # what its write would have raised: made safe
+                    self.exception(f"{port.full_name}: {type(exc).__name__}: {exc}")
+
+    def _output_ports(self) -> list[OutputPort[Any]]:
+        ports = list(self.outputs.values())
+        if self.heartbeat is not None:
+            ports.append(self.heartbeat.port)
+        return ports
+
     def idle(self) -> None:
         """Called by an event-driven activity when no data came for a while: `idle_hook`
         runs, and a watched component still proves it runs (its thread is alive and it
@@ -712,6 +755,14 @@ class Component:
         """Paced activity only, in the loop's thread, last in every cycle (after
         update_hook and every component that runs after this one), under the lifecycle
         lock: send the cycle's answer to the device. An exception sends the component to
+        Exception."""
+
+    def after_cycle_hook(self) -> None:
+        """Paced activity only (the paced component and those that run after it), in the
+        loop's thread after the cycle's command went out, under the lifecycle lock, while
+        Running: work that needs no answer in this cycle (a goal to steer toward, news
+        to publish), so the time from measurement to command stays short. Runs once per
+        cycle, before the next one's read; an exception sends the component to
         Exception."""
 
     def stop_hook(self) -> None:

@@ -88,6 +88,7 @@ class LoopStats:
     scheduling: str
     cycles: int = 0
     durations: list[float] = field(default_factory=list)  # s: read done to write sent
+    afters: list[float] = field(default_factory=list)  # s: after the write, before the next
     stages: dict[str, list[float]] = field(default_factory=dict)  # s, by stage
     longest: float = 0.0
     collections: int = 0
@@ -101,6 +102,11 @@ class LoopStats:
         self.cycles += 1
         self.longest = max(self.longest, seconds)
         _keep(self.durations, seconds)
+
+    def after_cycle(self, seconds: float) -> None:
+        """The work after a cycle's write (the components' `after_cycle`: deferred puts,
+        news) took `seconds`: it delays no answer, only the next cycle if it overran."""
+        _keep(self.afters, seconds)
 
     def stage(self, name: str, seconds: float) -> None:
         """A stage of this cycle (receive, safety, interpolation, IK, separation,
@@ -124,6 +130,8 @@ class LoopStats:
             "work_p50_us": _percentile(recent, 0.5),
             "work_p99_us": _percentile(recent, 0.99),
             "work_max_us": round(self.longest * 1e6, 1),
+            "after_cycle_p50_us": _percentile(self.afters[-KEEP:], 0.5),
+            "after_cycle_p99_us": _percentile(self.afters[-KEEP:], 0.99),
             "stages_us": {
                 name: {
                     "p50": _percentile(values[-KEEP:], 0.5),

@@ -227,6 +227,7 @@ class RobotInterface(Component):
         self._reported: tuple[Any, ...] | None = None
         self._last_status = -math.inf
         self._published_cycle = 0
+        self._news: ArmState | None = None  # published this cycle, its TCP and status not yet
         self.peak_step = 0.0  # the largest setpoint step seen, in rated joint velocities
         params = SsmParams(
             person_speed=self.person_speed,
@@ -738,7 +739,24 @@ class RobotInterface(Component):
         cycles = covered if state.braked else 1
         self._published_cycle = state.cycle
         self.joints.write(JointState(stamp, state.position, state.velocity, state.effort, cycles))
-        if self.tcp.wanted():  # its readers take it at 200 Hz: no FK on the other cycles
+        if self.after_cycles:  # the rest after the command (`after_cycle_hook`)
+            self._news = state
+        else:
+            self._publish_news(state)
+
+    def after_cycle_hook(self) -> None:
+        """In the paced loop, after the cycle's command went out: the TCP and the status
+        of the state this cycle published (nobody in this cycle reads them; the joints
+        went out within it, for the interpolator that runs after this component)."""
+        state, self._news = self._news, None
+        if state is not None:
+            self._publish_news(state)
+
+    def _publish_news(self, state: ArmState) -> None:
+        """The TCP, for its readers at 200 Hz (no forward kinematics on the other
+        cycles), and the status."""
+        if self.tcp.wanted():
+            stamp = state.stamp if math.isfinite(state.stamp) else time.time()
             tcp = self._kinematics.tcp(np.asarray(state.position))
             self.tcp.write(tcp_message(tcp, stamp))
         self._publish_status(state)

@@ -13,8 +13,10 @@ import pytest
 
 from framework.activity import Activity, ActivityError, RealTimeExecutor, SteppedExecutor
 from framework.clock import SimulatedClock
-from framework.component import Component, OperationError, operation
+from framework.component import Component, OperationError, Out, operation
 from framework.engine import EngineStopped, ExecutionEngine
+from framework.messages import Scalar
+from framework.ports import ConnPolicy, InputPort
 from framework.realtime import RealTimePolicy
 from tests.conftest import wait_until
 
@@ -266,3 +268,83 @@ def test_a_component_without_a_device_cannot_be_paced():
     plain.read_cycle(0.0)
     assert plain.state.value == "Exception"
     assert "cannot be paced" in plain.last_error
+
+
+class Publisher(Device):
+    """A device whose cycles write a sample on an output port, and which records, at its
+    write (the command to the device), how many of them still wait to be sent."""
+
+    out = Out(Scalar, doc="one sample per cycle")
+
+    def __init__(self) -> None:
+        super().__init__("publisher")
+        self.waiting_at_write: list[int] = []
+
+    def update_hook(self) -> None:
+        super().update_hook()
+        self.out.write(Scalar(0.0, float(self._taken)))
+
+    def write_hook(self) -> None:
+        self.waiting_at_write.append(len(self.out._deferred or ()))
+        super().write_hook()
+
+    def after_cycle_hook(self) -> None:
+        self.log.append(("after", self._taken))
+        self.threads["after"] = threading.get_ident()
+
+
+class LateFollower(Follower):
+    def after_cycle_hook(self) -> None:
+        self.device.log.append(("follower.after", self.device._taken))
+
+
+def test_after_each_command_the_loop_runs_the_after_cycle_hooks_then_sends_what_was_written(
+    hub, peer
+):
+    """The bus's work of a cycle (encoding, puts to other processes) and what needs no
+    answer within it run after the command to the device went out: at the write the
+    cycle's sample still waits; then the components' `after_cycle_hook`s run in the
+    loop's thread, in their cycle order; and another process gets every sample."""
+    executor = RealTimeExecutor(NO_RT)
+    device = running(Publisher())
+    follower = running(LateFollower(device))
+    device.out.owner, device.out.bus = "publisher", hub
+    device.out.connect("k/published")
+    remote = InputPort("inp", Scalar, policy=ConnPolicy("buffer", 16))
+    remote.owner, remote.bus = "reader", peer
+    remote.connect("k/published")
+    device.out.write(Scalar(0.0, -1.0))  # a probe: the route to the other process is up
+    assert wait_until(lambda: remote.pending() == 1, timeout=10)
+    remote.read()
+    executor.add(device, Activity.paced(0.05))
+    executor.add(follower, Activity("after", master="publisher"))
+    switch = sys.getswitchinterval()
+    executor.start()
+    try:
+        assert wait_until(lambda: device.engine.running and device.out._deferred is not None)
+        for k in range(5):
+            device.inbox.put(k)
+        assert wait_until(lambda: len(device.sent) == 5, timeout=5)
+        assert wait_until(lambda: remote.pending() == 5, timeout=5)
+    finally:
+        executor.stop()
+        sys.setswitchinterval(switch)
+    assert device.waiting_at_write == [1] * 5
+    order = [entry for entry in device.log if entry[0] != "brake"]
+    assert order == [
+        (kind, k) for k in range(5) for kind in ("update", "follow", "after", "follower.after")
+    ]
+    assert device.threads["after"] == device.threads["read"]  # the loop's own thread
+    got = [remote.read()[1].value for _ in range(remote.pending())]
+    assert got == [0.0, 1.0, 2.0, 3.0, 4.0]
+
+
+def test_a_sample_a_flush_cannot_encode_sends_its_component_to_exception():
+    """What its write would have raised, said with the port's name."""
+    device = running(Publisher())
+    device.out.defer()
+    device.out.bus = None
+    device.out._deferred.append((Scalar(0.0, "x"), 1, None, []))
+    device.flush_outputs()
+    assert device.state.value == "Exception"
+    assert "publisher.out" in device.last_error

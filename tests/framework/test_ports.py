@@ -413,3 +413,40 @@ def test_a_polled_buffer_whose_reader_fell_far_behind_says_its_ring_was_full(hub
     assert wait_until(lambda: witness.latest() == Scalar(0.0, 10.0))
     assert values(inp) == [9.0, 10.0]
     assert inp.stats.ring_full == 1
+
+
+def test_a_deferred_port_hands_samples_to_its_process_at_once_and_to_others_at_flush(hub, peer):
+    """A paced loop's port (`defer`): a reader in the writer's process gets each sample
+    inside `write`, as always; another process gets them only when the loop flushes
+    after its command went out, every one and in order."""
+    out = make_out(hub)
+    out.connect("k/deferred")
+    local, remote = make_in(hub, {"type": "buffer", "size": 16}), make_in(peer)
+    remote.policy = ConnPolicy("buffer", 16)
+    local.connect("k/deferred")
+    remote.connect("k/deferred")
+    routed(out, remote)
+    values(local)
+    out.defer()
+    for i in range(5):
+        out.write(Scalar(0.0, float(i)))
+    assert values(local) == [0.0, 1.0, 2.0, 3.0, 4.0]
+    before = counted(remote).received
+    assert out.flush() == 5
+    assert wait_until(lambda: counted(remote).received >= before + 5)
+    assert values(remote) == [0.0, 1.0, 2.0, 3.0, 4.0]
+    assert out.flush() == 0  # nothing left
+
+
+def test_a_deferred_sample_that_cannot_be_encoded_raises_at_flush_after_those_before_it(hub):
+    """Its write no longer encodes it, so the flush says what the write would have, and
+    the samples before it are sent (nothing queued behind it is lost: the next flush)."""
+    out = make_out(hub)
+    out.connect("k/deferred-bad")
+    out.defer()
+    out.write(Scalar(0.0, 1.0))
+    out.write(Scalar(0.0, "not a number"))
+    out.write(Scalar(0.0, 3.0))
+    with pytest.raises(PortError, match=r"cannot write to src\.out"):
+        out.flush()
+    assert out.flush() == 1

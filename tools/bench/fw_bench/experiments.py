@@ -189,6 +189,18 @@ def run_cost(quick: bool, context: dict[str, Any]) -> list[Row]:
                         n=min(n, 2000),
                     )
                 )
+            for level in ("p50", "p99"):
+                after = loop.get(f"after_cycle_{level}_us")
+                if after is not None:
+                    rows.append(
+                        Row(
+                            "cost",
+                            f"{what}{under}: robot loop, after the command (deferred puts, "
+                            f"goals; before the next measurement) {level}",
+                            after / 1000.0,
+                            n=min(n, 2000),
+                        )
+                    )
             for stage, q in sorted((loop.get("stages_us") or {}).items()):
                 for level in ("p50", "p99"):
                     if q.get(level) is not None:
