@@ -240,6 +240,49 @@ fail_p:
     return NULL;
 }
 
+/* joint_points(placements, tool, flange, q, out[30]): the base, the seven joint frames'
+ * origins, the flange (`flange` in joint 7's frame) and the TCP, as 10 rows of xyz:
+ * Kinematics.joint_origins in one call (the capsules of speed and separation
+ * monitoring, every cycle a person is near). */
+static PyObject *py_joint_points(PyObject *self, PyObject *args)
+{
+    PyObject *po, *to, *fo, *qo, *oo;
+    if (!PyArg_ParseTuple(args, "OOOOO", &po, &to, &fo, &qo, &oo))
+        return NULL;
+    Py_buffer pb, tb, fb, qb, ob;
+    if (get_buffer(po, &pb, N * 16, 0, "placements") < 0)
+        return NULL;
+    if (get_buffer(to, &tb, 16, 0, "tool") < 0) goto fail_p;
+    if (get_buffer(fo, &fb, 16, 0, "flange") < 0) goto fail_t;
+    if (get_buffer(qo, &qb, N, 0, "q") < 0) goto fail_f;
+    if (get_buffer(oo, &ob, 30, 1, "out") < 0) goto fail_q;
+    frame joints[N], tcp, flange, at;
+    chain(pb.buf, tb.buf, qb.buf, joints, &tcp);
+    frame_from4x4(fb.buf, &flange);
+    compose(&joints[N - 1], &flange, &at);
+    double *out = ob.buf;
+    out[0] = out[1] = out[2] = 0.0;
+    for (int i = 0; i < N; i++)
+        memcpy(out + 3 * (i + 1), joints[i].p, 3 * sizeof(double));
+    memcpy(out + 24, at.p, 3 * sizeof(double));
+    memcpy(out + 27, tcp.p, 3 * sizeof(double));
+    PyBuffer_Release(&ob);
+    PyBuffer_Release(&qb);
+    PyBuffer_Release(&fb);
+    PyBuffer_Release(&tb);
+    PyBuffer_Release(&pb);
+    Py_RETURN_NONE;
+fail_q:
+    PyBuffer_Release(&qb);
+fail_f:
+    PyBuffer_Release(&fb);
+fail_t:
+    PyBuffer_Release(&tb);
+fail_p:
+    PyBuffer_Release(&pb);
+    return NULL;
+}
+
 /* ik_step(placements, tool, q[7], target[16], rest[7], lower[7], upper[7],
  *         max_step[7], out[7], damping2, rest_gain_dt) -> bool (False: not solved)
  * dq = J^T (J J^T + d^2 I)^-1 (err - J r) + r, r = rest_gain dt (rest - q);
@@ -1145,6 +1188,9 @@ static PyMethodDef methods[] = {
      "straight path, steering offset added."},
     {"jacobian", py_jacobian, METH_VARARGS,
      "jacobian(placements, tool, q, pose, jac): the TCP pose and its base-aligned 6x7 Jacobian."},
+    {"joint_points", py_joint_points, METH_VARARGS,
+     "joint_points(placements, tool, flange, q, out): base, joint origins, flange and TCP "
+     "(10 x 3) into out."},
     {"ik_step", py_ik_step, METH_VARARGS,
      "ik_step(placements, tool, q, target, rest, lower, upper, max_step, out, damping2, "
      "rest_gain_dt) -> bool: one damped least-squares step into out."},

@@ -30,6 +30,8 @@ from functools import cached_property
 
 import numpy as np
 
+from components.domain.kernel import _fwkernel
+
 D = (0.3105, 0.0, 0.40, 0.0, 0.39, 0.0, 0.078)
 ALPHA = (math.pi / 2, -math.pi / 2, -math.pi / 2, math.pi / 2, math.pi / 2, -math.pi / 2, 0.0)
 POSITION_LIMIT = tuple(math.radians(v) for v in (170, 120, 170, 120, 170, 120, 170))
@@ -290,6 +292,8 @@ class Kinematics:
         """Each joint's frame in its parent's (7 x 4 x 4), for the compiled kernel."""
         self.tool = np.ascontiguousarray(model.frames[self.tcp_frame].placement.homogeneous)
         """The TCP in the last joint's frame (4 x 4)."""
+        self._flange = np.ascontiguousarray(link_offset(6), dtype=float)
+        """The flange in the last joint's frame (4 x 4)."""
 
     def tcp(self, q: np.ndarray) -> np.ndarray:
         """Base to TCP (4x4) for joints q."""
@@ -308,7 +312,19 @@ class Kinematics:
         return pose, jac
 
     def joint_origins(self, q: np.ndarray) -> np.ndarray:
-        """Positions (9 x 3) of the base, the seven joint frames' successors and the TCP."""
+        """Positions (10 x 3) of the base, the seven joint frames' origins, the flange and
+        the TCP: in the compiled kernel where it was built (one call instead of ten of
+        Pinocchio's), else `joint_origins_reference`, which a spec holds it to."""
+        if _fwkernel is None:
+            return self.joint_origins_reference(q)
+        out = np.empty((10, 3))
+        _fwkernel.joint_points(
+            self.placements, self.tool, self._flange, np.ascontiguousarray(q, dtype=float), out
+        )
+        return out
+
+    def joint_origins_reference(self, q: np.ndarray) -> np.ndarray:
+        """`joint_origins` with Pinocchio's forward kinematics."""
         pin = self._pin
         pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
         points = [np.zeros(3)]
@@ -326,10 +342,13 @@ class Kinematics:
         radii = np.array([LINK_RADIUS[0], LINK_RADIUS[2], LINK_RADIUS[4], LINK_RADIUS[6], 0.012])
         return pairs, radii
 
+    @cached_property
+    def _capsule_ends(self) -> tuple[np.ndarray, np.ndarray]:
+        pairs, _ = self._capsule_spec
+        return np.array([i for i, _ in pairs]), np.array([j for _, j in pairs])
+
     def capsules(self, q: np.ndarray) -> Capsules:
         """The arm's collision capsules in the base frame for joints q."""
         points = self.joint_origins(q)
-        pairs, radii = self._capsule_spec
-        a = np.array([points[i] for i, _ in pairs])
-        b = np.array([points[j] for _, j in pairs])
-        return Capsules(a, b, radii.copy())
+        starts, ends = self._capsule_ends
+        return Capsules(points[starts], points[ends], self._capsule_spec[1].copy())

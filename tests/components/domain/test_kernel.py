@@ -1,6 +1,7 @@
 """The compiled kernel (components/domain/_fwkernel.c) computes what the numpy, Pinocchio
 and struct references compute: the TCP pose with its Jacobian, one IK step, the path's
-pose, the steering step, the least capsule distance and FRI's datagrams. The robot's 1 kHz cycle runs the kernel; the
+pose, the steering step, the arm's joint origins, the least capsule distance and FRI's
+datagrams. The robot's 1 kHz cycle runs the kernel; the
 references are what the rest of fw (and these specs) trust."""
 
 from __future__ import annotations
@@ -49,6 +50,21 @@ def test_the_kernels_tcp_pose_and_jacobian_are_pinocchios(q):
     want_pose, want_jac = KIN.jacobian(q)
     assert np.allclose(pose, want_pose, atol=1e-12)
     assert np.allclose(jac, want_jac, atol=1e-12)
+
+
+@settings(max_examples=100, deadline=None)
+@given(joints)
+def test_the_kernels_joint_origins_and_so_the_arms_capsules_are_pinocchios(q):
+    """Base, joint origins, flange and TCP (the capsules' ends), as Pinocchio has them."""
+    got = KIN.joint_origins(q)
+    want = KIN.joint_origins_reference(q)
+    assert got.shape == want.shape == (10, 3)
+    assert np.allclose(got, want, atol=1e-12)
+    capsules = KIN.capsules(q)
+    pairs, radii = KIN._capsule_spec
+    assert np.array_equal(capsules.a, np.array([got[i] for i, _ in pairs]))
+    assert np.array_equal(capsules.b, np.array([got[j] for _, j in pairs]))
+    assert np.array_equal(capsules.radius, radii)
 
 
 @settings(max_examples=100, deadline=None)
