@@ -243,7 +243,7 @@ class OutputPort(Port[T]):
         thinned = self._thinned
         matching = self._matching
         now = self.clock() if thinned else 0.0
-        later: list[Any] | None = None
+        remote: list[Any] | None = None
         for key, publisher in list(self._publishers.items()):
             due = thinned.get(key)
             if due is not None:
@@ -257,15 +257,9 @@ class OutputPort(Port[T]):
             if flag is not None and not flag[0]:
                 _recheck(flag, publisher)
             if flag is None or flag[0]:  # a stream: only when another process listens
-                if deferred is not None:
-                    if later is None:
-                        later = []
-                        deferred.append((value, seq, data, later))
-                    later.append(publisher)
-                else:
-                    if data is None:
-                        data = self.last_data = self._encode(value, seq)
-                    publisher.put(data)
+                if remote is None:
+                    remote = []
+                remote.append(publisher)
             local = readers.get(key)
             if local:  # same process: no bus, and no encoding for a shareable type
                 for reader in list(local.values()):
@@ -275,6 +269,17 @@ class OutputPort(Port[T]):
                         if data is None:
                             data = self.last_data = self._encode(value, seq)
                         reader.deliver_local(data)
+        if remote is None:
+            return
+        # after this process's readers: the Supervisor takes a tracker verdict written in
+        # its process before the verdict (a JSON payload of kilobytes) is put on the bus
+        if deferred is not None:
+            deferred.append((value, seq, data, remote))
+            return
+        if data is None:
+            data = self.last_data = self._encode(value, seq)
+        for publisher in remote:
+            publisher.put(data)
 
     def defer(self) -> None:
         """From now on send samples to other processes at `flush`, not inside `write`

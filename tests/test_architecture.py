@@ -223,7 +223,7 @@ def test_every_component_hook_says_when_it_runs_in_which_thread_and_what_a_failu
     from framework.component import Component
 
     hooks = [n for n in vars(Component) if n.endswith("_hook") and not n.startswith("_")]
-    assert len(hooks) == 10, hooks
+    assert len(hooks) == 11, hooks
     vague = []
     for name in hooks:
         doc = " ".join((inspect.getdoc(getattr(Component, name)) or "").split())

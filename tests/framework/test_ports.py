@@ -450,3 +450,27 @@ def test_a_deferred_sample_that_cannot_be_encoded_raises_at_flush_after_those_be
     with pytest.raises(PortError, match=r"cannot write to src\.out"):
         out.flush()
     assert out.flush() == 1
+
+
+def test_a_reader_in_the_writers_process_has_the_sample_before_it_is_put_on_the_bus(hub):
+    """In-process readers first: the Supervisor takes the Sensor Manager's verdict (a
+    JSON payload of kilobytes) before that is put on the bus for other processes
+    (measured: no sensor -> STOP p50 0.58 -> 0.31-0.40 ms)."""
+    out = make_out(hub, "ev", messages.EventMessage)
+    out.connect("k/first")
+    local = make_in(hub, kind=messages.EventMessage)
+    local.connect("k/first")
+    seen_at_put = []
+
+    class Spy:
+        def __init__(self, real):
+            self.real = real
+
+        def put(self, data):
+            seen_at_put.append(local.stats.received)
+            self.real.put(data)
+
+    out._publishers["k/first"] = Spy(out._publishers["k/first"])
+    out.write(messages.EventMessage(1.0, "verdict", "src", {"best": None}))
+    assert seen_at_put == [1]
+    assert local.read()[1].payload == {"best": None}
