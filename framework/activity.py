@@ -351,6 +351,8 @@ class RealTimeExecutor:
                     call()
                 self.realtime.between_cycles(stats, slack=not cycled)
         finally:
+            for member in chain:  # no loop left to send what they write: at once again
+                member.undefer_outputs()
             engine.stop()
             self.realtime.leave()
 

@@ -667,6 +667,15 @@ class Component:
         for port in self._output_ports():
             port.defer()
 
+    def undefer_outputs(self) -> None:
+        """Its loop ended: send what is still deferred, and from now on inside each write
+        (a stop_hook run later by another thread must not leave its samples queued)."""
+        for port in self._output_ports():
+            try:
+                port.undefer()
+            except Exception as exc:  # what its write would have raised: made safe
+                self.exception(f"{port.full_name}: {type(exc).__name__}: {exc}")
+
     def flush_outputs(self) -> None:
         """Send what this component's ports deferred (in the loop's thread). A sample
         that cannot be encoded is the component's error, as in the write that made it:

@@ -291,6 +291,21 @@ class OutputPort(Port[T]):
         if self._deferred is None:
             self._deferred = deque()
 
+    def undefer(self) -> int:
+        """Send inside `write` again (its loop ended), after the samples still deferred;
+        how many those were. A write racing this from another thread could still land in
+        the old queue: call it from the loop's thread, once nothing else writes there."""
+        sent, failed = 0, None
+        while self._deferred:
+            try:
+                sent += self.flush()
+            except PortError as exc:  # that sample is dropped; the ones after it go out
+                failed = failed or exc
+        self._deferred = None
+        if failed is not None:
+            raise failed
+        return sent
+
     def flush(self) -> int:
         """Encode and put the samples `write` deferred, oldest first; how many. In the
         thread that writes the port (its paced loop, between cycles). A sample that

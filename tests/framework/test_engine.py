@@ -337,6 +337,10 @@ def test_after_each_command_the_loop_runs_the_after_cycle_hooks_then_sends_what_
     assert device.threads["after"] == device.threads["read"]  # the loop's own thread
     got = [remote.read()[1].value for _ in range(remote.pending())]
     assert got == [0.0, 1.0, 2.0, 3.0, 4.0]
+    # the loop ended: what is written now (a stop_hook's last word) goes out at once
+    device.out.write(Scalar(0.0, 9.0))
+    assert wait_until(lambda: remote.pending() == 1, timeout=5)
+    assert remote.read()[1].value == 9.0
 
 
 def test_a_sample_a_flush_cannot_encode_sends_its_component_to_exception():

@@ -474,3 +474,23 @@ def test_a_reader_in_the_writers_process_has_the_sample_before_it_is_put_on_the_
     out.write(messages.EventMessage(1.0, "verdict", "src", {"best": None}))
     assert seen_at_put == [1]
     assert local.read()[1].payload == {"best": None}
+
+
+def test_a_port_undeferred_sends_what_waits_then_writes_at_once_again(hub, peer):
+    """Its loop ended (a stop_hook run later by another thread writes a last status):
+    nothing deferred is left behind, and later samples go out inside `write`."""
+    out = make_out(hub)
+    out.connect("k/undefer")
+    remote = make_in(peer)
+    remote.policy = ConnPolicy("buffer", 16)
+    remote.connect("k/undefer")
+    routed(out, remote)
+    out.defer()
+    out.write(Scalar(0.0, 1.0))
+    out.write(Scalar(0.0, "not a number"))
+    out.write(Scalar(0.0, 2.0))
+    with pytest.raises(PortError):
+        out.undefer()
+    out.write(Scalar(0.0, 3.0))
+    assert wait_until(lambda: counted(remote).received >= 4)
+    assert values(remote) == [1.0, 2.0, 3.0]
