@@ -31,7 +31,8 @@ class Robot:
     the same session (delivery is done when `cycle` returns); the arm follows every
     setpoint exactly unless told to lag."""
 
-    def __init__(self, hub, procedure=PROCEDURE, navigator=True):
+    def __init__(self, hub, procedure=PROCEDURE, navigator=True, paced=True):
+        self.paced = paced  # as in the robot's loop: its after-cycle work after each cycle
         self.container = Container("c", hub, SteppedExecutor(SimulatedClock()))
         self.interp = self.container.add(
             CartesianInterpolator("interpolator"), Activity("after", master="robot")
@@ -76,6 +77,8 @@ class Robot:
         for _ in range(n):
             self.writers["joints"].write(JointState(0.0, tuple(self.q + self.lag)))
             self.interp.update_hook()
+            if self.paced:
+                self.interp.after_cycle()
             setpoints = self.drain("setpoint")
             if setpoints:
                 self.q = np.array(setpoints[-1].position)
@@ -101,9 +104,12 @@ class Robot:
         self.container.shutdown()
 
 
-@pytest.fixture
-def robot(hub):
-    robot = Robot(hub)
+@pytest.fixture(params=[True, False], ids=["paced loop", "other activity"])
+def robot(hub, request):
+    """The interpolator as the robot's loop runs it (the goals taken after each cycle's
+    setpoint), and as any other activity runs it (taken within the cycle): the same
+    behaviour either way, a cycle later at most."""
+    robot = Robot(hub, paced=request.param)
     assert robot.configured, robot.interp.last_error
     yield robot
     robot.close()
