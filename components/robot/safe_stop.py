@@ -17,12 +17,17 @@ class SafeStop:
     joint), one per `dt`; `done` once at rest."""
 
     def __init__(self, q: np.ndarray, v: np.ndarray, deceleration: np.ndarray, dt: float):
-        self.q0 = np.asarray(q, dtype=float).copy()
-        self.v0 = np.asarray(v, dtype=float).copy()
-        if not np.all(np.isfinite(self.v0)):
+        # made in the cycle that decides a stop, before its first command: few numpy calls
+        self.q0 = np.array(q, dtype=float)
+        self.v0 = np.array(v, dtype=float)
+        if not np.isfinite(self.v0).all():
             self.v0 = np.zeros_like(self.q0)  # no trustworthy velocity: hold where it is
-        deceleration = np.broadcast_to(np.asarray(deceleration, dtype=float), self.q0.shape)
-        self.duration = float(np.max(np.abs(self.v0) / deceleration)) if self.v0.any() else 0.0
+        times = np.abs(self.v0) / deceleration  # a deceleration per joint, or one for all
+        if times.shape != self.q0.shape:
+            raise ValueError(
+                f"a deceleration per joint or one for all, not {np.shape(deceleration)}"
+            )
+        self.duration = float(times.max()) if self.v0.any() else 0.0
         self.dt = dt
         self.t = 0.0
 

@@ -2,6 +2,7 @@
 along the joint-space line the arm was on, and never reverses a joint."""
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -46,3 +47,14 @@ def test_no_trustworthy_velocity_holds_where_it_is():
     q = np.zeros(7)
     stop = SafeStop(q, np.full(7, np.nan), np.full(7, 8.0), DT)
     assert stop.done and np.array_equal(stop.step(), q)
+
+
+def test_one_deceleration_for_every_joint_is_the_same_as_one_per_joint_and_others_are_refused():
+    q, v = np.zeros(7), np.linspace(-0.5, 0.5, 7)
+    one, each = SafeStop(q, v, 2.0, 0.001), SafeStop(q, v, np.full(7, 2.0), 0.001)
+    assert one.duration == each.duration == 0.25
+    assert np.array_equal(one.at(0.1), each.at(0.1))
+    with pytest.raises(ValueError, match="a deceleration per joint or one for all"):
+        SafeStop(q, v, np.full((7, 1), 2.0), 0.001)
+    with pytest.raises(ValueError):
+        SafeStop(q, v, np.full(3, 2.0), 0.001)
