@@ -204,6 +204,8 @@ class Component:
     """An event-driven component's next idle tick comes at most this long after its last
     update (s; None: the activity's `idle`): a component that knows when its inputs fall
     due (a tracker's staleness deadline) wakes then, not on a fixed beat."""
+    _deferring: tuple[OutputPort[Any], ...] = ()
+    """The ports `defer_outputs` deferred (none until a paced loop asks)."""
     after_cycles = False
     """True once a paced loop ran this component's `after_cycle` (it is the paced one or
     runs after it): a hook may then leave to `after_cycle_hook` what needs no answer
@@ -664,13 +666,15 @@ class Component:
         """Send this component's samples to other processes at `flush_outputs`, not
         inside each write (framework/ports.py: `OutputPort.defer`); its heartbeat too.
         Called by a paced loop, before its first cycle, for the components it runs."""
-        for port in self._output_ports():
+        self._deferring = tuple(self._output_ports())  # asked after every cycle: made once
+        for port in self._deferring:
             port.defer()
 
     def undefer_outputs(self) -> None:
         """Its loop ended: send what is still deferred, and from now on inside each write
         (a stop_hook run later by another thread must not leave its samples queued)."""
-        for port in self._output_ports():
+        ports, self._deferring = self._deferring, ()
+        for port in ports:
             try:
                 port.undefer()
             except Exception as exc:  # what its write would have raised: made safe
@@ -680,7 +684,7 @@ class Component:
         """Send what this component's ports deferred (in the loop's thread). A sample
         that cannot be encoded is the component's error, as in the write that made it:
         it goes to Exception."""
-        for port in self._output_ports():
+        for port in self._deferring:
             if port._deferred:
                 try:
                     port.flush()
