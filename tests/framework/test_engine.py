@@ -346,7 +346,7 @@ def test_after_each_command_the_loop_runs_the_after_cycle_hooks_then_sends_what_
 def test_a_sample_a_flush_cannot_encode_sends_its_component_to_exception():
     """What its write would have raised, said with the port's name."""
     device = running(Publisher())
-    device.out.defer()
+    device.defer_outputs()  # as its loop does
     device.out.bus = None
     device.out._deferred.append((Scalar(0.0, "x"), 1, None, []))
     device.flush_outputs()
