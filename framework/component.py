@@ -666,7 +666,8 @@ class Component:
         """Send this component's samples to other processes at `flush_outputs`, not
         inside each write (framework/ports.py: `OutputPort.defer`); its heartbeat too.
         Called by a paced loop, before its first cycle, for the components it runs."""
-        self._deferring = tuple(self._output_ports())  # asked after every cycle: made once
+        beat = [self.heartbeat.port] if self.heartbeat is not None else []
+        self._deferring = (*self.outputs.values(), *beat)  # asked after every cycle: made once
         for port in self._deferring:
             port.defer()
 
@@ -690,12 +691,6 @@ class Component:
                     port.flush()
                 except Exception as exc:  # what its write would have raised: made safe
                     self.exception(f"{port.full_name}: {type(exc).__name__}: {exc}")
-
-    def _output_ports(self) -> list[OutputPort[Any]]:
-        ports = list(self.outputs.values())
-        if self.heartbeat is not None:
-            ports.append(self.heartbeat.port)
-        return ports
 
     def idle(self) -> None:
         """Called by an event-driven activity when no data came for a while: `idle_hook`

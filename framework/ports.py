@@ -317,21 +317,10 @@ class OutputPort(Port[T]):
             value, seq, data, publishers = deferred.popleft()
             if data is None:
                 data = self._encode(value, seq)
-                if value is self.last:
-                    self.last_data = data
             for publisher in publishers:
                 publisher.put(data)
             sent += 1
         return sent
-
-    def encoded_last(self) -> bytes | None:
-        """The latest sample's encoding (made now if `write` deferred it), None before any:
-        what a reader connecting in this process is given at once."""
-        if self.last is None:
-            return None
-        if self.last_data is None:
-            self.last_data = self._encode(self.last, self.last_seq)
-        return self.last_data
 
     def wanted(self) -> bool:
         """Whether a sample written now would reach anyone: a reader in this process, or
@@ -569,10 +558,8 @@ class InputPort(Port[T]):
             # a local writer's latest value, at once
             if writer.shareable:
                 self.deliver_value(writer.last, writer.publisher_id, writer.last_seq)
-            else:
-                data = writer.encoded_last()
-                if data is not None:
-                    self._deliver(generation, data)
+            elif writer.last_data is not None:  # a payload's: always encoded in `write`
+                self._deliver(generation, writer.last_data)
         if old is not None:
             old.undeclare()
 

@@ -256,7 +256,6 @@ class RobotInterface(Component):
     def stop_hook(self) -> None:
         # its answers stop: the KRC brakes by itself within 10 of its cycles (FRI quality)
         self._request("brake", reason="robot interface stopped", latch=True)
-        self._news = None  # a state of before the stop is nobody's news after a start
 
     def cleanup_hook(self) -> None:
         self._close()
