@@ -98,6 +98,34 @@ def test_a_data_port_nobody_waits_on_is_polled_and_never_queues_a_backlog(hub, p
     assert inp.stats.received - taken < 10, "the samples skipped were never decoded"
 
 
+def test_an_arrivals_only_port_says_each_arrival_once_and_keeps_no_sample(hub, peer):
+    """A safety watch's port: `poll` is True once for what came since the last poll (a
+    burst is one), False while its producer is silent, and the samples are counted, not
+    kept (nobody reads a watch's values); one taken after its connection was replaced
+    is stale, never an arrival."""
+    out = make_out(hub)
+    inp = InputPort("watch", Scalar, policy=ConnPolicy(), arrivals_only=True)
+    inp.owner, inp.bus = "dst", peer
+    out.connect("k/a")
+    inp.connect("k/a")
+    assert inp.polled
+    out.write(Scalar(0.0, 0.0))
+    assert wait_until(inp.poll)
+    assert not inp.poll(), "nothing came since"
+    received = inp.stats.received
+    for i in range(1, 4):
+        out.write(Scalar(0.0, float(i)))
+    assert wait_until(inp.poll)
+    assert inp.stats.received > received
+    assert not inp.poll()
+    assert inp.read() == (ReadStatus.NO_DATA, None), "an arrival is not a value"
+    stale, seen = inp.stats.dropped_stale, []
+    inp.generation += 1  # the connection the ring belongs to is no longer the port's
+    out.write(Scalar(0.0, 9.0))
+    assert wait_until(lambda: seen.append(inp.poll()) or inp.stats.dropped_stale > stale)
+    assert not any(seen), "a stale sample is no arrival"
+
+
 def test_a_port_someone_waits_on_gets_every_sample_delivered(hub, peer):
     """An event activity's trigger (or a watch) is called for each sample, so it is
     delivered by the bus, never polled; a callback set after connecting switches it."""
