@@ -119,11 +119,24 @@ def test_an_arrivals_only_port_says_each_arrival_once_and_keeps_no_sample(hub, p
     assert inp.stats.received > received
     assert not inp.poll()
     assert inp.read() == (ReadStatus.NO_DATA, None), "an arrival is not a value"
-    stale, seen = inp.stats.dropped_stale, []
+    stale, arrivals, seen = inp.stats.dropped_stale, inp.stats.received, []
     inp.generation += 1  # the connection the ring belongs to is no longer the port's
     out.write(Scalar(0.0, 9.0))
     assert wait_until(lambda: seen.append(inp.poll()) or inp.stats.dropped_stale > stale)
     assert not any(seen), "a stale sample is no arrival"
+    assert inp.stats.received == arrivals, "nor counted as one"
+
+
+def test_polling_a_data_port_takes_its_sample_for_the_next_read(hub, peer):
+    """`poll` on a port whose values are read says a sample came and keeps it: the
+    read after it is NEW with that value."""
+    out, inp = make_out(hub), make_in(peer)
+    out.connect("k/a")
+    inp.connect("k/a")
+    assert inp.polled
+    out.write(Scalar(0.0, 7.0))
+    assert wait_until(inp.poll)
+    assert inp.read() == (ReadStatus.NEW, Scalar(0.0, 7.0))
 
 
 def test_a_port_someone_waits_on_gets_every_sample_delivered(hub, peer):
