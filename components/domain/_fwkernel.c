@@ -47,6 +47,34 @@ static int get_buffer(PyObject *obj, Py_buffer *view, Py_ssize_t count, int writ
     return 0;
 }
 
+/* One float64 array argument of a kernel call: how many values, writable or not, and
+ * its name for the error. */
+typedef struct {
+    PyObject *obj;
+    Py_ssize_t count;
+    int writable;
+    const char *name;
+} array_arg;
+
+/* Take the buffers of `n` array arguments, all or none: on the first that is refused the
+ * ones already taken are released and the error stays set (-1). */
+static int get_buffers(const array_arg *args, Py_buffer *views, int n)
+{
+    for (int i = 0; i < n; i++)
+        if (get_buffer(args[i].obj, &views[i], args[i].count, args[i].writable, args[i].name) < 0) {
+            while (i-- > 0)
+                PyBuffer_Release(&views[i]);
+            return -1;
+        }
+    return 0;
+}
+
+static void release_buffers(Py_buffer *views, int n)
+{
+    for (int i = 0; i < n; i++)
+        PyBuffer_Release(&views[i]);
+}
+
 static void frame_from4x4(const double *m, frame *f)
 {
     for (int i = 0; i < 3; i++) {
@@ -212,32 +240,17 @@ static PyObject *py_jacobian(PyObject *self, PyObject *args)
     PyObject *po, *to, *qo, *oo, *jo;
     if (!PyArg_ParseTuple(args, "OOOOO", &po, &to, &qo, &oo, &jo))
         return NULL;
-    Py_buffer pb, tb, qb, ob, jb;
-    if (get_buffer(po, &pb, N * 16, 0, "placements") < 0)
+    Py_buffer b[5];
+    const array_arg in[5] = {{po, N * 16, 0, "placements"}, {to, 16, 0, "tool"}, {qo, N, 0, "q"},
+                             {oo, 16, 1, "pose"}, {jo, 6 * N, 1, "jacobian"}};
+    if (get_buffers(in, b, 5) < 0)
         return NULL;
-    if (get_buffer(to, &tb, 16, 0, "tool") < 0) goto fail_p;
-    if (get_buffer(qo, &qb, N, 0, "q") < 0) goto fail_t;
-    if (get_buffer(oo, &ob, 16, 1, "pose") < 0) goto fail_q;
-    if (get_buffer(jo, &jb, 6 * N, 1, "jacobian") < 0) goto fail_o;
     frame joints[N], tcp;
-    chain(pb.buf, tb.buf, qb.buf, joints, &tcp);
-    frame_to4x4(&tcp, ob.buf);
-    jacobian(joints, &tcp, jb.buf);
-    PyBuffer_Release(&jb);
-    PyBuffer_Release(&ob);
-    PyBuffer_Release(&qb);
-    PyBuffer_Release(&tb);
-    PyBuffer_Release(&pb);
+    chain(b[0].buf, b[1].buf, b[2].buf, joints, &tcp);
+    frame_to4x4(&tcp, b[3].buf);
+    jacobian(joints, &tcp, b[4].buf);
+    release_buffers(b, 5);
     Py_RETURN_NONE;
-fail_o:
-    PyBuffer_Release(&ob);
-fail_q:
-    PyBuffer_Release(&qb);
-fail_t:
-    PyBuffer_Release(&tb);
-fail_p:
-    PyBuffer_Release(&pb);
-    return NULL;
 }
 
 /* joint_points(placements, tool, flange, q, out[30]): the base, the seven joint frames'
@@ -249,38 +262,23 @@ static PyObject *py_joint_points(PyObject *self, PyObject *args)
     PyObject *po, *to, *fo, *qo, *oo;
     if (!PyArg_ParseTuple(args, "OOOOO", &po, &to, &fo, &qo, &oo))
         return NULL;
-    Py_buffer pb, tb, fb, qb, ob;
-    if (get_buffer(po, &pb, N * 16, 0, "placements") < 0)
+    Py_buffer b[5];
+    const array_arg in[5] = {{po, N * 16, 0, "placements"}, {to, 16, 0, "tool"},
+                             {fo, 16, 0, "flange"}, {qo, N, 0, "q"}, {oo, 30, 1, "out"}};
+    if (get_buffers(in, b, 5) < 0)
         return NULL;
-    if (get_buffer(to, &tb, 16, 0, "tool") < 0) goto fail_p;
-    if (get_buffer(fo, &fb, 16, 0, "flange") < 0) goto fail_t;
-    if (get_buffer(qo, &qb, N, 0, "q") < 0) goto fail_f;
-    if (get_buffer(oo, &ob, 30, 1, "out") < 0) goto fail_q;
     frame joints[N], tcp, flange, at;
-    chain(pb.buf, tb.buf, qb.buf, joints, &tcp);
-    frame_from4x4(fb.buf, &flange);
+    chain(b[0].buf, b[1].buf, b[3].buf, joints, &tcp);
+    frame_from4x4(b[2].buf, &flange);
     compose(&joints[N - 1], &flange, &at);
-    double *out = ob.buf;
+    double *out = b[4].buf;
     out[0] = out[1] = out[2] = 0.0;
     for (int i = 0; i < N; i++)
         memcpy(out + 3 * (i + 1), joints[i].p, 3 * sizeof(double));
     memcpy(out + 24, at.p, 3 * sizeof(double));
     memcpy(out + 27, tcp.p, 3 * sizeof(double));
-    PyBuffer_Release(&ob);
-    PyBuffer_Release(&qb);
-    PyBuffer_Release(&fb);
-    PyBuffer_Release(&tb);
-    PyBuffer_Release(&pb);
+    release_buffers(b, 5);
     Py_RETURN_NONE;
-fail_q:
-    PyBuffer_Release(&qb);
-fail_f:
-    PyBuffer_Release(&fb);
-fail_t:
-    PyBuffer_Release(&tb);
-fail_p:
-    PyBuffer_Release(&pb);
-    return NULL;
 }
 
 /* ik_step(placements, tool, q[7], target[16], rest[7], lower[7], upper[7],
@@ -294,19 +292,14 @@ static PyObject *py_ik_step(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "OOOOOOOOOdd", &obj[0], &obj[1], &obj[2], &obj[3], &obj[4],
                           &obj[5], &obj[6], &obj[7], &obj[8], &damping2, &rest_gain_dt))
         return NULL;
-    static const Py_ssize_t sizes[9] = {N * 16, 16, N, 16, N, N, N, N, N};
-    static const char *names[9] = {"placements", "tool", "q", "target", "rest",
-                                   "lower", "upper", "max_step", "out"};
+    const array_arg in[9] = {{obj[0], N * 16, 0, "placements"}, {obj[1], 16, 0, "tool"},
+                             {obj[2], N, 0, "q"},          {obj[3], 16, 0, "target"},
+                             {obj[4], N, 0, "rest"},       {obj[5], N, 0, "lower"},
+                             {obj[6], N, 0, "upper"},      {obj[7], N, 0, "max_step"},
+                             {obj[8], N, 1, "out"}};
     Py_buffer b[9];
-    int got = 0;
-    for (; got < 9; got++)
-        if (get_buffer(obj[got], &b[got], sizes[got], got == 8, names[got]) < 0)
-            break;
-    if (got < 9) {
-        for (int i = 0; i < got; i++)
-            PyBuffer_Release(&b[i]);
+    if (get_buffers(in, b, 9) < 0)
         return NULL;
-    }
     const double *q = b[2].buf, *target = b[3].buf, *rest = b[4].buf, *lower = b[5].buf,
                  *upper = b[6].buf, *max_step = b[7].buf;
     double *out = b[8].buf;
@@ -356,8 +349,7 @@ static PyObject *py_ik_step(PyObject *self, PyObject *args)
         if (!isfinite(out[k]))
             ok = 0;
     }
-    for (int i = 0; i < 9; i++)
-        PyBuffer_Release(&b[i]);
+    release_buffers(b, 9);
     return PyBool_FromLong(ok);
 }
 
@@ -497,15 +489,13 @@ static PyObject *py_path_pose(PyObject *self, PyObject *args)
     double u;
     if (!PyArg_ParseTuple(args, "OOOdOO", &so, &po, &ro, &u, &oo, &out_o))
         return NULL;
-    Py_buffer sb, pb, rb, ob, outb;
-    if (get_buffer(so, &sb, 16, 0, "start") < 0)
+    Py_buffer b[5];
+    const array_arg in[5] = {{so, 16, 0, "start"}, {po, 3, 0, "delta_p"}, {ro, 3, 0, "delta_r"},
+                             {oo, 6, 0, "offset"}, {out_o, 16, 1, "out"}};
+    if (get_buffers(in, b, 5) < 0)
         return NULL;
-    if (get_buffer(po, &pb, 3, 0, "delta_p") < 0) goto fail_s;
-    if (get_buffer(ro, &rb, 3, 0, "delta_r") < 0) goto fail_p;
-    if (get_buffer(oo, &ob, 6, 0, "offset") < 0) goto fail_r;
-    if (get_buffer(out_o, &outb, 16, 1, "out") < 0) goto fail_o;
-    const double *st = sb.buf, *dp = pb.buf, *dr = rb.buf, *off = ob.buf;
-    double *out = outb.buf;
+    const double *st = b[0].buf, *dp = b[1].buf, *dr = b[2].buf, *off = b[3].buf;
+    double *out = b[4].buf;
     double w[3] = {u * dr[0], u * dr[1], u * dr[2]}, e[9], r0[9], r[9];
     exp3(w, e);
     for (int i = 0; i < 3; i++)
@@ -523,21 +513,8 @@ static PyObject *py_path_pose(PyObject *self, PyObject *args)
     }
     out[12] = out[13] = out[14] = 0.0;
     out[15] = 1.0;
-    PyBuffer_Release(&outb);
-    PyBuffer_Release(&ob);
-    PyBuffer_Release(&rb);
-    PyBuffer_Release(&pb);
-    PyBuffer_Release(&sb);
+    release_buffers(b, 5);
     Py_RETURN_NONE;
-fail_o:
-    PyBuffer_Release(&ob);
-fail_r:
-    PyBuffer_Release(&rb);
-fail_p:
-    PyBuffer_Release(&pb);
-fail_s:
-    PyBuffer_Release(&sb);
-    return NULL;
 }
 
 /* seven floats from a tuple or list of numbers (ints and floats, as Python's
@@ -628,15 +605,12 @@ static PyObject *py_steer_step(PyObject *self, PyObject *args)
     double budget, radius;
     if (!PyArg_ParseTuple(args, "OOdd", &wo, &oo, &budget, &radius))
         return NULL;
-    Py_buffer wb, ob;
-    if (get_buffer(wo, &wb, 6, 0, "wanted") < 0)
+    Py_buffer b[2];
+    const array_arg in[2] = {{wo, 6, 0, "wanted"}, {oo, 6, 1, "offset"}};
+    if (get_buffers(in, b, 2) < 0)
         return NULL;
-    if (get_buffer(oo, &ob, 6, 1, "offset") < 0) {
-        PyBuffer_Release(&wb);
-        return NULL;
-    }
-    const double *w = wb.buf;
-    double *o = ob.buf, e[6];
+    const double *w = b[0].buf;
+    double *o = b[1].buf, e[6];
     for (int i = 0; i < 6; i++)
         e[i] = w[i] - o[i];
     double t = sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]);
@@ -649,8 +623,7 @@ static PyObject *py_steer_step(PyObject *self, PyObject *args)
         for (int i = 0; i < 6; i++)
             o[i] = o[i] + e[i] * share;
     }
-    PyBuffer_Release(&ob);
-    PyBuffer_Release(&wb);
+    release_buffers(b, 2);
     return PyFloat_FromDouble(size);
 }
 

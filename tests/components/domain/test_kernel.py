@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import socket
 import struct
+import sys
 import time
 
 import numpy as np
@@ -378,3 +379,39 @@ def test_the_kernels_fri_read_waits_for_a_datagram_only_when_none_is_queued():
     finally:
         sender.close()
         receiver.close()
+
+
+def _array_calls() -> dict[str, tuple[object, list[object]]]:
+    """Each kernel call that takes float64 arrays, with valid arguments (numbers as
+    floats): the arrays' sizes are those its C signature names."""
+    a = np.zeros
+    return {
+        "jacobian": (kernel.jacobian, [a(7 * 16), a(16), a(7), a(16), a(42)]),
+        "joint_points": (kernel.joint_points, [a(7 * 16), a(16), a(16), a(7), a(30)]),
+        "ik_step": (
+            kernel.ik_step,
+            [a(7 * 16), a(16), a(7), a(16), a(7), a(7), a(7), a(7), a(7), 0.01, 0.0],
+        ),
+        "path_pose": (kernel.path_pose, [a(16), a(3), a(3), 0.5, a(6), a(16)]),
+        "steer_step": (kernel.steer_step, [a(6), a(6), 0.001, 0.1]),
+    }
+
+
+@pytest.mark.parametrize("call", sorted(_array_calls()))
+def test_a_kernel_call_refuses_a_wrong_array_by_name_and_keeps_none_of_the_others(call):
+    """Every array argument of the wrong size, or of another dtype, is a ValueError that
+    names it, never a crash or a write out of bounds; and the arrays taken before it are
+    let go (a buffer kept would pin the array for good: each call of a 1 kHz loop)."""
+    fn, valid = _array_calls()[call]
+    fn(*valid)  # the valid call works
+    for index, argument in enumerate(valid):
+        if not isinstance(argument, np.ndarray):
+            continue
+        for wrong in (np.zeros(argument.size + 1), argument.astype(np.float32)):
+            args = list(valid)
+            args[index] = wrong
+            held = [sys.getrefcount(x) for x in args if isinstance(x, np.ndarray)]
+            with pytest.raises(ValueError, match=r"expected \d+ float64 values"):
+                fn(*args)
+            after = [sys.getrefcount(x) for x in args if isinstance(x, np.ndarray)]
+            assert after == held, f"{call}: argument {index} refused, another kept"
