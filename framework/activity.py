@@ -192,6 +192,8 @@ class RealTimeExecutor:
         """How a paced loop's thread asks the host for real-time priority."""
         self.loops: dict[str, LoopStats] = {}
         """Each paced loop's scheduling and cycle statistics, by component."""
+        self._chains_changed = 0
+        """Counts the followers added: a paced loop running already takes them in."""
         self.between_cycles: list[Callable[[], None]] = []
         """Run by a real-time loop's thread after each cycle (the process heartbeat of a
         loop's process: `has_loop`); each must take microseconds and never block."""
@@ -209,6 +211,7 @@ class RealTimeExecutor:
         self._entries.append((component, activity))
         if activity.kind == "after":
             _add_follower(self._followers, activity.master, component)
+            self._chains_changed += 1
         if activity.kind == "event":
             wake = self._wake[component.name] = threading.Event()
             component.wake_on(activity.ports, lambda _port, w=wake: w.set())
@@ -316,20 +319,31 @@ class RealTimeExecutor:
         stats = self.loops[component.name] = LoopStats(self.realtime.enter(component.name))
         engine.loop = stats
         engine.thread_id = threading.get_ident()
-        chain = [component, *_chain(self._followers, component)]
-        for member in chain:  # their samples for other processes go out after the command
-            member.defer_outputs()
+        component.defer_outputs()  # its samples for other processes go out after the command
+        chain: list[Component] = [component]
+        followers: list[Component] = []
+        seen = -1
         silent_since = time.monotonic()
         wait = min(activity.idle, 0.005)  # queued operations wait at most this long
         try:
             while not self._stop.is_set():
                 cycled = component.read_cycle(wait)
+                if seen != self._chains_changed:  # at start, and a follower added meanwhile
+                    seen = self._chains_changed
+                    followers = _chain(self._followers, component)
+                    for member in followers:
+                        if member not in chain:  # theirs too
+                            member.defer_outputs()
+                    chain = [component, *followers]
                 if cycled:
                     began = time.perf_counter()
                     component.update()
                     updated = time.perf_counter()
                     stats.stage(component.update_stage, updated - began)
-                    _follow(self._followers, component, stats)
+                    for follower in followers:  # in `_follow`'s order, its walk made once
+                        at = time.perf_counter()
+                        follower.update()
+                        stats.stage(follower.update_stage, time.perf_counter() - at)
                     followed = time.perf_counter()
                     component.write_cycle()
                     done = time.perf_counter()
@@ -399,19 +413,14 @@ def _add_follower(followers: dict[str, list[Component]], master: str, component:
     followers.setdefault(master, []).append(component)
 
 
-def _follow(
-    followers: dict[str, list[Component]], master: Component, stats: LoopStats | None = None
-) -> int:
+def _follow(followers: dict[str, list[Component]], master: Component) -> int:
     """Update the components that run `after` `master`, and theirs in turn (a chain:
-    the arm, then the robot interface, then the interpolator); how many updated. With
-    `stats` (a paced loop), each one's update is a stage of the cycle."""
+    the arm, then the robot interface, then the interpolator); how many updated. A paced
+    loop walks the same order from its `_chain`, made once, each update a stage."""
     updated = 0
     for follower in followers.get(master.name, ()):
-        began = time.perf_counter() if stats is not None else 0.0
         follower.update()
-        if stats is not None:
-            stats.stage(follower.update_stage, time.perf_counter() - began)
-        updated += 1 + _follow(followers, follower, stats)
+        updated += 1 + _follow(followers, follower)
     return updated
 
 

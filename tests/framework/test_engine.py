@@ -233,6 +233,34 @@ def test_the_loop_runs_queued_operations_whole_within_its_budget_per_gap():
     assert engine.report()["operations"] == 3
 
 
+def test_a_follower_added_to_a_running_loop_joins_its_cycles_whole():
+    """Registered after the loop started (`add` allows it): from then on it updates
+    right after the device in each cycle, and its after-the-command work (deferred
+    samples, `after_cycle_hook`) runs with the others', as for one there from the start."""
+    switch = sys.getswitchinterval()
+    executor = RealTimeExecutor(NO_RT)
+    device = running(Device())
+    executor.add(device, Activity.paced(0.05))
+    executor.start()
+    try:
+        wait_until(lambda: device.engine.running, timeout=5)
+        device.inbox.put(0)
+        assert wait_until(lambda: device.sent == [0], timeout=5)
+        follower = running(Follower(device))
+        executor.add(follower, Activity("after", master="device"))
+        for k in range(1, 4):
+            device.inbox.put(k)
+        assert wait_until(lambda: len(device.sent) == 4, timeout=5)
+        cycles = [entry for entry in device.log if entry[0] in ("update", "follow")]
+        assert cycles == [("update", 0)] + [
+            (kind, k) for k in range(1, 4) for kind in ("update", "follow")
+        ]
+        assert follower.after_cycles, "its after-the-command work runs in the loop"
+    finally:
+        executor.stop()
+        sys.setswitchinterval(switch)
+
+
 def test_a_caller_the_loop_does_not_serve_in_time_is_told_so():
     engine = ExecutionEngine("robot")
     with pytest.raises(EngineStopped, match="did not run it within"):
