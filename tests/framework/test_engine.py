@@ -16,7 +16,7 @@ from framework.clock import SimulatedClock
 from framework.component import Component, OperationError, Out, operation
 from framework.engine import EngineStopped, ExecutionEngine
 from framework.messages import Scalar
-from framework.ports import ConnPolicy, InputPort
+from framework.ports import ConnPolicy, InputPort, OutputPort
 from framework.realtime import RealTimePolicy
 from tests.conftest import wait_until
 
@@ -247,6 +247,7 @@ def test_a_follower_added_to_a_running_loop_joins_its_cycles_whole():
         device.inbox.put(0)
         assert wait_until(lambda: device.sent == [0], timeout=5)
         follower = running(Follower(device))
+        port = follower.outputs["news"] = OutputPort("news", Scalar)
         executor.add(follower, Activity("after", master="device"))
         for k in range(1, 4):
             device.inbox.put(k)
@@ -256,6 +257,7 @@ def test_a_follower_added_to_a_running_loop_joins_its_cycles_whole():
             (kind, k) for k in range(1, 4) for kind in ("update", "follow")
         ]
         assert follower.after_cycles, "its after-the-command work runs in the loop"
+        assert port._deferred is not None, "its samples for other processes wait for the command"
     finally:
         executor.stop()
         sys.setswitchinterval(switch)
