@@ -701,6 +701,8 @@ class InputPort(Port[T]):
 
     def _take_ring(self, entry: tuple[int, Any, str | None], first: Any) -> bool:
         """`first` and what else waits in the ring of `entry` (see `_poll`)."""
+        if self.arrivals_only:
+            return self._count_arrivals(entry)
         generation, ring, standby = entry
         limit = self._ring_capacity()
         taken = 0
@@ -717,15 +719,17 @@ class InputPort(Port[T]):
     def _count_arrivals(self, entry: tuple[int, Any, str | None]) -> bool:
         """`_take_ring` for an arrivals-only port, its first sample already taken: what
         else waits (the ring is bounded) is counted, never copied out of Zenoh, as nobody
-        reads it. A safety monitor's watches take a heartbeat or a tracker sample in most
-        cycles of a 1 kHz loop, where copying and delivering each cost up to 5 us; one of
-        a connection replaced meanwhile is counted stale, not an arrival."""
+        reads it; the owner hears of one arrival (`_arrived`). A safety monitor's watches
+        take a heartbeat or a tracker sample in most cycles of a 1 kHz loop, where copying
+        and delivering each cost up to 5 us. One of a connection replaced meanwhile is
+        counted stale, not an arrival."""
         generation, ring, _ = entry
         taken = 1 + sum(1 for _ in _drain(ring, None))
         if generation != self.generation:
             self.stats.dropped_stale += taken
             return False
-        self.stats.received += taken
+        self.stats.received += taken - 1
+        self._arrived()
         return True
 
     def poll(self) -> bool:
@@ -742,10 +746,7 @@ class InputPort(Port[T]):
             except Exception:  # undeclared meanwhile (a rewire from another thread)
                 first = None
             if first is not None:
-                if self.arrivals_only and entry[2] is None and self._on_data is None:
-                    taken = self._count_arrivals(entry)
-                else:
-                    taken = self._take_ring(entry, first)
+                taken = self._take_ring(entry, first)
         if self._came:
             self._came = False
             return True

@@ -127,6 +127,31 @@ def test_an_arrivals_only_port_says_each_arrival_once_and_keeps_no_sample(hub, p
     assert inp.stats.received == arrivals, "nor counted as one"
 
 
+def test_an_arrivals_only_buffer_counts_every_sample_its_ring_held_as_one_arrival(hub, peer):
+    """Several samples waiting when it is polled: one arrival said, every sample counted."""
+    out = make_out(hub)
+    inp = InputPort(
+        "watch",
+        Scalar,
+        policy=ConnPolicy.from_spec({"type": "buffer", "size": 8}),
+        arrivals_only=True,
+    )
+    inp.owner, inp.bus = "dst", peer
+    witness = make_in(peer)
+    out.connect("k/a")
+    inp.connect("k/a")
+    witness.connect("k/a")
+    routed(out, witness)
+    while inp.poll():  # what the route's probe left
+        pass
+    received = inp.stats.received
+    for i in range(1, 4):
+        out.write(Scalar(0.0, float(i)))
+    assert wait_until(lambda: witness.latest() == Scalar(0.0, 3.0))
+    assert inp.poll() and not inp.poll()
+    assert inp.stats.received - received == 3
+
+
 def test_polling_a_data_port_takes_its_sample_for_the_next_read(hub, peer):
     """`poll` on a port whose values are read says a sample came and keeps it: the
     read after it is NEW with that value."""
