@@ -245,8 +245,9 @@ static PyObject *py_jacobian(PyObject *self, PyObject *args)
                              {oo, 16, 1, "pose"}, {jo, 6 * N, 1, "jacobian"}};
     if (get_buffers(in, b, 5) < 0)
         return NULL;
+    const double *placements = b[0].buf, *tool = b[1].buf, *q = b[2].buf;
     frame joints[N], tcp;
-    chain(b[0].buf, b[1].buf, b[2].buf, joints, &tcp);
+    chain(placements, tool, q, joints, &tcp);
     frame_to4x4(&tcp, b[3].buf);
     jacobian(joints, &tcp, b[4].buf);
     release_buffers(b, 5);
@@ -267,9 +268,10 @@ static PyObject *py_joint_points(PyObject *self, PyObject *args)
                              {fo, 16, 0, "flange"}, {qo, N, 0, "q"}, {oo, 30, 1, "out"}};
     if (get_buffers(in, b, 5) < 0)
         return NULL;
+    const double *placements = b[0].buf, *tool = b[1].buf, *flange_in_7 = b[2].buf, *q = b[3].buf;
     frame joints[N], tcp, flange, at;
-    chain(b[0].buf, b[1].buf, b[3].buf, joints, &tcp);
-    frame_from4x4(b[2].buf, &flange);
+    chain(placements, tool, q, joints, &tcp);
+    frame_from4x4(flange_in_7, &flange);
     compose(&joints[N - 1], &flange, &at);
     double *out = b[4].buf;
     out[0] = out[1] = out[2] = 0.0;
