@@ -223,6 +223,7 @@ class SafetyMonitor:
         self._last_stall: float | None = None  # the own stall at the last check that looked
         self._ports: list[InputPort[Any]] = []
         self._polled = False
+        self._taken = False  # whether a `poll` took the arrivals since the last check
         self._token_watch: Any = None
         self._last_check: float | None = None
         self.armed = False
@@ -316,11 +317,20 @@ class SafetyMonitor:
         return lost + late
 
     def poll(self) -> None:
-        """Take the arrivals of polled watches (see `attach`); checks do it first."""
+        """Take the arrivals of polled watches (see `attach`). A check does it first
+        unless it was done since the last check: a paced loop does it after its cycle's
+        command went out (the robot interface's `after_cycle_hook`), so the dozen rings
+        are not asked between a measurement and its answer. An arrival then counts from
+        that poll, at most one cycle later than it came, as when the check takes it:
+        a watch is as fine as the polls are frequent. One that comes between the poll
+        and the check waits for the next poll (data can look older than it is, by the
+        time between the two, never fresher), except before a trip: a check that finds
+        an input late takes the arrivals again and decides on them."""
         if self._polled:
             for index, port in enumerate(self._ports):
                 if port.poll():
                     self.arrived(index)
+            self._taken = True
 
     def _problems(self) -> tuple[list[str], list[str]]:
         now = self.clock.now()
@@ -368,10 +378,13 @@ class SafetyMonitor:
         records the time: the samples that arrived meanwhile may still be queued in the
         bus's threads, and a starved monitor must not read its own starvation as a
         silent producer. The next check, one cycle later, decides."""
-        self.poll()  # latched too: a RELEASE needs the inputs' arrivals meanwhile
+        now = self.clock.now()
+        taken, self._taken = self._taken, False  # by a poll after the previous cycle
+        if not taken:  # latched too: a RELEASE needs the arrivals meanwhile
+            self.poll()
+            self._taken = False
         if self.latched:
             return self.latched
-        now = self.clock.now()
         late = self._last_check is not None and now - self._last_check > STARVED
         self._last_check = now
         if late:
@@ -381,6 +394,10 @@ class SafetyMonitor:
         if self.armed and not self._lost and now < self._healthy_until:
             return ""  # every input is on time until then (`_healthy_until`)
         lost, late_inputs = self._problems()
+        if late_inputs and taken:  # what came since that poll may answer it: a trip polls
+            self.poll()
+            self._taken = False
+            lost, late_inputs = self._problems()
         if not lost and not late_inputs:
             self.armed = True
             return ""

@@ -832,3 +832,77 @@ def test_a_monitor_attached_without_saying_how_records_arrivals_as_they_come(hub
         assert monitor._samples[0] == 1, "closed: no callback any more"
     finally:
         peer.close()
+
+
+def _polled_watch(hub, bus_config):
+    """A polled monitor of one input (deadline 50 ms) fed by another session, armed on
+    the simulated clock: (monitor, clock, the input's writer, the other session)."""
+    from framework.messages import Scalar
+    from tests.conftest import writer_port
+
+    peer = Bus(bus_config)
+    spec = SafetySpec("robot", (Watch("w", "test/w", 0.05, "w"),), ("w",))
+    clock = SimulatedClock()
+    monitor = SafetyMonitor(spec, clock).attach(hub, polled=True)
+    token = peer.token("fw/alive/w")
+    beat = writer_port(peer, "test/w", Scalar, owner="w")
+    assert wait_until(lambda: monitor.report()["lost"] == [])
+    for n in range(3):  # armed: two samples at least, then a check with both on time
+        beat.write(Scalar(0.0, float(n)))
+        assert wait_until(lambda n=n: (monitor.poll(), monitor._samples[0])[1] == n + 1)
+        clock.advance(0.001)
+    assert monitor.check() == "" and monitor.armed
+    return monitor, clock, beat, (peer, token)
+
+
+def test_arrivals_taken_after_a_cycle_count_for_the_next_check(hub, bus_config):
+    """The paced loop polls the watches after its command went out; the next cycle's
+    check decides on what that poll took, and an arrival the poll did not see waits
+    for the next poll (uncounted, it can only make its input look older); a check with
+    no poll since the previous one takes the arrivals itself."""
+    from framework.messages import Scalar
+
+    monitor, clock, beat, (peer, token) = _polled_watch(hub, bus_config)
+    try:
+        clock.advance(0.001)
+        monitor.poll()  # after the cycle's command
+        beat.write(Scalar(0.0, 9.0))
+        time.sleep(0.1)  # it waits in the ring
+        clock.advance(0.001)
+        assert monitor.check() == ""
+        assert monitor._samples[0] == 3, "the check asked no ring: polled after the cycle"
+        clock.advance(0.001)
+        assert monitor.check() == ""
+        assert monitor._samples[0] == 4, "no poll since the last check: the check takes them"
+    finally:
+        monitor.close()
+        token.undeclare()
+        peer.close()
+
+
+def test_a_check_that_finds_an_input_late_takes_the_arrivals_before_it_trips(hub, bus_config):
+    """An input silent past its deadline at the last poll, whose sample came since: the
+    check polls again before a trip, so a sample waiting in the ring is never a false
+    trip, however recent the last poll was."""
+    from framework.messages import Scalar
+
+    monitor, clock, beat, (peer, token) = _polled_watch(hub, bus_config)
+    try:
+        for _ in range(9):  # checks 5 ms apart, as a braked loop's (a gap over 10 ms
+            clock.advance(0.005)  # is the monitor's own starvation, and decides nothing)
+            assert monitor.check() == ""
+        clock.advance(0.006)
+        monitor.poll()  # after a cycle: nothing came, 52 ms since the last sample
+        beat.write(Scalar(0.0, 9.0))
+        time.sleep(0.1)  # it waits in the ring
+        clock.advance(0.001)
+        assert monitor.check() == "", "the late input's sample was taken before a trip"
+        verdicts = []
+        for _ in range(12):
+            clock.advance(0.005)
+            verdicts.append(monitor.check())
+        assert verdicts[-1].startswith("w: no data for"), "silent since: it trips"
+    finally:
+        monitor.close()
+        token.undeclare()
+        peer.close()
