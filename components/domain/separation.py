@@ -38,7 +38,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from components.domain.distance import least_capsule_distance
-from components.domain.geometry import norm
 
 
 @dataclass(frozen=True)
@@ -156,23 +155,28 @@ class SeparationMonitor:
         """`max_speed`: the fastest the motion may go (m/s), the cap far from everyone."""
         self.params = params
         self.max_speed = max_speed
-        self._history: deque[tuple[np.ndarray, np.ndarray, float]] = deque()
+        self._history: deque[tuple[np.ndarray, float]] = deque()  # (every capsule end, t)
         self.tcp_speed = 0.0
         """The tool's speed over the window of the last `robot_speed`."""
 
     def robot_speed(self, a: np.ndarray, b: np.ndarray, now: float) -> float:
         """The fastest link capsule end over the last `SPEED_WINDOW` (m/s; 0 on the
         first call): a release's settling jolt of a fraction of a millimetre in one
-        cycle is not a speed the arm has to stop from."""
+        cycle is not a speed the arm has to stop from. (`link_speed` of both ends at
+        once: a check of the 1 kHz loop.)"""
         history = self._history
-        while len(history) > 1 and now - history[1][2] >= SPEED_WINDOW:
+        while len(history) > 1 and now - history[1][1] >= SPEED_WINDOW:
             history.popleft()
         speed = self.tcp_speed = 0.0
-        if history and now > history[0][2]:
-            pa, pb, then = history[0]
-            speed = link_speed((pa, pb), (a, b), now - then)
-            self.tcp_speed = norm(b[-1] - pb[-1]) / (now - then)
-        history.append((a.copy(), b.copy(), now))
+        ends = np.concatenate((a, b))  # a copy: the history keeps its own
+        if history and now > history[0][1]:
+            before, then = history[0]
+            moved = ends - before
+            dt = now - then
+            speed = math.sqrt(float(np.einsum("ij,ij->i", moved, moved).max())) / dt
+            tip = moved[-1]  # the last link's far end: the tool
+            self.tcp_speed = math.sqrt(float(tip @ tip)) / dt
+        history.append((ends, now))
         return speed
 
     def check(

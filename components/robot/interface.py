@@ -930,12 +930,14 @@ def envelope_arrays(
     """The capsules (a, b as (n, 3), radius as (n,)) of an envelopes sample, or why it
     is not one: lengths that do not match, or a value that is not finite (a NaN
     distance would compare as "far"), or a negative radius."""
-    a, b = np.asarray(message.a, dtype=float), np.asarray(message.b, dtype=float)
-    radius = np.asarray(message.radius, dtype=float)
+    a, b, radius = message.a, message.b, message.radius
     if not (len(a) == len(b) == 3 * len(radius)):
         return None, f"{len(a)}/{len(b)} coordinates for {len(radius)} capsules"
-    if not (np.isfinite(a).all() and np.isfinite(b).all() and np.isfinite(radius).all()):
+    # one sum for all: a NaN or an infinity anywhere makes it so (and so do numbers too
+    # large to be metres); checked on the tuples, in the cycle that took them
+    if not math.isfinite(sum(a) + sum(b) + sum(radius)):
         return None, "a coordinate or radius that is not finite"
-    if (radius < 0.0).any() or not math.isfinite(message.stamp):
+    if (radius and min(radius) < 0.0) or not math.isfinite(message.stamp):
         return None, "a negative radius or a stamp that is not finite"
-    return (a.reshape(-1, 3), b.reshape(-1, 3), radius), ""
+    ends = np.array((a, b), dtype=float).reshape(2, -1, 3)
+    return (ends[0], ends[1], np.array(radius, dtype=float)), ""

@@ -874,6 +874,11 @@ def test_arrivals_taken_after_a_cycle_count_for_the_next_check(hub, bus_config):
         clock.advance(0.001)
         assert monitor.check() == ""
         assert monitor._samples[0] == 4, "no poll since the last check: the check takes them"
+        beat.write(Scalar(0.0, 10.0))
+        time.sleep(0.1)
+        clock.advance(0.001)
+        assert monitor.check() == ""
+        assert monitor._samples[0] == 5, "nor since that one: its own poll was no cycle's"
     finally:
         monitor.close()
         token.undeclare()
@@ -897,6 +902,12 @@ def test_a_check_that_finds_an_input_late_takes_the_arrivals_before_it_trips(hub
         time.sleep(0.1)  # it waits in the ring
         clock.advance(0.001)
         assert monitor.check() == "", "the late input's sample was taken before a trip"
+        assert monitor._samples[0] == 4
+        beat.write(Scalar(0.0, 10.0))
+        time.sleep(0.1)
+        clock.advance(0.001)
+        assert monitor.check() == ""
+        assert monitor._samples[0] == 5, "that poll before a trip was no cycle's either"
         verdicts = []
         for _ in range(12):
             clock.advance(0.005)

@@ -11,11 +11,13 @@ import time
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from components.domain import fri
 from components.domain.procedure import load_procedure
 from components.domain.separation import SeparationMonitor, SsmParams
-from components.robot.interface import RobotInterface
+from components.robot.interface import RobotInterface, envelope_arrays
 from components.robot.interpolator import CartesianInterpolator
 from components.robot.navigation import Navigator
 from components.sim.arm_controller import ArmController
@@ -875,6 +877,46 @@ def test_a_person_who_comes_near_slows_the_arm_and_one_who_leaves_lets_it_go_on(
         assert report["closest"] <= 0.3, "the least separation is kept for the report"
     finally:
         cell.close()
+
+
+_COORDINATE = st.floats(-10.0, 10.0)
+_ODD = st.sampled_from([float("nan"), float("inf"), -float("inf")])
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    capsules=st.lists(
+        st.tuples(
+            st.tuples(*[_COORDINATE] * 3), st.tuples(*[_COORDINATE] * 3), st.floats(0.0, 1.0)
+        ),
+        max_size=12,
+    ),
+    spoil=st.none() | st.tuples(st.integers(0, 6), st.integers(0, 100), _ODD),
+)
+def test_envelope_capsules_are_taken_as_sent_and_any_value_not_finite_refused(capsules, spoil):
+    """The interface's reading of an envelopes sample: the capsules as sent, a (n, 3)
+    array of each end and the radii; a NaN or an infinity anywhere (a coordinate, a
+    radius, the stamp) is a refusal, never capsules (a NaN separation compares as far)."""
+    a = [v for c in capsules for v in c[0]]
+    b = [v for c in capsules for v in c[1]]
+    radius = [c[2] for c in capsules]
+    stamp = [1.0]
+    if spoil is not None:
+        where, index, value = spoil
+        field = [a, a, b, b, radius, radius, stamp][where]
+        if not field:
+            field = stamp
+        field[index % len(field)] = value
+    arrays, why = envelope_arrays(Envelopes(stamp[0], tuple(a), tuple(b), tuple(radius)))
+    if spoil is not None:
+        assert arrays is None and "not finite" in why
+        return
+    assert why == ""
+    ends_a, ends_b, radii = arrays
+    assert ends_a.shape == ends_b.shape == (len(capsules), 3) and radii.shape == (len(capsules),)
+    assert ends_a.tolist() == [list(c[0]) for c in capsules]
+    assert ends_b.tolist() == [list(c[1]) for c in capsules]
+    assert radii.tolist() == radius
 
 
 @pytest.mark.parametrize(

@@ -83,6 +83,7 @@ class Window:
     wakeups: dict[str, float] = field(default_factory=dict)  # process -> switches per s
     interrupted: list[str] = field(default_factory=list)  # motions a stop cut short first
     safety: dict[str, Any] = field(default_factory=dict)  # the monitor's report at the end
+    people: int = 0  # people the detector confirmed at the window's end
 
     @property
     def total(self) -> float:
@@ -99,6 +100,14 @@ def processes(run: SeegRun) -> dict[str, int]:
     return out
 
 
+ROOM = ((11, 2.0, 0.8, 200.0), (12, 1.4, 1.5, 240.0))
+"""(person, x, y, facing in degrees) of the people in the room while cost measures: a
+surgeon and a nurse 1.3-1.6 m from the arm, away from the table (the robot keeps its
+speed), both seen by a camera, so the detector tracks two people and the robot's
+speed and separation monitoring checks their envelopes, as in an operating room (the
+SEEG topology starts with the room empty). Person ids no other experiment places."""
+ROOM_SEEN = 10.0
+"""s: how long the detector may take to confirm them before the bench says it did not."""
 MOTION_STATES = ("Moving_Fast", "Moving_Slow")
 """The chart's states in which the robot moves toward a goal."""
 ZENOH_IDLE = (
@@ -187,6 +196,7 @@ def measure(
         "interface_skipped": robot["fri"]["skipped"],
     }
     window.safety = robot.get("safety") or {}
+    window.people = len(run.call("people_detector.current").get("people") or [])
     window.zenoh_idle = reference
     wakeups.pop("zenoh_idle", None)
     window.wakeups = wakeups
@@ -261,6 +271,7 @@ def idle_and_moving(
     state = run.task_state()
     if state != "Wait_Start":
         raise BenchError(f"cost measures the robot waiting for START first; it is in {state}")
+    enter_room(run)
     loops = busy_loops(load)
     try:
         idle = measure(run, seconds, jitter_seconds)
@@ -290,11 +301,31 @@ def idle_and_moving(
         moving.interrupted = interrupted
     finally:
         stop(loops)
+        for person, *_ in ROOM:
+            run.call("people_world.leave", person=person)
         for process in _ZENOH:
             process.kill()
             process.wait()
         _ZENOH.clear()
     return {"idle": idle, "moving": moving}
+
+
+def enter_room(run: SeegRun) -> None:
+    """Place the people of `ROOM` and wait until the detector confirms every one of
+    them: a window with fewer would measure an emptier room than it says."""
+    for person, x, y, facing in ROOM:
+        run.call("people_world.place", person=person, x=x, y=y, facing_deg=facing)
+    deadline = time.monotonic() + ROOM_SEEN
+    while True:
+        seen = len(run.call("people_detector.current").get("people") or [])
+        if seen >= len(ROOM):
+            return
+        if time.monotonic() > deadline:
+            raise BenchError(
+                f"the detector confirmed {seen} of the {len(ROOM)} people placed in the room "
+                f"within {ROOM_SEEN:g} s: cost measures with them"
+            )
+        time.sleep(0.1)
 
 
 def summary(window: Window) -> dict[str, Any]:
@@ -311,6 +342,7 @@ def summary(window: Window) -> dict[str, Any]:
         "krc_loop": window.krc_loop,
         "fri": window.fri,
         "interrupted": window.interrupted,
+        "people": window.people,
         "safety": {
             "trips": window.safety.get("trips"),
             "watches": window.safety.get("watches", {}),

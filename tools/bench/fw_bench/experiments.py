@@ -158,6 +158,15 @@ def run_cost(quick: bool, context: dict[str, Any]) -> list[Row]:
         rows.append(
             Row(
                 "cost",
+                f"{what}{under}: people the detector tracked in the room (at the window's end)",
+                window.people,
+                unit="",
+                n=1,
+            )
+        )
+        rows.append(
+            Row(
+                "cost",
                 f"{what}{under}: arm loop real-time factor",
                 window.realtime,
                 target=0.99,
