@@ -223,7 +223,7 @@ class SafetyMonitor:
         self._last_stall: float | None = None  # the own stall at the last check that looked
         self._ports: list[InputPort[Any]] = []
         self._polled = False
-        self._taken = False  # whether a `poll` took the arrivals since the last check
+        self._taken = False  # whether `poll_after_cycle` took the arrivals since the last check
         self._token_watch: Any = None
         self._last_check: float | None = None
         self.armed = False
@@ -317,20 +317,25 @@ class SafetyMonitor:
         return lost + late
 
     def poll(self) -> None:
-        """Take the arrivals of polled watches (see `attach`). A check does it first
-        unless it was done since the last check: a paced loop does it after its cycle's
-        command went out (the robot interface's `after_cycle_hook`), so the dozen rings
-        are not asked between a measurement and its answer. An arrival then counts from
-        that poll, at most one cycle later than it came, as when the check takes it:
-        a watch is as fine as the polls are frequent. One that comes between the poll
-        and the check waits for the next poll (data can look older than it is, by the
-        time between the two, never fresher), except before a trip: a check that finds
-        an input late takes the arrivals again and decides on them."""
+        """Take the arrivals of polled watches (see `attach`); checks do it first
+        unless `poll_after_cycle` did since the last check."""
         if self._polled:
             for index, port in enumerate(self._ports):
                 if port.poll():
                     self.arrived(index)
-            self._taken = True
+
+    def poll_after_cycle(self) -> None:
+        """`poll`, by a paced loop after its cycle's command went out (the robot
+        interface's `after_cycle_hook`), so the dozen rings are not asked between a
+        measurement and its answer: the next check decides on what it took. An arrival
+        then counts from this poll, at most one cycle later than it came, as when the
+        check takes it: a watch is as fine as the polls are frequent. One that comes
+        between this poll and the check waits for the next poll (data can look older
+        than it is, by the time between the two, never fresher), except before a trip:
+        a check that finds an input late takes the arrivals again and decides on them.
+        Runs in the loop's thread."""
+        self.poll()
+        self._taken = True
 
     def _problems(self) -> tuple[list[str], list[str]]:
         now = self.clock.now()
@@ -382,7 +387,6 @@ class SafetyMonitor:
         taken, self._taken = self._taken, False  # by a poll after the previous cycle
         if not taken:  # latched too: a RELEASE needs the arrivals meanwhile
             self.poll()
-            self._taken = False
         if self.latched:
             return self.latched
         late = self._last_check is not None and now - self._last_check > STARVED
@@ -396,7 +400,6 @@ class SafetyMonitor:
         lost, late_inputs = self._problems()
         if late_inputs and taken:  # what came since that poll may answer it: a trip polls
             self.poll()
-            self._taken = False
             lost, late_inputs = self._problems()
         if not lost and not late_inputs:
             self.armed = True

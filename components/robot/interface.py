@@ -752,7 +752,7 @@ class RobotInterface(Component):
         if state is not None:
             self._publish_news(state)
         if self.safety is not None:  # the watches' arrivals, for the next cycle's check
-            self.safety.poll()
+            self.safety.poll_after_cycle()
 
     def _publish_news(self, state: ArmState) -> None:
         """The TCP, for its readers at 200 Hz (no forward kinematics on the other

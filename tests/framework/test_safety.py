@@ -864,21 +864,24 @@ def test_arrivals_taken_after_a_cycle_count_for_the_next_check(hub, bus_config):
 
     monitor, clock, beat, (peer, token) = _polled_watch(hub, bus_config)
     try:
+        beat.write(Scalar(0.0, 8.0))
+        time.sleep(0.1)
         clock.advance(0.001)
-        monitor.poll()  # after the cycle's command
+        monitor.poll_after_cycle()
+        assert monitor._samples[0] == 4, "the poll after the cycle took it"
         beat.write(Scalar(0.0, 9.0))
         time.sleep(0.1)  # it waits in the ring
         clock.advance(0.001)
         assert monitor.check() == ""
-        assert monitor._samples[0] == 3, "the check asked no ring: polled after the cycle"
+        assert monitor._samples[0] == 4, "the check asked no ring: polled after the cycle"
         clock.advance(0.001)
         assert monitor.check() == ""
-        assert monitor._samples[0] == 4, "no poll since the last check: the check takes them"
+        assert monitor._samples[0] == 5, "no poll since the last check: the check takes them"
         beat.write(Scalar(0.0, 10.0))
         time.sleep(0.1)
         clock.advance(0.001)
         assert monitor.check() == ""
-        assert monitor._samples[0] == 5, "nor since that one: its own poll was no cycle's"
+        assert monitor._samples[0] == 6, "nor since that one: its own poll was no cycle's"
     finally:
         monitor.close()
         token.undeclare()
@@ -897,7 +900,7 @@ def test_a_check_that_finds_an_input_late_takes_the_arrivals_before_it_trips(hub
             clock.advance(0.005)  # is the monitor's own starvation, and decides nothing)
             assert monitor.check() == ""
         clock.advance(0.006)
-        monitor.poll()  # after a cycle: nothing came, 52 ms since the last sample
+        monitor.poll_after_cycle()  # nothing came: 52 ms since the last sample
         beat.write(Scalar(0.0, 9.0))
         time.sleep(0.1)  # it waits in the ring
         clock.advance(0.001)
