@@ -140,11 +140,12 @@ def link_speed(
 ) -> float:
     """The fastest capsule end (m/s) between two sets of link capsule ends `dt` apart:
     a point of a rigid link moves no faster than its faster end."""
-    moved = max(
-        float(np.max(np.linalg.norm(after[0] - before[0], axis=1))),
-        float(np.max(np.linalg.norm(after[1] - before[1], axis=1))),
-    )
-    return moved / dt
+    return _fastest(np.concatenate(after) - np.concatenate(before), dt)
+
+
+def _fastest(moved: np.ndarray, dt: float) -> float:
+    """The largest of the (n, 3) displacements `moved`, as a speed over `dt`."""
+    return math.sqrt(float(np.einsum("ij,ij->i", moved, moved).max())) / dt
 
 
 class SeparationMonitor:
@@ -173,7 +174,7 @@ class SeparationMonitor:
             before, then = history[0]
             moved = ends - before
             dt = now - then
-            speed = math.sqrt(float(np.einsum("ij,ij->i", moved, moved).max())) / dt
+            speed = _fastest(moved, dt)
             tip = moved[-1]  # the last link's far end: the tool
             self.tcp_speed = math.sqrt(float(tip @ tip)) / dt
         history.append((ends, now))
