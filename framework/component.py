@@ -43,7 +43,7 @@ from typing import Any
 from framework.clock import Clock, MonotonicClock, late
 from framework.clock_offset import OffsetEstimate
 from framework.errors import FwError
-from framework.ports import ConnPolicy, InputPort, OutputPort
+from framework.ports import ConnPolicy, InputPort, OutputPort, TypeAdapter
 from framework.properties import Property, PropertyError
 
 
@@ -129,12 +129,18 @@ class FileInput:
 
 
 class In:
-    """Declare an input port on a Component class."""
+    """Declare an input port on a Component class; `adapter`: the form its samples are
+    read in, if not their type's (framework/ports.py `TypeAdapter`)."""
 
     def __init__(
-        self, type: type, doc: str = "", policy: ConnPolicy | dict[str, Any] | None = None
+        self,
+        type: type,
+        doc: str = "",
+        policy: ConnPolicy | dict[str, Any] | None = None,
+        adapter: TypeAdapter | None = None,
     ):
         self.type, self.doc, self.policy = type, doc, ConnPolicy.from_spec(policy)
+        self.adapter = adapter
 
 
 class Out:
@@ -274,7 +280,7 @@ class Component:
                 )
         for attr, decl in declarations(type(self)):
             if isinstance(decl, In):
-                port = InputPort(attr, decl.type, decl.doc, decl.policy)
+                port = InputPort(attr, decl.type, decl.doc, decl.policy, adapter=decl.adapter)
                 port.owner = name
                 self.inputs[attr] = port
                 self.__dict__[attr] = port  # shadows the class-level declaration

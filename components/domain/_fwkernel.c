@@ -258,6 +258,23 @@ static PyObject *py_jacobian(PyObject *self, PyObject *args)
  * origins, the flange (`flange` in joint 7's frame) and the TCP, as 10 rows of xyz:
  * Kinematics.joint_origins in one call (the capsules of speed and separation
  * monitoring, every cycle a person is near). */
+#define POINTS 10
+
+/* Base, the seven joint origins, the flange and the TCP (POINTS x 3) into out. */
+static void points_of(const double *placements, const double *tool, const double *flange_in_7,
+                      const double *q, double *out)
+{
+    frame joints[N], tcp, flange, at;
+    chain(placements, tool, q, joints, &tcp);
+    frame_from4x4(flange_in_7, &flange);
+    compose(&joints[N - 1], &flange, &at);
+    out[0] = out[1] = out[2] = 0.0;
+    for (int i = 0; i < N; i++)
+        memcpy(out + 3 * (i + 1), joints[i].p, 3 * sizeof(double));
+    memcpy(out + 24, at.p, 3 * sizeof(double));
+    memcpy(out + 27, tcp.p, 3 * sizeof(double));
+}
+
 static PyObject *py_joint_points(PyObject *self, PyObject *args)
 {
     PyObject *po, *to, *fo, *qo, *oo;
@@ -268,17 +285,7 @@ static PyObject *py_joint_points(PyObject *self, PyObject *args)
                              {fo, 16, 0, "flange"}, {qo, N, 0, "q"}, {oo, 30, 1, "out"}};
     if (get_buffers(in, b, 5) < 0)
         return NULL;
-    const double *placements = b[0].buf, *tool = b[1].buf, *flange_in_7 = b[2].buf, *q = b[3].buf;
-    frame joints[N], tcp, flange, at;
-    chain(placements, tool, q, joints, &tcp);
-    frame_from4x4(flange_in_7, &flange);
-    compose(&joints[N - 1], &flange, &at);
-    double *out = b[4].buf;
-    out[0] = out[1] = out[2] = 0.0;
-    for (int i = 0; i < N; i++)
-        memcpy(out + 3 * (i + 1), joints[i].p, 3 * sizeof(double));
-    memcpy(out + 24, at.p, 3 * sizeof(double));
-    memcpy(out + 27, tcp.p, 3 * sizeof(double));
+    points_of(b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf);
     release_buffers(b, 5);
     Py_RETURN_NONE;
 }
@@ -398,6 +405,57 @@ static double segment_distance(const double *p1, const double *q1, const double 
     return sqrt(sum);
 }
 
+/* The least surface distance between capsules (a1, b1, r1)[n] and (a2, b2, r2)[m]: inf
+ * if either set is empty, NaN as soon as a pair's is (as numpy's min: never a clear
+ * verdict); the pair in *bi, *bj (-1 if none). */
+static double capsule_least(const double *a1, const double *b1, const double *r1, Py_ssize_t n,
+                            const double *a2, const double *b2, const double *r2, Py_ssize_t m,
+                            Py_ssize_t *bi, Py_ssize_t *bj)
+{
+    double best = INFINITY;
+    *bi = *bj = -1;
+    for (Py_ssize_t i = 0; i < n; i++)
+        for (Py_ssize_t j = 0; j < m; j++) {
+            double d = segment_distance(a1 + 3 * i, b1 + 3 * i, a2 + 3 * j, b2 + 3 * j) - r1[i] -
+                       r2[j];
+            if (d < best || d != d) {
+                best = d;
+                *bi = i;
+                *bj = j;
+                if (d != d)
+                    return best;
+            }
+        }
+    return best;
+}
+
+/* Take the float64 buffers of capsule sets: (a, b, r) triples whose a and b hold 3 values
+ * per radius; their counts in counts[]. All or none, as get_buffers. */
+static int get_capsule_buffers(PyObject *const *obj, Py_buffer *b, int sets, Py_ssize_t *counts)
+{
+    int got = 0;
+    for (; got < 3 * sets; got++)
+        if (PyObject_GetBuffer(obj[got], &b[got], PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
+            break;
+    int bad = got < 3 * sets;
+    for (int i = 0; i < got && !bad; i++)
+        if (b[i].itemsize != 8 || (b[i].format && strcmp(b[i].format, "d") != 0))
+            bad = 2;
+    for (int k = 0; k < sets && !bad; k++) {
+        counts[k] = b[3 * k + 2].len / 8;
+        if (b[3 * k].len != 24 * counts[k] || b[3 * k + 1].len != 24 * counts[k])
+            bad = 2;
+    }
+    if (bad) {
+        for (int i = 0; i < got; i++)
+            PyBuffer_Release(&b[i]);
+        if (bad == 2)
+            PyErr_SetString(PyExc_ValueError, "capsules: (n, 3), (n, 3), (n,) float64 arrays");
+        return -1;
+    }
+    return 0;
+}
+
 /* capsule_min(a1[n*3], b1[n*3], r1[n], a2[m*3], b2[m*3], r2[m]) -> (min, i, j) */
 static PyObject *py_capsule_min(PyObject *self, PyObject *args)
 {
@@ -405,47 +463,291 @@ static PyObject *py_capsule_min(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "OOOOOO", &obj[0], &obj[1], &obj[2], &obj[3], &obj[4], &obj[5]))
         return NULL;
     Py_buffer b[6];
-    int got = 0;
-    for (; got < 6; got++)
-        if (PyObject_GetBuffer(obj[got], &b[got], PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
-            break;
-    if (got < 6) {
-        for (int i = 0; i < got; i++)
-            PyBuffer_Release(&b[i]);
+    Py_ssize_t count[2], bi, bj;
+    if (get_capsule_buffers(obj, b, 2, count) < 0)
         return NULL;
-    }
-    Py_ssize_t n = b[2].len / 8, m = b[5].len / 8;
-    int bad = 0;
-    for (int i = 0; i < 6; i++)
-        if (b[i].itemsize != 8 || (b[i].format && strcmp(b[i].format, "d") != 0))
-            bad = 1;
-    if (bad || b[0].len != 24 * n || b[1].len != 24 * n || b[3].len != 24 * m ||
-        b[4].len != 24 * m) {
-        for (int i = 0; i < 6; i++)
-            PyBuffer_Release(&b[i]);
-        PyErr_SetString(PyExc_ValueError, "capsules: (n, 3), (n, 3), (n,) float64 arrays");
-        return NULL;
-    }
-    const double *a1 = b[0].buf, *b1 = b[1].buf, *r1 = b[2].buf, *a2 = b[3].buf,
-                 *b2 = b[4].buf, *r2 = b[5].buf;
-    double best = INFINITY;
-    Py_ssize_t bi = -1, bj = -1;
-    for (Py_ssize_t i = 0; i < n; i++)
-        for (Py_ssize_t j = 0; j < m; j++) {
-            double d = segment_distance(a1 + 3 * i, b1 + 3 * i, a2 + 3 * j, b2 + 3 * j) - r1[i] -
-                       r2[j];
-            if (d < best || d != d) { /* NaN wins, as in numpy's min: never a clear verdict */
-                best = d;
-                bi = i;
-                bj = j;
-                if (d != d)
-                    goto done;
-            }
-        }
-done:
-    for (int i = 0; i < 6; i++)
-        PyBuffer_Release(&b[i]);
+    double best = capsule_least(b[0].buf, b[1].buf, b[2].buf, count[0], b[3].buf, b[4].buf,
+                                b[5].buf, count[1], &bi, &bj);
+    release_buffers(b, 6);
     return Py_BuildValue("(dnn)", best, bi, bj);
+}
+
+/* Speed and separation monitoring (components/domain/separation.py, SeparationMonitor):
+ * the same formulas, in the same order, with Python's min() and max() (the first argument
+ * unless the second compares beyond it, so a NaN stays where Python keeps it). */
+static double py_min(double a, double b) { return b < a ? b : a; }
+static double py_max(double a, double b) { return b > a ? b : a; }
+
+/* The SSM terms, in the order SeparationMonitor packs them. */
+enum {
+    V_H, REACTION, ENGAGE, DECEL, INTRUSION, Z_D, Z_R, SLOW_BAND, MAX_SPEED, WINDOW,
+    FASTEST_LINK, MAX_QUIET, TERMS
+};
+
+static double protective_distance(const double *p, double v, double age)
+{
+    double t_r = py_max(age, 0.0) + p[REACTION];
+    return p[V_H] * (t_r + (p[ENGAGE] + v / p[DECEL])) + v * t_r +
+           (v * p[ENGAGE] + v * v / (2.0 * p[DECEL])) + p[INTRUSION] + p[Z_D] + p[Z_R];
+}
+
+static double allowed_speed(const double *p, double separation, double age)
+{
+    double a = 1.0 / (2.0 * p[DECEL]);
+    double t_r = py_max(age, 0.0) + p[REACTION];
+    double b = p[V_H] / p[DECEL] + t_r + p[ENGAGE];
+    double c = protective_distance(p, 0.0, age) - separation;
+    if (c >= 0.0)
+        return 0.0;
+    return (-b + sqrt(b * b - 4.0 * a * c)) / (2.0 * a);
+}
+
+/* The link capsules' ends of the last `WINDOW` seconds: a ring of `rows` rows, each the
+ * time then the 6m coordinates (every a, then every b); meta = (count, first row). */
+typedef struct {
+    double *rows, *meta;
+    Py_ssize_t capacity, width;
+} speed_ring;
+
+static double *ring_row(const speed_ring *h, Py_ssize_t k)
+{
+    return h->rows + ((Py_ssize_t)h->meta[1] + k) % h->capacity * h->width;
+}
+
+static void ring_drop_first(speed_ring *h)
+{
+    h->meta[1] = (double)(((Py_ssize_t)h->meta[1] + 1) % h->capacity);
+    h->meta[0] -= 1.0;
+}
+
+/* SeparationMonitor.robot_speed: the fastest capsule end since the newest row at least
+ * `window` old (0 on the first call, or when the clock stepped back before it), the
+ * tool's (the last b) over the same span in *tcp; then the ends of `now` appended (the
+ * oldest dropped if the ring is full). */
+static double ring_speed(speed_ring *h, const double *a, const double *b, Py_ssize_t m, double now,
+                         double window, double *tcp)
+{
+    while (h->meta[0] > 1.0 && now - ring_row(h, 1)[0] >= window)
+        ring_drop_first(h);
+    double speed = 0.0;
+    *tcp = 0.0;
+    if (h->meta[0] > 0.0 && now > ring_row(h, 0)[0]) {
+        const double *before = ring_row(h, 0);
+        double dt = now - before[0], fastest = -INFINITY, tip = 0.0;
+        for (Py_ssize_t k = 0; k < 2 * m; k++) {
+            const double *end = k < m ? a + 3 * k : b + 3 * (k - m);
+            const double *then = before + 1 + 3 * k;
+            double x = end[0] - then[0], y = end[1] - then[1], z = end[2] - then[2];
+            double d = x * x + y * y + z * z;
+            if (d > fastest || d != d)
+                fastest = d;
+            tip = d;
+        }
+        speed = sqrt(fastest) / dt;
+        *tcp = sqrt(tip) / dt;
+    }
+    if ((Py_ssize_t)h->meta[0] == h->capacity)
+        ring_drop_first(h);
+    double *row = ring_row(h, (Py_ssize_t)h->meta[0]);
+    row[0] = now;
+    memcpy(row + 1, a, 3 * m * sizeof(double));
+    memcpy(row + 1 + 3 * m, b, 3 * m * sizeof(double));
+    h->meta[0] += 1.0;
+    return speed;
+}
+
+/* The ring's buffers, checked against the robot's m capsules. */
+static int get_ring(PyObject *rows_o, PyObject *meta_o, Py_ssize_t m, Py_buffer *views,
+                    speed_ring *h)
+{
+    if (PyObject_GetBuffer(rows_o, &views[0], PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | PyBUF_WRITABLE) <
+        0)
+        return -1;
+    if (get_buffer(meta_o, &views[1], 2, 1, "meta") < 0) {
+        PyBuffer_Release(&views[0]);
+        return -1;
+    }
+    h->rows = views[0].buf;
+    h->meta = views[1].buf;
+    h->width = 1 + 6 * m;
+    h->capacity = views[0].len / 8 / h->width;
+    if (views[0].itemsize != 8 || (views[0].format && strcmp(views[0].format, "d") != 0) ||
+        views[0].len != 8 * h->width * h->capacity || h->capacity < 2 || h->meta[0] < 0.0 ||
+        h->meta[0] > (double)h->capacity || h->meta[1] < 0.0 ||
+        h->meta[1] >= (double)h->capacity) {
+        PyErr_Format(PyExc_ValueError, "ring: rows of 1 + 6 x %zd float64 values (2 or more) "
+                                       "and a (count, first) within them", m);
+        release_buffers(views, 2);
+        return -1;
+    }
+    return 0;
+}
+
+/* ssm_speed(a[m*3], b[m*3], rows, meta, now, window) -> (speed, tcp_speed) */
+static PyObject *py_ssm_speed(PyObject *self, PyObject *args)
+{
+    PyObject *ao, *bo, *ro, *mo;
+    double now, window, tcp;
+    if (!PyArg_ParseTuple(args, "OOOOdd", &ao, &bo, &ro, &mo, &now, &window))
+        return NULL;
+    Py_buffer b[4];
+    if (PyObject_GetBuffer(ao, &b[0], PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
+        return NULL;
+    Py_ssize_t m = b[0].len / 24;
+    const array_arg ends = {bo, 3 * m, 0, "b"};
+    if (b[0].itemsize != 8 || b[0].len != 24 * m ||
+        (b[0].format && strcmp(b[0].format, "d") != 0)) {
+        PyBuffer_Release(&b[0]);
+        PyErr_SetString(PyExc_ValueError, "a: (m, 3) float64 values");
+        return NULL;
+    }
+    if (get_buffers(&ends, &b[1], 1) < 0) {
+        PyBuffer_Release(&b[0]);
+        return NULL;
+    }
+    speed_ring h;
+    if (get_ring(ro, mo, m, &b[2], &h) < 0) {
+        release_buffers(b, 2);
+        return NULL;
+    }
+    double speed = ring_speed(&h, b[0].buf, b[1].buf, m, now, window, &tcp);
+    release_buffers(b, 4);
+    return Py_BuildValue("(dd)", speed, tcp);
+}
+
+/* SeparationMonitor.quiet_cycles: the cycles of dt before a check can change anything. */
+static long quiet_cycles(const double *p, double separation, double age, double dt)
+{
+    if (!isfinite(separation))
+        return 0;
+    double guard = py_max(protective_distance(p, p[FASTEST_LINK], age),
+                          protective_distance(p, 0.0, age) + p[SLOW_BAND]);
+    double margin = separation - guard;
+    if (margin <= 0.0)
+        return 0;
+    double cycles = margin / ((2.0 * p[V_H] + p[FASTEST_LINK]) * dt);
+    return cycles < p[MAX_QUIET] ? (long)cycles : (long)p[MAX_QUIET];
+}
+
+/* ssm_check(ra, rb, rr, pa, pb, pr, rows, meta, terms[TERMS], age, now, cap_age, dt)
+ *   -> (separation, robot_speed, protective, cap, stop, tcp_speed, quiet):
+ * SeparationMonitor.check for the robot's capsules (ra, rb, rr) and the people's (pa,
+ * pb, pr; none: nobody), and its quiet_cycles for cycles of dt. */
+static PyObject *py_ssm_check(PyObject *self, PyObject *args)
+{
+    PyObject *obj[6], *ro, *mo, *to;
+    double age, now, cap_age, dt, tcp;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOdddd", &obj[0], &obj[1], &obj[2], &obj[3], &obj[4],
+                          &obj[5], &ro, &mo, &to, &age, &now, &cap_age, &dt))
+        return NULL;
+    if (!(dt > 0.0)) {
+        PyErr_SetString(PyExc_ValueError, "ssm_check: a cycle (dt) must be > 0");
+        return NULL;
+    }
+    Py_buffer b[9];
+    Py_ssize_t count[2], bi, bj;
+    if (get_capsule_buffers(obj, b, 2, count) < 0)
+        return NULL;
+    speed_ring h;
+    if (get_ring(ro, mo, count[0], &b[6], &h) < 0) {
+        release_buffers(b, 6);
+        return NULL;
+    }
+    const array_arg terms = {to, TERMS, 0, "terms"};
+    if (get_buffers(&terms, &b[8], 1) < 0) {
+        release_buffers(b, 8);
+        return NULL;
+    }
+    const double *p = b[8].buf;
+    double speed = ring_speed(&h, b[0].buf, b[1].buf, count[0], now, p[WINDOW], &tcp);
+    double separation = INFINITY, protective = 0.0, cap = INFINITY;
+    int stop = 0;
+    if (count[1] > 0) {
+        separation = capsule_least(b[0].buf, b[1].buf, b[2].buf, count[0], b[3].buf, b[4].buf,
+                                   b[5].buf, count[1], &bi, &bj);
+        protective = protective_distance(p, speed, age);
+        cap_age = py_max(age, cap_age);
+        double standing = protective_distance(p, 0.0, cap_age);
+        double share = p[SLOW_BAND] > 0.0 ? (separation - standing) / p[SLOW_BAND] : 1.0;
+        cap = py_min(p[MAX_SPEED] * py_min(py_max(share, 0.0), 1.0),
+                     allowed_speed(p, separation, cap_age));
+        if (share >= 1.0 && cap >= p[MAX_SPEED])
+            cap = INFINITY;
+        stop = !(separation >= protective); /* a NaN separation is no clear verdict */
+    }
+    long quiet = quiet_cycles(p, separation, age, dt);
+    release_buffers(b, 9);
+    return Py_BuildValue("(ddddNdl)", separation, speed, protective, cap, PyBool_FromLong(stop),
+                         tcp, quiet);
+}
+
+/* envelopes_decode(sample, prefix[8]) -> (publisher, seq, stamp, values, na, nb, nr, finite,
+ *                                          radii_ok) or None if it is not a whole Envelopes
+ * sample (framework/messages.py's layout: the 8-byte prefix of magic, version and type
+ * id, publisher u64, seq u64, then stamp f64 and the arrays a, b, radius, each a u32
+ * count and its f64s, little-endian, nothing after). `values` holds a, b and radius as
+ * float64 bytes (a new object: the sample's own memory is not kept); `finite`: every
+ * value and their sum finite, as the Python check; `radii_ok`: none negative. */
+static PyObject *py_envelopes_decode(PyObject *self, PyObject *args)
+{
+    Py_buffer data, prefix;
+    if (!PyArg_ParseTuple(args, "y*y*", &data, &prefix))
+        return NULL;
+    const unsigned char *p = data.buf;
+    Py_ssize_t len = data.len, at = 32, count[3], start[3];
+    PyObject *result = NULL;
+    if (prefix.len != 8 || len < at || memcmp(p, prefix.buf, 8) != 0)
+        goto none;
+    for (int k = 0; k < 3; k++) {
+        uint32_t n;
+        if (at + 4 > len)
+            goto none;
+        memcpy(&n, p + at, 4);
+        at += 4;
+        if ((Py_ssize_t)n > (len - at) / 8)
+            goto none;
+        count[k] = n;
+        start[k] = at;
+        at += 8 * (Py_ssize_t)n;
+    }
+    if (at != len)
+        goto none;
+    uint64_t publisher, seq;
+    double stamp;
+    memcpy(&publisher, p + 8, 8);
+    memcpy(&seq, p + 16, 8);
+    memcpy(&stamp, p + 24, 8);
+    Py_ssize_t total = count[0] + count[1] + count[2];
+    PyObject *values = PyBytes_FromStringAndSize(NULL, 8 * total);
+    if (values == NULL)
+        goto done;
+    double *out = (double *)PyBytes_AS_STRING(values), sum = 0.0;
+    int finite = 1, radii_ok = 1;
+    Py_ssize_t o = 0;
+    for (int k = 0; k < 3; k++) {
+        memcpy(out + o, p + start[k], 8 * count[k]);
+        for (Py_ssize_t i = 0; i < count[k]; i++) {
+            double v = out[o + i];
+            sum += v;
+            if (!isfinite(v))
+                finite = 0;
+            if (k == 2 && v < 0.0)
+                radii_ok = 0;
+        }
+        o += count[k];
+    }
+    if (!isfinite(sum))
+        finite = 0;
+    result = Py_BuildValue("(KKdNnnnNN)", (unsigned long long)publisher, (unsigned long long)seq,
+                           stamp, values, count[0], count[1], count[2], PyBool_FromLong(finite),
+                           PyBool_FromLong(radii_ok));
+    goto done;
+none:
+    result = Py_NewRef(Py_None);
+done:
+    PyBuffer_Release(&data);
+    PyBuffer_Release(&prefix);
+    return result;
 }
 
 /* the rotation matrix (row-major) of a rotation vector (Rodrigues) */
@@ -545,6 +847,56 @@ static int seven(PyObject *obj, double out[N])
     }
     Py_DECREF(fast);
     return bad;
+}
+
+/* capsule_points(placements, tool, flange, q, pairs[2m], a_out[m*3], b_out[m*3]): the arm's
+ * link capsules' ends for joints q (any sequence of 7 numbers): capsule k from point
+ * pairs[2k] to point pairs[2k + 1] of joint_points (indices 0-9, as float64). */
+static PyObject *py_capsule_points(PyObject *self, PyObject *args)
+{
+    PyObject *po, *to, *fo, *qo, *pairs_o, *ao, *bo;
+    if (!PyArg_ParseTuple(args, "OOOOOOO", &po, &to, &fo, &qo, &pairs_o, &ao, &bo))
+        return NULL;
+    double q[N];
+    int bad = seven(qo, q);
+    if (bad < 0)
+        return NULL;
+    if (bad) {
+        PyErr_SetString(PyExc_ValueError, "capsule_points: q needs 7 finite numbers");
+        return NULL;
+    }
+    Py_buffer pb;
+    if (PyObject_GetBuffer(pairs_o, &pb, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
+        return NULL;
+    Py_ssize_t m = pb.len / 16;
+    int wrong = pb.itemsize != 8 || pb.len != 16 * m || (pb.format && strcmp(pb.format, "d") != 0);
+    for (Py_ssize_t k = 0; !wrong && k < 2 * m; k++) {
+        double index = ((const double *)pb.buf)[k];
+        wrong = !(index >= 0.0 && index < POINTS) || index != (double)(int)index;
+    }
+    if (wrong) {
+        PyBuffer_Release(&pb);
+        PyErr_SetString(PyExc_ValueError, "capsule_points: pairs of point indices 0-9 (float64)");
+        return NULL;
+    }
+    Py_buffer b[5];
+    const array_arg in[5] = {{po, N * 16, 0, "placements"}, {to, 16, 0, "tool"},
+                             {fo, 16, 0, "flange"}, {ao, 3 * m, 1, "a_out"},
+                             {bo, 3 * m, 1, "b_out"}};
+    if (get_buffers(in, b, 5) < 0) {
+        PyBuffer_Release(&pb);
+        return NULL;
+    }
+    double points[3 * POINTS], *a = b[3].buf, *out_b = b[4].buf;
+    const double *pairs = pb.buf;
+    points_of(b[0].buf, b[1].buf, b[2].buf, q, points);
+    for (Py_ssize_t k = 0; k < m; k++) {
+        memcpy(a + 3 * k, points + 3 * (int)pairs[2 * k], 3 * sizeof(double));
+        memcpy(out_b + 3 * k, points + 3 * (int)pairs[2 * k + 1], 3 * sizeof(double));
+    }
+    release_buffers(b, 5);
+    PyBuffer_Release(&pb);
+    Py_RETURN_NONE;
 }
 
 /* servo_aim(values, reference, limit, aim, bound, reach, feed_forward, ctrl) -> joint
@@ -1171,6 +1523,19 @@ static PyMethodDef methods[] = {
      "rest_gain_dt) -> bool: one damped least-squares step into out."},
     {"capsule_min", py_capsule_min, METH_VARARGS,
      "capsule_min(a1, b1, r1, a2, b2, r2) -> (distance, i, j): the closest pair of capsules."},
+    {"envelopes_decode", py_envelopes_decode, METH_VARARGS,
+     "envelopes_decode(sample, prefix) -> (publisher, seq, stamp, values, na, nb, nr, finite, "
+     "radii_ok), or None for what is not a whole Envelopes sample."},
+    {"ssm_speed", py_ssm_speed, METH_VARARGS,
+     "ssm_speed(a, b, rows, meta, now, window) -> (speed, tcp_speed): the fastest link capsule "
+     "end over the window, the ends of now kept in the ring (rows, meta)."},
+    {"ssm_check", py_ssm_check, METH_VARARGS,
+     "ssm_check(ra, rb, rr, pa, pb, pr, rows, meta, terms, age, now, cap_age, dt) -> "
+     "(separation, robot_speed, protective, cap, stop, tcp_speed, quiet): one cycle's speed and "
+     "separation verdict, and the cycles of dt it holds for."},
+    {"capsule_points", py_capsule_points, METH_VARARGS,
+     "capsule_points(placements, tool, flange, q, pairs, a_out, b_out): the arm's link capsules' "
+     "ends for joints q."},
     {NULL, NULL, 0, NULL},
 };
 

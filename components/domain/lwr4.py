@@ -25,6 +25,7 @@ use; `LWR4_ERRORS` are the values of the simulated OR (docs/seeg.md, "The arm").
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -352,3 +353,27 @@ class Kinematics:
         points = self.joint_origins(q)
         starts, ends = self._capsule_ends
         return Capsules(points[starts], points[ends], self._capsule_spec[1].copy())
+
+    def capsules_buffer(self) -> Capsules:
+        """Capsules for `capsules_into` to write (the ends zero, this arm's radii)."""
+        count = len(self._capsule_spec[0])
+        return Capsules(np.zeros((count, 3)), np.zeros((count, 3)), self._capsule_spec[1].copy())
+
+    def capsules_into(self, q: Sequence[float], out: Capsules) -> Capsules:
+        """`capsules(q)` written into `out` (from `capsules_buffer`), for a loop that checks
+        every new envelope without allocating; q any sequence of 7 numbers (an ArmState's
+        tuple as it is). One call of the compiled kernel where it was built, which a
+        spec holds to `capsules`."""
+        if _fwkernel is None:
+            got = self.capsules(np.asarray(q, dtype=float))
+            out.a[:], out.b[:] = got.a, got.b
+            return out
+        _fwkernel.capsule_points(
+            self.placements, self.tool, self._flange, q, self._capsule_pairs, out.a, out.b
+        )
+        return out
+
+    @cached_property
+    def _capsule_pairs(self) -> np.ndarray:
+        # the kernel's form of the capsules' point pairs: (from, to) indices as float64
+        return np.array(self._capsule_spec[0], dtype=float).reshape(-1)

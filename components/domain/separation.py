@@ -34,10 +34,12 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from components.domain.distance import least_capsule_distance
+from components.domain.kernel import _fwkernel
 
 
 @dataclass(frozen=True)
@@ -100,12 +102,12 @@ class SsmParams:
         return (-b + math.sqrt(b * b - 4.0 * a * c)) / (2.0 * a)
 
 
-@dataclass(frozen=True)
-class Verdict:
+class Verdict(NamedTuple):
     """One cycle's answer: the separation (m; inf without anyone), the robot's fastest
     link point (m/s), the protective distance at that speed, the speed cap for the
     motion (m/s; inf: none), whether to stop now, and the tool's speed over the same
-    window (the end of the last capsule: what the interpolator paces)."""
+    window (the end of the last capsule: what the interpolator paces). A named tuple:
+    made once per check of the 1 kHz loop, where a frozen dataclass costs microseconds."""
 
     separation: float
     robot_speed: float
@@ -143,6 +145,14 @@ def link_speed(
     return _fastest(np.concatenate(after) - np.concatenate(before), dt)
 
 
+_NOBODY = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+
+
+def _f64(values: np.ndarray) -> np.ndarray:
+    """`values` as the kernel takes them: C-contiguous float64 (no copy if they are)."""
+    return np.ascontiguousarray(values, dtype=float)
+
+
 def _fastest(moved: np.ndarray, dt: float) -> float:
     """The largest of the (n, 3) displacements `moved`, as a speed over `dt`."""
     return math.sqrt(float(np.einsum("ij,ij->i", moved, moved).max())) / dt
@@ -150,21 +160,80 @@ def _fastest(moved: np.ndarray, dt: float) -> float:
 
 class SeparationMonitor:
     """Separation, robot speed and S_p cycle by cycle (module docstring). Stateful only
-    in the link capsules of the last `SPEED_WINDOW`, for the robot's speed."""
+    in the link capsules of the last `SPEED_WINDOW`, for the robot's speed.
 
-    def __init__(self, params: SsmParams, max_speed: float):
-        """`max_speed`: the fastest the motion may go (m/s), the cap far from everyone."""
+    Where the compiled kernel was built, `check` and `robot_speed` are one call of it
+    each (`_fwkernel.ssm_check`, `ssm_speed`: the robot's loop checks every new envelope,
+    30 times a second, and code run that seldom meets cold caches, where each of the
+    ~40 numpy and Python steps costs several times its warm figure); `compiled=False`
+    runs the Python below, which is the reference a spec holds the kernel to."""
+
+    COMPILED = True
+    """Whether a monitor built without saying runs the kernel (where it was built): the
+    specs run every case both ways by flipping this."""
+
+    RING_ROWS = 64
+    """Link capsule ends the compiled speed window keeps at most (a check per 1 ms cycle
+    needs 12); on more the oldest goes, as `SPEED_WINDOW` would drop it soon."""
+
+    def __init__(self, params: SsmParams, max_speed: float, compiled: bool | None = None):
+        """`max_speed`: the fastest the motion may go (m/s), the cap far from everyone;
+        `compiled`: the kernel's check where it was built, else the Python one (None:
+        `COMPILED`)."""
         self.params = params
-        self.max_speed = max_speed
+        wanted = self.COMPILED if compiled is None else compiled
+        self.compiled = wanted and _fwkernel is not None
         self._history: deque[tuple[np.ndarray, float]] = deque()  # (every capsule end, t)
+        self._terms = np.array(
+            [
+                params.person_speed,
+                params.reaction,
+                params.engage,
+                params.deceleration,
+                params.intrusion,
+                params.detection_uncertainty,
+                params.robot_uncertainty,
+                params.slow_band,
+                max_speed,
+                SPEED_WINDOW,
+                FASTEST_LINK,
+                MAX_QUIET,
+            ]
+        )
+        self.max_speed = max_speed
+        self._ring = np.zeros((0, 1))  # the compiled window: rows of (t, every end)
+        self._ring_meta = np.zeros(2)  # (count, first row)
         self.tcp_speed = 0.0
         """The tool's speed over the window of the last `robot_speed`."""
+
+    @property
+    def max_speed(self) -> float:
+        """The fastest the motion may go (m/s): the cap far from everyone."""
+        return float(self._terms[8])
+
+    @max_speed.setter
+    def max_speed(self, value: float) -> None:
+        self._terms[8] = value
+
+    def _ring_for(self, a: np.ndarray) -> np.ndarray:
+        """The compiled window's rows for `len(a)` link capsules (emptied if it was for
+        another count: a speed between different arms is none)."""
+        width = 1 + 6 * len(a)
+        if self._ring.shape[1] != width:
+            self._ring = np.zeros((self.RING_ROWS, width))
+            self._ring_meta[:] = 0.0
+        return self._ring
 
     def robot_speed(self, a: np.ndarray, b: np.ndarray, now: float) -> float:
         """The fastest link capsule end over the last `SPEED_WINDOW` (m/s; 0 on the
         first call): a release's settling jolt of a fraction of a millimetre in one
         cycle is not a speed the arm has to stop from. (`link_speed` of both ends at
         once: a check of the 1 kHz loop.)"""
+        if self.compiled:
+            speed, self.tcp_speed = _fwkernel.ssm_speed(
+                _f64(a), _f64(b), self._ring_for(a), self._ring_meta, now, SPEED_WINDOW
+            )
+            return speed
         history = self._history
         while len(history) > 1 and now - history[1][1] >= SPEED_WINDOW:
             history.popleft()
@@ -193,8 +262,11 @@ class SeparationMonitor:
         is judged at `age`; the cap is for the envelopes at `cap_age` if that is older
         (the age they will have when the next are due): a cap that holds for their
         whole life, never above the one of their true age, since a person may close
-        in all that while, instead of one that falls every cycle as they age."""
+        in all that while, instead of one that falls every cycle as they age. A
+        separation that is not a number is a stop (no clear verdict)."""
         a, b, radius = robot
+        if self.compiled:
+            return self._compiled(robot, people, age, now, cap_age, 1.0)[0]
         speed = self.robot_speed(a, b, now)
         if people is None or len(people[0]) == 0:
             return Verdict(math.inf, speed, 0.0, math.inf, False, self.tcp_speed)
@@ -207,7 +279,49 @@ class SeparationMonitor:
         cap = min(self.max_speed * min(max(share, 0.0), 1.0), p.allowed_speed(separation, cap_age))
         if share >= 1.0 and cap >= self.max_speed:
             cap = math.inf
-        return Verdict(separation, speed, protective, cap, separation < protective, self.tcp_speed)
+        stop = not separation >= protective
+        return Verdict(separation, speed, protective, cap, stop, self.tcp_speed)
+
+    def check_cycle(
+        self,
+        robot: tuple[np.ndarray, np.ndarray, np.ndarray],
+        people: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+        age: float,
+        now: float,
+        cap_age: float,
+        dt: float,
+    ) -> tuple[Verdict, int]:
+        """`check`, then `quiet_cycles` of its verdict for cycles of `dt`: what the
+        robot's loop asks of each check (one call of the kernel where it was built)."""
+        if self.compiled:
+            return self._compiled(robot, people, age, now, cap_age, dt)
+        verdict = self.check(robot, people, age, now, cap_age)
+        return verdict, self.quiet_cycles(verdict, age, dt)
+
+    def _compiled(
+        self,
+        robot: tuple[np.ndarray, np.ndarray, np.ndarray],
+        people: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+        age: float,
+        now: float,
+        cap_age: float,
+        dt: float,
+    ) -> tuple[Verdict, int]:
+        a, b, radius = robot
+        pa, pb, pr = _NOBODY if people is None else people
+        ring, meta, terms = self._ring_for(a), self._ring_meta, self._terms
+        try:  # float64 arrays, as the loop has them, pass as they are
+            got = _fwkernel.ssm_check(
+                a, b, radius, pa, pb, pr, ring, meta, terms, age, now, cap_age, dt
+            )
+        except (TypeError, ValueError, BufferError):  # anything else: as the kernel takes them
+            got = _fwkernel.ssm_check(
+                _f64(a), _f64(b), _f64(radius), _f64(pa), _f64(pb), _f64(pr),
+                ring, meta, terms, age, now, cap_age, dt,
+            )  # fmt: skip
+        separation, speed, protective, cap, stop, tcp, quiet = got
+        self.tcp_speed = tcp
+        return Verdict(separation, speed, protective, cap, stop, tcp), quiet
 
     def quiet_cycles(self, verdict: Verdict, age: float, dt: float) -> int:
         """How many cycles of `dt` may pass before the next check changes anything: none

@@ -60,6 +60,7 @@ from components.domain.geometry import matrix_to_quat
 from components.domain.ik import _fwkernel
 from components.domain.lwr4 import POSITION_LIMIT, VELOCITY_LIMIT, Kinematics
 from components.domain.separation import CLEAR, SeparationMonitor, SsmParams, Verdict
+from components.robot.envelopes import EnvelopeCapsules
 from components.robot.safe_stop import SafeStop
 from framework.clock_offset import UNMEASURED
 from framework.component import Component, ConfigureError, In, Out, operation
@@ -164,7 +165,11 @@ class RobotInterface(Component):
     krc_timeout = prop(
         float, 0.05, unit="s", min=0.005, max=5.0, doc="no measurement for this long: a trip"
     )
-    envelopes = In(Envelopes, doc="people's envelopes (speed and separation monitoring)")
+    envelopes = In(
+        Envelopes,
+        doc="people's envelopes (speed and separation monitoring)",
+        adapter=EnvelopeCapsules(),
+    )
     speed_cap = Out(Scalar, doc="the TCP speed people allow (m/s; inf: none), on change")
     setpoint = In(JointState, doc="joint position setpoints (rad) from the interpolator")
     joints = Out(JointState, doc="measured joints, every cycle", stream=True)
@@ -238,6 +243,7 @@ class RobotInterface(Component):
         self._ssm = SeparationMonitor(params, self.max_speed)
         # built here (~50 ms with Pinocchio's model), never in a cycle
         self._kinematics = Kinematics()
+        self._capsules = self._kinematics.capsules_buffer()  # the separation check's, reused
         self._people: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._age_at_arrival = 0.0  # the envelopes' age when they arrived (wall clock, s)
         self._arrived = 0.0  # ...and when, on this component's clock
@@ -538,9 +544,9 @@ class RobotInterface(Component):
     def _separation(self, state: ArmState) -> None:
         """Speed and separation monitoring, every cycle the arm is released: the stop
         in this very cycle, the speed cap on change (module docstring)."""
-        status, message = self.envelopes.read()
+        status, sample = self.envelopes.read()
         if status is ReadStatus.NEW:
-            people, wrong = envelope_arrays(message)
+            wrong = sample.wrong
             if wrong:  # where people are is unknown: stop, as for a lost input
                 self.refuse("envelopes", wrong)
                 if not self.latched:
@@ -550,7 +556,7 @@ class RobotInterface(Component):
             # a wall clock step after arrival cannot make them younger, and on a
             # simulated clock they age with the simulation
             taken = time.time()
-            age = self._age_on_arrival(message.stamp, taken)
+            age = self._age_on_arrival(sample.stamp, taken)
             if age is None:  # stamped by a host whose clock is not measured yet
                 self.refuse("envelopes", UNMEASURED)
                 if not state.braked and not self.latched:
@@ -559,7 +565,7 @@ class RobotInterface(Component):
             arrived = self.clock.now()
             if self._people is not None:
                 self._interval = min(max(0.0, arrived - self._arrived), CAP_LOOKAHEAD)
-            self._people = people
+            self._people = sample.capsules
             self._taken, self._age_at_arrival = taken, age
             self._arrived = arrived
             self._quiet = 0  # news: check now
@@ -573,16 +579,15 @@ class RobotInterface(Component):
             self._quiet -= 1
             return
         started = time.perf_counter()
-        capsules = self._kinematics.capsules(np.asarray(state.position, dtype=float))
+        capsules = self._kinematics.capsules_into(state.position, self._capsules)
         now = state.cycle * CYCLE
         age = self._age_at_arrival + max(0.0, self.clock.now() - self._arrived)
         due = self._age_at_arrival + self._interval  # their age when the next are due
-        verdict = self._ssm.check(
-            (capsules.a, capsules.b, capsules.radius), self._people, age, now, due
+        verdict, self._quiet = self._ssm.check_cycle(
+            (capsules.a, capsules.b, capsules.radius), self._people, age, now, due, CYCLE
         )
         self.verdict = verdict
         self.closest = min(self.closest, verdict.separation)
-        self._quiet = self._ssm.quiet_cycles(verdict, age, CYCLE)
         if verdict.stop and not self.latched:
             self._check_started, self._detected = started, time.perf_counter()
             self._deciding = self._taken
@@ -922,22 +927,3 @@ def _quality(code: int) -> str:
 def _cm(metres: float) -> float | None:
     """A distance or speed for a report, to the millimetre (None: unbounded)."""
     return round(metres, 3) if math.isfinite(metres) else None
-
-
-def envelope_arrays(
-    message: Envelopes,
-) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray] | None, str]:
-    """The capsules (a, b as (n, 3), radius as (n,)) of an envelopes sample, or why it
-    is not one: lengths that do not match, or a value that is not finite (a NaN
-    distance would compare as "far"), or a negative radius."""
-    a, b, radius = message.a, message.b, message.radius
-    if not (len(a) == len(b) == 3 * len(radius)):
-        return None, f"{len(a)}/{len(b)} coordinates for {len(radius)} capsules"
-    # one sum for all: a NaN or an infinity anywhere makes it so (and so do numbers too
-    # large to be metres); checked on the tuples, in the cycle that took them
-    if not math.isfinite(sum(a) + sum(b) + sum(radius)):
-        return None, "a coordinate or radius that is not finite"
-    if (radius and min(radius) < 0.0) or not math.isfinite(message.stamp):
-        return None, "a negative radius or a stamp that is not finite"
-    ends = np.array((a, b), dtype=float).reshape(2, -1, 3)
-    return (ends[0], ends[1], np.array(radius, dtype=float)), ""

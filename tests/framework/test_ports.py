@@ -560,3 +560,47 @@ def test_a_port_undeferred_sends_what_waits_then_writes_at_once_again(hub, peer)
     out.write(Scalar(0.0, 3.0))
     assert wait_until(lambda: counted(remote).received >= 4)
     assert values(remote) == [1.0, 2.0, 3.0]
+
+
+class Doubled:
+    """A type adapter: a Scalar read as (stamp, 2 x value), counting how it came."""
+
+    def __init__(self):
+        self.decoded = self.converted = 0
+
+    def from_bytes(self, data):
+        value, publisher, seq = messages.decode(data, Scalar)
+        self.decoded += 1
+        return (value.stamp, 2.0 * value.value), publisher, seq
+
+    def from_value(self, value):
+        self.converted += 1
+        return value.stamp, 2.0 * value.value
+
+
+def test_a_port_with_a_type_adapter_reads_its_samples_in_the_adapters_form(pair):
+    """Written in this process or another, the reader gets the adapter's form of each
+    sample; what the wire carries (and so every other reader) is the port's type."""
+    hub, peer = pair
+    adapter = Doubled()
+    out, inp = make_out(hub), InputPort("inp", Scalar, adapter=adapter)
+    inp.owner, inp.bus = "dst", peer
+    plain = make_in(peer)
+    out.connect("k/adapted")
+    inp.connect("k/adapted")
+    plain.connect("k/adapted")
+    out.write(Scalar(1.0, 21.0))
+    assert wait_until(lambda: inp.pending() == 1 and plain.pending() == 1)
+    assert inp.read() == (ReadStatus.NEW, (1.0, 42.0))
+    assert plain.read() == (ReadStatus.NEW, Scalar(1.0, 21.0))
+    assert adapter.decoded + adapter.converted == 1
+
+
+def test_a_sample_its_adapter_refuses_is_dropped_and_reported(hub, peer):
+    inp = InputPort("inp", Scalar, adapter=Doubled())
+    inp.owner, inp.bus = "dst", peer
+    inp.connect("k/adapted_bad")
+    raw_publisher(hub, "k/adapted_bad").put(messages.encode(Pose(), Pose))
+    assert wait_until(lambda: counted(inp).dropped_invalid == 1)
+    assert "expected Scalar" in inp.stats.last_error
+    assert inp.read()[0] is ReadStatus.NO_DATA

@@ -1,7 +1,7 @@
 """The compiled kernel (components/domain/_fwkernel.c) computes what the numpy, Pinocchio
 and struct references compute: the TCP pose with its Jacobian, one IK step, the path's
-pose, the steering step, the arm's joint origins, the least capsule distance and FRI's
-datagrams. The robot's 1 kHz cycle runs the kernel; the
+pose, the steering step, the arm's joint origins, the least capsule distance, the speed
+and separation verdict and FRI's datagrams. The robot's 1 kHz cycle runs the kernel; the
 references are what the rest of fw (and these specs) trust."""
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from components.domain import distance, fri, geometry, ik, lwr4
+from components.domain.separation import SeparationMonitor, SsmParams
 from components.robot.interpolator import InterpolatorCore
 
 pytestmark = pytest.mark.skipif(
@@ -415,3 +416,85 @@ def test_a_kernel_call_refuses_a_wrong_array_by_name_and_keeps_none_of_the_other
                 fn(*args)
             after = [sys.getrefcount(x) for x in args if isinstance(x, np.ndarray)]
             assert after == held, f"{call}: argument {index} refused, another kept"
+
+
+# -- speed and separation monitoring ---------------------------------------------------------
+coordinates = st.floats(-2.0, 2.0)
+
+
+def capsule_sets(count):
+    """(a, b, radius) of `count` capsules."""
+    return st.tuples(
+        st.lists(st.tuples(coordinates, coordinates, coordinates), min_size=count, max_size=count),
+        st.lists(st.tuples(coordinates, coordinates, coordinates), min_size=count, max_size=count),
+        st.lists(st.floats(0.0, 0.3), min_size=count, max_size=count),
+    ).map(lambda t: (_points(t[0]), _points(t[1]), np.array(t[2])))
+
+
+def _points(coordinates):
+    return np.array(coordinates, dtype=float).reshape(-1, 3)
+
+
+cycles = st.tuples(
+    st.floats(-0.004, 0.03),  # the clock's step: mostly forward, sometimes back
+    st.floats(-0.05, 0.5),  # the envelopes' age (negative: stamped in this host's future)
+    st.floats(0.0, 0.6),  # their age when the next are due
+    st.floats(0.0, 0.004),  # how far the arm moved
+    st.one_of(st.none(), st.integers(0, 6).flatmap(capsule_sets)),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    arm_capsules=st.integers(1, 5).flatmap(capsule_sets),
+    run=st.lists(cycles, min_size=1, max_size=40),
+    max_speed=st.floats(0.0, 0.3),
+    slow_band=st.sampled_from([0.0, 0.4]),
+    seed=st.integers(0, 2**16),
+    dt=st.sampled_from([0.001, 0.004, 1e-5]),
+)
+def test_the_kernels_verdicts_are_the_references_cycle_by_cycle(
+    arm_capsules, run, max_speed, slow_band, seed, dt
+):
+    """Over a run of checks (the arm moving, people or nobody, envelopes of any age, a
+    clock that may step back), the compiled monitor says what the Python one says:
+    separation, speed, protective distance, cap, stop, the tool's speed and how many
+    cycles may pass unchecked."""
+    params = SsmParams(slow_band=slow_band)
+    kernel = SeparationMonitor(params, max_speed, compiled=True)
+    reference = SeparationMonitor(params, max_speed, compiled=False)
+    a, b, radius = arm_capsules
+    rng = np.random.default_rng(seed)
+    now = 0.0
+    for step, age, due, moved, people in run:
+        now += step
+        a = a + rng.normal(size=a.shape) * moved
+        b = b + rng.normal(size=b.shape) * moved
+        got, got_quiet = kernel.check_cycle((a, b, radius), people, age, now, due, dt)
+        want, want_quiet = reference.check_cycle((a, b, radius), people, age, now, due, dt)
+        assert got_quiet == want_quiet
+        for field in ("separation", "robot_speed", "protective", "cap", "tcp_speed"):
+            g, w = getattr(got, field), getattr(want, field)
+            assert g == pytest.approx(w, rel=1e-12, abs=1e-12, nan_ok=True), field
+        assert got.stop is want.stop
+        assert kernel.tcp_speed == pytest.approx(reference.tcp_speed, rel=1e-12, abs=1e-12)
+
+
+@settings(max_examples=100, deadline=None)
+@given(joints)
+def test_the_kernels_capsules_into_a_buffer_are_the_arms_capsules(q):
+    """The separation check's capsules, written into one buffer from the joints' tuple
+    as a measurement has them, are `capsules(q)`; nothing else of the buffer changes."""
+    buffer = KIN.capsules_buffer()
+    radius = buffer.radius.copy()
+    got = KIN.capsules_into(tuple(float(v) for v in q), buffer)
+    want = KIN.capsules(q)
+    assert got is buffer
+    assert np.allclose(got.a, want.a, atol=1e-12) and np.allclose(got.b, want.b, atol=1e-12)
+    assert np.array_equal(got.radius, radius) and np.array_equal(radius, want.radius)
+
+
+@pytest.mark.parametrize("q", [(0.0,) * 6, (0.0,) * 6 + (math.nan,), "seven"])
+def test_joints_that_are_not_seven_numbers_are_refused(q):
+    with pytest.raises((ValueError, TypeError)):
+        KIN.capsules_into(q, KIN.capsules_buffer())

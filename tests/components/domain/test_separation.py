@@ -4,7 +4,12 @@ it; the cap slows the arm down as people approach and is 0 where standing is the
 safe speed; the stop is said exactly when the separation is under the protective
 distance. What it is for (a person walking at the arm never reaches it while it moves)
 is tests/components/domain/test_separation_walking.py: a slow property of its own, so
-mutation testing can run these fast specs first."""
+mutation testing can run these fast specs first.
+
+Every spec runs twice: on the compiled kernel's monitor (what the robot's loop runs) and
+on the Python one (the reference, which mutation testing mutates); and a property holds
+the kernel's verdicts to the reference's over random motions, crowds and clocks
+(tests/components/domain/test_kernel.py)."""
 
 import math
 
@@ -13,6 +18,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from components.domain.kernel import COMPILED
 from components.domain.separation import (
     CLEAR,
     FASTEST_LINK,
@@ -24,6 +30,18 @@ from components.domain.separation import (
 )
 
 P = SsmParams()
+
+
+@pytest.fixture(autouse=True, params=["kernel", "python"])
+def monitors(request, monkeypatch):
+    """Monitors built in a spec run the kernel, then the Python reference."""
+    if request.param == "kernel" and not COMPILED:
+        pytest.skip("the compiled kernel was not built (pip install -e .)")
+    monkeypatch.setattr(SeparationMonitor, "COMPILED", request.param == "kernel")
+    assert SeparationMonitor(P, 0.075).compiled == (request.param == "kernel")
+    return request.param
+
+
 speeds = st.floats(0.0, 0.25)
 ages = st.floats(0.0, 0.5)
 separations = st.floats(-0.5, 3.0)
@@ -323,3 +341,12 @@ def test_a_negative_term_is_refused(term):
         SsmParams(**{term: -0.01})
     with pytest.raises(ValueError, match="deceleration"):
         SsmParams(deceleration=0.0)
+
+
+def test_a_separation_that_is_not_a_number_is_a_stop():
+    """A NaN anywhere in the envelopes makes the distance NaN: no clear verdict, so the
+    arm stops (the interface refuses such envelopes before; this is the backstop)."""
+    monitor = SeparationMonitor(P, 0.075)
+    a, b, radius = person(1.0)
+    verdict = monitor.check(arm(), (a, b * math.nan, radius), 0.0, 0.0)
+    assert math.isnan(verdict.separation) and verdict.stop

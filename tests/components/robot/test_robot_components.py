@@ -17,7 +17,8 @@ from hypothesis import strategies as st
 from components.domain import fri
 from components.domain.procedure import load_procedure
 from components.domain.separation import SeparationMonitor, SsmParams
-from components.robot.interface import RobotInterface, envelope_arrays
+from components.robot.envelopes import envelope_arrays
+from components.robot.interface import RobotInterface
 from components.robot.interpolator import CartesianInterpolator
 from components.robot.navigation import Navigator
 from components.sim.arm_controller import ArmController
