@@ -200,7 +200,6 @@ class SeparationMonitor:
                 MAX_QUIET,
             ]
         )
-        self.max_speed = max_speed
         self._ring = np.zeros((0, 1))  # the compiled window: rows of (t, every end)
         self._ring_meta = np.zeros(2)  # (count, first row)
         self.tcp_speed = 0.0
@@ -210,10 +209,6 @@ class SeparationMonitor:
     def max_speed(self) -> float:
         """The fastest the motion may go (m/s): the cap far from everyone."""
         return float(self._terms[8])
-
-    @max_speed.setter
-    def max_speed(self, value: float) -> None:
-        self._terms[8] = value
 
     def _ring_for(self, a: np.ndarray) -> np.ndarray:
         """The compiled window's rows for `len(a)` link capsules (emptied if it was for
@@ -235,10 +230,12 @@ class SeparationMonitor:
             )
             return speed
         history = self._history
+        ends = np.concatenate((a, b))  # a copy: the history keeps its own
+        if history and history[0][0].shape != ends.shape:
+            history.clear()  # another arm's capsules: no speed between them
         while len(history) > 1 and now - history[1][1] >= SPEED_WINDOW:
             history.popleft()
         speed = self.tcp_speed = 0.0
-        ends = np.concatenate((a, b))  # a copy: the history keeps its own
         if history and now > history[0][1]:
             before, then = history[0]
             moved = ends - before

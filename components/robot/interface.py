@@ -256,6 +256,7 @@ class RobotInterface(Component):
         self._check_started = 0.0  # perf_counter of the check that decided a stop
         self._detected = 0.0  # ...and of its verdict
         self._deciding = 0.0  # wall time the envelopes that decided it were taken
+        self._deciding_age = 0.0  # ...and their age then (since their camera frame)
         self.protective_stop: dict[str, float] = {}  # the last one's timing (bench)
         return True
 
@@ -590,7 +591,7 @@ class RobotInterface(Component):
         self.closest = min(self.closest, verdict.separation)
         if verdict.stop and not self.latched:
             self._check_started, self._detected = started, time.perf_counter()
-            self._deciding = self._taken
+            self._deciding, self._deciding_age = self._taken, self._age_at_arrival
             self._trip(
                 f"protective stop: a person {verdict.separation * 100:.1f} cm away, under "
                 f"the protective distance {verdict.protective * 100:.1f} cm at "
@@ -611,6 +612,7 @@ class RobotInterface(Component):
             self.protective_stop = {
                 "stamp": time.time(),
                 "envelopes_taken": self._deciding,  # the cycle that took the envelopes
+                "envelopes_age_ms": round(self._deciding_age * 1e3, 4),  # ...their age then
                 "check_ms": round((self._detected - started) * 1e3, 4),
                 "detected_to_command_ms": round((now - self._detected) * 1e3, 4),
             }

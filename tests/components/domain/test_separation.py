@@ -39,6 +39,8 @@ def monitors(request, monkeypatch):
         pytest.skip("the compiled kernel was not built (pip install -e .)")
     monkeypatch.setattr(SeparationMonitor, "COMPILED", request.param == "kernel")
     assert SeparationMonitor(P, 0.075).compiled == (request.param == "kernel")
+    assert SeparationMonitor(P, 0.075, compiled=False).compiled is False
+    assert SeparationMonitor(P, 0.075, compiled=True).compiled is COMPILED
     return request.param
 
 
@@ -350,3 +352,36 @@ def test_a_separation_that_is_not_a_number_is_a_stop():
     a, b, radius = person(1.0)
     verdict = monitor.check(arm(), (a, b * math.nan, radius), 0.0, 0.0)
     assert math.isnan(verdict.separation) and verdict.stop
+
+
+def test_capsules_given_as_other_numbers_are_judged_as_the_same_floats():
+    """Integer arrays, lists, a non-contiguous view: the verdict of their float64 copies."""
+    floats = SeparationMonitor(P, 0.075)
+    others = SeparationMonitor(P, 0.075)
+    b, radius = np.array([[0, 0, 1]]), [0]
+    person_a = [[1, 0, 0], [1, 0, 1]]
+    person_b = np.array([[1.0, 0.0, 0.5, 9.0], [1.0, 0.5, 1.0, 9.0]])[:, :3]
+    assert not person_b.flags.c_contiguous
+    for t, x in ((0.0, 0), (0.004, 0), (0.012, 1)):
+        a = np.array([[x, 0, 0]])
+        want = floats.check(
+            (a.astype(float), b.astype(float), np.array(radius, dtype=float)),
+            (np.array(person_a, dtype=float), person_b.copy(), np.array([0.2, 0.1])),
+            0.01, t, 0.02,
+        )  # fmt: skip
+        got = others.check((a, b, radius), (person_a, person_b, [0.2, 0.1]), 0.01, t, 0.02)
+        assert got == want and others.tcp_speed == floats.tcp_speed
+        assert got.robot_speed == (0.0 if x == 0 else pytest.approx(1.0 / 0.012))
+
+
+def test_a_speed_between_different_arms_is_none():
+    """Capsules of another count than the last ones (another arm model): the window
+    starts again, no speed from comparing the two."""
+    monitor = SeparationMonitor(P, 0.075)
+    one = arm(0.0)[:2]
+    two = tuple(np.vstack((end, end + 0.5)) for end in arm(0.0)[:2])
+    assert monitor.robot_speed(*one, now=0.0) == 0.0
+    assert monitor.robot_speed(*two, now=0.02) == 0.0 and monitor.tcp_speed == 0.0
+    moved = tuple(end + [0.001, 0.0, 0.0] for end in two)
+    assert monitor.robot_speed(*moved, now=0.04) == pytest.approx(0.05)
+    assert monitor.max_speed == 0.075

@@ -548,8 +548,10 @@ def protective_stops(run: SeegRun, trials: int, progress: Any = None) -> list[Tr
     L = the braking cycle's status stamp - the wall time the robot's loop took the
     envelopes that decided it, both stamped by the robot interface itself (the bench's
     own reception of the envelopes, in another process, may come after the stop on a
-    loaded host); `detail`: the separation check's own time and its verdict -> the
-    stop's first command, inside that cycle. Then the person leaves and RELEASE resumes
+    loaded host); `detail`: the separation check's own time, its verdict -> the stop's
+    first command, inside that cycle, and `frame`: from the camera frame the envelopes
+    come from to the braking cycle (L plus their age when taken: the detection, the
+    publishing, the bus and the wait for the loop's next cycle). Then the person leaves and RELEASE resumes
     the motion. (The walk at 1.6 m/s is the `walk_in` scenario: there the stop comes as
     the envelope ages, by design, not on a frame's arrival.)"""
     statuses = run.watch("robot/status", EventMessage)
@@ -587,6 +589,9 @@ def protective_stops(run: SeegRun, trials: int, progress: Any = None) -> list[Tr
             detail = {
                 "check": timing["check_ms"] / 1e3,
                 "command": timing["detected_to_command_ms"] / 1e3,
+                # their camera frame -> the braking cycle: the age they had when taken
+                # (stamped by the cameras' process, judged as the loop judges it) on top
+                "frame": braked - cause + float(timing.get("envelopes_age_ms", 0.0)) / 1e3,
             }
             return Trial(braked - cause, cause, braked, detail)
         finally:
