@@ -364,13 +364,16 @@ def test_capsules_given_as_other_numbers_are_judged_as_the_same_floats():
     assert not person_b.flags.c_contiguous
     for t, x in ((0.0, 0), (0.004, 0), (0.012, 1)):
         a = np.array([[x, 0, 0]])
-        want = floats.check(
+        want = floats.check_cycle(
             (a.astype(float), b.astype(float), np.array(radius, dtype=float)),
             (np.array(person_a, dtype=float), person_b.copy(), np.array([0.2, 0.1])),
-            0.01, t, 0.02,
+            0.01, t, 0.02, 0.0005,
         )  # fmt: skip
-        got = others.check((a, b, radius), (person_a, person_b, [0.2, 0.1]), 0.01, t, 0.02)
+        got = others.check_cycle(
+            (a, b, radius), (person_a, person_b, [0.2, 0.1]), 0.01, t, 0.02, 0.0005
+        )
         assert got == want and others.tcp_speed == floats.tcp_speed
+        got = got[0]
         assert got.robot_speed == (0.0 if x == 0 else pytest.approx(1.0 / 0.012))
 
 
