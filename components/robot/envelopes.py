@@ -95,17 +95,15 @@ class EnvelopeCapsules:
         reference, for the specs that compare them)."""
         self.compiled = compiled and _fwkernel is not None
         self._prefix = messages.encode(Envelopes(), Envelopes)[:8]  # magic, version, type id
+        if not self.compiled:
+            self.from_bytes = self._decoded  # type: ignore[method-assign]
 
     def from_bytes(self, data: bytes) -> tuple[PeopleCapsules, int, int]:
         """(capsules, publisher, seq) of an encoded sample; `messages.CodecError`, as
         the message's own decoding says it, if it is not a whole `Envelopes` sample."""
-        if not self.compiled:
-            value, publisher, seq = messages.decode(data, Envelopes)
-            return people_capsules(value), publisher, seq
         got = _fwkernel.envelopes_decode(data, self._prefix)
         if got is None:  # not a sample: the codec says why (and would it not, its value)
-            value, publisher, seq = messages.decode(data, Envelopes)
-            return people_capsules(value), publisher, seq
+            return self._decoded(data)
         publisher, seq, stamp, raw, na, nb, nr, finite, radii_ok = got
         if not (na == nb == 3 * nr):
             wrong = _mismatch(na, nb, nr)
@@ -118,6 +116,12 @@ class EnvelopeCapsules:
             a, b = values[:na].reshape(nr, 3), values[na : na + nb].reshape(nr, 3)
             return PeopleCapsules(stamp, a, b, values[na + nb :]), publisher, seq
         return PeopleCapsules(stamp, *NOBODY, wrong=wrong), publisher, seq
+
+    @staticmethod
+    def _decoded(data: bytes) -> tuple[PeopleCapsules, int, int]:
+        """`from_bytes` by the message's own decoding and `envelope_arrays`."""
+        value, publisher, seq = messages.decode(data, Envelopes)
+        return people_capsules(value), publisher, seq
 
     def from_value(self, value: Envelopes) -> PeopleCapsules:
         """A sample written in this process (a test's detector, a composite)."""

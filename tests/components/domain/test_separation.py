@@ -385,6 +385,6 @@ def test_a_speed_between_different_arms_is_none():
     two = tuple(np.vstack((end, end + 0.5)) for end in arm(0.0)[:2])
     assert monitor.robot_speed(*one, now=0.0) == 0.0
     assert monitor.robot_speed(*two, now=0.02) == 0.0 and monitor.tcp_speed == 0.0
-    moved = tuple(end + [0.001, 0.0, 0.0] for end in two)
+    moved = tuple(end + np.array([0.001, 0.0, 0.0]) for end in two)
     assert monitor.robot_speed(*moved, now=0.04) == pytest.approx(0.05)
     assert monitor.max_speed == 0.075

@@ -121,3 +121,33 @@ def test_numbers_whose_sum_is_not_finite_are_not_metres():
     for adapter in (KERNEL, REFERENCE):
         got, _, _ = adapter.from_bytes(messages.encode(message, Envelopes))
         assert got.wrong == "a coordinate or radius that is not finite"
+
+
+@pytest.mark.parametrize(
+    ("message", "wrong"),
+    [
+        (Envelopes(1.0, (0.0,) * 6, (1.0,) * 6, (0.1, -0.1)), "a negative radius or a stamp"),
+        (Envelopes(1.0, (0.0,) * 6, (1.0,) * 3, (0.1,)), "6/3 coordinates for 1 capsules"),
+        (Envelopes(1.0, (0.0,) * 3, (1.0,) * 3, (0.1, 0.2)), "3/3 coordinates for 2 capsules"),
+    ],
+    ids=["one radius negative", "more a than b", "more radii"],
+)
+def test_a_sample_that_is_not_capsules_is_refused_with_what_is_wrong(message, wrong):
+    for adapter in (KERNEL, REFERENCE):
+        got, _, _ = adapter.from_bytes(messages.encode(message, Envelopes))
+        assert got.wrong.startswith(wrong) and len(got.a) == len(got.radius) == 0
+        assert KERNEL.from_value(message).wrong == got.wrong
+
+
+def test_the_reference_decodes_without_the_kernel(monkeypatch):
+    """What the kernel is held to must not be the kernel."""
+    from components.robot import envelopes
+
+    class Broken:
+        def envelopes_decode(self, *args):
+            raise AssertionError("the reference called the kernel")
+
+    monkeypatch.setattr(envelopes, "_fwkernel", Broken())
+    message = Envelopes(2.0, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), (0.1,))
+    got, _, _ = REFERENCE.from_bytes(messages.encode(message, Envelopes))
+    assert got.wrong == "" and got.radius.tolist() == [0.1]
