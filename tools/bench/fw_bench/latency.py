@@ -527,6 +527,17 @@ def _stop_timing(run: SeegRun, since: float, timeout: float = 2.0) -> dict[str, 
         time.sleep(0.02)
 
 
+def _published_before(run: SeegRun, since: float, taken: float) -> float | None:
+    """When the people detector published the frame whose envelopes the robot's loop
+    took at `taken`: the stamp of its `min_distance` of that frame (taken on the
+    detector's clock just before it wrote the frame's envelopes, then the distance),
+    the newest at or before `taken` (frames come every 33 ms, a frame's envelopes reach
+    the loop within a cycle or two); None if the bench heard none."""
+    stamps = [s.message.stamp for s in run.since(since - 0.1, "people_detector/min_distance")]
+    before = [t for t in stamps if t <= taken]
+    return max(before) if before else None
+
+
 def _nobody_near(run: SeegRun, distance: float = 0.5, timeout: float = 10.0) -> None:
     """Wait until the people detector sees nobody within `distance` of the robot for
     0.3 s (a person who left may live on as a track for a few frames)."""
@@ -549,9 +560,11 @@ def protective_stops(run: SeegRun, trials: int, progress: Any = None) -> list[Tr
     envelopes that decided it, both stamped by the robot interface itself (the bench's
     own reception of the envelopes, in another process, may come after the stop on a
     loaded host); `detail`: the separation check's own time, its verdict -> the stop's
-    first command, inside that cycle, and `frame`: from the camera frame the envelopes
-    come from to the braking cycle (L plus their age when taken: the detection, the
-    publishing, the bus and the wait for the loop's next cycle). Then the person leaves and RELEASE resumes
+    first command, inside that cycle, `published`: from the detector's publishing of the
+    frame those envelopes are of to the braking cycle (the bus, the wait for the loop's
+    next cycle, the check; None if the bench heard no such frame), and `frame`: from the
+    camera frame the envelopes come from (L plus their age when taken: the detection
+    too). Then the person leaves and RELEASE resumes
     the motion. (The walk at 1.6 m/s is the `walk_in` scenario: there the stop comes as
     the envelope ages, by design, not on a frame's arrival.)"""
     statuses = run.watch("robot/status", EventMessage)
@@ -586,12 +599,14 @@ def protective_stops(run: SeegRun, trials: int, progress: Any = None) -> list[Tr
                     "interface reports no timing of since the person appeared"
                 )
             cause, braked = timing["envelopes_taken"], stop.message.stamp
+            published = _published_before(run, t0, cause)
             detail = {
                 "check": timing["check_ms"] / 1e3,
                 "command": timing["detected_to_command_ms"] / 1e3,
                 # their camera frame -> the braking cycle: the age they had when taken
                 # (stamped by the cameras' process, judged as the loop judges it) on top
                 "frame": braked - cause + float(timing.get("envelopes_age_ms", 0.0)) / 1e3,
+                "published": None if published is None else braked - published,
             }
             return Trial(braked - cause, cause, braked, detail)
         finally:
