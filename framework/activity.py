@@ -259,10 +259,13 @@ class RealTimeExecutor:
         if component.realtime:  # a device's own clock: as a paced loop, one priority below
             # the loops that answer devices (at the same priority on the same cores, a device
             # kept the robot interface waiting for a CPU, 1.6 ms seen); a simulated device
-            # (the KRC of the simulated OR) asks none (Component.simulated_device)
+            # (the KRC of the simulated OR) takes a bounded share of each period instead
+            # (SCHED_DEADLINE, framework/realtime.py; Component.simulated_device)
             priority = self.realtime.priority - 1
             stats = LoopStats(
-                self.realtime.enter(component.name, priority, fifo=not component.simulated_device)
+                self.realtime.enter(
+                    component.name, priority, fifo=not component.simulated_device, period=period
+                )
             )
             stats.host_realtime = self.realtime.granted
             self.loops[component.name] = stats

@@ -223,10 +223,12 @@ class Component:
     `simulated_device`."""
     simulated_device = False
     """A `realtime` component that simulates a machine of its own (the KRC of the
-    simulated OR): its loop keeps SCHED_OTHER at its process's nice level, so that on a
-    host too slow for the whole simulation the simulation slows down instead of taking
-    the CPU from the system under test (real-time priority is the robot interface's,
-    the PC side, as in an OR where the KRC is another computer)."""
+    simulated OR): where the host gives real-time priority its loop runs SCHED_DEADLINE
+    with a bounded share of each period (framework/realtime.py `SIMULATED_SHARE`), so it
+    keeps real time whatever else runs, yet on a host too slow for the whole simulation
+    the simulation slows down instead of taking the CPU from the system under test
+    (SCHED_FIFO is the robot interface's, the PC side, as in an OR where the KRC is
+    another computer); elsewhere SCHED_OTHER at its process's nice level."""
     periods_per_update = 1
     """A periodic component's next update comes this many periods later (it then does
     that many periods' work): a controller in monitor mode wakes less often than in

@@ -56,6 +56,11 @@ log = logging.getLogger("fw.realtime")
 
 PRIORITY = 80
 """SCHED_FIFO priority of a device loop (OROCOS lwr_fri and lbr_fri_ros2_stack use 80-90)."""
+SIMULATED_SHARE = 0.3
+"""The share of each period a simulated device's loop gets at SCHED_DEADLINE: 0.3 ms of
+every 1 ms for the simulated KRC, whose cycle (MuJoCo's step, FRI) takes ~0.1 ms here:
+guaranteed on time whatever else the host runs, and never more, so a host too slow
+for the whole simulation slows the simulation down instead of starving what it tests."""
 SWITCH_INTERVAL = 0.0002
 """s: how soon another thread of the loop's process must yield the GIL."""
 GC_YOUNG = 700
@@ -156,12 +161,20 @@ class RealTimePolicy:
         self._collecting = 0  # the loops that took the collector over and still run
         self._lock = threading.Lock()
 
-    def enter(self, name: str, priority: int | None = None, fifo: bool = True) -> str:
+    def enter(
+        self,
+        name: str,
+        priority: int | None = None,
+        fifo: bool = True,
+        period: float | None = None,
+    ) -> str:
         """In the loop's own thread, before its first cycle: ask for SCHED_FIFO (at
-        `priority`, the policy's own unless given; with `fifo` False only find out
-        whether the host would give it: a simulated device's loop), lock memory, take
-        the collector over; what the thread got, in words. `granted` says afterwards
-        whether the host gives real-time priority."""
+        `priority`, the policy's own unless given), lock memory, take the collector
+        over; what the thread got, in words. With `fifo` False (a simulated device's
+        loop, paced every `period` seconds): find out whether the host would give
+        SCHED_FIFO and, where it would, take SCHED_DEADLINE with `SIMULATED_SHARE` of
+        each period instead (without a period, or refused: SCHED_OTHER). `granted`
+        says afterwards whether the host gives real-time priority."""
         priority = self.priority if priority is None else priority
         sys.setswitchinterval(SWITCH_INTERVAL)
         if self.manage_gc:
@@ -176,6 +189,13 @@ class RealTimePolicy:
         thread = threading.get_native_id()
         if not fifo:
             self.granted = _fifo_allowed(thread, priority)
+            if self.granted and period is not None:
+                runtime = SIMULATED_SHARE * period
+                if _deadline(thread, runtime, period):
+                    return (
+                        f"SCHED_DEADLINE, {runtime * 1e3:g} ms of every {period * 1e3:g} ms "
+                        "(a simulated device: its share guaranteed, never more)"
+                    )
             allowed = "the host allows it" if self.granted else "the host does not allow it"
             return (
                 f"SCHED_OTHER, nice {os.nice(0)} (a simulated device: real-time priority is "
@@ -261,6 +281,47 @@ def _fifo_allowed(thread: int, priority: int) -> bool:
         return False
     os.sched_setscheduler(thread, policy, param)
     return True
+
+
+class _SchedAttr(ctypes.Structure):
+    """Linux's struct sched_attr, version 0 (48 bytes): what sched_setattr(2) takes."""
+
+    _fields_ = [
+        ("size", ctypes.c_uint32),
+        ("sched_policy", ctypes.c_uint32),
+        ("sched_flags", ctypes.c_uint64),
+        ("sched_nice", ctypes.c_int32),
+        ("sched_priority", ctypes.c_uint32),
+        ("sched_runtime", ctypes.c_uint64),
+        ("sched_deadline", ctypes.c_uint64),
+        ("sched_period", ctypes.c_uint64),
+    ]
+
+
+_SCHED_DEADLINE = 6
+_SCHED_FLAG_RESET_ON_FORK = 0x01
+_SYS_SCHED_SETATTR = {"x86_64": 314, "aarch64": 274}
+
+
+def _deadline(thread: int, runtime: float, period: float) -> bool:
+    """Run `thread` at SCHED_DEADLINE: `runtime` seconds of CPU guaranteed in every
+    `period`, never more (the kernel throttles it to the next period): False where the
+    host refuses it or the architecture's syscall number is not known here."""
+    import platform
+
+    number = _SYS_SCHED_SETATTR.get(platform.machine())
+    libc = _libc()
+    if number is None or libc is None:
+        return False
+    attr = _SchedAttr(
+        size=ctypes.sizeof(_SchedAttr),
+        sched_policy=_SCHED_DEADLINE,
+        sched_runtime=int(runtime * 1e9),
+        sched_deadline=int(period * 1e9),
+        sched_period=int(period * 1e9),
+        sched_flags=_SCHED_FLAG_RESET_ON_FORK,  # a child it starts gets SCHED_OTHER
+    )
+    return libc.syscall(number, thread, ctypes.byref(attr), 0) == 0
 
 
 def _lock_memory() -> bool:

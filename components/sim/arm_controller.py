@@ -42,9 +42,11 @@ its PC has cores to itself. On a starved host the simulated arm then slows down
 missed it waits no more until one comes in time again, so a dead or hung interface
 costs it one wait and then 10 cycles at full rate: braked within about 12 ms.
 
-Its loop asks for no real-time priority (`simulated_device`): a real KRC is another
-computer, and on a host too slow for the whole simulated OR the simulation must slow
-down, not starve the system it tests (docs/safety.md). Where the host gives no
+Its loop takes a bounded share of each millisecond (`simulated_device`: SCHED_DEADLINE,
+0.3 ms of every 1 ms, where the host gives real-time priority): a real KRC is another
+computer, so it keeps real time whatever else runs, yet on a host too slow for the whole
+simulated OR the simulation slows down instead of starving the system it tests
+(docs/safety.md). Where the host gives no
 real-time priority at all (no CAP_SYS_NICE: a developer's account, a CI container),
 the interface's loop cannot keep a 1 ms deadline either: its answers come a
 scheduler slice late now and then, and a KRC that stops waiting after
@@ -108,7 +110,7 @@ class ArmController(Component):
     """The simulated LWR 4+ and its KRC (see the module docstring)."""
 
     realtime = True  # the KRC is the robot's clock: a device loop of its own...
-    simulated_device = True  # ...that leaves real-time priority to the system under test
+    simulated_device = True  # ...with a bounded share of the CPU, not the SUT's SCHED_FIFO
 
     fri_remote = prop(
         str, "127.0.0.1:49938", doc="the robot interface's FRI address (KRL friSetup's)"

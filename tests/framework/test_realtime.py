@@ -1,8 +1,9 @@
 """Spec: what a device loop's thread asks of the host (framework/realtime.py). The robot
 interface's loop takes SCHED_FIFO where the host gives it; a simulated device's (the
-simulated OR's KRC) keeps SCHED_OTHER, so a host too slow for the whole simulation slows
-the simulation instead of starving the system under test, and it still learns whether
-the host gives real-time priority (the interface's loop then has it)."""
+simulated OR's KRC) takes SCHED_DEADLINE with a bounded share of each period there (on
+time whatever else runs, never more: a host too slow for the whole simulation slows the
+simulation instead of starving the system under test), SCHED_OTHER elsewhere, and it
+learns whether the host gives real-time priority (the interface's loop then has it)."""
 
 import os
 import subprocess
@@ -51,13 +52,60 @@ def in_a_process_of_its_own(script: str) -> str:
     return done.stdout
 
 
-def test_a_simulated_devices_loop_keeps_sched_other_and_learns_what_the_host_gives():
+def test_a_simulated_devices_loop_without_a_period_keeps_sched_other_and_learns_the_host():
     policy = RealTimePolicy(manage_gc=False)
     said, policy_after = enter_in_a_thread(policy, fifo=False)
     assert policy_after == os.SCHED_OTHER
     assert said.startswith("SCHED_OTHER") and "a simulated device" in said
     assert policy.granted is fifo_allowed()
     assert ("the host allows it" in said) is fifo_allowed()
+
+
+SCHED_DEADLINE, SCHED_RESET_ON_FORK = 6, 0x40000000
+
+
+@pytest.mark.skipif(not fifo_allowed(), reason="this host gives no real-time priority")
+def test_a_simulated_devices_loop_takes_a_bounded_share_of_each_period_at_sched_deadline():
+    """0.3 ms of every 1 ms (the runtime as the kernel holds it: the thread's /proc
+    sched), and the host's real-time priority learnt; in a process of its own, as the
+    scheduling is."""
+    script = (
+        "import os, threading\n"
+        "from framework.realtime import PRIORITY, RealTimePolicy\n"
+        "policy, out = RealTimePolicy(manage_gc=False), {}\n"
+        "def loop():\n"
+        "    out['said'] = policy.enter('krc', PRIORITY - 1, fifo=False, period=0.001)\n"
+        "    out['policy'] = os.sched_getscheduler(0)\n"
+        "    tid = threading.get_native_id()\n"
+        "    sched = open(f'/proc/self/task/{tid}/sched').read().splitlines()\n"
+        "    out['dl'] = {l.split(':')[0].strip(): l.split(':')[1].strip()\n"
+        "                 for l in sched if l.startswith('dl.')}\n"
+        "t = threading.Thread(target=loop); t.start(); t.join()\n"
+        "print(out['policy'], policy.granted, out['dl'].get('dl.runtime'), out['said'])\n"
+    )
+    policy, granted, runtime, said = in_a_process_of_its_own(script).split(" ", 3)
+    # and reset on fork: a child it started would not inherit its reservation
+    assert (int(policy), granted) == (SCHED_DEADLINE | SCHED_RESET_ON_FORK, "True")
+    assert int(runtime) == 300_000
+    assert said.startswith("SCHED_DEADLINE, 0.3 ms of every 1 ms (a simulated device")
+
+
+def test_a_simulated_device_the_host_refuses_real_time_keeps_sched_other():
+    """Without real-time priority (here: not asked of the host at all) no deadline is
+    taken either."""
+    policy = RealTimePolicy(enabled=False, manage_gc=False)
+    out: dict[str, object] = {}
+
+    def loop() -> None:
+        out["said"] = policy.enter("krc", PRIORITY - 1, fifo=False, period=0.001)
+        out["policy"] = os.sched_getscheduler(0)
+
+    interval = sys.getswitchinterval()
+    thread = threading.Thread(target=loop)
+    thread.start()
+    thread.join()
+    sys.setswitchinterval(interval)
+    assert out["policy"] == os.SCHED_OTHER and policy.granted is False
 
 
 @pytest.mark.skipif(not fifo_allowed(), reason="this host gives no real-time priority")
