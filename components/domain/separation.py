@@ -263,7 +263,7 @@ class SeparationMonitor:
         separation that is not a number is a stop (no clear verdict)."""
         a, b, radius = robot
         if self.compiled:
-            return self._compiled(robot, people, age, now, cap_age, 1.0)[0]
+            return self.check_cycle(robot, people, age, now, cap_age, 1.0)[0]
         speed = self.robot_speed(a, b, now)
         if people is None or len(people[0]) == 0:
             return Verdict(math.inf, speed, 0.0, math.inf, False, self.tcp_speed)
@@ -290,20 +290,9 @@ class SeparationMonitor:
     ) -> tuple[Verdict, int]:
         """`check`, then `quiet_cycles` of its verdict for cycles of `dt`: what the
         robot's loop asks of each check (one call of the kernel where it was built)."""
-        if self.compiled:
-            return self._compiled(robot, people, age, now, cap_age, dt)
-        verdict = self.check(robot, people, age, now, cap_age)
-        return verdict, self.quiet_cycles(verdict, age, dt)
-
-    def _compiled(
-        self,
-        robot: tuple[np.ndarray, np.ndarray, np.ndarray],
-        people: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
-        age: float,
-        now: float,
-        cap_age: float,
-        dt: float,
-    ) -> tuple[Verdict, int]:
+        if not self.compiled:
+            verdict = self.check(robot, people, age, now, cap_age)
+            return verdict, self.quiet_cycles(verdict, age, dt)
         a, b, radius = robot
         pa, pb, pr = _NOBODY if people is None else people
         ring, meta, terms = self._ring_for(a), self._ring_meta, self._terms

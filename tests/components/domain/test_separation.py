@@ -355,26 +355,29 @@ def test_a_separation_that_is_not_a_number_is_a_stop():
 
 
 def test_capsules_given_as_other_numbers_are_judged_as_the_same_floats():
-    """Integer arrays, lists, a non-contiguous view: the verdict of their float64 copies."""
-    floats = SeparationMonitor(P, 0.075)
-    others = SeparationMonitor(P, 0.075)
-    b, radius = np.array([[0, 0, 1]]), [0]
-    person_a = [[1, 0, 0], [1, 0, 1]]
-    person_b = np.array([[1.0, 0.0, 0.5, 9.0], [1.0, 0.5, 1.0, 9.0]])[:, :3]
-    assert not person_b.flags.c_contiguous
-    for t, x in ((0.0, 0), (0.004, 0), (0.012, 1)):
-        a = np.array([[x, 0, 0]])
-        want = floats.check_cycle(
-            (a.astype(float), b.astype(float), np.array(radius, dtype=float)),
-            (np.array(person_a, dtype=float), person_b.copy(), np.array([0.2, 0.1])),
-            0.01, t, 0.02, 0.0005,
-        )  # fmt: skip
-        got = others.check_cycle(
-            (a, b, radius), (person_a, person_b, [0.2, 0.1]), 0.01, t, 0.02, 0.0005
-        )
-        assert got == want and others.tcp_speed == floats.tcp_speed
-        got = got[0]
-        assert got.robot_speed == (0.0 if x == 0 else pytest.approx(1.0 / 0.012))
+    """Integer arrays, lists, a non-contiguous view: the verdict (and the quiet cycles)
+    of their float64 copies, a person far (quiet cycles) and one in the slowing band (a
+    cap)."""
+    for far in (1.0, 0.3):
+        floats = SeparationMonitor(P, 0.075)
+        others = SeparationMonitor(P, 0.075)
+        b, radius = np.array([[0, 0, 1]]), [0]
+        person_a = [[far, 0, 0], [far, 0, 1]]
+        person_b = np.array([[far, 0.0, 0.5, 9.0], [far, 0.5, 1.0, 9.0]])[:, :3]
+        assert not person_b.flags.c_contiguous
+        for t, x in ((0.0, 0), (0.004, 0), (0.012, 1)):
+            a = np.array([[x * 0.001, 0, 0]])
+            want = floats.check_cycle(
+                (a.astype(float), b.astype(float), np.array(radius, dtype=float)),
+                (np.array(person_a, dtype=float), person_b.copy(), np.array([0.2, 0.1])),
+                0.01, t, 0.02, 0.0005,
+            )  # fmt: skip
+            got = others.check_cycle(
+                (a, b, radius), (person_a, person_b, [0.2, 0.1]), 0.01, t, 0.02, 0.0005
+            )
+            assert got == want and others.tcp_speed == floats.tcp_speed
+            assert got[0].robot_speed == (0.0 if x == 0 else pytest.approx(0.001 / 0.012))
+        assert (got[1] > 0) is (far == 1.0) and math.isfinite(got[0].cap) is (far == 0.3)
 
 
 def test_a_speed_between_different_arms_is_none():
