@@ -14,6 +14,11 @@ without the capability), the loop says so in one line and keeps the process's ni
 value (the deployer's -15 for safety processes). Either way `LoopStats.scheduling`
 says what the loop got, for `fw deploy`'s screen and `fw bench cost`.
 
+A simulated device's loop (the simulated OR's KRC) is not the system under test: where
+the host gives real-time priority it runs SCHED_DEADLINE with `SIMULATED_SHARE` of each
+period (sched_setattr(2)), its CPU on time whatever else runs and never more, so it
+cannot starve fw on a slow host as SCHED_FIFO did; elsewhere SCHED_OTHER.
+
 Only the loop's thread runs at real-time priority, never its process's other threads
 (the bus's; its process beats from the loop, below): with all of them at SCHED_FIFO 70 (tried, to spare the
 loop a priority inversion through the GIL) the bus threads of the robot and KRC
@@ -45,6 +50,7 @@ import ctypes.util
 import gc
 import logging
 import os
+import platform
 import sys
 import threading
 import time
@@ -307,8 +313,6 @@ def _deadline(thread: int, runtime: float, period: float) -> bool:
     """Run `thread` at SCHED_DEADLINE: `runtime` seconds of CPU guaranteed in every
     `period`, never more (the kernel throttles it to the next period): False where the
     host refuses it or the architecture's syscall number is not known here."""
-    import platform
-
     number = _SYS_SCHED_SETATTR.get(platform.machine())
     libc = _libc()
     if number is None or libc is None:
