@@ -1,12 +1,13 @@
 """Spec: the SEEG deployment fails safe on real processes. A crash (SIGKILL) or a hang
-(SIGSTOP, then SIGCONT) of the robot, supervision or cameras process while the arm
+(SIGSTOP, then SIGCONT) of the robot, supervision, cameras or arm process while the arm
 approaches the target ends braked with the fault latched; nothing moves before the
 surgeon's RELEASE (the arm's controller counts its releases), and then the approach
 resumes where the process can come back. The same holds when the FRI link between the
 robot interface and the KRC fails (answers lost or late, a silent KRC, garbage and a
 foreign sender: `arm.impair`, a fault at the physical edge). One scenario per process
 and fault kind, and per link fault, lives in procedures/seeg/scenarios/faults/; the ones
-in `IN_SUITE` run here, every one of them in `fw bench chaos`."""
+in `IN_SUITE` run here (the arm's since its loop runs SCHED_DEADLINE), every one of them
+in `fw bench chaos`."""
 
 import pytest
 
@@ -18,7 +19,11 @@ from tests.conftest import REPO, explain, play_seeg_scenario
 
 FAULTS = REPO / "procedures" / "seeg" / "scenarios" / "faults"
 IN_SUITE = [
-    *(f"{p}_{kind}" for p in ("robot", "supervision", "cameras") for kind in ("kill", "hang")),
+    *(
+        f"{p}_{kind}"
+        for p in ("robot", "supervision", "cameras", "arm")
+        for kind in ("kill", "hang")
+    ),
     "fri_answers_lost",
 ]
 LINK_FAULTS = {"fri_answers_lost", "fri_answers_late", "fri_krc_silent", "fri_garbage"}
