@@ -335,6 +335,22 @@ def run_collision(quick: bool, context: dict[str, Any]) -> list[Row]:
     ]
 
 
+def _median_and_p99(
+    experiment: str,
+    what: str,
+    values: list[float],
+    targets: tuple[float | None, float | None] = (None, None),
+    after: str = "",
+) -> list[Row]:
+    """The p50 and p99 rows of `values` (ms): "`what` p50`after`", "`what` p99`after`",
+    with their targets (p50, p99)."""
+    q = stats(values)
+    return [
+        Row(experiment, f"{what} {level}{after}", q[level], target=target, n=len(values))
+        for level, target in zip(("p50", "p99"), targets, strict=True)
+    ]
+
+
 def run_ssm(quick: bool, context: dict[str, Any]) -> list[Row]:
     """Protective stops (issue 18): a person appears beside the moving arm; speed and
     separation monitoring stops it in the robot interface's own cycle."""
@@ -342,46 +358,30 @@ def run_ssm(quick: bool, context: dict[str, Any]) -> list[Row]:
 
     trials = latency.protective_stops(_seeg(context), 3 if quick else 30, _progress("ssm"))
     ms = [t.latency * 1e3 for t in trials]
-    check = [t.detail["check"] * 1e3 for t in trials]
-    command = [t.detail["command"] * 1e3 for t in trials]
-    frame = [t.detail["frame"] * 1e3 for t in trials]
     published = [t.detail["published"] * 1e3 for t in trials if t.detail["published"] is not None]
-    s, c, d, f = stats(ms), stats(check), stats(command), stats(frame)
     if not published:
         from fw_bench.seeg_run import BenchError
 
         raise BenchError("ssm: the bench heard none of the frames that decided the stops")
-    p = stats(published)
     context.setdefault("series", {})["ssm_ms"] = ms
     return [
-        Row("ssm", "envelopes taken by the loop -> braking cycle p50", s["p50"], n=len(ms)),
-        Row("ssm", "envelopes taken by the loop -> braking cycle p99", s["p99"], n=len(ms)),
-        Row(
-            "ssm", "the detector's frame published -> braking cycle p50", p["p50"], n=len(published)
+        *_median_and_p99("ssm", "envelopes taken by the loop -> braking cycle", ms),
+        *_median_and_p99(
+            "ssm", "the detector's frame published -> braking cycle", published, (None, 2.0)
         ),
-        Row(
+        *_median_and_p99(
             "ssm",
-            "the detector's frame published -> braking cycle p99",
-            p["p99"],
-            target=2.0,
-            n=len(published),
+            "their camera frame -> braking cycle",
+            [t.detail["frame"] * 1e3 for t in trials],
+            after=" (the detection within)",
         ),
-        Row(
+        *_median_and_p99("ssm", "the separation check", [t.detail["check"] * 1e3 for t in trials]),
+        *_median_and_p99(
             "ssm",
-            "their camera frame -> braking cycle p50 (the detection within)",
-            f["p50"],
-            n=len(frame),
+            "detection -> stop command",
+            [t.detail["command"] * 1e3 for t in trials],
+            (0.1, 1.0),
         ),
-        Row(
-            "ssm",
-            "their camera frame -> braking cycle p99 (the detection within)",
-            f["p99"],
-            n=len(frame),
-        ),
-        Row("ssm", "the separation check p50", c["p50"], n=len(check)),
-        Row("ssm", "the separation check p99", c["p99"], n=len(check)),
-        Row("ssm", "detection -> stop command p50", d["p50"], target=0.1, n=len(command)),
-        Row("ssm", "detection -> stop command p99", d["p99"], target=1.0, n=len(command)),
     ]
 
 
