@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from framework import keys
 from framework.messages import EventMessage, Pose
 from fw_bench.files import seeg_file
 from fw_bench.seeg_run import BenchError, Sample, SeegRun
@@ -172,7 +173,10 @@ def sensor_swap(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
                 ("Supervisor raises e_TFAULT", _event_stamp(run, "e_TFAULT", t0)),
                 ("the chart takes it", run.taken_after("e_TFAULT", t_fail)),
                 ("tracker_2_up requested", run.requested_after("tracker_2_up", t_fail)),
-                ("the robot process switched (its report)", _switched(run, "tracker_2_up", t0)),
+                (
+                    "the navigator's process switched (its report)",
+                    _switched(run, "tracker_2_up", t0),
+                ),
                 ("first Vicra sample at the navigator", t_new),
             ],
         )
@@ -192,9 +196,10 @@ def sensor_swap(run: SeegRun, trials: int, progress: Any = None) -> list[Trial]:
 
 
 def _switched(run: SeegRun, tag: str, t0: float) -> float | None:
-    """The stamp of the robot process's local switch to `tag` after `t0` (None if the
-    Configurator made it: the request was not `alone`)."""
-    for sample in run.since(t0, "fw/config/switched/robot"):
+    """The stamp of a process's local switch to `tag` after `t0` (the navigator's
+    process: supervision since issue 43; None if the Configurator made it: the request
+    was not `alone`)."""
+    for sample in run.since(t0, keys.ALL_SWITCHED):
         if sample.message.tag == tag and sample.message.ok:
             return float(sample.message.stamp)
     return None

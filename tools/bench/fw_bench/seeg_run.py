@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from framework import keys
 from framework.bus import free_port, free_udp_port
 from framework.deployer import Deployment
 from framework.errors import FwError
@@ -46,7 +47,7 @@ WATCHED: dict[str, type] = {
     "interpolator/status": EventMessage,  # t_brake: the cycle the motion starts braking
     "people_detector/min_distance": Scalar,  # t_collision: the distance's stamp
     "fw/events": EventMessage,
-    "fw/config/switched/robot": ConfigAck,  # the robot process's local switch (a swap)
+    keys.ALL_SWITCHED: ConfigAck,  # a process's local switch (the navigator's: a swap)
     "robot/status": EventMessage,  # the robot side's own latched stops (SSM's)
 }
 
