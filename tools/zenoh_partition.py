@@ -61,21 +61,73 @@ def _config(name: str, address: dict[str, str]):
     )
 
 
+REOPEN_AFTER = 6.0
+"""s a peer (`--reopen`) waits, hearing no more another peer while it hears the hub,
+before it opens its session again (a normal heal relinks within ~2 s)."""
+
+
 def peer(name: str, address: dict[str, str]) -> None:
-    """One peer: a queryable, a token and an echo, until killed."""
+    """One peer: a queryable, a token and an echo, until killed; with `--reopen`, a
+    peer that has not heard another for `REOPEN_AFTER` while it still hears the hub
+    closes its session and opens a new one (the workaround to try: does a new session
+    make the routes?)."""
     from framework.bus import Bus
 
-    bus = Bus(_config(name, address))
+    advanced = address.get("advanced", False)  # fw's latest-value ports, or plain ones
+    others = [n for n in NAMES if n != name]
+    heard: dict[str, bytes] = {}
+    seq = 0
+    hub_at = [0.0]  # when the hub's last ping came
+
+    while True:
+        bus = Bus(_config(name, address))
+        heard_at, redeclare = _peer_session(bus, name, others, address, heard, hub_at)
+        status = bus.publisher(f"st/{name}", cache=advanced)
+        pings = {n: bus.publisher(f"pp/{n}/{name}", cache=advanced) for n in others}
+        while True:
+            redeclare()
+            seq += 1
+            for n in others:
+                pings[n].put(str(seq).encode())
+            time.sleep(0.3)
+            fresh = {str(seq).encode(), str(seq - 1).encode()}
+            now = time.monotonic()
+            for n in others:
+                if heard.get(n) in fresh:
+                    heard_at[n] = now
+            status.put(json.dumps([n for n in others if heard.get(n) in fresh]).encode())
+            hub_fresh = now - hub_at[0] < 1.0
+            lost = [n for n, at in heard_at.items() if hub_fresh and now - at > REOPEN_AFTER]
+            if address.get("reopen") and lost:
+                print(f"{name}: hears {', '.join(lost)} no more: a new session", file=sys.stderr)
+                bus.close()
+                heard.clear()
+                break
+
+
+def _peer_session(
+    bus: Any,
+    name: str,
+    others: list[str],
+    address: dict[str, Any],
+    heard: dict[str, bytes],
+    hub_at: list[float],
+) -> tuple[dict[str, float], Any]:
+    """Declare a peer's queryable, token, echo and ping answers on `bus`: when each
+    other peer was last heard (0: not yet on this session), and the call that declares
+    the subscribers again if a token came back (`--redeclare`)."""
+    advanced = address.get("advanced", False)
     bus.queryable(f"q/{name}", lambda query: query.reply(query.key_expr, b"1"))
     bus.token(f"alive/{name}")
-    advanced = address.get("advanced", False)  # fw's latest-value ports, or plain ones
     echo = bus.publisher(f"r/{name}", cache=advanced)
-    bus.subscribe(f"s/{name}", lambda s: echo.put(s.payload.to_bytes()), history=advanced)
+
+    def echoed(sample: Any) -> None:
+        hub_at[0] = time.monotonic()
+        echo.put(sample.payload.to_bytes())
+
+    bus.subscribe(f"s/{name}", echoed, history=advanced)
     # and every other peer, directly: pinged, and its pings answered
-    others = [n for n in NAMES if n != name]
     answers = {n: bus.publisher(f"pr/{n}/{name}", cache=advanced) for n in others}
-    pings = {n: bus.publisher(f"pp/{n}/{name}", cache=advanced) for n in others}
-    heard: dict[str, bytes] = {}
 
     def answer(sample: Any) -> None:
         answers[str(sample.key_expr).rsplit("/", 1)[1]].put(sample.payload.to_bytes())
@@ -102,20 +154,15 @@ def peer(name: str, address: dict[str, str]) -> None:
             lambda s: back.set() if s.kind == zenoh.SampleKind.PUT else None,
             history=False,
         )
-    status = bus.publisher(f"st/{name}", cache=advanced)
-    seq = 0
-    while True:
+
+    def redeclare() -> None:
         if back.is_set():
             back.clear()
             for subscriber in subscribers:
                 subscriber.undeclare()
-            subscribers = declare()
-        seq += 1
-        for n in others:
-            pings[n].put(str(seq).encode())
-        time.sleep(0.3)
-        fresh = {str(seq).encode(), str(seq - 1).encode()}
-        status.put(json.dumps([n for n in others if heard.get(n) in fresh]).encode())
+            subscribers[:] = declare()
+
+    return dict.fromkeys(others, time.monotonic()), redeclare
 
 
 def hub(address: dict[str, str], seconds: float) -> None:
@@ -171,6 +218,7 @@ def one_run(
     advanced: bool = False,
     routing: str = "peers",
     redeclare: bool = False,
+    reopen: bool = False,
 ) -> float | None:
     """Seconds from the heal until every peer answered and echoed (None: not within
     `after`)."""
@@ -180,6 +228,7 @@ def one_run(
     address: dict = {"hub": hosts.address("control"), "links": links, "advanced": advanced}
     address["routing"] = routing
     address["redeclare"] = redeclare
+    address["reopen"] = reopen
     address |= {n: hosts.address(HOST[n]) for n in NAMES}
     me = [sys.executable, __file__]
     peers = [
@@ -260,6 +309,12 @@ def main(argv: list[str] | None = None) -> int:
         help="each peer declares its subscribers again whenever another peer's liveliness "
         "token comes back (a workaround to try: are the missing routes declarations?)",
     )
+    parser.add_argument(
+        "--reopen",
+        action="store_true",
+        help=f"a peer that hears another no more for {REOPEN_AFTER:g} s closes its session "
+        "and opens a new one (a workaround to try: does a new session make the routes?)",
+    )
     parser.add_argument("--peer", nargs=2, help=argparse.SUPPRESS)
     parser.add_argument("--hub", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -288,6 +343,7 @@ def main(argv: list[str] | None = None) -> int:
             args.advanced,
             args.routing,
             args.redeclare,
+            args.reopen,
         )
         said = "not back" if back is None else f"{back:.2f} s"
         print(f"run {i + 1}/{args.runs}: every peer answers again {said} after the heal")
@@ -300,6 +356,7 @@ def main(argv: list[str] | None = None) -> int:
         + (", advanced publishers" if args.advanced else "")
         + f", routing {args.routing}"
         + (", subscribers declared again on a token's return" if args.redeclare else "")
+        + (", a new session where a peer is heard no more" if args.reopen else "")
         + ", "
         f"{args.cut} cut for {args.partition:g} s: "
         f"{len(times)} of {args.runs} runs back within {args.after:g} s"
