@@ -59,7 +59,8 @@ def test_the_hosts_are_namespaces_on_real_links(hosts):
 
 
 # The other hosts' partitions and lossy links are shipped beside them and run by hand
-# (docs/hosts.md: routes Zenoh does not always make again after a cut)
+# (docs/hosts.md: routes Zenoh does not always make again after a cut; by hand on
+# 2026-12-07: tracking 8 of 9 passed, control 3 of 3, robot 2 of 3, krc 5 of 5)
 LOSS_WHY = WHY or netns.loss_available()
 
 
@@ -67,6 +68,7 @@ LOSS_WHY = WHY or netns.loss_available()
     "scenario",
     [
         "hosts/cameras_partition_release.yaml",
+        "hosts/krc_partition.yaml",
         pytest.param(
             "hosts/krc_loss.yaml",
             marks=pytest.mark.skipif(bool(LOSS_WHY), reason=f"no lossy links here: {LOSS_WHY}"),
@@ -76,10 +78,10 @@ LOSS_WHY = WHY or netns.loss_available()
 def test_a_host_cut_off_stops_the_robot_latched_until_release(
     hosts, keys, procedure, scenario, monkeypatch
 ):
-    """The camera PC cut off for 2 s, or the KRC's FRI link losing 30% of its datagrams
-    for 5 s, while the arm approaches: the robot side stops by itself (the KRC by its
-    FRI quality) and latches, the link heals, nothing moves until RELEASE, then the
-    approach resumes (each scenario says how). The nominal approach across the hosts is
+    """The camera PC cut off for 2 s, the KRC's FRI link cut for 2 s or losing 30% of
+    its datagrams for 5 s, while the arm approaches: the robot side stops by itself (the
+    KRC by its answers' absence or quality) and latches, the link heals, nothing moves
+    until RELEASE, then the approach resumes (each scenario says how). The nominal approach across the hosts is
     the clock tests' first half."""
     monkeypatch.setenv("FW_NETNS_PREFIX", hosts.prefix)
     run = run_on_hosts(hosts, procedure, keys, SCENARIOS / scenario, REPO)
