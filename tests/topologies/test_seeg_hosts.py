@@ -81,8 +81,8 @@ def test_a_host_cut_off_stops_the_robot_latched_until_release(
     """The camera PC cut off for 2 s, the KRC's FRI link cut for 2 s or losing 30% of
     its datagrams for 5 s, while the arm approaches: the robot side stops by itself (the
     KRC by its answers' absence or quality) and latches, the link heals, nothing moves
-    until RELEASE, then the approach resumes (each scenario says how). The nominal approach across the hosts is
-    the clock tests' first half."""
+    until RELEASE, then the approach resumes (each scenario says how). The nominal
+    approach across the hosts is the clock tests' first half."""
     monkeypatch.setenv("FW_NETNS_PREFIX", hosts.prefix)
     run = run_on_hosts(hosts, procedure, keys, SCENARIOS / scenario, REPO)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
