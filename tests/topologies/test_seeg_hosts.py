@@ -60,7 +60,7 @@ def test_the_hosts_are_namespaces_on_real_links(hosts):
 
 # The other hosts' partitions and lossy links are shipped beside them and run by hand
 # (docs/hosts.md: routes Zenoh does not always make again after a cut; by hand on
-# 2026-12-07: tracking 8 of 9 passed, control 3 of 3, robot 2 of 3, krc 5 of 5)
+# 2026-12-07: tracking 15 of 24 passed, control 3 of 3, robot 2 of 3, krc 5 of 5)
 LOSS_WHY = WHY or netns.loss_available()
 
 
