@@ -114,8 +114,8 @@ def _peer_session(
     hub_at: list[float],
 ) -> tuple[dict[str, float], Any]:
     """Declare a peer's queryable, token, echo and ping answers on `bus`: when each
-    other peer was last heard (0: not yet on this session), and the call that declares
-    the subscribers again if a token came back (`--redeclare`)."""
+    other peer was last heard (the session's start until it is), and the call that
+    declares the subscribers again if a token came back (`--redeclare`)."""
     advanced = address.get("advanced", False)
     bus.queryable(f"q/{name}", lambda query: query.reply(query.key_expr, b"1"))
     bus.token(f"alive/{name}")
