@@ -312,8 +312,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--reopen",
         action="store_true",
-        help=f"a peer that hears another no more for {REOPEN_AFTER:g} s closes its session "
-        "and opens a new one (a workaround to try: does a new session make the routes?)",
+        help=f"a peer that hears another no more for {REOPEN_AFTER:g} s while it still hears "
+        "the hub closes its session and opens a new one (a workaround to try: does a new "
+        "session make the routes?)",
     )
     parser.add_argument("--peer", nargs=2, help=argparse.SUPPRESS)
     parser.add_argument("--hub", nargs=2, help=argparse.SUPPRESS)
