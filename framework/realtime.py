@@ -64,9 +64,12 @@ PRIORITY = 80
 """SCHED_FIFO priority of a device loop (OROCOS lwr_fri and lbr_fri_ros2_stack use 80-90)."""
 SIMULATED_SHARE = 0.3
 """The share of each period a simulated device's loop gets at SCHED_DEADLINE: 0.3 ms of
-every 1 ms for the simulated KRC, whose cycle (MuJoCo's step, FRI) takes ~0.1 ms here:
-guaranteed on time whatever else the host runs, and never more, so a host too slow
-for the whole simulation slows the simulation down instead of starving what it tests."""
+every 1 ms for the simulated KRC, whose cycle (MuJoCo's step, FRI) takes ~0.1 ms here
+(p50; p99 0.2-0.28 ms moving): guaranteed on time whatever else the host runs, and
+never more, so a host too slow for the whole simulation slows the simulation down
+instead of starving what it tests (0.98x real time on a slow hour). Not larger: with
+0.5 ms it preempted the robot interface's loop on their shared CPU for longer, and
+FRI answers came late (6 a run against 0, docs/bench.md)."""
 SWITCH_INTERVAL = 0.0002
 """s: how soon another thread of the loop's process must yield the GIL."""
 GC_YOUNG = 700
