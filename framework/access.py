@@ -9,7 +9,7 @@ beyond its part even if its own code is compromised:
 
 * a process **publishes** only on its components' output keys (as the topology and
   its configurations wire them), their heartbeats and state, and its own process
-  heartbeat;
+  heartbeat and route probe;
 * it **declares** liveliness tokens and queryables only for its own components (no
   process can keep a dead one looking alive, or answer in its place);
 * **control requests** (lifecycle, wiring, properties, operations) come only from
@@ -74,6 +74,7 @@ def process_keys(topology: Topology, process: str) -> dict[str, list[str]]:
     put += [keys.heartbeat(n) for n in sorted(names)] + [keys.state(n) for n in sorted(names)]
     put += [keys.refused(n) for n in sorted(names)]
     put.append(keys.process_heartbeat(process))
+    put.append(keys.route_probe(process))
     put.append(keys.config_switched(process))  # its local switches (framework/local_switch.py)
     queryable = [f"{keys.control(n)}/**" for n in sorted(names)]
     queryable += [keys.port_type(k) for k in sorted(outputs)]

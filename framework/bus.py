@@ -17,6 +17,12 @@ against the deployment's own CA, and each session presents its subject's
 certificate; `access` adds the deployment's access rules (`framework/access.py`).
 `fw deploy` always sets both. Other Zenoh settings can be passed through
 `BusConfig.extra`, a mapping of Zenoh config paths to JSON values.
+
+Reopening: every declaration a `Bus` makes is kept (`Declared`), so `Bus.reopen` can
+open a new session and make each of them again on it, then close the old one. It is
+the way out of routes Zenoh leaves unmade after a partition heals (framework/routes.py
+finds them; docs/hosts.md has the measurements). The holders of the declarations keep
+the same objects throughout.
 """
 
 from __future__ import annotations
@@ -72,6 +78,11 @@ class BusConfig:
     """Endpoints of other processes this one connects to itself, besides the hub, and
     connects to again whenever the link is lost (a deployment on several hosts: gossip
     alone left a link cut by a partition unmade, docs/hosts.md)."""
+    others: tuple[str, ...] = ()
+    """Endpoints of every other process of the mesh, those that connect to this one
+    included: a reopened session (`Bus.reopen`) listens on a port of its own, as the
+    fixed one stays with the old session until it closes, so it makes every link
+    itself."""
 
     @property
     def protocol(self) -> str:
@@ -98,12 +109,19 @@ class BusConfig:
             "listen": self.listen,
             "listen_port": self.listen_port,
             "peers": list(self.peers),
+            "others": list(self.others),
         }
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> BusConfig:
         """Inverse of `to_dict`."""
-        return cls(**{**data, "peers": tuple(data.get("peers", ()))})
+        return cls(
+            **{
+                **data,
+                "peers": tuple(data.get("peers", ())),
+                "others": tuple(data.get("others", ())),
+            }
+        )
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -208,6 +226,100 @@ def _route_zenoh_logs() -> None:
             _zenoh_logging_done = True
 
 
+class Declared:
+    """One declaration of a `Bus`: a publisher, a subscriber, a queryable, a liveliness
+    token or watch, or a publisher's matching listener. Its holder uses it as the Zenoh
+    object it stands for (`put`, `try_recv`, `undeclare`, any other attribute is the
+    object's); `Bus.reopen` makes it again on the new session underneath, so the holder
+    never sees the change. `put` and `try_recv` are the object's own bound methods, not
+    a call through this one: a 1 kHz loop pays nothing for the indirection."""
+
+    def __init__(
+        self,
+        bus: Bus,
+        make: Callable[[Any], Any],
+        parent: Declared | None = None,
+        stays: bool = False,
+    ):
+        self._bus = bus
+        self.stays = stays
+        """A liveliness token: it stays on the session it was declared on (`Bus.reopen`)."""
+        self._make = make
+        self._parent = parent
+        self.children: list[Declared] = []
+        self.undeclared = False
+        self.obj: Any = None
+        self.liveliness: _LivelinessWatch | None = None
+        """For a liveliness watch: the keys it reported alive."""
+        self.key_expr = ""
+        """For a liveliness watch: what it watches."""
+
+    def made(self, session: Any) -> Any:
+        """Make the declaration on `session` (the parent's object for a child)."""
+        return self._make(session if self._parent is None else self._parent.obj)
+
+    def bind(self, obj: Any) -> None:
+        """Stand for `obj` from now on."""
+        self.obj = obj
+        for name in ("put", "try_recv"):
+            method = getattr(obj, name, None)
+            if method is not None:
+                setattr(self, name, method)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.obj, name)
+
+    def declare_matching_listener(self, callback: Callable[[Any], None]) -> Declared:
+        """A publisher's matching listener, made again with its publisher."""
+        child = Declared(
+            self._bus, lambda publisher: publisher.declare_matching_listener(callback), self
+        )
+        child.bind(child.made(None))
+        self.children.append(child)
+        return child
+
+    def undeclare(self) -> None:
+        """Undeclare it (it is not made again on a reopened session)."""
+        self.undeclared = True
+        self._bus._forget(self)
+        if self._parent is not None:
+            with contextlib.suppress(ValueError):
+                self._parent.children.remove(self)
+        self.obj.undeclare()
+
+
+class _LivelinessWatch:
+    """The keys a liveliness watch has reported alive, so a reopen can report the ones
+    that went while no session of this bus was listening."""
+
+    def __init__(self, callback: Callable[[str, bool], None]):
+        self.callback = callback
+        self.alive: set[str] = set()
+        self._lock = threading.Lock()
+
+    def on_sample(self, sample: Any) -> None:
+        key, alive = str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT
+        with self._lock:
+            (self.alive.add if alive else self.alive.discard)(key)
+        self.callback(key, alive)
+
+    def reconcile(self, now_alive: set[str]) -> None:
+        """Report gone every key reported alive that is not alive now."""
+        with self._lock:
+            gone = sorted(self.alive - now_alive)
+            self.alive -= set(gone)
+        for key in gone:
+            self.callback(key, False)
+
+
+REOPEN_LINK_WAIT = 3.0
+"""How long a reopened session may take to link with as many peers as the old one had
+before the declarations move to it (gossip links a new session one peer at a time)."""
+REOPEN_GRACE = 0.1
+"""Seconds the old session stays open after the declarations moved: a thread that took
+a publisher's `put` just before the move still finds it open."""
+
+
 class Bus:
     """One open Zenoh session of a deployment, with the handful of calls fw needs."""
 
@@ -216,8 +328,23 @@ class Bus:
         self.config = config
         self.hub = hub
         self.subject = subject
+        self.session = self._open(config)
+        self._first = self.session
+        """The session the liveliness tokens live on (`reopen` keeps it open for them)."""
+        self._closed = False
+        self._lock = threading.Lock()
+        self._declared: list[Declared] = []
+        self.reopened = 0
+        """How many times `reopen` made a new session."""
+        self.local_readers: dict[str, dict[int, Any]] = {}
+        """Input ports of this session by key: same-session samples skip Zenoh."""
+        self.local_writers: dict[str, dict[int, Any]] = {}
+        """Output ports of this session by key (their last sample serves local connects)."""
+
+    def _open(self, config: BusConfig) -> Any:
+        hub = self.hub
         try:
-            self.session = zenoh.open(zenoh_config(config, hub, subject))
+            return zenoh.open(zenoh_config(config, hub, self.subject))
         except FwError:
             raise
         except Exception as exc:  # zenoh raises its own ZError (and others): said as a BusError
@@ -231,31 +358,42 @@ class Bus:
             raise BusError(
                 f"cannot open the bus ({'listen on' if hub else 'join'} {where}): {exc}"
             ) from None
-        self._closed = False
-        self._lock = threading.Lock()
-        self.local_readers: dict[str, dict[int, Any]] = {}
-        """Input ports of this session by key: same-session samples skip Zenoh."""
-        self.local_writers: dict[str, dict[int, Any]] = {}
-        """Output ports of this session by key (their last sample serves local connects)."""
 
     @property
     def closed(self) -> bool:
         """True once `close()` ran."""
         return self._closed
 
-    def publisher(self, key: str, cache: bool = True, remote_only: bool = False) -> Any:
+    def _declare(self, make: Callable[[Any], Any], stays: bool = False) -> Declared:
+        """Make a declaration on the current session (a token: on the first session)
+        and keep it for `reopen`."""
+        declared = Declared(self, make, stays=stays)
+        with self._lock:
+            declared.bind(make(self._first if stays else self.session))
+            self._declared.append(declared)
+        return declared
+
+    def _forget(self, declared: Declared) -> None:
+        with self._lock, contextlib.suppress(ValueError):
+            self._declared.remove(declared)
+
+    def publisher(self, key: str, cache: bool = True, remote_only: bool = False) -> Declared:
         """A publisher on `key`; with `cache`, late subscribers get the last sample at once;
         `remote_only` skips this session's own subscribers (they are served directly)."""
         where = zenoh.Locality.REMOTE if remote_only else None
         if cache:
-            return zenoh.ext.declare_advanced_publisher(
-                self.session,
-                key,
-                cache=zenoh.ext.CacheConfig(max_samples=1),
-                publisher_detection=True,
-                allowed_destination=where,
+            return self._declare(
+                lambda session: zenoh.ext.declare_advanced_publisher(
+                    session,
+                    key,
+                    cache=zenoh.ext.CacheConfig(max_samples=1),
+                    publisher_detection=True,
+                    allowed_destination=where,
+                )
             )
-        return self.session.declare_publisher(key, allowed_destination=where)
+        return self._declare(
+            lambda session: session.declare_publisher(key, allowed_destination=where)
+        )
 
     def subscribe(
         self,
@@ -264,32 +402,36 @@ class Bus:
         history: bool = True,
         remote_only: bool = False,
         capacity: int = 1,
-    ) -> Any:
+    ) -> Declared:
         """Subscribe to `key`; with `history`, the last cached sample arrives at once;
         `remote_only` ignores this session's own publications. With `callback` None,
         the samples go to a ring of `capacity` (the newest; Zenoh drops the oldest) that
         the reader polls with `try_recv`: Zenoh's network thread then never waits for
         the interpreter."""
         where = zenoh.Locality.REMOTE if remote_only else None
-        if callback is None:
-            handler: Any = zenoh.handlers.RingChannel(capacity)
-        else:
-            # On Zenoh's network thread: a port's delivery is short (decode, queue,
-            # wake), and the default thread per subscriber cost a hand-over per sample.
-            handler = zenoh.handlers.Callback(callback, indirect=False)
-        if history:
-            return zenoh.ext.declare_advanced_subscriber(
-                self.session,
-                key,
-                handler,
-                allowed_origin=where,
-                history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
-            )
-        return self.session.declare_subscriber(key, handler, allowed_origin=where)
 
-    def queryable(self, key: str, handler: Callable[[Any], None]) -> Any:
+        def make(session: Any) -> Any:
+            if callback is None:
+                handler: Any = zenoh.handlers.RingChannel(capacity)
+            else:
+                # On Zenoh's network thread: a port's delivery is short (decode, queue,
+                # wake), and the default thread per subscriber cost a hand-over per sample.
+                handler = zenoh.handlers.Callback(callback, indirect=False)
+            if history:
+                return zenoh.ext.declare_advanced_subscriber(
+                    session,
+                    key,
+                    handler,
+                    allowed_origin=where,
+                    history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+                )
+            return session.declare_subscriber(key, handler, allowed_origin=where)
+
+        return self._declare(make)
+
+    def queryable(self, key: str, handler: Callable[[Any], None]) -> Declared:
         """Answer queries on `key` (remote operations, introspection)."""
-        return self.session.declare_queryable(key, handler)
+        return self._declare(lambda session: session.declare_queryable(key, handler))
 
     def query(self, key: str, payload: bytes = b"", timeout: float = 2.0) -> list[bytes]:
         """Ask `key` and return every reply's bytes; error replies raise `BusError`."""
@@ -302,18 +444,23 @@ class Bus:
                 raise BusError(bytes(reply.err.payload.to_bytes()).decode("utf-8", "replace"))
         return out
 
-    def token(self, key: str) -> Any:
+    def token(self, key: str) -> Declared:
         """Declare a liveliness token: peers see it vanish when this process dies."""
-        return self.session.liveliness().declare_token(key)
+        return self._declare(lambda session: session.liveliness().declare_token(key), stays=True)
 
-    def watch(self, key_expr: str, callback: Callable[[str, bool], None]) -> Any:
+    def watch(self, key_expr: str, callback: Callable[[str, bool], None]) -> Declared:
         """Call `callback(key, alive)` for liveliness tokens matching `key_expr`, starting
-        with the ones alive now."""
-
-        def on_sample(sample: Any) -> None:
-            callback(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
-
-        return self.session.liveliness().declare_subscriber(key_expr, on_sample, history=True)
+        with the ones alive now. After a `reopen`, a token that went meanwhile is
+        reported gone."""
+        watch = _LivelinessWatch(callback)
+        declared = self._declare(
+            lambda session: session.liveliness().declare_subscriber(
+                key_expr, watch.on_sample, history=True
+            )
+        )
+        declared.liveliness = watch
+        declared.key_expr = key_expr
+        return declared
 
     def alive(self, key_expr: str, timeout: float = 2.0) -> list[str]:
         """Keys of the liveliness tokens alive now that match `key_expr`."""
@@ -323,6 +470,14 @@ class Bus:
     def peers(self) -> int:
         """How many peers this session is connected to right now."""
         return len(list(self.session.info.peers_zid()))
+
+    def linked(self) -> set[str]:
+        """The session ids of the peers this session is linked to right now."""
+        return {str(z) for z in self.session.info.peers_zid()}
+
+    def zid(self) -> str:
+        """This session's id (a reopened bus has a new one)."""
+        return str(self.session.info.zid())
 
     def wait_for_peers(self, count: int, timeout: float = 3.0) -> bool:
         """Wait until connected to `count` peers (gossip connects a new session to the
@@ -334,14 +489,72 @@ class Bus:
             time.sleep(0.01)
         return self.peers() >= count
 
+    def reopen(self) -> float:
+        """Open a new session, make every declaration again on it, and close the old one;
+        the seconds it took. For routes Zenoh left unmade (framework/routes.py).
+
+        The new session listens on a port of its own (the old one holds the fixed port
+        until it closes) and, in a mesh, connects to every other process itself
+        (`BusConfig.others`). The declarations move once it is linked with as many peers
+        as the old one was (at most `REOPEN_LINK_WAIT` s), so a watch finds the tokens
+        alive and a ring its writers; tokens are declared on the new session before the
+        old one closes, and Zenoh reports a key gone only when its last token goes, so
+        peers never see this process's components vanish. Meanwhile both sessions
+        receive: a sample may arrive twice (ports drop repeats by sequence number). A
+        token reported alive that is gone after the move is reported gone.
+
+        The liveliness tokens do not move: they stay on the first session, which stays
+        open for them with nothing else declared on it. Moved, a token was reported gone
+        and back at once to a watcher linked to both sessions in 5 of 40 tries (Zenoh
+        1.10.2), and a component reported lost is a trip and a chart event; kept, the
+        process's death or hang still takes both sessions, so it is seen as before."""
+        began = time.monotonic()
+        config = self.config
+        if config.listen_port and not self.hub:
+            config = dataclasses.replace(config, listen_port=0, peers=config.others or config.peers)
+        new = self._open(config)
+        before = self.peers()
+        end = time.monotonic() + REOPEN_LINK_WAIT
+        while time.monotonic() < end and len(list(new.info.peers_zid())) < before:
+            time.sleep(0.01)
+        with self._lock:
+            if self._closed:
+                with contextlib.suppress(Exception):
+                    new.close()
+                raise BusError("the bus was closed while it reopened")
+            made = []
+            for declared in self._declared:
+                if not declared.stays:
+                    made.append((declared, declared.obj, declared.made(new)))
+            old, self.session = self.session, new
+            for declared, _, obj in made:
+                declared.bind(obj)
+                for child in list(declared.children):
+                    child.bind(child.made(None))
+            watches = [(d.key_expr, d.liveliness) for d in self._declared if d.liveliness]
+            self.reopened += 1
+        time.sleep(REOPEN_GRACE)
+        if old is self._first:  # it keeps the tokens, and only them
+            for _, previous, _ in made:
+                with contextlib.suppress(Exception):
+                    previous.undeclare()
+        else:
+            with contextlib.suppress(Exception):
+                old.close()
+        for key_expr, watch in watches:
+            with contextlib.suppress(Exception):
+                watch.reconcile(set(self.alive(key_expr, timeout=1.0)))
+        return time.monotonic() - began
+
     def close(self) -> None:
         """Close the session (idempotent). An unclosed session can hang process exit."""
         with self._lock:
             if self._closed:
                 return
             self._closed = True
-        with contextlib.suppress(Exception):
-            self.session.close()
+        for session in {id(s): s for s in (self.session, self._first)}.values():
+            with contextlib.suppress(Exception):
+                session.close()
 
     def __enter__(self) -> Bus:
         return self

@@ -29,6 +29,7 @@ from framework.local_switch import LocalSwitches
 from framework.messages import EventMessage, Scalar
 from framework.peer_clocks import PeerClocks, answer_clock
 from framework.ports import ConnPolicy, InputPort, OutputPort, PortError
+from framework.routes import RouteWatch
 from framework.safety import ProcessHeartbeat, SafetyMonitor, SafetySpec
 
 log = logging.getLogger("fw.container")
@@ -73,6 +74,9 @@ class Container:
         self.local_switches: LocalSwitches | None = None
         """Configurations whose first steps this process switches itself (see
         framework/local_switch.py); set by `build` from the topology."""
+        self.routes: RouteWatch | None = None
+        """Finds routes the bus lost after a partition and reopens it (framework/routes.py);
+        started by `build` in every process but the hub."""
 
     # -- hosting -------------------------------------------------------------------
     def add(
@@ -313,6 +317,8 @@ class Container:
             self.beat.stop()
         if self.clocks is not None:
             self.clocks.stop()
+        if self.routes is not None:
+            self.routes.stop()
         if self.local_switches is not None:
             self.local_switches.close()
         for component in reversed(list(self.components.values())):

@@ -25,6 +25,7 @@ from framework.control_requests import ContainerError
 from framework.errors import FwError
 from framework.local_switch import LocalSwitches
 from framework.peer_clocks import PeerClocks
+from framework.routes import RouteWatch
 from framework.safety import SafetySpec
 
 log = logging.getLogger("fw.container")
@@ -71,6 +72,8 @@ def build(spec: dict[str, Any], bus: Bus) -> Container:
             spec["switches"],
             lambda: container.requester_now(wait=False),  # runs in the bus's thread
         )
+    if not bus.hub:
+        container.routes = RouteWatch(bus, container.name).start()
     container.start()
     return container
 

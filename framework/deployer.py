@@ -152,10 +152,12 @@ def process_bus(topology: Topology, process: str) -> BusConfig:
         return bus
     names = list(places)  # by name (`mesh` builds it so)
     before = names[: names.index(process)]
+    endpoint = {n: f"{bus.protocol}/{places[n][0]}:{places[n][1]}" for n in names}
     return dataclasses.replace(
         bus,
         listen_port=places[process][1],
-        peers=tuple(f"{bus.protocol}/{places[n][0]}:{places[n][1]}" for n in before),
+        peers=tuple(endpoint[n] for n in before),
+        others=tuple(endpoint[n] for n in names if n != process),
     )
 
 

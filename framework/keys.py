@@ -67,6 +67,12 @@ def process_heartbeat(process: str) -> str:
     return f"fw/process/{process}/heartbeat"
 
 
+def route_probe(process: str) -> str:
+    """Where a process says once a second that it is on the bus, so the others can tell
+    routes Zenoh left unmade from a partition (framework/routes.py)."""
+    return f"fw/process/{process}/routes"
+
+
 def default_output(component: str, port: str) -> str:
     """The key an output port publishes on unless told otherwise."""
     return f"{component}/{port}"
@@ -85,6 +91,7 @@ CONFIG_ACKS = "fw/config/ack"
 ALL_SWITCHED = "fw/config/switched/*"
 DEPLOYER_EVENTS = "fw/deployer/events"
 """Where fw deploy reports what happens to its processes (lost, restarted)."""
+ALL_ROUTE_PROBES = "fw/process/*/routes"
 ALL_ALIVE = "fw/alive/*"
 ALL_STATES = "fw/state/*"
 ALL_REFUSED = "fw/refused/*"

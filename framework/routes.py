@@ -1,0 +1,200 @@
+"""Routes the bus lost after a partition, found and made again.
+
+After a partition heals, Zenoh (1.10.2, the newest on PyPI) sometimes links two
+sessions again without routing between them: in 9 of 24 partitions of the tracking
+host (docs/hosts.md) the trackers' samples never reached the Sensor Manager again,
+while both processes ran, were linked and answered questions. The robot stayed braked
+and latched, as it must, but could not be released until the deployment restarted. A
+new session on the side that hears nothing makes its routes again (measured with
+`tools/zenoh_partition.py --reopen`); a restarted producer did not.
+
+So each process of a deployment (its container) puts a *route probe* on
+`fw/process/<name>/routes` once a `PERIOD` (its session id, how many probes it put,
+how many times it reopened) and hears the others'. A process that heard another's
+probes and then hears none for `SILENT` s while that process is evidently there (its
+session is linked to this one, or it answers a question on its clock key) has lost
+its routes from it: it reopens its bus (`Bus.reopen`: a new session with every
+declaration made again), at most once per `SPACING` s, and says so on stderr (the
+process's log) and in its probes. A process that is cut off, hung or dead is neither
+linked nor answering: that is a partition, the safety monitor's business, and nothing
+is reopened.
+
+What reopening costs the robot: nothing moves by it (motion restarts only by an
+operator's RELEASE, through the chart); tokens overlap, so no component looks lost;
+a watched input may see a gap while its ring moves to the new session. A probe is
+about 80 bytes a second per process to each other process. Only a process may put on
+its own probe key (framework/access.py), so a forged probe cannot hide a silence.
+Runs on a thread of its own (`fw-routes`), at the process's ordinary priority.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import math
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from framework import keys
+
+log = logging.getLogger("fw.routes")
+
+PERIOD = 1.0
+"""Seconds between two probes of a process (and two looks at the others')."""
+SILENT = 6.0
+"""Seconds without a probe from a process that is there before routes count as lost:
+well past a heal's reconnection (links are tried again every second, the lease is
+2 s) and six probes lost in a row."""
+SPACING = 30.0
+"""Seconds at least between two reopens of one process."""
+ASK_TIMEOUT = 0.5
+"""How long the question to a silent process's clock may wait for its answer."""
+
+
+@dataclass
+class Peer:
+    """What this process knows of another from its probes."""
+
+    zid: str
+    """Its session's id (a restarted or reopened process has a new one)."""
+    heard: float
+    """When its last probe arrived (monotonic s)."""
+    count: int = 0
+    reopened: int = 0
+    """How many times it reopened its own bus (from its probes)."""
+
+
+class RouteWatch:
+    """Puts this process's route probes, hears the others', and reopens the bus when
+    routes from a process that is there are lost (module docstring)."""
+
+    def __init__(
+        self,
+        bus: Any,
+        process: str,
+        period: float = PERIOD,
+        silent: float = SILENT,
+        spacing: float = SPACING,
+    ):
+        self.bus = bus
+        self.process = process
+        self.period = period
+        self.silent = silent
+        self.spacing = spacing
+        self.peers: dict[str, Peer] = {}
+        self.refused = 0
+        """Probes that were not what a probe is (counted, ignored)."""
+        self.reopens: list[dict[str, Any]] = []
+        """Every reopen: when (wall s), for whom, why, how long it took."""
+        self._sent = 0
+        self._last_reopen = -math.inf
+        self._waiting: dict[str, float] = {}  # peers silent at the last reopen -> when
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="fw-routes", daemon=True)
+        self._publisher = bus.publisher(keys.route_probe(process), cache=False)
+        self._subscriber = bus.subscribe(keys.ALL_ROUTE_PROBES, self._on_probe, history=False)
+
+    def start(self) -> RouteWatch:
+        """Probe and look once a period from the watch's own thread."""
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop probing (before the bus closes)."""
+        self._stop.set()
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(2.0)
+        for declared in (self._subscriber, self._publisher):
+            with contextlib.suppress(Exception):  # the session is closing
+                declared.undeclare()
+
+    # -- Zenoh's thread -----------------------------------------------------------------
+    def _on_probe(self, sample: Any) -> None:
+        name = str(sample.key_expr).rsplit("/", 2)[-2]
+        if name == self.process:
+            return
+        try:
+            body = json.loads(bytes(sample.payload.to_bytes()))
+            zid, count, reopened = str(body["zid"]), int(body["n"]), int(body["reopened"])
+        except (ValueError, KeyError, TypeError):
+            with self._lock:
+                self.refused += 1
+            return
+        now = time.monotonic()
+        with self._lock:
+            self.peers[name] = Peer(zid, now, count, reopened)
+            since = self._waiting.pop(name, None)
+        if since is not None:
+            self._say(f"hears {name} again, {now - since:.1f} s after reopening its bus")
+
+    # -- the watch's thread ---------------------------------------------------------------
+    def _run(self) -> None:
+        while not self._stop.wait(self.period):
+            try:
+                self.step()
+            except Exception as exc:  # a closing bus; anything else is said, and probing goes on
+                if self._stop.is_set() or getattr(self.bus, "closed", False):
+                    return
+                self._say(f"route watch round failed: {exc}")
+
+    def step(self) -> list[str]:
+        """One round: put this process's probe, and reopen the bus if routes from a
+        process that is there are lost; the processes it reopened for. Runs in the
+        watch's thread (or a test's)."""
+        self._sent += 1
+        probe = {"zid": self.bus.zid(), "n": self._sent, "reopened": self.bus.reopened}
+        self._publisher.put(json.dumps(probe))
+        now = time.monotonic()
+        if now - self._last_reopen < self.spacing:
+            return []
+        with self._lock:
+            silent = {n: p for n, p in self.peers.items() if now - p.heard >= self.silent}
+        if not silent:
+            return []
+        lost = {}
+        linked = self.bus.linked()
+        for name, peer in sorted(silent.items()):
+            how = self._there(name, peer, linked)
+            if how:
+                lost[name] = f"heard nothing from {name} for {now - peer.heard:.1f} s, {how}"
+        if not lost:
+            return []
+        self._reopen(lost)
+        return sorted(lost)
+
+    def _there(self, name: str, peer: Peer, linked: set[str]) -> str:
+        """How this process knows a silent one is there ('' if it does not)."""
+        if peer.zid in linked:
+            return "while its session is linked to this one"
+        try:
+            if self.bus.query(keys.clock(name), timeout=ASK_TIMEOUT):
+                return "while it answers questions"
+        except Exception:  # an error reply, a closing session: no evidence
+            return ""
+        return ""
+
+    def _reopen(self, lost: dict[str, str]) -> None:
+        why = "; ".join(lost.values())
+        self._say(f"routes lost: {why}: reopening the bus (routes Zenoh left unmade)")
+        began = time.monotonic()
+        took = self.bus.reopen()
+        now = time.monotonic()
+        self._last_reopen = now
+        with self._lock:
+            for name in lost:
+                self._waiting[name] = began
+            for peer in self.peers.values():  # the new session's time to hear them
+                peer.heard = max(peer.heard, now)
+        self.reopens.append(
+            {"stamp": time.time(), "for": sorted(lost), "why": why, "took_s": round(took, 3)}
+        )
+        self._say(f"bus reopened in {took:.2f} s (session {self.bus.zid()})")
+
+    def _say(self, text: str) -> None:
+        print(f"fw routes ({self.process}): {text}", file=sys.stderr, flush=True)
+        log.info(text)

@@ -1,0 +1,124 @@
+"""Spec: a process that stops hearing another one that is there reopens its bus, and
+only then (framework/routes.py), on real Zenoh sessions.
+
+Zenoh's own failure (routes left unmade after a partition heals) cannot be caused at
+will; here the receiving side's probe subscription is undeclared behind the watch's
+back, which leaves the two sessions linked and the probes unheard: what the watch
+sees in that failure.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+
+from framework import keys
+from framework.bus import Bus
+from framework.peer_clocks import answer_clock
+from framework.routes import Peer, RouteWatch
+from tests.conftest import wait_until
+
+SILENT = 0.3
+
+
+@pytest.fixture
+def pair(bus_config, hub):
+    """Two processes' buses, `a` and `b`, each with its route watch (stepped by the test)
+    and its clock queryable, linked and hearing each other."""
+    buses = [Bus(bus_config) for _ in range(2)]
+    watches = [
+        RouteWatch(bus, name, silent=SILENT, spacing=0.0)
+        for bus, name in zip(buses, "ab", strict=True)
+    ]
+    clocks = [answer_clock(bus, name) for bus, name in zip(buses, "ab", strict=True)]
+
+    def both_hear() -> bool:
+        for w in watches:
+            w.step()
+        return all(set(w.peers) == {"ab".replace(w.process, "")} for w in watches)
+
+    assert wait_until(both_hear, 10.0), "the two processes never heard each other's probes"
+    yield watches
+    for w in watches:
+        w.stop()
+    for clock in clocks:
+        clock.undeclare()
+    for bus in buses:
+        bus.close()
+
+
+def _step_until(watch: RouteWatch, timeout: float = 10.0) -> list[str]:
+    """Step `watch` until a round reopens its bus (or `timeout`); whom it reopened for."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        reopened = watch.step()
+        if reopened:
+            return reopened
+        time.sleep(0.02)
+    return []
+
+
+def test_probes_of_a_process_that_is_there_unheard_reopen_the_bus_and_it_hears_again(pair):
+    a, b = pair
+    a._subscriber.obj.undeclare()  # a hears b no more; their sessions stay linked
+    assert _step_until(a) == ["b"]
+    assert a.bus.reopened == 1
+    assert "while its session is linked to this one" in a.reopens[0]["why"]
+    reopened_at = time.monotonic()
+
+    def hears_b_again() -> bool:
+        b.step()
+        return a.peers["b"].heard > reopened_at
+
+    assert wait_until(hears_b_again, 10.0), "the reopened bus never heard b's probes"
+    assert b.bus.reopened == 0, "the side that heard everything reopened too"
+
+
+def test_a_process_that_is_cut_off_or_dead_reopens_nothing(pair):
+    a, b = pair
+    b.stop()
+    b.bus.close()  # dead: neither linked nor answering
+    assert wait_until(lambda: a.peers["b"].zid not in a.bus.linked(), 10.0)
+    time.sleep(SILENT)
+    for _ in range(5):
+        assert a.step() == []
+    assert a.bus.reopened == 0
+
+
+def test_a_silent_process_that_answers_on_its_clock_is_there(pair):
+    a, _ = pair
+    peer = a.peers["b"]
+    unlinked = Peer("not-a-linked-session", peer.heard, peer.count)
+    assert a._there("b", unlinked, a.bus.linked()) == "while it answers questions"
+    assert a._there("nobody", unlinked, a.bus.linked()) == ""
+
+
+def test_reopens_are_spaced(pair):
+    a, _ = pair
+    a.spacing = 60.0
+    a._subscriber.obj.undeclare()
+    assert _step_until(a) == ["b"]
+    a._subscriber.obj.undeclare()  # lost again at once
+    time.sleep(SILENT * 2)
+    for _ in range(5):
+        assert a.step() == []
+    assert a.bus.reopened == 1
+
+
+def test_a_probe_that_is_not_one_is_counted_and_ignored(pair, hub):
+    a, _ = pair
+    publisher = hub.publisher(keys.route_probe("intruder"), cache=False)
+    for payload in (b"\xff\x00", b"{}", json.dumps({"zid": "x", "n": "many", "reopened": 0})):
+        publisher.put(payload)
+    assert wait_until(lambda: a.refused >= 3, 10.0)
+    assert "intruder" not in a.peers
+    a.step()  # and the watch goes on
+
+
+def test_a_process_does_not_count_its_own_probes(pair):
+    a, _ = pair
+    for _ in range(3):
+        a.step()
+    assert a.process not in a.peers
