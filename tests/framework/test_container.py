@@ -5,6 +5,7 @@ import json
 import os
 import signal
 import subprocess
+import time
 from pathlib import Path
 
 import pytest
@@ -324,3 +325,37 @@ def test_a_port_a_file_declares_is_wired_even_when_the_file_comes_late(hub, tmp_
             container.connect("per_line", "middle", "x/middle")
     finally:
         container.shutdown()
+
+
+def test_a_process_that_hears_a_linked_peer_no_more_reopens_its_bus_and_keeps_serving(
+    process, hub, sink
+):
+    """framework/routes.py on a real process: the test's session plays a process whose
+    probes stop reaching the container while the two stay linked (the routes Zenoh
+    leaves unmade after a partition). The container reopens its bus; its component
+    still runs, publishes, answers and never looks lost."""
+    proc = process("c1", [counter("steady", rate=50)])
+    seen: list[tuple[str, bool]] = []
+    watcher = hub.watch(keys.ALL_ALIVE, lambda key, alive: seen.append((key, alive)))
+    probes: list[dict] = []
+    listener = hub.subscribe(
+        keys.route_probe("c1"), lambda s: probes.append(json.loads(s.payload.to_bytes())), False
+    )
+    publisher = hub.publisher(keys.route_probe("peer"), cache=False)
+    for n in range(1, 6):  # heard, then silent: still linked, still answering
+        publisher.put(json.dumps({"zid": hub.zid(), "n": n, "reopened": 0}))
+        time.sleep(0.4)
+    assert wait_until(lambda: probes and probes[-1]["reopened"] >= 1, timeout=30), (
+        "the container never reopened its bus"
+    )
+    container, component = sink
+    container.connect("snk", "inp", "steady/out")
+    assert wait_until(lambda: len(component.call("received")) >= 5, timeout=10)
+    assert RemoteComponent(hub, "steady").state() == "Running"
+    assert ("fw/alive/steady", False) not in seen
+    assert proc.poll() is None
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(20) == 0
+    assert "routes lost: heard nothing from peer" in proc.stderr.read().decode()
+    for declared in (watcher, listener, publisher):
+        declared.undeclare()

@@ -503,3 +503,25 @@ def test_a_process_on_another_host_measures_the_clocks_of_the_hosts_it_depends_o
     one = load_topology(REPO / "topologies" / "seeg.yaml")
     spec = container_spec(one, "supervision")
     assert "peer_clocks" not in spec and "requester_host" not in spec
+
+
+def test_on_several_hosts_each_pair_of_processes_has_one_side_that_links_and_a_reopen_links_all():
+    """`mesh`/`process_bus`: each process connects to those before it by name (one side
+    per pair makes the link again after a partition), and knows every other's endpoint
+    for a reopened session, which listens on a port of its own (framework/bus.py)."""
+    from framework.deployer import mesh, process_bus
+    from framework.topology import load_topology
+    from tests.conftest import REPO
+
+    topology = load_topology(REPO / "topologies" / "seeg_hosts.yaml")
+    places = mesh(topology)
+    endpoint = {n: f"{topology.bus.protocol}/{a}:{p}" for n, (a, p) in places.items()}
+    buses = {n: process_bus(topology, n) for n in places}
+    for name, bus in buses.items():
+        assert bus.listen_port == places[name][1]
+        assert set(bus.others) == {endpoint[n] for n in places if n != name}
+    for a in places:
+        for b in places:
+            if a < b:
+                sides = (endpoint[a] in buses[b].peers) + (endpoint[b] in buses[a].peers)
+                assert sides == 1, f"{a} and {b}: {sides} sides link"
