@@ -341,8 +341,8 @@ class Bus:
         self.local_writers: dict[str, dict[int, Any]] = {}
         """Output ports of this session by key (their last sample serves local connects)."""
 
-    def _open(self, config: BusConfig) -> Any:
-        hub = self.hub
+    def _open(self, config: BusConfig, hub: bool | None = None) -> Any:
+        hub = self.hub if hub is None else hub
         try:
             return zenoh.open(zenoh_config(config, hub, self.subject))
         except FwError:
@@ -493,9 +493,9 @@ class Bus:
         """Open a new session, make every declaration again on it, and close the old one;
         the seconds it took. For routes Zenoh left unmade (framework/routes.py).
 
-        The new session listens on a port of its own (the old one holds the fixed port
-        until it closes) and, in a mesh, connects to every other process itself
-        (`BusConfig.others`). The declarations move once it is linked with as many peers
+        The new session listens on a port of its own (the old one holds the fixed port,
+        the hub's among them) and, in a mesh, connects to every other process itself
+        (`BusConfig.others`); a hub without them (one host) cannot reopen. The declarations move once it is linked with as many peers
         as the old one was (at most `REOPEN_LINK_WAIT` s), so a watch finds the tokens
         alive and a ring its writers; tokens are declared on the new session before the
         old one closes, and Zenoh reports a key gone only when its last token goes, so
@@ -509,10 +509,12 @@ class Bus:
         1.10.2), and a component reported lost is a trip and a chart event; kept, the
         process's death or hang still takes both sessions, so it is seen as before."""
         began = time.monotonic()
-        config = self.config
-        if config.listen_port and not self.hub:
+        config, hub = self.config, self.hub
+        if hub and not config.others:
+            raise BusError("the hub of a deployment on one host cannot reopen (no endpoints)")
+        if hub or config.listen_port:
             config = dataclasses.replace(config, listen_port=0, peers=config.others or config.peers)
-        new = self._open(config)
+        new = self._open(config, hub=False)
         before = self.peers()
         end = time.monotonic() + REOPEN_LINK_WAIT
         while time.monotonic() < end and len(list(new.info.peers_zid())) < before:

@@ -44,6 +44,7 @@ from framework.errors import FwError
 from framework.keystore import OPERATOR, Keystore, create_keystore, keystore_for
 from framework.local_switch import switch_spec
 from framework.process import Process
+from framework.routes import RouteWatch
 from framework.statechart.events import Listener
 from framework.statechart.loader import load_statechart
 from framework.topology import CONTROL_PROCESS, Step, StepKind, Topology, load_topology
@@ -301,7 +302,12 @@ class Deployment:
         if topo.bus.secure:
             topo.bus = self._credentials(control)
         mine = LOCAL if self.host is None else self.host
-        here = dataclasses.replace(topo.bus, listen=topo.listen_address(mine))
+        places = mesh(topo)  # the hub's reopened session links to every process itself
+        here = dataclasses.replace(
+            topo.bus,
+            listen=topo.listen_address(mine),
+            others=tuple(f"{topo.bus.protocol}/{a}:{p}" for a, p in places.values()),
+        )
         try:
             self.hub = Bus(here, hub=control, subject=CONTROL_PROCESS if control else OPERATOR)
         except BusError as exc:  # name the file, so the command it suggests runs as written
@@ -335,6 +341,9 @@ class Deployment:
             raise_priority(SAFETY_NICE, "control")
         beat = topo.safety.process_beat if topo.safety is not None else None
         self.control = Container(CONTROL_PROCESS, self.hub, beat=beat)
+        self.control.routes = RouteWatch(
+            self.hub, CONTROL_PROCESS, can_reopen=bool(self.hub.config.others)
+        ).start()
         self.configurator = self.control.add(
             Configurator("configurator", topo, self.hub),
             Activity.event("requests"),

@@ -8,7 +8,8 @@ and latched, as it must, but could not be released until the deployment restarte
 new session on the side that hears nothing makes its routes again (measured with
 `tools/zenoh_partition.py --reopen`); a restarted producer did not.
 
-So each process of a deployment (its container) puts a *route probe* on
+So each process of a deployment (its container, and `fw deploy`'s own on the control
+host) puts a *route probe* on
 `fw/process/<name>/routes` once a `PERIOD` (its session id, how many probes it put,
 how many times it reopened) and hears the others'. A process that heard another's
 probes and then hears none for `SILENT` s while that process is evidently there (its
@@ -79,8 +80,12 @@ class RouteWatch:
         period: float = PERIOD,
         silent: float = SILENT,
         spacing: float = SPACING,
+        can_reopen: bool = True,
     ):
+        """`can_reopen` False (the hub of a deployment on one host): lost routes are
+        said, not mended."""
         self.bus = bus
+        self.can_reopen = can_reopen
         self.process = process
         self.period = period
         self.silent = silent
@@ -180,6 +185,10 @@ class RouteWatch:
 
     def _reopen(self, lost: dict[str, str]) -> None:
         why = "; ".join(lost.values())
+        if not self.can_reopen:
+            self._say(f"routes lost: {why}; this bus cannot reopen (the hub on one host)")
+            self._last_reopen = time.monotonic()
+            return
         self._say(f"routes lost: {why}: reopening the bus (routes Zenoh left unmade)")
         began = time.monotonic()
         took = self.bus.reopen()

@@ -122,3 +122,20 @@ def test_a_process_does_not_count_its_own_probes(pair):
     for _ in range(3):
         a.step()
     assert a.process not in a.peers
+
+
+def test_a_bus_that_cannot_reopen_says_the_routes_are_lost_and_keeps_its_session(pair, capsys):
+    a, _ = pair
+    a.can_reopen = False
+    zid = a.bus.zid()
+    a._subscriber.obj.undeclare()
+    assert _step_until(a, timeout=3.0) == ["b"]
+    assert a.bus.reopened == 0 and a.bus.zid() == zid
+    assert "cannot reopen" in capsys.readouterr().err
+
+
+def test_the_hub_of_a_deployment_on_one_host_cannot_reopen(hub):
+    from framework.bus import BusError
+
+    with pytest.raises(BusError, match="cannot reopen"):
+        hub.reopen()
