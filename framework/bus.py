@@ -252,7 +252,7 @@ class Declared:
         self.liveliness: _LivelinessWatch | None = None
         """For a liveliness watch: the keys it reported alive."""
         self.key_expr = ""
-        """For a liveliness watch: what it watches."""
+        """For a liveliness watch: what it watches; for a token: its key."""
 
     def made(self, session: Any) -> Any:
         """Make the declaration on `session` (the parent's object for a child)."""
@@ -446,7 +446,11 @@ class Bus:
 
     def token(self, key: str) -> Declared:
         """Declare a liveliness token: peers see it vanish when this process dies."""
-        return self._declare(lambda session: session.liveliness().declare_token(key), stays=True)
+        declared = self._declare(
+            lambda session: session.liveliness().declare_token(key), stays=True
+        )
+        declared.key_expr = key
+        return declared
 
     def watch(self, key_expr: str, callback: Callable[[str, bool], None]) -> Declared:
         """Call `callback(key, alive)` for liveliness tokens matching `key_expr`, starting
@@ -461,6 +465,22 @@ class Bus:
         declared.liveliness = watch
         declared.key_expr = key_expr
         return declared
+
+    def tokens(self) -> list[str]:
+        """The keys of the liveliness tokens this bus holds now."""
+        with self._lock:
+            return sorted(d.key_expr for d in self._declared if d.stays)
+
+    def seen_alive(self, key: str) -> bool | None:
+        """Whether this bus's liveliness watches see the token `key` alive now; None if
+        none of them watches it."""
+        wanted = zenoh.KeyExpr(key)
+        with self._lock:
+            watches = [d for d in self._declared if d.liveliness is not None]
+        matching = [d for d in watches if zenoh.KeyExpr(d.key_expr).intersects(wanted)]
+        if not matching:
+            return None
+        return all(key in d.liveliness.alive for d in matching)
 
     def alive(self, key_expr: str, timeout: float = 2.0) -> list[str]:
         """Keys of the liveliness tokens alive now that match `key_expr`."""

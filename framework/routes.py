@@ -67,6 +67,8 @@ class Peer:
     count: int = 0
     reopened: int = 0
     """How many times it reopened its own bus (from its probes)."""
+    tokens: tuple[str, ...] = ()
+    """The liveliness tokens it holds (from its probes)."""
 
 
 class RouteWatch:
@@ -98,6 +100,7 @@ class RouteWatch:
         self._sent = 0
         self._last_reopen = -math.inf
         self._waiting: dict[str, float] = {}  # peers silent at the last reopen -> when
+        self._unseen: dict[str, float] = {}  # tokens a heard peer claims, unseen -> since
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="fw-routes", daemon=True)
@@ -126,13 +129,14 @@ class RouteWatch:
         try:
             body = json.loads(bytes(sample.payload.to_bytes()))
             zid, count, reopened = str(body["zid"]), int(body["n"]), int(body["reopened"])
+            tokens = tuple(str(t) for t in body.get("tokens", ()))
         except (ValueError, KeyError, TypeError):
             with self._lock:
                 self.refused += 1
             return
         now = time.monotonic()
         with self._lock:
-            self.peers[name] = Peer(zid, now, count, reopened)
+            self.peers[name] = Peer(zid, now, count, reopened, tokens)
             since = self._waiting.pop(name, None)
         if since is not None:
             self._say(f"hears {name} again, {now - since:.1f} s after reopening its bus")
@@ -152,17 +156,23 @@ class RouteWatch:
         process that is there are lost; the processes it reopened for. Runs in the
         watch's thread (or a test's)."""
         self._sent += 1
-        probe = {"zid": self.bus.zid(), "n": self._sent, "reopened": self.bus.reopened}
+        probe = {
+            "zid": self.bus.zid(),
+            "n": self._sent,
+            "reopened": self.bus.reopened,
+            "tokens": self.bus.tokens(),
+        }
         self._publisher.put(json.dumps(probe))
         now = time.monotonic()
         if now - self._last_reopen < self.spacing:
             return []
         with self._lock:
             silent = {n: p for n, p in self.peers.items() if now - p.heard >= self.silent}
-        if not silent:
+            heard = {n: p for n, p in self.peers.items() if n not in silent}
+        lost = self._unseen_tokens(heard, now)
+        if not silent and not lost:
             return []
-        lost = {}
-        linked = self.bus.linked()
+        linked = self.bus.linked() if silent else set()
         for name, peer in sorted(silent.items()):
             how = self._there(name, peer, linked)
             if how:
@@ -171,6 +181,28 @@ class RouteWatch:
             return []
         self._reopen(lost)
         return sorted(lost)
+
+    def _unseen_tokens(self, heard: dict[str, Peer], now: float) -> dict[str, str]:
+        """Processes heard whose tokens this bus's watches have not seen alive for
+        `silent` s: their liveliness routes are lost (the robot's safety monitor saw a
+        tracker "lost" 30 s after a heal while its process's probes came through)."""
+        lost: dict[str, str] = {}
+        claimed = set()
+        for name, peer in sorted(heard.items()):
+            for key in peer.tokens:
+                claimed.add(key)
+                if self.bus.seen_alive(key) is not False:
+                    self._unseen.pop(key, None)
+                    continue
+                since = self._unseen.setdefault(key, now)
+                if now - since >= self.silent and name not in lost:
+                    lost[name] = (
+                        f"its token {key} unseen for {now - since:.1f} s while its probes "
+                        f"come through"
+                    )
+        for key in set(self._unseen) - claimed:
+            del self._unseen[key]
+        return lost
 
     def _there(self, name: str, peer: Peer, linked: set[str]) -> str:
         """How this process knows a silent one is there ('' if it does not)."""
@@ -194,6 +226,7 @@ class RouteWatch:
         took = self.bus.reopen()
         now = time.monotonic()
         self._last_reopen = now
+        self._unseen.clear()  # the new session's watches start over
         with self._lock:
             for name in lost:
                 self._waiting[name] = began

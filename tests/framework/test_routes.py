@@ -62,6 +62,7 @@ def _step_until(watch: RouteWatch, timeout: float = 10.0) -> list[str]:
 
 def test_probes_of_a_process_that_is_there_unheard_reopen_the_bus_and_it_hears_again(pair):
     a, b = pair
+    b.silent = 5.0  # longer than a's reopen, in which a puts no probe (6 s against 1 deployed)
     a._subscriber.obj.undeclare()  # a hears b no more; their sessions stay linked
     assert _step_until(a) == ["b"]
     assert a.bus.reopened == 1
@@ -70,6 +71,7 @@ def test_probes_of_a_process_that_is_there_unheard_reopen_the_bus_and_it_hears_a
 
     def hears_b_again() -> bool:
         b.step()
+        a.step()  # a's probes go on, so b has nothing to mend
         return a.peers["b"].heard > reopened_at
 
     assert wait_until(hears_b_again, 10.0), "the reopened bus never heard b's probes"
@@ -139,3 +141,30 @@ def test_the_hub_of_a_deployment_on_one_host_cannot_reopen(hub):
 
     with pytest.raises(BusError, match="cannot reopen"):
         hub.reopen()
+
+
+def test_a_heard_process_whose_token_this_bus_never_sees_makes_it_reopen(pair):
+    a, b = pair
+    seen: list[tuple[str, bool]] = []
+    watch = a.bus.watch(keys.ALL_ALIVE, lambda key, alive: seen.append((key, alive)))
+    watch.obj.undeclare()  # a's liveliness routes lost; its probes still flow
+    b.bus.token(keys.alive("tracker"))
+    end = time.monotonic() + 10.0
+    reopened: list[str] = []
+    while not reopened and time.monotonic() < end:
+        b.step()  # b's probes say it holds the token
+        reopened = a.step()
+        time.sleep(0.05)
+    assert reopened == ["b"]
+    assert "its token fw/alive/tracker unseen" in a.reopens[0]["why"]
+    assert wait_until(lambda: ("fw/alive/tracker", True) in seen, 10.0)
+    assert a.bus.seen_alive(keys.alive("tracker")) is True
+
+
+def test_a_token_of_a_process_nobody_here_watches_is_no_evidence(pair):
+    a, b = pair
+    b.bus.token(keys.alive("tracker"))  # a watches no liveliness at all
+    for _ in range(int(SILENT / 0.05) * 2):
+        b.step()
+        assert a.step() == []
+        time.sleep(0.05)
