@@ -800,6 +800,15 @@ class Component:
         asked), under the lifecycle lock; an exception here is FatalError."""
 
     # -- introspection ----------------------------------------------------------------
+    def holds_bus(self) -> str:
+        """Why this component's process must not reopen its bus now ('' if it may):
+        the route watch (framework/routes.py) asks before it reopens and waits while
+        any component says why. A device loop says so while it commands its device: a
+        reopen makes every declaration again, and its interpreter time would make the
+        loop's answers late. Runs in the route watch's thread: read plain attributes,
+        take no lock the loop takes."""
+        return ""
+
     def describe(self) -> dict[str, Any]:
         """Plain data: class, state, ports, properties, operations (for `fw ls`)."""
         return {

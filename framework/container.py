@@ -286,6 +286,16 @@ class Container:
             self.clocks.wait_measured(self.requester_host)
         return estimate.peer_now(time.time())
 
+    def holds_bus(self) -> str:
+        """Why this process must not reopen its bus now ('' if it may): the first of
+        its components that says why (`Component.holds_bus`). Runs in the route
+        watch's thread."""
+        for name, component in list(self.components.items()):
+            why = component.holds_bus()
+            if why:
+                return f"{name}: {why}"
+        return ""
+
     def peer_clock(self, key: str | None) -> OffsetEstimate | None:
         """The measured offset of the host that writes `key`, if another host does."""
         host = self.key_hosts.get(key) if key is not None else None

@@ -73,7 +73,7 @@ def build(spec: dict[str, Any], bus: Bus) -> Container:
             lambda: container.requester_now(wait=False),  # runs in the bus's thread
         )
     if not bus.hub:
-        container.routes = RouteWatch(bus, container.name).start()
+        container.routes = RouteWatch(bus, container.name, hold=container.holds_bus).start()
     container.start()
     return container
 

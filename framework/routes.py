@@ -21,8 +21,12 @@ linked nor answering: that is a partition, the safety monitor's business, and no
 is reopened.
 
 What reopening costs the robot: nothing moves by it (motion restarts only by an
-operator's RELEASE, through the chart); tokens overlap, so no component looks lost;
-a watched input may see a gap while its ring moves to the new session. A probe is
+operator's RELEASE, through the chart); tokens stay where they are, so no component
+looks lost; a watched input may see a gap while its ring moves to the new session. A
+process whose component says it must keep its bus (`Component.holds_bus`: the robot
+interface while it commands the arm) waits to reopen until it may: in the one run
+where the robot's process reopened as the approach resumed, the KRC braked with a
+fault 0.25 s into the motion (its answers late, by all appearances). A probe is
 about 80 bytes a second per process to each other process. Only a process may put on
 its own probe key (framework/access.py), so a forged probe cannot hide a silence.
 Runs on a thread of its own (`fw-routes`), at the process's ordinary priority.
@@ -37,6 +41,7 @@ import math
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -83,11 +88,15 @@ class RouteWatch:
         silent: float = SILENT,
         spacing: float = SPACING,
         can_reopen: bool = True,
+        hold: Callable[[], str] | None = None,
     ):
         """`can_reopen` False (the hub of a deployment on one host): lost routes are
-        said, not mended."""
+        said, not mended. `hold`: why the bus must not reopen now ('' if it may; the
+        container's `holds_bus`): the reopen waits, asked again every round."""
         self.bus = bus
         self.can_reopen = can_reopen
+        self.hold = hold
+        self._held = ""
         self.process = process
         self.period = period
         self.silent = silent
@@ -153,7 +162,8 @@ class RouteWatch:
 
     def step(self) -> list[str]:
         """One round: put this process's probe, and reopen the bus if routes from a
-        process that is there are lost; the processes it reopened for. Runs in the
+        process that is there are lost; the processes it reopened for (none if it
+        did not reopen: nothing lost, or the bus cannot or may not reopen now). Runs in the
         watch's thread (or a test's)."""
         self._sent += 1
         probe = {
@@ -179,8 +189,7 @@ class RouteWatch:
                 lost[name] = f"heard nothing from {name} for {now - peer.heard:.1f} s, {how}"
         if not lost:
             return []
-        self._reopen(lost)
-        return sorted(lost)
+        return sorted(lost) if self._reopen(lost) else []
 
     def _unseen_tokens(self, heard: dict[str, Peer], now: float) -> dict[str, str]:
         """Processes heard whose tokens this bus's watches have not seen alive for
@@ -215,14 +224,23 @@ class RouteWatch:
             return ""
         return ""
 
-    def _reopen(self, lost: dict[str, str]) -> None:
+    def _reopen(self, lost: dict[str, str]) -> bool:
+        """Reopen the bus for `lost` (process -> why); whether it did."""
         why = "; ".join(lost.values())
         if not self.can_reopen:
             self._say(f"routes lost: {why}; this bus cannot reopen (the hub on one host)")
             self._last_reopen = time.monotonic()
-            return
+            return False
+        held = self.hold() if self.hold is not None else ""
+        if held:
+            if held != self._held:
+                self._say(f"routes lost: {why}; the reopen waits: {held}")
+            self._held = held
+            return False
+        self._held = ""
         self._say(f"routes lost: {why}: reopening the bus (routes Zenoh left unmade)")
         began = time.monotonic()
+        self._last_reopen = began  # a reopen that fails is not tried again at once
         took = self.bus.reopen()
         now = time.monotonic()
         self._last_reopen = now
@@ -236,6 +254,7 @@ class RouteWatch:
             {"stamp": time.time(), "for": sorted(lost), "why": why, "took_s": round(took, 3)}
         )
         self._say(f"bus reopened in {took:.2f} s (session {self.bus.zid()})")
+        return True
 
     def _say(self, text: str) -> None:
         print(f"fw routes ({self.process}): {text}", file=sys.stderr, flush=True)

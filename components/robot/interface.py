@@ -507,6 +507,12 @@ class RobotInterface(Component):
             reason if m.braked else "",
         )
 
+    def holds_bus(self) -> str:
+        """While the arm is commanded (released, moving or holding under command), its
+        process keeps its bus as it is: a reopen's interpreter time would make FRI's
+        answers late, and the KRC brake for it (framework/routes.py waits)."""
+        return "the robot interface commands the arm" if self._commanding else ""
+
     def idle_hook(self) -> None:
         """No measurement for the activity's `idle` period (the KRC is silent or slow):
         the monitor still checks every input, the KRC's silence beyond `krc_timeout` is a

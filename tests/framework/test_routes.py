@@ -131,7 +131,9 @@ def test_a_bus_that_cannot_reopen_says_the_routes_are_lost_and_keeps_its_session
     a.can_reopen = False
     zid = a.bus.zid()
     a._subscriber.obj.undeclare()
-    assert _step_until(a, timeout=3.0) == ["b"]
+    time.sleep(SILENT)
+    for _ in range(3):
+        assert a.step() == []
     assert a.bus.reopened == 0 and a.bus.zid() == zid
     assert "cannot reopen" in capsys.readouterr().err
 
@@ -168,3 +170,18 @@ def test_a_token_of_a_process_nobody_here_watches_is_no_evidence(pair):
         b.step()
         assert a.step() == []
         time.sleep(0.05)
+
+
+def test_a_process_that_must_keep_its_bus_reopens_only_once_it_may(pair, capsys):
+    a, _ = pair
+    holding = ["robot: the robot interface commands the arm"]
+    a.hold = lambda: holding[0]
+    a._subscriber.obj.undeclare()
+    time.sleep(SILENT)
+    for _ in range(5):
+        assert a.step() == []
+    assert a.bus.reopened == 0
+    assert capsys.readouterr().err.count("the reopen waits: robot:") == 1, "said once"
+    holding[0] = ""  # the arm is braked
+    assert _step_until(a) == ["b"]
+    assert a.bus.reopened == 1

@@ -1660,3 +1660,14 @@ def test_an_answer_that_could_not_be_sent_is_said_and_not_counted_as_answered(ar
     assert "cannot answer the KRC: Network is unreachable" in said(arm)
     arm.cycle()  # the network back: answered as ever
     assert arm.robot.link["answered"] == answered + 1
+
+
+def test_the_robots_process_keeps_its_bus_while_the_arm_is_commanded(arm):
+    """framework/routes.py waits to reopen the bus of a process that must keep it: the
+    robot interface's while it commands the arm (a reopen would make its answers late),
+    not while the arm stands braked."""
+    arm.cycle()
+    assert arm.robot.holds_bus() == "" and arm.container.holds_bus() == ""
+    moving(arm)
+    assert arm.robot.holds_bus() == "the robot interface commands the arm"
+    assert arm.container.holds_bus().startswith(f"{arm.robot.name}: ")
