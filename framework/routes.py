@@ -113,8 +113,11 @@ class RouteWatch:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="fw-routes", daemon=True)
-        self._publisher = bus.publisher(keys.route_probe(process), cache=False)
-        self._subscriber = bus.subscribe(keys.ALL_ROUTE_PROBES, self._on_probe, history=False)
+        # the latest-value publisher and subscriber fw's ports use, so the probes take
+        # the routes the data takes: plain ones were lost after heals where the data's
+        # came back, and every reopen they caused was a gap in the data for nothing
+        self._publisher = bus.publisher(keys.route_probe(process))
+        self._subscriber = bus.subscribe(keys.ALL_ROUTE_PROBES, self._on_probe)
 
     def start(self) -> RouteWatch:
         """Probe and look once a period from the watch's own thread."""
@@ -145,6 +148,9 @@ class RouteWatch:
             return
         now = time.monotonic()
         with self._lock:
+            known = self.peers.get(name)
+            if known is not None and known.zid == zid and count <= known.count:
+                return  # a cached probe heard again (a reopen, a late publisher found)
             self.peers[name] = Peer(zid, now, count, reopened, tokens)
             since = self._waiting.pop(name, None)
         if since is not None:
