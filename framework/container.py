@@ -34,6 +34,13 @@ from framework.safety import ProcessHeartbeat, SafetyMonitor, SafetySpec
 
 log = logging.getLogger("fw.container")
 
+FIRST_CLOCK_WAIT = 2.0
+"""How long a request may wait for the first measurement of its requester's clock (s):
+a process's first requests come right after it started, while the control host is
+busy starting the others; with 0.5 s one deployment of 14 on five hosts failed its
+setup ("stamped by a host whose clock offset is not measured yet"). Well inside a
+configuration step's 5 s."""
+
 
 class Container:
     """Hosts components in this process and serves their remote interface."""
@@ -283,7 +290,7 @@ class Container:
         if estimate is None:
             return now
         if wait and not estimate.measured:
-            self.clocks.wait_measured(self.requester_host)
+            self.clocks.wait_measured(self.requester_host, FIRST_CLOCK_WAIT)
         return estimate.peer_now(time.time())
 
     def holds_bus(self) -> str:
