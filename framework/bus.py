@@ -414,9 +414,14 @@ class Bus:
             if callback is None:
                 handler: Any = zenoh.handlers.RingChannel(capacity)
             else:
-                # On Zenoh's network thread: a port's delivery is short (decode, queue,
-                # wake), and the default thread per subscriber cost a hand-over per sample.
-                handler = zenoh.handlers.Callback(callback, indirect=False)
+                # A plain subscriber's callback runs on Zenoh's network thread: a port's
+                # delivery is short (decode, queue, wake), and a thread per subscriber
+                # costs a hand-over per sample. An advanced one's cannot: zenoh-ext calls
+                # it holding the subscriber's lock, so waiting there for the interpreter
+                # deadlocks against any thread that holds the interpreter and reaches that
+                # lock (declaring or undeclaring a cached publisher on a matching key, in
+                # the same session). Its samples go through zenoh-python's own thread.
+                handler = zenoh.handlers.Callback(callback, indirect=history)
             if history:
                 return zenoh.ext.declare_advanced_subscriber(
                     session,

@@ -133,3 +133,56 @@ def test_closing_a_reopened_bus_closes_both_its_sessions(hub, peer):
     peer.close()
     assert peer.closed
     assert wait_until(lambda: not {zid, first} & hub.linked(), 10.0)
+
+
+_CALLBACK_AND_CACHED_PUBLISHERS = """
+import sys, threading, time
+from framework.bus import Bus, BusConfig, free_port
+
+config = BusConfig(namespace=f"t_gil_{free_port()}", hub_port=free_port())
+hub, peer = Bus(config, hub=True), Bus(config)
+assert peer.wait_for_peers(1, timeout=10.0)
+heard = []
+subscriber = peer.subscribe("k/a", lambda sample: heard.append(1))  # cached history
+publisher = hub.publisher("k/a", cache=False)
+stop = threading.Event()
+
+def put_all_the_time():
+    while not stop.is_set():
+        publisher.put(b"x")
+        time.sleep(0.0002)
+
+threading.Thread(target=put_all_the_time, daemon=True).start()
+for _ in range(300):
+    peer.publisher("k/a").undeclare()  # a cached one: its detection token comes and goes
+stop.set()
+subscriber.undeclare()
+peer.close()
+hub.close()
+print("heard", len(heard))
+"""
+
+
+def test_a_callback_subscriber_never_deadlocks_against_cached_publishers_of_its_session():
+    """zenoh-ext calls an advanced subscriber's callback holding that subscriber's lock;
+    a Python callback there waits for the interpreter, while the thread holding the
+    interpreter declares or undeclares a cached publisher on the same key, which takes
+    that lock: each waits for the other forever, the whole process frozen (a rewire, a
+    route watch closing, a reopen). Before the fix this child hung in 3 runs of 3."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    try:
+        done = subprocess.run(
+            [sys.executable, "-c", _CALLBACK_AND_CACHED_PUBLISHERS],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+    except subprocess.TimeoutExpired:
+        raise AssertionError("the process froze: callback and publisher deadlocked") from None
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert int(done.stdout.split()[-1]) > 0, "the callback subscriber heard nothing"
