@@ -18,7 +18,7 @@ from tests.conftest import drained, reader_port, wait_until, writer_port
 def _reopened(bus: Bus, hub: Bus) -> str:
     """Reopen `bus` and wait until its new session is linked to the hub again."""
     old = bus.zid()
-    bus.reopen()
+    bus.reopen(overlap=0.2)
     assert bus.zid() != old, "reopen did not make a new session"
     assert bus.wait_for_peers(1, timeout=10.0)
     assert wait_until(lambda: bus.zid() in hub.linked(), 10.0)
@@ -133,6 +133,40 @@ def test_closing_a_reopened_bus_closes_both_its_sessions(hub, peer):
     peer.close()
     assert peer.closed
     assert wait_until(lambda: not {zid, first} & hub.linked(), 10.0)
+
+
+def test_nothing_written_while_the_bus_reopens_is_lost(hub, peer):
+    """For the overlap both sessions carry every put: a heartbeat's reader must not see
+    a gap while the new session's routes are made."""
+    import time
+
+    port = reader_port(hub, "data/beat", Scalar)
+    writer = writer_port(peer, "data/beat", Scalar)
+    writer.write(Scalar(0.0, 0.0))
+    assert wait_until(lambda: bool(drained(port)), 10.0)
+    done = threading.Event()
+    written: list[float] = []
+
+    def beat() -> None:
+        n = 1.0
+        while not done.is_set():
+            writer.write(Scalar(n, n))
+            written.append(n)
+            n += 1.0
+            time.sleep(0.002)
+
+    beating = threading.Thread(target=beat)
+    beating.start()
+    try:
+        peer.reopen(overlap=1.0)
+        time.sleep(0.5)
+    finally:
+        done.set()
+        beating.join()
+    heard: set[float] = set()
+    assert wait_until(
+        lambda: (heard.update(s.value for s in drained(port)), heard)[1] >= set(written), 10.0
+    ), f"{len(set(written) - heard)} of {len(written)} samples lost in the reopen"
 
 
 _CALLBACK_AND_CACHED_PUBLISHERS = """

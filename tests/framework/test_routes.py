@@ -29,7 +29,7 @@ def pair(bus_config, hub):
     and its clock queryable, linked and hearing each other."""
     buses = [Bus(bus_config) for _ in range(2)]
     watches = [
-        RouteWatch(bus, name, silent=SILENT, spacing=0.0)
+        RouteWatch(bus, name, silent=SILENT, spacing=0.0, overlap=0.2)
         for bus, name in zip(buses, "ab", strict=True)
     ]
     clocks = [answer_clock(bus, name) for bus, name in zip(buses, "ab", strict=True)]
@@ -89,12 +89,14 @@ def test_a_process_that_is_cut_off_or_dead_reopens_nothing(pair):
     assert a.bus.reopened == 0
 
 
-def test_a_silent_process_that_answers_on_its_clock_is_there(pair):
+def test_a_silent_process_whose_session_is_not_linked_is_not_there(pair):
+    """Not linked: cut off, hung past its lease, dead, or restarted under a new session
+    id (its clock answers under the same name before its first probe: no evidence)."""
     a, _ = pair
     peer = a.peers["b"]
-    unlinked = Peer("not-a-linked-session", peer.heard, peer.count)
-    assert a._there("b", unlinked, a.bus.linked()) == "while it answers questions"
-    assert a._there("nobody", unlinked, a.bus.linked()) == ""
+    restarted = Peer("a-session-that-is-gone", peer.heard, peer.count)
+    assert a._there("b", restarted, a.bus.linked()) == ""
+    assert a._there("b", peer, a.bus.linked()) == "while its session is linked to this one"
 
 
 def test_reopens_are_spaced(pair):
