@@ -27,6 +27,7 @@ from framework.local_switch import LocalSwitches
 from framework.peer_clocks import PeerClocks
 from framework.routes import RouteWatch
 from framework.safety import SafetySpec
+from framework.sampling import finish, from_environment
 
 log = logging.getLogger("fw.container")
 
@@ -127,6 +128,7 @@ def serve(spec: dict[str, Any], ready: Callable[[], None] | None = None) -> int:
         bus.close()
         raise
     starting = False
+    sampler = from_environment()  # FW_SAMPLE_STACKS: where this process spends its CPU
     if ready is not None:
         ready()
     parent = os.getppid()
@@ -138,6 +140,7 @@ def serve(spec: dict[str, Any], ready: Callable[[], None] | None = None) -> int:
             )
             break
     container.shutdown()
+    finish(sampler, spec["name"])
     return 0
 
 
