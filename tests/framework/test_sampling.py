@@ -1,5 +1,5 @@
-"""Spec: the stack sampler counts the Python stacks of threads on a core, not of those
-waiting, and writes them in the collapsed form flame-graph tools read."""
+"""Spec: the stack sampler adds each thread's CPU to the Python stack it is in, so a
+waiting thread counts nothing, and writes the collapsed form flame-graph tools read."""
 
 from __future__ import annotations
 
@@ -27,8 +27,9 @@ def test_a_running_thread_is_counted_and_a_waiting_one_is_not(tmp_path):
     for thread in threads:
         thread.start()
     sampler = StackSampler()
+    began = time.process_time()
     try:
-        while sum(n for s, n in sampler.counts.items() if s.startswith("spinner;")) < 20:
+        while sum(n for s, n in sampler.counts.items() if s.startswith("spinner;")) < 20_000:
             sampler.sample()
             time.sleep(0.001)
     finally:
@@ -38,6 +39,8 @@ def test_a_running_thread_is_counted_and_a_waiting_one_is_not(tmp_path):
     stacks = list(sampler.counts)
     assert any("_busy_spinning_here (test_sampling.py:" in s for s in stacks)
     assert not any(s.startswith("sleeper;") for s in stacks), "a waiting thread was counted"
+    used = time.process_time() - began  # the whole process's CPU meanwhile
+    assert sum(sampler.counts.values()) <= used * 1e6, "more CPU counted than was used"
     out = tmp_path / "p.stacks"
     sampler.write(out)
     first = out.read_text().splitlines()[0]
