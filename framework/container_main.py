@@ -27,7 +27,7 @@ from framework.local_switch import LocalSwitches
 from framework.peer_clocks import PeerClocks
 from framework.routes import RouteWatch
 from framework.safety import SafetySpec
-from framework.sampling import finish, from_environment
+from framework.profiling import finish, from_environment
 
 log = logging.getLogger("fw.container")
 
@@ -121,6 +121,7 @@ def serve(spec: dict[str, Any], ready: Callable[[], None] | None = None) -> int:
         signal.signal(sig, on_signal)
     if spec.get("nice"):
         raise_priority(int(spec["nice"]), spec["name"])
+    profiles = from_environment()  # FW_PROFILE: where this process spends its CPU
     bus = Bus(BusConfig.from_dict(spec["bus"]), hub=spec.get("hub", False), subject=spec["name"])
     try:
         container = build(spec, bus)
@@ -128,7 +129,6 @@ def serve(spec: dict[str, Any], ready: Callable[[], None] | None = None) -> int:
         bus.close()
         raise
     starting = False
-    sampler = from_environment()  # FW_SAMPLE_STACKS: where this process spends its CPU
     if ready is not None:
         ready()
     parent = os.getppid()
@@ -140,7 +140,7 @@ def serve(spec: dict[str, Any], ready: Callable[[], None] | None = None) -> int:
             )
             break
     container.shutdown()
-    finish(sampler, spec["name"])
+    finish(profiles, spec["name"])
     return 0
 
 
