@@ -5,6 +5,7 @@ finds the SEEG deployment it measures through FW_HOME (or the current folder) an
 so clearly when there is none. Built offline from a copy of the sources (nothing
 downloaded)."""
 
+import json
 import os
 import shutil
 import subprocess
@@ -113,6 +114,10 @@ def test_fw_bench_needs_a_seeg_home_and_says_where_it_looked(installed, tmp_path
     )  # fmt: skip
     assert found.returncode == 0, found.stdout + found.stderr
     assert (tmp_path / "out" / "report.md").is_file()
+    rows = json.loads((tmp_path / "out" / "summary.json").read_text())["rows"]
+    measured = {r["experiment"] for r in rows}
+    # an offline experiment carries the host's speed, not Zenoh hops it is never read against
+    assert "host" in measured and "braking" in measured and "zenoh" not in measured
 
 
 def test_the_constraints_file_pins_every_dependency_fw_names():

@@ -21,11 +21,18 @@ from fw_bench.report import Row, stats
 
 def run_zenoh(quick: bool, context: dict[str, Any]) -> list[Row]:
     """Raw Zenoh inter-process hop (the baseline every latency is compared with), and
-    the host's speed for plain Python (the baseline every cost is read against)."""
+    the host's speed for plain Python (the baseline every cost is read against). The
+    hops only if an experiment of the run crosses processes (`context["hops"]`)."""
     from fw_bench.baseline import python_speed, stream_cost, wake_round_trip, zenoh_hop
 
     speed = python_speed(1 if quick else 3)
     wake = wake_round_trip(5000 if quick else 20000)
+    host = [
+        Row("host", "plain Python: 10^7 additions (CPU)", speed, unit="s"),
+        Row("host", "a wake-up round trip between two processes", wake, unit="us"),
+    ]
+    if not context.get("hops", True):  # offline experiments only: nothing to compare
+        return host
 
     hops = zenoh_hop(200 if quick else 2000)
     s = stats([h * 1e3 for h in hops])
@@ -42,8 +49,7 @@ def run_zenoh(quick: bool, context: dict[str, Any]) -> list[Row]:
         Row("zenoh", "1 kHz stream: publisher CPU per sample", stream["publisher_us"], unit="us"),
         Row("zenoh", "1 kHz stream: subscriber CPU per sample", stream["subscriber_us"], unit="us"),
         Row("zenoh", "1 kHz stream between two processes", per_sample / 1000.0, unit="cores"),
-        Row("host", "plain Python: 10^7 additions (CPU)", speed, unit="s"),
-        Row("host", "a wake-up round trip between two processes", wake, unit="us"),
+        *host,
     ]
 
 

@@ -14,6 +14,9 @@ from typing import Any
 
 ON_DEPLOYMENT = ("cost", "swap", "nosensor", "collision", "repeated", "motion", "ssm", "bumps")
 """Experiments measured on the running SEEG deployment (the others compute offline)."""
+ACROSS_PROCESSES = ("chaos", "hosts", "ros2")
+"""Experiments besides those on the deployment whose figures cross processes (they
+get the Zenoh hop baseline; offline ones get only the host's speed)."""
 LATENCIES = ("swap", "nosensor", "collision", "repeated", "motion")
 """Experiments whose times are latencies across processes: also shown as multiples of
 the Zenoh hop measured in the same run."""
