@@ -81,7 +81,7 @@ class BusConfig:
     others: tuple[str, ...] = ()
     """Endpoints of every other process of the mesh, those that connect to this one
     included: a reopened session (`Bus.reopen`) listens on a port of its own, as the
-    fixed one stays with the old session until it closes, so it makes every link
+    fixed one stays with the first session (what this process says), so it makes every link
     itself."""
 
     @property
@@ -243,7 +243,10 @@ class Declared:
     ):
         self._bus = bus
         self.stays = stays
-        """A liveliness token: it stays on the session it was declared on (`Bus.reopen`)."""
+        """What this process says (a publisher, a queryable, a liveliness token): it stays
+        on the first session; only what it hears moves (`Bus.reopen`)."""
+        self.token = False
+        """A liveliness token."""
         self._make = make
         self._parent = parent
         self.children: list[Declared] = []
@@ -267,25 +270,19 @@ class Declared:
                 setattr(self, name, method)
 
     def overlap(self, new: Any, old: Any) -> None:
-        """Stand for `new`, while `old` still works beside it (`Bus.reopen`): a put goes
-        to both, a poll takes from the new ring first, then from the old."""
+        """Stand for `new`, while `old` still receives beside it (`Bus.reopen`): a poll
+        takes from the old ring first, then from the new, so what the old session
+        still carries comes in the order it was sent (a newer sample first would make
+        the older ones look like repeats to a port, which drops them)."""
         self.obj = new
-        if hasattr(new, "put"):
-
-            def put(*args: Any, **kwargs: Any) -> None:
-                new.put(*args, **kwargs)
-                with contextlib.suppress(Exception):  # the old session is going
-                    old.put(*args, **kwargs)
-
-            self.put = put
         if hasattr(new, "try_recv"):
 
             def try_recv() -> Any:
-                sample = new.try_recv()
-                if sample is None:
-                    with contextlib.suppress(Exception):
-                        sample = old.try_recv()
-                return sample
+                with contextlib.suppress(Exception):  # the old session is going
+                    sample = old.try_recv()
+                    if sample is not None:
+                        return sample
+                return new.try_recv()
 
             self.try_recv = try_recv
 
@@ -339,11 +336,9 @@ REOPEN_LINK_WAIT = 3.0
 """How long a reopened session may take to link with as many peers as the old one had
 before the declarations move to it (gossip links a new session one peer at a time)."""
 REOPEN_OVERLAP = 3.0
-"""Seconds both sessions carry the declarations after a reopen: each put goes out on
-both and each poll reads both, so a reader or writer whose routes to the new session
-are still being made (0.4-2.5 s measured after a heal) misses nothing meanwhile;
-without it, the supervision process's heartbeat fell silent 151 ms at the robot,
-which braked."""
+"""Seconds both sessions receive after a reopen and each poll reads both, so a reader
+whose routes to the new session are still being made (0.4-2.5 s measured after a
+heal) misses nothing meanwhile."""
 
 
 class Bus:
@@ -358,7 +353,7 @@ class Bus:
         self._first = self.session
         """The session the liveliness tokens live on (`reopen` keeps it open for them)."""
         self._leaving: Any = None
-        """The session a reopen is leaving, while both carry the declarations."""
+        """The session a reopen is leaving, while both receive."""
         self._closed = False
         self._lock = threading.Lock()
         self._declared: list[Declared] = []
@@ -393,8 +388,8 @@ class Bus:
         return self._closed
 
     def _declare(self, make: Callable[[Any], Any], stays: bool = False) -> Declared:
-        """Make a declaration on the current session (a token: on the first session)
-        and keep it for `reopen`."""
+        """Make a declaration on the current session (what this process says, `stays`:
+        on the first session) and keep it for `reopen`."""
         declared = Declared(self, make, stays=stays)
         with self._lock:
             declared.bind(make(self._first if stays else self.session))
@@ -417,10 +412,12 @@ class Bus:
                     cache=zenoh.ext.CacheConfig(max_samples=1),
                     publisher_detection=True,
                     allowed_destination=where,
-                )
+                ),
+                stays=True,
             )
         return self._declare(
-            lambda session: session.declare_publisher(key, allowed_destination=where)
+            lambda session: session.declare_publisher(key, allowed_destination=where),
+            stays=True,
         )
 
     def subscribe(
@@ -464,7 +461,7 @@ class Bus:
 
     def queryable(self, key: str, handler: Callable[[Any], None]) -> Declared:
         """Answer queries on `key` (remote operations, introspection)."""
-        return self._declare(lambda session: session.declare_queryable(key, handler))
+        return self._declare(lambda session: session.declare_queryable(key, handler), stays=True)
 
     def query(self, key: str, payload: bytes = b"", timeout: float = 2.0) -> list[bytes]:
         """Ask `key` and return every reply's bytes; error replies raise `BusError`."""
@@ -483,6 +480,7 @@ class Bus:
             lambda session: session.liveliness().declare_token(key), stays=True
         )
         declared.key_expr = key
+        declared.token = True
         return declared
 
     def watch(self, key_expr: str, callback: Callable[[str, bool], None]) -> Declared:
@@ -502,7 +500,7 @@ class Bus:
     def tokens(self) -> list[str]:
         """The keys of the liveliness tokens this bus holds now."""
         with self._lock:
-            return sorted(d.key_expr for d in self._declared if d.stays)
+            return sorted(d.key_expr for d in self._declared if d.token)
 
     def seen_alive(self, key: str) -> bool | None:
         """Whether this bus's liveliness watches see the token `key` alive now; None if
@@ -529,8 +527,13 @@ class Bus:
         return {str(z) for z in self.session.info.peers_zid()}
 
     def zid(self) -> str:
-        """This session's id (a reopened bus has a new one)."""
+        """The id of the session this process hears on (a reopened bus has a new one)."""
         return str(self.session.info.zid())
+
+    def says_zid(self) -> str:
+        """The id of the session this process says everything on (its publishers,
+        queryables and tokens): the first one, whatever `reopen` did."""
+        return str(self._first.info.zid())
 
     def wait_for_peers(self, count: int, timeout: float = 3.0) -> bool:
         """Wait until connected to `count` peers (gossip connects a new session to the
@@ -543,26 +546,29 @@ class Bus:
         return self.peers() >= count
 
     def reopen(self, overlap: float = REOPEN_OVERLAP) -> float:
-        """Open a new session, make every declaration again on it, and close the old one;
-        the seconds it took. For routes Zenoh left unmade (framework/routes.py).
+        """Open a new session and move everything this process hears to it (its
+        subscribers and liveliness watches); the seconds it took. For routes Zenoh left
+        unmade (framework/routes.py): each process mends its own ears.
 
-        The new session listens on a port of its own (the old one holds the fixed port,
+        What this process says (publishers, queryables, liveliness tokens) stays on the
+        first session and never moves, so nobody that hears it loses a sample by a
+        reopen: moved, a reopen of the supervision process left its heartbeat 151 ms
+        silent at the robot, which braked; and a robot that moved its publishers along
+        with its deaf subscribers went unheard by the supervision process on its own
+        host, whose routes to the old session were fine (2026-12-07). A peer that hears
+        nothing from this process mends its own ears the same way. A token moved was
+        also seen to blink (gone and back at once, 6 of 40 reopens).
+
+        The new session listens on a port of its own (the first holds the fixed port,
         the hub's among them) and, in a mesh, connects to every other process itself
-        (`BusConfig.others`); a hub without them (one host) cannot reopen. The declarations move once it is linked with as many peers
-        as the old one was (at most `REOPEN_LINK_WAIT` s), so a watch finds the tokens
-        alive and a ring its writers; tokens are declared on the new session before the
-        old one closes, and Zenoh reports a key gone only when its last token goes, so
-        peers never see this process's components vanish. Meanwhile both sessions
-        receive, and for `overlap` s every put goes out on both and every poll
-        reads both: a sample may arrive twice (ports drop repeats by sequence number),
-        none is lost while the new session's routes are made. A token reported alive
-        that is gone after the move is reported gone.
-
-        The liveliness tokens do not move: they stay on the first session, which stays
-        open for them with nothing else declared on it. Moved, a token was reported gone
-        and back at once to a watcher linked to both sessions in 5 of 40 tries (Zenoh
-        1.10.2), and a component reported lost is a trip and a chart event; kept, the
-        process's death or hang still takes both sessions, so it is seen as before."""
+        (`BusConfig.others`); a hub without them (one host) cannot reopen. The
+        subscriptions move once it is linked with as many peers as the old one was (at
+        most `REOPEN_LINK_WAIT` s), so a watch finds the tokens alive and a ring its
+        writers. For `overlap` s both sessions receive and every poll reads the old ring,
+        then the new: none is lost while the new session's routes are made, for a
+        reader that polls meanwhile (a sample may arrive twice: ports drop repeats by
+        sequence number). A token reported alive that is gone
+        after the move is reported gone; queries go out on the new session."""
         began = time.monotonic()
         config, hub = self.config, self.hub
         if hub and not config.others:
@@ -597,7 +603,7 @@ class Bus:
                 if not declared.undeclared:
                     declared.bind(obj)
             self._leaving = None
-        if old is self._first:  # it keeps the tokens, and only them
+        if old is self._first:  # it keeps what this process says, and only that
             for _, previous, _ in made:
                 with contextlib.suppress(Exception):
                     previous.undeclare()

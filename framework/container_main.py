@@ -25,9 +25,9 @@ from framework.control_requests import ContainerError
 from framework.errors import FwError
 from framework.local_switch import LocalSwitches
 from framework.peer_clocks import PeerClocks
+from framework.profiling import finish, from_environment
 from framework.routes import RouteWatch
 from framework.safety import SafetySpec
-from framework.profiling import finish, from_environment
 
 log = logging.getLogger("fw.container")
 

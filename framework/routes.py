@@ -10,21 +10,24 @@ new session on the side that hears nothing makes its routes again (measured with
 
 So each process of a deployment (its container, and `fw deploy`'s own on the control
 host) puts a *route probe* on
-`fw/process/<name>/routes` once a `PERIOD` (its session id, how many probes it put,
-how many times it reopened) and hears the others'. A process that heard another's
+`fw/process/<name>/routes` once a `PERIOD` (the id of the session it says
+everything on, how many probes it put, how many times it reopened) and hears the
+others'. A process that heard another's
 probes and then hears none for `SILENT` s while that process is evidently there (the
 session its probes came from is still linked to this one), or hears its probes but
 not its tokens for as long, has lost its routes from it: it reopens its bus
-(`Bus.reopen`: a new session with every declaration made again), at most once per
+(`Bus.reopen`: what it hears moves to a new session; what it says stays), at most once per
 `SPACING` s, and says so on stderr (the process's log) and in its probes. A process
 that is cut off, hung or dead is not linked (a hung one's link goes with its lease,
 2 s): that is a partition, the safety monitor's business, and nothing is reopened.
 
 What reopening costs the robot: nothing moves by it (motion restarts only by an
-operator's RELEASE, through the chart); tokens stay where they are, so no component
-looks lost; for 3 s both sessions carry every put and every poll, so no sample is
-lost while the new routes are made (without that overlap a reopen of the supervision
-process left its heartbeat 151 ms silent at the robot, which braked as it moved). A
+operator's RELEASE, through the chart); what the process says (its publishers,
+queryables and tokens) stays on its first session, so nobody that hears it misses a
+sample or sees a component vanish (when publishers moved too, a reopen of the
+supervision process left its heartbeat 151 ms silent at the robot, which braked as it
+moved); for 3 s both sessions receive and every poll reads both, so no sample is lost
+while the new routes are made. A
 process whose component says it must keep its bus (`Component.holds_bus`: the robot
 interface while it commands the arm) waits to reopen until it may: in the one run
 where the robot's process reopened as the approach resumed, the KRC braked with a
@@ -177,7 +180,7 @@ class RouteWatch:
         watch's thread (or a test's)."""
         self._sent += 1
         probe = {
-            "zid": self.bus.zid(),
+            "zid": self.bus.says_zid(),  # the session the probe comes from
             "n": self._sent,
             "reopened": self.bus.reopened,
             "tokens": self.bus.tokens(),
@@ -261,7 +264,7 @@ class RouteWatch:
         self.reopens.append(
             {"stamp": time.time(), "for": sorted(lost), "why": why, "took_s": round(took, 3)}
         )
-        self._say(f"bus reopened in {took:.2f} s (session {self.bus.zid()})")
+        self._say(f"bus reopened in {took:.2f} s (it hears on session {self.bus.zid()})")
         return True
 
     def _say(self, text: str) -> None:
