@@ -801,12 +801,13 @@ class Component:
 
     # -- introspection ----------------------------------------------------------------
     def holds_bus(self) -> str:
-        """Why this component's process must not reopen its bus now ('' if it may):
-        the route watch (framework/routes.py) asks before it reopens and waits while
-        any component says why. A device loop says so while it commands its device: a
-        reopen makes every declaration again, and its interpreter time would make the
-        loop's answers late. Runs in the route watch's thread: read plain attributes,
-        take no lock the loop takes."""
+        """Why no process of the deployment may reopen its bus now ('' if it may): the
+        route watch (framework/routes.py) asks before it reopens, says it in its probes,
+        and every process's watch waits while any says why. A device loop says so while
+        it commands its device: a reopen costs its process a moment of interpreter time
+        (a new session, every subscription made again), which makes the loop's answers,
+        or another process's heartbeat it watches, late. Runs in the route watch's
+        thread: read plain attributes, take no lock the loop takes."""
         return ""
 
     def describe(self) -> dict[str, Any]:

@@ -28,10 +28,14 @@ sample or sees a component vanish (when publishers moved too, a reopen of the
 supervision process left its heartbeat 151 ms silent at the robot, which braked as it
 moved); for 3 s both sessions receive and every poll reads both, so no sample is lost
 while the new routes are made. A
-process whose component says it must keep its bus (`Component.holds_bus`: the robot
-interface while it commands the arm) waits to reopen until it may: in the one run
-where the robot's process reopened as the approach resumed, the KRC braked with a
-fault 0.25 s into the motion (its answers late, by all appearances). A probe is
+component may hold every process's bus (`Component.holds_bus`: the robot interface
+while it commands the arm): its process's watch waits and says so in its probes, and
+every other process's watch waits while it hears that. A reopen costs its process a
+moment of interpreter time: the robot's own once made the KRC brake with a fault 0.25
+s into the motion, and the supervision process's made its sensor manager's heartbeat
+150 ms late at the robot, which braked (robot partition, 2 of 8 runs, 2026-12-07). A
+route the moving robot needs and lacks brakes it anyway (its watches); the reopen then
+comes, braked. A probe is
 about 80 bytes a second per process to each other process. Only a process may put on
 its own probe key (framework/access.py), so a forged probe cannot hide a silence.
 Runs on a thread of its own (`fw-routes`), at the process's ordinary priority.
@@ -77,6 +81,8 @@ class Peer:
     """How many times it reopened its own bus (from its probes)."""
     tokens: tuple[str, ...] = ()
     """The liveliness tokens it holds (from its probes)."""
+    holds: str = ""
+    """Why no process of the deployment may reopen now, if it says so (its probes)."""
 
 
 class RouteWatch:
@@ -149,6 +155,7 @@ class RouteWatch:
             body = json.loads(bytes(sample.payload.to_bytes()))
             zid, count, reopened = str(body["zid"]), int(body["n"]), int(body["reopened"])
             tokens = tuple(str(t) for t in body.get("tokens", ()))
+            holds = str(body.get("holds", ""))
         except (ValueError, KeyError, TypeError):
             with self._lock:
                 self.refused += 1
@@ -158,7 +165,7 @@ class RouteWatch:
             known = self.peers.get(name)
             if known is not None and known.zid == zid and count <= known.count:
                 return  # a cached probe heard again (a reopen, a late publisher found)
-            self.peers[name] = Peer(zid, now, count, reopened, tokens)
+            self.peers[name] = Peer(zid, now, count, reopened, tokens, holds)
             since = self._waiting.pop(name, None)
         if since is not None:
             self._say(f"hears {name} again, {now - since:.1f} s after reopening its bus")
@@ -184,6 +191,7 @@ class RouteWatch:
             "n": self._sent,
             "reopened": self.bus.reopened,
             "tokens": self.bus.tokens(),
+            "holds": self.hold() if self.hold is not None else "",
         }
         self._publisher.put(json.dumps(probe))
         now = time.monotonic()
@@ -235,6 +243,24 @@ class RouteWatch:
             return "while its session is linked to this one"
         return ""
 
+    def _holding(self) -> str:
+        """Why this bus must not reopen now ('' if it may): a component of this process
+        says so (`hold`), or another process's latest probe, heard within two periods,
+        does. A reopen costs its process a moment of CPU (a new session, its links,
+        every subscription made again): the robot interface holds the deployment's
+        buses while it commands the arm, as a late heartbeat from any process then
+        brakes it (the sensor manager's, 150 ms, as a reopen of the supervision process
+        for the control host's silence met the approach after RELEASE, 2026-12-07)."""
+        own = self.hold() if self.hold is not None else ""
+        if own:
+            return own
+        now = time.monotonic()
+        with self._lock:
+            for name, peer in sorted(self.peers.items()):
+                if peer.holds and now - peer.heard <= 2 * self.period:
+                    return f"{name} says {peer.holds}"
+        return ""
+
     def _reopen(self, lost: dict[str, str]) -> bool:
         """Reopen the bus for `lost` (process -> why); whether it did."""
         why = "; ".join(lost.values())
@@ -242,7 +268,7 @@ class RouteWatch:
             self._say(f"routes lost: {why}; this bus cannot reopen (the hub on one host)")
             self._last_reopen = time.monotonic()
             return False
-        held = self.hold() if self.hold is not None else ""
+        held = self._holding()
         if held:
             if held != self._held:
                 self._say(f"routes lost: {why}; the reopen waits: {held}")

@@ -508,9 +508,10 @@ class RobotInterface(Component):
         )
 
     def holds_bus(self) -> str:
-        """While the arm is commanded (released, moving or holding under command), its
-        process keeps its bus as it is: a reopen's interpreter time would make FRI's
-        answers late, and the KRC brake for it (framework/routes.py waits)."""
+        """While the arm is commanded (released, moving or holding under command), no
+        process reopens its bus: a reopen's interpreter time would make FRI's answers
+        late (the KRC brakes), or a heartbeat this loop watches (it brakes itself);
+        framework/routes.py waits, in every process, until the arm is braked."""
         return "the robot interface commands the arm" if self._commanding else ""
 
     def idle_hook(self) -> None:

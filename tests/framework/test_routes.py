@@ -187,3 +187,36 @@ def test_a_process_that_must_keep_its_bus_reopens_only_once_it_may(pair, capsys)
     holding[0] = ""  # the arm is braked
     assert _step_until(a) == ["b"]
     assert a.bus.reopened == 1
+
+
+def test_no_process_reopens_while_another_says_it_holds_the_deployments_buses(
+    pair, bus_config, capsys
+):
+    """The robot interface holds every process's bus while it commands the arm (its
+    probes say so): a reopen elsewhere, for a peer that fell silent, waits for the arm
+    to be braked, as its interpreter time can make a watched heartbeat late."""
+    a, b = pair
+    c = RouteWatch(Bus(bus_config), "c", silent=SILENT, spacing=0.0, overlap=0.2)
+    try:
+
+        def all_hear_c() -> bool:
+            for w in (a, b, c):
+                w.step()
+            return "c" in a.peers
+
+        assert wait_until(all_hear_c, 10.0)
+        b.hold = lambda: "the robot interface commands the arm"
+        c._publisher.undeclare()  # c falls silent while its session is still linked
+        for _ in range(int(SILENT / 0.05) * 3):
+            b.step()
+            assert a.step() == [], "a reopened while b held the buses"
+            time.sleep(0.05)
+        assert "the reopen waits: b says the robot interface commands the arm" in (
+            capsys.readouterr().err
+        )
+        b.hold = lambda: ""  # the arm is braked
+        b.step()
+        assert _step_until(a) == ["c"]
+    finally:
+        c.stop()
+        c.bus.close()
