@@ -298,7 +298,11 @@ class Container:
         its components that says why (`Component.holds_bus`). Runs in the route
         watch's thread."""
         for name, component in list(self.components.items()):
-            why = component.holds_bus()
+            try:
+                why = component.holds_bus()
+            except Exception as exc:  # a component's own code: it cannot stop the probes
+                log.warning("%s: holds_bus raised %s: %s", name, type(exc).__name__, exc)
+                continue
             if why:
                 return f"{name}: {why}"
         return ""

@@ -110,6 +110,7 @@ class RouteWatch:
         """Seconds both sessions carry the declarations after a reopen (None: the bus's
         default, framework/bus.py `REOPEN_OVERLAP`)."""
         self._held = ""
+        self._hold_error = ""
         self.process = process
         self.period = period
         self.silent = silent
@@ -191,7 +192,7 @@ class RouteWatch:
             "n": self._sent,
             "reopened": self.bus.reopened,
             "tokens": self.bus.tokens(),
-            "holds": self.hold() if self.hold is not None else "",
+            "holds": self._own_hold(),
         }
         self._publisher.put(json.dumps(probe))
         now = time.monotonic()
@@ -243,6 +244,21 @@ class RouteWatch:
             return "while its session is linked to this one"
         return ""
 
+    def _own_hold(self) -> str:
+        """This process's hold ('' if none): `hold` asked, and a hold that raises is
+        said and counts as none (the probes must go on: a process whose probes stop
+        makes every other one reopen for it)."""
+        if self.hold is None:
+            return ""
+        try:
+            return str(self.hold() or "")
+        except Exception as exc:
+            why = f"asking whether the bus must be kept failed: {type(exc).__name__}: {exc}"
+            if why != self._hold_error:  # said once, not every round
+                self._say(why)
+                self._hold_error = why
+            return ""
+
     def _holding(self) -> str:
         """Why this bus must not reopen now ('' if it may): a component of this process
         says so (`hold`), or another process's latest probe, heard within two periods,
@@ -251,7 +267,7 @@ class RouteWatch:
         buses while it commands the arm, as a late heartbeat from any process then
         brakes it (the sensor manager's, 150 ms, as a reopen of the supervision process
         for the control host's silence met the approach after RELEASE, 2026-12-07)."""
-        own = self.hold() if self.hold is not None else ""
+        own = self._own_hold()
         if own:
             return own
         now = time.monotonic()

@@ -181,6 +181,8 @@ class RobotInterface(Component):
         self._arm: ArmState | None = None
         """The arm's last measured state."""
         self._socket: socket.socket | None = None
+        self._commanding = False
+        """Whether the arm is under command (`holds_bus` is asked from the start)."""
 
     def configure_hook(self) -> bool:
         try:

@@ -205,9 +205,11 @@ def test_no_process_reopens_while_another_says_it_holds_the_deployments_buses(
             return "c" in a.peers
 
         assert wait_until(all_hear_c, 10.0)
+        a.silent = 1.0  # a hiccup of b's probes on a busy host is not what this is about
         b.hold = lambda: "the robot interface commands the arm"
+        assert wait_until(lambda: (b.step(), a.step(), a.peers["b"].holds)[2], 10.0)
         c._publisher.undeclare()  # c falls silent while its session is still linked
-        for _ in range(int(SILENT / 0.05) * 3):
+        for _ in range(int(a.silent / 0.05) * 2):
             b.step()
             assert a.step() == [], "a reopened while b held the buses"
             time.sleep(0.05)
@@ -215,8 +217,29 @@ def test_no_process_reopens_while_another_says_it_holds_the_deployments_buses(
             capsys.readouterr().err
         )
         b.hold = lambda: ""  # the arm is braked
-        b.step()
-        assert _step_until(a) == ["c"]
+
+        def a_reopens() -> list[str]:
+            b.step()  # b keeps putting probes (now without its hold)
+            return a.step()
+
+        reopened: list[list[str]] = []
+        assert wait_until(lambda: reopened.append(a_reopens()) or reopened[-1], 10.0)
+        assert reopened[-1] == ["c"]
     finally:
         c.stop()
         c.bus.close()
+
+
+def test_a_hold_that_fails_is_said_and_the_probes_go_on(pair, capsys):
+    a, b = pair
+    a.hold = lambda: 1 / 0  # a component's own code, before it is configured
+
+    def heard_from_a() -> int:
+        b.step()
+        return b.peers["a"].count
+
+    before = heard_from_a()
+    for _ in range(3):
+        a.step()
+    assert wait_until(lambda: heard_from_a() >= before + 3, 10.0), "a's probes stopped"
+    assert capsys.readouterr().err.count("ZeroDivisionError") == 1, "said once"
