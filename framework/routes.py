@@ -252,7 +252,7 @@ class RouteWatch:
             return ""
         try:
             return str(self.hold() or "")
-        except Exception as exc:
+        except Exception as exc:  # a component's own code: said once, the probe still goes
             why = f"asking whether the bus must be kept failed: {type(exc).__name__}: {exc}"
             if why != self._hold_error:  # said once, not every round
                 self._say(why)
