@@ -126,6 +126,7 @@ def test_a_process_does_not_count_its_own_probes(pair):
     for _ in range(3):
         a.step()
     assert a.process not in a.peers
+    assert a._hold_error == "", "a watch without a hold found it failing"
 
 
 def test_a_bus_that_cannot_reopen_says_the_routes_are_lost_and_keeps_its_session(pair, capsys):
@@ -242,4 +243,5 @@ def test_a_hold_that_fails_is_said_and_the_probes_go_on(pair, capsys):
     for _ in range(3):
         a.step()
     assert wait_until(lambda: heard_from_a() >= before + 3, 10.0), "a's probes stopped"
+    assert b.peers["a"].holds == "", "a hold that failed counts as one"
     assert capsys.readouterr().err.count("ZeroDivisionError") == 1, "said once"
