@@ -290,7 +290,8 @@ class Declared:
         return getattr(self.obj, name)
 
     def declare_matching_listener(self, callback: Callable[[Any], None]) -> Declared:
-        """A publisher's matching listener, made again with its publisher."""
+        """A publisher's matching listener (it stays with its publisher, which never
+        moves: `Bus.reopen`)."""
         child = Declared(
             self._bus, lambda publisher: publisher.declare_matching_listener(callback), self
         )
@@ -593,8 +594,6 @@ class Bus:
             self._leaving = old
             for declared, previous, obj in made:
                 declared.overlap(obj, previous)
-                for child in list(declared.children):
-                    child.bind(child.made(None))
             watches = [(d.key_expr, d.liveliness) for d in self._declared if d.liveliness]
             self.reopened += 1
         time.sleep(overlap)
